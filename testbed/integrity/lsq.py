@@ -1,0 +1,561 @@
+"""Batched weighted least squares, detection test and slope-based protection levels.
+
+The one numerical core every snapshot monitor (GPS-only RAIM, VA-RAIM, the
+pixel-domain monitor) builds on. Notation follows INTEGRITY_MATH.md §4 and seed
+000 eq. 19-26:
+
+* ``G`` ``(..., N, 4)`` linearised observation matrix, state ``x = [E, N, U, clock]``
+  (clock in metres; a row without a clock term has a zero last column).
+* ``W`` weights, either full ``(..., N, N)`` (correlated rows, W = Σ⁻¹) or
+  diagonal given as a vector ``(..., N)`` (W = diag(1/σ²)).
+* ``mask`` ``(..., N)`` bool, the rows used. Variable measurement counts are
+  handled by zero weight on unused rows, never by ragged lists, so a batch of
+  epochs is one stack of matrices.
+* ``J = (GᵀWG)⁻¹``, ``A = J GᵀW``, ``S = I − G A``, ``SSE = rᵀ W r``.
+
+Nothing here forms the N×N matrix ``S`` on the hot path: ``(WS)ᵢᵢ = Wᵢᵢ −
+(WG)ᵢ J (WG)ᵢᵀ`` needs only ``WG`` and ``J``, so memory is O(N) per epoch.
+
+A bad batch element (fewer rows than unknowns, singular geometry, NaN in a used
+row) never raises: it gets NaN outputs and a :class:`Reason` code, and the rest
+of the batch is computed as usual.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+from functools import lru_cache
+from typing import Callable, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import optimize, stats
+
+N_STATES = 4  # E, N, U, clock
+
+
+class Reason(IntEnum):
+    """Why an epoch has no (full) integrity output. Index into :data:`REASONS`."""
+
+    OK = 0
+    NAN_INPUT = 1  # a row marked as used has NaN measurement, geometry or weight
+    NO_POSITION = 2  # fewer used rows than unknowns: no solution at all
+    NO_REDUNDANCY = 3  # solution exists but n - 4 < 1: no detection test, no PL
+    SINGULAR = 4  # normal matrix singular / condition number too large
+    NOT_CONVERGED = 5  # iterated WLS did not reach the tolerance
+    UNDETECTABLE = 6  # a used row has (WS)_ii = 0: a fault on it is unobservable
+
+
+#: Texts for :class:`Reason`, in code order (MonitorOutput.reasons).
+REASONS: tuple[str, ...] = (
+    "ok",
+    "unavailable: NaN in a used measurement",
+    "unavailable: fewer measurements than unknowns (no position)",
+    "unavailable: fewer than 5 measurements (no redundancy)",
+    "unavailable: singular geometry",
+    "unavailable: least squares did not converge",
+    "unavailable: a measurement with zero redundancy (fault undetectable)",
+)
+
+#: Default limit on the condition number of the Jacobi-scaled normal matrix.
+MAX_COND = 1e10
+
+
+# ---------------------------------------------------------------------------
+# weights and masks
+# ---------------------------------------------------------------------------
+
+
+def _is_diag(W: NDArray, G: NDArray) -> bool:
+    """True when W is given as a vector of diagonal weights ``(..., N)``."""
+    if W.ndim == G.ndim - 1 and W.shape[-1] == G.shape[-2]:
+        return True
+    if W.ndim == G.ndim and W.shape[-2:] == (G.shape[-2], G.shape[-2]):
+        return False
+    raise ValueError(
+        f"W: expected (..., N) diagonal weights or (..., N, N) full weights with N = {G.shape[-2]} "
+        f"(from G {G.shape}), got {W.shape}"
+    )
+
+
+def weights_from_sigma(sigma: ArrayLike) -> NDArray:
+    """Diagonal weights ``1/σ²`` ``(..., N)`` from 1-sigma ``(..., N)`` (m or px)."""
+    s = np.asarray(sigma, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 1.0 / (s * s)
+
+
+def apply_W(W: NDArray, X: NDArray, diag: bool) -> NDArray:
+    """``W @ X`` for X ``(..., N, k)`` with W diagonal ``(..., N)`` or full ``(..., N, N)``."""
+    if diag:
+        return W[..., :, None] * X
+    return W @ X
+
+
+def masked_inputs(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None,
+                  z: ArrayLike | None = None) -> tuple[NDArray, NDArray, bool, NDArray, NDArray, NDArray | None]:
+    """Zero unused rows (and, for full W, their columns); flag NaN in used rows.
+
+    Returns
+    -------
+    G0 (..., N, 4), W0 (same form as W), diag, mask (..., N) bool, nan_bad (...) bool,
+    z0 (..., N) or None. Inputs are not modified.
+    """
+    G = np.asarray(G, float)
+    W = np.asarray(W, float)
+    diag = _is_diag(W, G)
+    lead = G.shape[:-1]
+    m = np.ones(lead, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), lead)
+    Wd = W if diag else np.diagonal(W, axis1=-2, axis2=-1)
+    nan_row = ~np.isfinite(G).all(-1) | ~np.isfinite(np.broadcast_to(Wd, lead))
+    if not diag:
+        # an off-diagonal NaN between two used rows is as bad as a diagonal one
+        mm = m[..., :, None] & m[..., None, :]
+        nan_row = nan_row | (~np.isfinite(W) & mm).any(-1)
+    z0 = None
+    if z is not None:
+        z = np.broadcast_to(np.asarray(z, float), lead)
+        nan_row = nan_row | ~np.isfinite(z)
+        z0 = np.where(m, z, 0.0)
+        z0 = np.where(np.isfinite(z0), z0, 0.0)
+    nan_bad = (nan_row & m).any(-1)
+    G0 = np.where(m[..., None] & np.isfinite(G), G, 0.0)
+    if diag:
+        W0 = np.where(m & np.isfinite(Wd), np.broadcast_to(W, lead), 0.0)
+    else:
+        mm = m[..., :, None] & m[..., None, :]
+        W0 = np.where(mm & np.isfinite(W), W, 0.0)
+    return G0, W0, diag, m, nan_bad, z0
+
+
+# ---------------------------------------------------------------------------
+# geometry: J, A, (WS)_ii
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WlsGeometry:
+    """The weighted-LS matrices of a batch of epochs (seed 000 eq. 19-21).
+
+    Attributes
+    ----------
+    G : (..., N, 4) observation matrix, unused rows zeroed.
+    W : (..., N) or (..., N, N) weights, unused rows/columns zeroed.
+    diag : whether ``W`` is the diagonal form.
+    mask : (..., N) bool, rows used.
+    n_used : (...) int, number of used rows.
+    WG : (..., N, 4) ``W G``.
+    J : (..., 4, 4) ``(GᵀWG)⁻¹`` (NaN where the epoch has no solution).
+    A : (..., 4, N) ``J GᵀW`` (NaN where the epoch has no solution).
+    ws_diag : (..., N) ``(W S)ᵢᵢ``, NaN on unused rows.
+    cond : (...) condition number of the Jacobi-scaled normal matrix.
+    reason : (...) int8 :class:`Reason` code (OK, NAN_INPUT, NO_POSITION,
+        NO_REDUNDANCY, SINGULAR).
+    """
+
+    G: NDArray
+    W: NDArray
+    diag: bool
+    mask: NDArray
+    n_used: NDArray
+    WG: NDArray
+    J: NDArray
+    A: NDArray
+    ws_diag: NDArray
+    cond: NDArray
+    reason: NDArray
+
+    @property
+    def dof(self) -> NDArray:
+        """Degrees of freedom of the test, ``n_used − 4`` (may be ≤ 0)."""
+        return self.n_used - self.G.shape[-1]
+
+    @property
+    def solvable(self) -> NDArray:
+        """(...) bool: a position solution exists (reason OK or NO_REDUNDANCY)."""
+        return (self.reason == Reason.OK) | (self.reason == Reason.NO_REDUNDANCY)
+
+    def ws_matrix(self) -> NDArray:
+        """Full ``W S = W − WG J (WG)ᵀ`` ``(..., N, N)`` (symmetric; for small problems/tests)."""
+        W = self.W[..., :, None] * np.eye(self.W.shape[-1]) if self.diag else self.W
+        return W - self.WG @ self.J @ np.swapaxes(self.WG, -1, -2)
+
+    def residual_projector(self) -> NDArray:
+        """Full ``S = I − G A`` ``(..., N, N)`` (for tests and small problems)."""
+        N = self.G.shape[-2]
+        return np.eye(N) - self.G @ self.A
+
+
+def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
+                 max_cond: float = MAX_COND) -> WlsGeometry:
+    """Weighted-LS matrices for a batch of epochs.
+
+    Parameters
+    ----------
+    G : (..., N, 4) linearised observation matrix (rows ∂h/∂[E, N, U, clock]).
+    W : (..., N) diagonal weights (1/m²) or (..., N, N) full weight matrix (Σ⁻¹).
+    mask : (..., N) bool, rows to use (default all). Unused rows may hold NaN.
+    max_cond : largest accepted condition number of the Jacobi-scaled GᵀWG.
+
+    Returns
+    -------
+    WlsGeometry
+    """
+    G0, W0, diag, m, nan_bad, _ = masked_inputs(G, W, mask)
+    n_states = G0.shape[-1]
+    n_used = m.sum(-1)
+    WG = apply_W(W0, G0, diag)  # (..., N, 4)
+    M = np.swapaxes(G0, -1, -2) @ WG  # GᵀWG (..., 4, 4)
+    # Jacobi scaling makes the condition number independent of the units of
+    # each state and of an overall weight scale.
+    d = np.sqrt(np.abs(np.diagonal(M, axis1=-2, axis2=-1)))
+    d_safe = np.where(d > 0, d, 1.0)
+    Ms = M / (d_safe[..., :, None] * d_safe[..., None, :])
+    ev = np.linalg.eigvalsh(np.where(np.isfinite(Ms), Ms, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond = np.where(ev[..., 0] > 0, ev[..., -1] / ev[..., 0], np.inf)
+    cond = np.where((d > 0).all(-1), cond, np.inf)
+
+    reason = np.zeros(n_used.shape, np.int8)
+    reason = np.where(cond > max_cond, Reason.SINGULAR, reason)
+    reason = np.where(n_used - n_states < 1, Reason.NO_REDUNDANCY, reason)
+    reason = np.where(n_used < n_states, Reason.NO_POSITION, reason)
+    reason = np.where(nan_bad, Reason.NAN_INPUT, reason).astype(np.int8)
+    solvable = (reason == Reason.OK) | (reason == Reason.NO_REDUNDANCY)
+
+    # invert only the good elements: a singular element must not raise for the batch
+    M_safe = np.where(solvable[..., None, None], M, np.eye(n_states))
+    J = np.linalg.inv(M_safe)
+    J = np.where(solvable[..., None, None], J, np.nan)
+    A = J @ np.swapaxes(WG, -1, -2)  # (..., 4, N)
+    Wd = W0 if diag else np.diagonal(W0, axis1=-2, axis2=-1)
+    ws = Wd - np.einsum("...ni,...ij,...nj->...n", WG, J, WG)  # (W S)_ii
+    ws = np.where(m, ws, np.nan)
+    return WlsGeometry(G=G0, W=W0, diag=diag, mask=m, n_used=n_used, WG=WG, J=J, A=A,
+                       ws_diag=ws, cond=cond, reason=reason)
+
+
+def weighted_sse(r: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None) -> NDArray:
+    """Test statistic ``SSE = rᵀ W r`` (seed 000 eq. 19), unused rows ignored.
+
+    r : (..., N) residuals; W : (..., N) diagonal or (..., N, N) full. Returns (...).
+    """
+    r = np.asarray(r, float)
+    W = np.asarray(W, float)
+    m = np.ones(r.shape, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), r.shape)
+    r0 = np.where(m, r, 0.0)
+    r0 = np.where(np.isfinite(r0), r0, 0.0)
+    if W.ndim == r.ndim:
+        return np.sum(np.where(m, W, 0.0) * r0 * r0, axis=-1)
+    mm = m[..., :, None] & m[..., None, :]
+    W0 = np.where(mm & np.isfinite(W), W, 0.0)
+    return np.einsum("...i,...ij,...j->...", r0, W0, r0)
+
+
+# ---------------------------------------------------------------------------
+# thresholds, λ_det, slopes, protection levels
+# ---------------------------------------------------------------------------
+
+DOF_TABLE_MAX = 128  # largest n − 4 the cached tables cover (more falls back to scipy)
+
+
+@lru_cache(maxsize=64)
+def _chi2_table(p_fa: float) -> NDArray:
+    dof = np.arange(1, DOF_TABLE_MAX + 1)
+    return np.concatenate([[np.nan], stats.chi2.isf(p_fa, dof)])
+
+
+def _lambda_det_one(dof: int, p_fa: float, p_md: float) -> float:
+    T2 = stats.chi2.isf(p_fa, dof)
+    f = lambda lam: stats.ncx2.cdf(T2, dof, lam) - p_md  # noqa: E731 - decreasing in λ
+    hi = 10.0
+    while f(hi) > 0:
+        hi *= 2.0
+    return float(optimize.brentq(f, 1e-12, hi, xtol=1e-12, rtol=1e-12))
+
+
+@lru_cache(maxsize=64)
+def _lambda_table(p_fa: float, p_md: float) -> NDArray:
+    return np.array([np.nan] + [_lambda_det_one(k, p_fa, p_md) for k in range(1, DOF_TABLE_MAX + 1)])
+
+
+def _check_prob(p: float, name: str) -> float:
+    p = float(p)
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"{name}: expected a probability in (0, 1), got {p}")
+    return p
+
+
+def _lookup(table: NDArray, dof: ArrayLike, fallback: Callable[[int], float]) -> NDArray:
+    dof = np.asarray(dof)
+    idx = np.clip(dof, 0, DOF_TABLE_MAX).astype(int)
+    out = table[idx]
+    out = np.where(dof < 1, np.nan, out)
+    big = np.unique(dof[dof > DOF_TABLE_MAX])
+    for k in big:  # rare: only when more than 132 rows are stacked
+        out = np.where(dof == k, fallback(int(k)), out)
+    return out
+
+
+def chi2_threshold(dof: ArrayLike, p_fa: float) -> NDArray:
+    """Detection threshold ``T² = χ²⁻¹(1 − P_FA; dof)`` per epoch; NaN where dof < 1."""
+    p_fa = _check_prob(p_fa, "p_fa")
+    return _lookup(_chi2_table(p_fa), dof, lambda k: float(stats.chi2.isf(p_fa, k)))
+
+
+def lambda_det(dof: ArrayLike, p_fa: float, p_md: float) -> NDArray:
+    """Non-centrality ``λ_det`` with ``P(χ²_nc(dof, λ) < T²) = P_MD`` (cached per dof).
+
+    NaN where dof < 1. Units: normalised (λ = bᵀWSb for a bias b).
+    """
+    p_fa = _check_prob(p_fa, "p_fa")
+    p_md = _check_prob(p_md, "p_md")
+    return _lookup(_lambda_table(p_fa, p_md), dof, lambda k: _lambda_det_one(k, p_fa, p_md))
+
+
+def k_md(p_md: float) -> float:
+    """Two-sided missed-detection multiplier ``Φ⁻¹(1 − P_MD/2)`` (seed eq. 22-23)."""
+    return float(stats.norm.isf(_check_prob(p_md, "p_md") / 2))
+
+
+def slopes(geom: WlsGeometry) -> tuple[NDArray, NDArray]:
+    """Horizontal and vertical slopes per measurement (INTEGRITY_MATH.md §4).
+
+    ``Hslopeᵢ = sqrt(A₁ᵢ² + A₂ᵢ²) / sqrt((WS)ᵢᵢ)``, ``Vslopeᵢ = |A₃ᵢ| / sqrt((WS)ᵢᵢ)``:
+    position error per unit of sqrt(λ) for a bias on row i alone.
+
+    Returns
+    -------
+    hslope, vslope : (..., N), NaN on unused rows and unsolvable epochs, inf
+    where (WS)ᵢᵢ ≤ 0 (a fault on that row is undetectable).
+    """
+    A = geom.A
+    num_h = np.hypot(A[..., 0, :], A[..., 1, :])
+    num_v = np.abs(A[..., 2, :])
+    ws = geom.ws_diag
+    # (WS)_ii is ≥ 0 in exact arithmetic; a tiny negative is round-off of a
+    # zero-redundancy row. Relative floor against W_ii.
+    Wd = geom.W if geom.diag else np.diagonal(geom.W, axis1=-2, axis2=-1)
+    zero = ws <= 1e-12 * np.abs(Wd)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = np.sqrt(np.where(zero, np.nan, ws))
+        hs = np.where(zero & geom.mask, np.inf, num_h / den)
+        vs = np.where(zero & geom.mask, np.inf, num_v / den)
+    hs = np.where(geom.mask, hs, np.nan)
+    vs = np.where(geom.mask, vs, np.nan)
+    return hs, vs
+
+
+PlVariant = Literal["seed", "pbias"]
+
+
+@dataclass(frozen=True)
+class ProtectionLevels:
+    """Protection levels and the detection quantities behind them.
+
+    hpl, vpl : (...) m (NaN where unavailable). T2 : (...) threshold on SSE.
+    lam_det : (...) λ_det. hslope, vslope : (..., N). reason : (...) int8 codes.
+    """
+
+    hpl: NDArray
+    vpl: NDArray
+    T2: NDArray
+    lam_det: NDArray
+    hslope: NDArray
+    vslope: NDArray
+    reason: NDArray
+
+
+def _nanmax_last(x: NDArray) -> NDArray:
+    return np.max(np.where(np.isnan(x), -np.inf, x), axis=-1)
+
+
+def protection_levels(geom: WlsGeometry, p_fa: float, p_md: float,
+                      variant: PlVariant = "pbias") -> ProtectionLevels:
+    """HPL/VPL by the slope method (INTEGRITY_MATH.md §4), two variants.
+
+    * ``"seed"`` (seed 000 eq. 22-23): ``HPL = max Hslope·T + k_md·sqrt(J₁₁ + J₂₂)``,
+      ``VPL = max Vslope·T + k_md·sqrt(J₃₃)``, T = sqrt(T²), k_md = Φ⁻¹(1 − P_MD/2).
+    * ``"pbias"``: ``PL = max slope · sqrt(λ_det)``.
+
+    Epochs with reason ≠ OK get NaN; an epoch whose worst slope is infinite
+    gets reason UNDETECTABLE and NaN.
+    """
+    if variant not in ("seed", "pbias"):
+        raise ValueError(f"variant: expected 'seed' or 'pbias', got {variant!r}")
+    hs, vs = slopes(geom)
+    dof = geom.dof
+    T2 = chi2_threshold(dof, p_fa)
+    lam = lambda_det(dof, p_fa, p_md)
+    hmax, vmax = _nanmax_last(hs), _nanmax_last(vs)
+    if variant == "seed":
+        kmd = k_md(p_md)
+        J = geom.J
+        T = np.sqrt(T2)
+        hpl = hmax * T + kmd * np.sqrt(J[..., 0, 0] + J[..., 1, 1])
+        vpl = vmax * T + kmd * np.sqrt(J[..., 2, 2])
+    else:
+        hpl = hmax * np.sqrt(lam)
+        vpl = vmax * np.sqrt(lam)
+    reason = geom.reason.copy()
+    reason = np.where((reason == Reason.OK) & (np.isinf(hmax) | np.isinf(vmax)),
+                      Reason.UNDETECTABLE, reason).astype(np.int8)
+    ok = reason == Reason.OK
+    return ProtectionLevels(hpl=np.where(ok, hpl, np.nan), vpl=np.where(ok, vpl, np.nan),
+                            T2=np.where(ok | (reason == Reason.UNDETECTABLE), T2, np.nan),
+                            lam_det=lam, hslope=hs, vslope=vs, reason=reason)
+
+
+# ---------------------------------------------------------------------------
+# iterated WLS for nonlinear models
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WlsSolution:
+    """Result of an iterated WLS solve.
+
+    x : (..., 4) state [E, N, U, clock] (m), NaN where no solution.
+    residual : (..., N) post-fit residual ``z − h(x̂)`` (0 on unused rows).
+    sse : (...) ``rᵀWr``.
+    geometry : :class:`WlsGeometry` at the solution.
+    converged : (...) bool, last position update below the tolerance.
+    n_iter : int, iterations run.
+    reason : (...) int8 (geometry reason, or NOT_CONVERGED).
+    """
+
+    x: NDArray
+    residual: NDArray
+    sse: NDArray
+    geometry: WlsGeometry
+    converged: NDArray
+    n_iter: int
+    reason: NDArray
+
+
+#: A measurement model: x (..., 4) -> (predicted (..., N), G (..., N, 4)).
+Model = Callable[[NDArray], tuple[NDArray, NDArray]]
+
+
+def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None,
+                x0: ArrayLike, n_iter: int = 8, tol_m: float = 1e-3,
+                max_cond: float = MAX_COND) -> WlsSolution:
+    """Gauss–Newton WLS for a generic model, vectorised over the batch.
+
+    A fixed, small number of iterations over the whole batch; the loop stops
+    early once every element has converged (position step < ``tol_m``).
+    Elements that cannot be solved are frozen and get NaN and a reason.
+
+    Parameters
+    ----------
+    model : callable, x (..., 4) -> (h(x) (..., N), ∂h/∂x (..., N, 4)).
+    z : (..., N) measurements (NaN allowed on unused rows).
+    W : (..., N) or (..., N, N) weights.  mask : (..., N) bool rows used.
+    x0 : (..., 4) starting state (e.g. the previous epoch's solution; never truth).
+    n_iter : maximum iterations.  tol_m : convergence tolerance on the position step (m).
+    """
+    z = np.asarray(z, float)
+    x = np.array(np.broadcast_to(np.asarray(x0, float), z.shape[:-1] + (N_STATES,)))
+    m = np.ones(z.shape, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), z.shape)
+    nan_z = (m & ~np.isfinite(z)).any(-1)
+    frozen = nan_z.copy()
+    converged = np.zeros(z.shape[:-1], bool)
+    it = 0
+    for it in range(1, n_iter + 1):
+        h, G = model(x)
+        geom = wls_geometry(G, W, mask, max_cond)
+        dz = np.where(geom.mask, z - h, 0.0)
+        dz = np.where(np.isfinite(dz), dz, 0.0)
+        dx = np.einsum("...ij,...j->...i", geom.A, dz)  # x̂ = x + A (z − h(x))
+        frozen = frozen | ~geom.solvable
+        dx = np.where(frozen[..., None] | ~np.isfinite(dx), 0.0, dx)
+        x = x + dx
+        converged = np.linalg.norm(dx[..., :3], axis=-1) < tol_m
+        if np.all(converged | frozen):
+            break
+    h, G = model(x)
+    geom = wls_geometry(G, W, mask, max_cond)
+    r = np.where(geom.mask, z - h, 0.0)
+    r = np.where(np.isfinite(r), r, 0.0)
+    sse = weighted_sse(r, geom.W, geom.mask)
+    reason = np.where(nan_z, Reason.NAN_INPUT, geom.reason)
+    reason = np.where((reason == Reason.OK) & ~converged, Reason.NOT_CONVERGED, reason).astype(np.int8)
+    bad = ~geom.solvable | frozen
+    x = np.where(bad[..., None], np.nan, x)
+    return WlsSolution(x=x, residual=np.where(bad[..., None], np.nan, r), sse=np.where(bad, np.nan, sse),
+                       geometry=geom, converged=converged & ~bad, n_iter=it, reason=reason)
+
+
+def range_model(anchor_enu: ArrayLike, clock_col: ArrayLike,
+                offset_enu: ArrayLike | None = None) -> Model:
+    """Range-type measurement model ``hᵢ(x) = ‖aᵢ − (x_pos + oᵢ)‖ + cᵢ·clock``.
+
+    Covers both row kinds of the integrated solution:
+    * pseudorange rows: aᵢ = satellite position, cᵢ = 1, oᵢ = antenna lever arm (ENU);
+    * vision range rows: aᵢ = landmark position, cᵢ = 0, oᵢ = camera lever arm (ENU),
+      so the camera is at ĉ(x) = x + oᵢ (INTEGRITY_MATH.md §2).
+
+    Parameters
+    ----------
+    anchor_enu : (..., N, 3) m, satellite/landmark positions in the world frame.
+    clock_col : (..., N) or (N,) 1 for rows with a receiver-clock term, else 0.
+    offset_enu : (..., N, 3) or (..., 1, 3) m, sensor position relative to the state position.
+
+    Returns
+    -------
+    callable x (..., 4) -> (h (..., N), G (..., N, 4)), G rows ``[−uᵢᵀ, cᵢ]``
+    with uᵢ the unit vector from the sensor to the anchor.
+    """
+    a = np.asarray(anchor_enu, float)
+    c = np.asarray(clock_col, float)
+    o = None if offset_enu is None else np.asarray(offset_enu, float)
+
+    def model(x: NDArray) -> tuple[NDArray, NDArray]:
+        p = x[..., None, :3]
+        if o is not None:
+            p = p + o
+        d = a - p
+        rng = np.linalg.norm(d, axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = d / rng[..., None]
+        h = rng + c * x[..., None, 3]
+        cc = np.broadcast_to(c, rng.shape)
+        G = np.concatenate([-u, cc[..., None]], axis=-1)
+        return h, G
+
+    return model
+
+
+def solve_ranges(anchor_enu: ArrayLike, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None,
+                 clock_col: ArrayLike, offset_enu: ArrayLike | None = None,
+                 x0: ArrayLike | None = None, n_iter: int = 8, tol_m: float = 1e-3,
+                 max_cond: float = MAX_COND) -> WlsSolution:
+    """Iterated WLS position/clock fix from range-type rows (see :func:`range_model`).
+
+    Parameters
+    ----------
+    anchor_enu : (..., N, 3) m.  z : (..., N) m measured (pseudo)ranges.
+    W : (..., N) or (..., N, N) weights (1/m²).  mask : (..., N) bool.
+    clock_col : (..., N) or (N,) 1 for pseudorange rows, 0 for vision ranges.
+    offset_enu : optional sensor offsets (..., N, 3) m.
+    x0 : (..., 4) start (default: frame origin, zero clock — fine for
+        pseudoranges near the frame; vision-only solves should pass a prediction).
+    """
+    z = np.asarray(z, float)
+    if x0 is None:
+        x0 = np.zeros(z.shape[:-1] + (N_STATES,))
+    return iterate_wls(range_model(anchor_enu, clock_col, offset_enu), z, W, mask, x0,
+                       n_iter=n_iter, tol_m=tol_m, max_cond=max_cond)
+
+
+def dops(geom: WlsGeometry, sigma_uere: float = 1.0) -> dict[str, NDArray]:
+    """Weighted DOPs from J (equal to classic DOPs when W = I/σ²·sigma_uere²).
+
+    Returns dict with ``gdop, pdop, hdop, vdop, tdop`` (...), computed as
+    sqrt of the J diagonal divided by ``sigma_uere``.
+    """
+    Jd = np.diagonal(geom.J, axis1=-2, axis2=-1) / sigma_uere**2
+    return {"gdop": np.sqrt(Jd.sum(-1)), "pdop": np.sqrt(Jd[..., :3].sum(-1)),
+            "hdop": np.sqrt(Jd[..., :2].sum(-1)), "vdop": np.sqrt(Jd[..., 2]),
+            "tdop": np.sqrt(Jd[..., 3])}
