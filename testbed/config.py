@@ -1,0 +1,167 @@
+"""Configuration: approach and aircraft TOML files, validated into typed models.
+
+Section models live beside the code they configure; this module composes
+them, resolves names and relative paths, and turns every problem into a
+:class:`~testbed.schema.ConfigError` that names the file, the key path and
+what was expected. Paths inside a file are relative to that file.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, ValidationError, field_validator
+
+from testbed.flight.settings import AircraftSettings, Gusts, PathSettings, VerticalSettings, Wind
+from testbed.schema import ConfigError, StrictModel, format_validation_error
+
+
+def project_root() -> Path:
+    """Where the shipped ``aircraft/`` and ``approaches/`` folders live.
+
+    ``TESTBED_HOME`` overrides; otherwise the checkout the package was installed
+    from (the README installs it editable).
+    """
+    env = os.environ.get("TESTBED_HOME")
+    return Path(env) if env else Path(__file__).resolve().parent.parent
+
+
+def approaches_dir() -> Path:
+    return project_root() / "approaches"
+
+
+def aircraft_dir() -> Path:
+    return project_root() / "aircraft"
+
+
+class FrameSettings(StrictModel):
+    """Origin of the approach's world frame (local ENU)."""
+
+    lat_deg: float = Field(..., ge=-90, le=90)
+    lon_deg: float = Field(..., ge=-180, le=180)
+    h: float = Field(..., ge=-500, le=9000, description="WGS84 ellipsoidal height, m")
+
+
+class FlightSettings(StrictModel):
+    dt_s: float = Field(1.0 / 120.0, gt=0, le=0.05, description="JSBSim integration step")
+    start_distance_m: float | None = Field(None, gt=0, description="distance to go at the start (default: whole path)")
+    max_duration_s: float = Field(1800.0, gt=0, le=7200)
+    truth_rate_hz: float = Field(10.0, gt=0, le=120, description="rate of the decimated truth for sensors")
+    terrain_update_hz: float = Field(10.0, gt=0, le=120, description="how often JSBSim's terrain height is refreshed")
+
+
+class ApproachConfig(StrictModel):
+    """One approach file (``approaches/<name>.toml``)."""
+
+    name: str
+    description: str
+    illustrative: bool = Field(False, description="True when the procedure is not a published one")
+    aircraft: str = Field("b737", description="aircraft folder name under aircraft/, or a path to an aircraft.toml")
+    start_time_utc: dt.datetime = Field(dt.datetime(2026, 3, 1, 4, 0, tzinfo=dt.timezone.utc))
+    frame: FrameSettings
+    path: PathSettings
+    vertical: VerticalSettings = VerticalSettings()
+    flight: FlightSettings = FlightSettings()
+    wind: Wind = Wind()
+    gusts: Gusts = Gusts()
+    # Sections owned by other rooms; validated by their own models when loaded.
+    terrain: dict[str, Any] = Field(default_factory=dict)
+    gnss: dict[str, Any] = Field(default_factory=dict)
+    vision: dict[str, Any] = Field(default_factory=dict)
+    landmarks: list[dict[str, Any]] = Field(default_factory=list)
+    integrity: dict[str, Any] = Field(default_factory=dict)
+    monitors: list[str] = Field(default_factory=lambda: ["gps_raim"])
+    faults: list[dict[str, Any]] = Field(default_factory=list)
+
+    @field_validator("start_time_utc")
+    @classmethod
+    def _utc(cls, v: dt.datetime) -> dt.datetime:
+        if v.tzinfo is None:
+            raise ValueError("expected a UTC time with an offset, e.g. 2026-03-01T04:00:00Z")
+        return v.astimezone(dt.timezone.utc)
+
+
+@dataclass(frozen=True)
+class Approach:
+    """A loaded approach: its validated config, its aircraft and where it came from."""
+
+    config: ApproachConfig
+    aircraft: AircraftSettings
+    source: Path
+    aircraft_source: Path
+
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+
+def read_toml(path: Path) -> dict:
+    """Read a TOML file; syntax errors become a ConfigError naming the file and line."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(path, ["file not found"])
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(path, [f"not valid TOML: {exc}"]) from None
+
+
+def validate(model: type[StrictModel], data: dict, source: Path, prefix: str = "") -> Any:
+    """Validate ``data`` with ``model``; errors name ``source`` and the key path."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(source, [prefix + p for p in format_validation_error(err)]) from None
+
+
+def resolve_approach(name_or_path: str | Path) -> Path:
+    """A shipped approach name (``zunz-rwy05-final``) or a path to a TOML file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    cand = approaches_dir() / f"{name_or_path}.toml"
+    if cand.is_file():
+        return cand
+    known = ", ".join(sorted(q.stem for q in approaches_dir().glob("*.toml")))
+    raise ConfigError(p, [f"no such approach file or shipped approach name (shipped: {known})"])
+
+
+def resolve_aircraft(ref: str, base: Path) -> Path:
+    p = Path(ref)
+    if "/" in ref or p.suffix == ".toml":
+        p = (base / p) if not p.is_absolute() else p
+        return p / "aircraft.toml" if p.is_dir() else p
+    return aircraft_dir() / ref / "aircraft.toml"
+
+
+def load_aircraft(path: Path) -> AircraftSettings:
+    return validate(AircraftSettings, read_toml(path), path)
+
+
+def load_approach(name_or_path: str | Path) -> Approach:
+    """Load, validate and resolve an approach file (and its aircraft)."""
+    src = resolve_approach(name_or_path)
+    cfg = validate(ApproachConfig, read_toml(src), src)
+    ac_path = resolve_aircraft(cfg.aircraft, src.parent)
+    if not ac_path.is_file():
+        raise ConfigError(src, [f"aircraft: {cfg.aircraft!r} -> {ac_path} not found "
+                                f"(expected a folder under {aircraft_dir()} or a path to an aircraft.toml)"])
+    return Approach(cfg, load_aircraft(ac_path), src, ac_path)
+
+
+def list_approaches() -> list[tuple[str, str]]:
+    """(name, one-line description) of every shipped approach."""
+    out = []
+    for p in sorted(approaches_dir().glob("*.toml")):
+        try:
+            d = read_toml(p)
+            out.append((p.stem, str(d.get("description", "")).strip().splitlines()[0]))
+        except ConfigError as exc:
+            out.append((p.stem, f"(invalid: {exc.problems[0]})"))
+    return out

@@ -1,0 +1,202 @@
+"""Fly an approach: JSBSim + our guidance, from the start point to the path's end.
+
+:func:`fly` returns a :class:`FlightResult` with the full-rate :class:`Truth`,
+the planned path, and a :class:`FlightSummary`. Observers (sensors, monitors,
+Rerun) can follow the flight epoch by epoch through ``on_step``; the physics
+does not know they exist.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from typing import Callable, Protocol
+
+import numpy as np
+
+from testbed.config import Approach
+from testbed.flight.guidance import Autopilot
+from testbed.flight.jsbsim_fdm import InitialCondition, JSBSimAircraft
+from testbed.flight.path import ApproachPath
+from testbed.flight.wind import GustGenerator, wind_ned
+from testbed.frames import LocalFrame, euler_to_q_body_to_enu
+from testbed.records import Truth
+from testbed.schema import ConfigError
+
+CAPTURE_S = 30.0  # tracking statistics exclude the first 30 s (initial transient)
+MIN_START_CLEARANCE_M = 50.0
+
+
+class TerrainLike(Protocol):
+    def height(self, lat_deg, lon_deg): ...
+
+
+@dataclass(frozen=True)
+class FlightSummary:
+    approach: str
+    aircraft: str
+    duration_s: float
+    steps: int
+    reached_end: bool
+    xtk_rms_m: float  # cross-track, after capture
+    xtk_max_m: float
+    vert_rms_m: float  # height minus path height, after capture
+    vert_max_m: float
+    end_height_above_m: float  # height above the path end point (threshold) when crossing it
+    end_lateral_m: float
+    end_cas_kt: float
+    end_sink_rate_ms: float
+    max_bank_deg: float
+    pitch_range_deg: tuple[float, float]
+    min_agl_m: float
+    wall_s: float
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.duration_s / self.wall_s if self.wall_s > 0 else math.inf
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d["realtime_factor"] = self.realtime_factor
+        return d
+
+
+@dataclass(frozen=True)
+class FlightResult:
+    truth: Truth
+    path: ApproachPath
+    frame: LocalFrame
+    summary: FlightSummary
+    xtk: np.ndarray  # (T,) cross-track error, m
+    vert: np.ndarray  # (T,) vertical path error, m
+    distance_to_go: np.ndarray  # (T,)
+
+
+def approach_geometry(approach: Approach) -> tuple[LocalFrame, ApproachPath]:
+    """The world frame and planned path of an approach (no flying)."""
+    c = approach.config
+    frame = LocalFrame(c.frame.lat_deg, c.frame.lon_deg, c.frame.h)
+    return frame, ApproachPath(c.path, c.vertical, frame)
+
+
+def check_start_clearance(approach: Approach, terrain: TerrainLike | None) -> float:
+    """Height of the start point above the terrain (m); a ConfigError if inside it."""
+    frame, path = approach_geometry(approach)
+    d0 = approach.config.flight.start_distance_m or path.total_length
+    try:
+        e, n, _ = path.start_point(d0)
+    except ValueError as exc:
+        raise ConfigError(approach.source, [f"flight.start_distance_m: {exc}"]) from None
+    lat, lon, _ = frame.enu_to_geodetic(np.array([e, n, 0.0]))
+    ground = float(terrain.height(lat, lon)) if terrain is not None else frame.h
+    clearance = path.height(d0) - ground
+    if clearance < MIN_START_CLEARANCE_M:
+        raise ConfigError(approach.source, [
+            f"flight.start_distance_m / path: the start point ({float(lat):.5f} N, {float(lon):.5f} E, "
+            f"{path.height(d0):.0f} m) is {clearance:.0f} m above the terrain ({ground:.0f} m): "
+            f"expected at least {MIN_START_CLEARANCE_M:.0f} m (start inside the terrain)"])
+    return clearance
+
+
+def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: int | None = None,
+        on_step: Callable[[float, dict], None] | None = None) -> FlightResult:
+    """Fly ``approach`` in JSBSim with our guidance until the end of the path.
+
+    Parameters
+    ----------
+    approach : a loaded approach (:func:`testbed.config.load_approach`).
+    terrain : terrain model feeding JSBSim's ground height (None: flat at the frame origin).
+    gust_seed : overrides the approach's gust seed (campaigns vary it per trajectory).
+    on_step : observer called after each integration step with (t, state in SI).
+    """
+    cfg, ac_cfg = approach.config, approach.aircraft
+    frame, path = approach_geometry(approach)
+    check_start_clearance(approach, terrain)
+    d0 = cfg.flight.start_distance_m or path.total_length
+    e0, n0, track0 = path.start_point(d0)
+    lat0, lon0, _ = frame.enu_to_geodetic(np.array([e0, n0, 0.0]))
+    ground = (lambda la, lo: float(terrain.height(la, lo))) if terrain is not None else (lambda la, lo: frame.h)
+    dt = cfg.flight.dt_s
+    gusts_cfg = cfg.gusts if gust_seed is None else cfg.gusts.model_copy(update={"seed": gust_seed})
+    max_steps = int(cfg.flight.max_duration_s / dt) + 1
+
+    wall0 = time.perf_counter()
+    with JSBSimAircraft(ac_cfg.jsbsim_model, ac_cfg.engines, dt) as ac:
+        ic = InitialCondition(float(lat0), float(lon0), path.height(d0), math.degrees(track0),
+                              ac_cfg.approach.speed_kt, -math.degrees(path.path_angle(d0)),
+                              ground(float(lat0), float(lon0)))
+        trim = ac.trim(ic, ac_cfg.approach.flaps, ac_cfg.approach.gear_down, ac_cfg.approach.speed_brake)
+        ac.set_wind_ned(wind_ned(cfg.wind))
+        gust = GustGenerator(gusts_cfg, max_steps)
+        pilot = Autopilot(path, ac_cfg.gains, trim, ac_cfg.approach.speed_kt * 1852 / 3600, dt)
+        terrain_every = max(1, int(round(1.0 / (cfg.flight.terrain_update_hz * dt))))
+        R, o = frame.R, frame.origin_ecef
+        rows, xtk, vert, dtg = [], [], [], []
+        reached = False
+        for k in range(max_steps):
+            s = ac.read()
+            x, y, z = s["ecef"]
+            d = np.array([x - o[0], y - o[1], z - o[2]])
+            enu = R @ d
+            cmd = pilot.update(s, float(enu[0]), float(enu[1]))
+            ps = pilot.last
+            rows.append((ac.time, x, y, z, s["lat_deg"], s["lon_deg"], s["h"], *enu, s["vel_ned"][1],
+                         s["vel_ned"][0], -s["vel_ned"][2], s["phi"], s["theta"], s["psi"], s["p"], s["q"],
+                         s["r"], *s["f_body"], s["agl"], s["tas"], s["cas"]))
+            xtk.append(ps.cross_track)
+            vert.append(pilot.h_error)
+            dtg.append(ps.distance_to_go)
+            if on_step is not None:
+                on_step(ac.time, s)
+            if ps.distance_to_go <= 0.0:
+                reached = True
+                break
+            if s["on_ground"] or s["agl"] < 0.0:
+                break
+            if k % terrain_every == 0:
+                ac.set_terrain(ground(s["lat_deg"], s["lon_deg"]))
+            ac.set_gust_ned(gust.step(dt, s["tas"], s["agl"], s["psi"]))
+            ac.command(cmd.aileron, cmd.elevator, cmd.rudder, cmd.throttle)
+            ac.step()
+    wall = time.perf_counter() - wall0
+
+    a = np.asarray(rows)
+    euler = a[:, 13:16]
+    truth = Truth(
+        t=a[:, 0] - a[0, 0], pos_ecef=a[:, 1:4], lat_deg=a[:, 4], lon_deg=a[:, 5], h=a[:, 6],
+        pos_enu=a[:, 7:10], vel_enu=a[:, 10:13],
+        q_body_to_enu=euler_to_q_body_to_enu(euler[:, 0], euler[:, 1], euler[:, 2]),
+        euler=euler, omega_body=a[:, 16:19], specific_force_body=a[:, 19:22], agl=a[:, 22],
+        airspeed=a[:, 23], frame_origin=np.array([frame.lat_deg, frame.lon_deg, frame.h]))
+    xtk_a, vert_a, dtg_a = np.asarray(xtk), np.asarray(vert), np.asarray(dtg)
+    summary = _summarise(approach, truth, a[:, 24], xtk_a, vert_a, dtg_a, path, reached, wall)
+    return FlightResult(truth, path, frame, summary, xtk_a, vert_a, dtg_a)
+
+
+def _summarise(approach: Approach, truth: Truth, cas: np.ndarray, xtk: np.ndarray, vert: np.ndarray,
+               dtg: np.ndarray, path: ApproachPath, reached: bool, wall: float) -> FlightSummary:
+    after = truth.t >= min(CAPTURE_S, truth.t[-1] / 2)
+
+    def rms(x):
+        return float(np.sqrt(np.mean(x[after] ** 2)))
+
+    if reached and len(dtg) > 1:
+        # interpolate the crossing of the path end between the last two epochs
+        w = dtg[-2] / (dtg[-2] - dtg[-1])
+        lerp = lambda v: float(v[-2] + w * (v[-1] - v[-2]))  # noqa: E731
+        end_h = lerp(truth.h) - path.end_h
+        end_lat = lerp(xtk)
+        end_cas = lerp(cas) * 3600 / 1852
+        end_sink = -lerp(truth.vel_enu[:, 2])
+    else:
+        end_h = end_lat = end_cas = end_sink = math.nan
+    pitch = np.degrees(truth.euler[:, 1])
+    return FlightSummary(
+        approach=approach.name, aircraft=approach.aircraft.name, duration_s=float(truth.t[-1]),
+        steps=len(truth.t), reached_end=reached, xtk_rms_m=rms(xtk), xtk_max_m=float(np.abs(xtk[after]).max()),
+        vert_rms_m=rms(vert), vert_max_m=float(np.abs(vert[after]).max()), end_height_above_m=end_h,
+        end_lateral_m=end_lat, end_cas_kt=end_cas, end_sink_rate_ms=end_sink,
+        max_bank_deg=float(np.degrees(np.abs(truth.euler[:, 0])).max()),
+        pitch_range_deg=(float(pitch.min()), float(pitch.max())), min_agl_m=float(np.nanmin(truth.agl)),
+        wall_s=wall)
