@@ -145,6 +145,8 @@ class WlsGeometry:
     diag : whether ``W`` is the diagonal form.
     mask : (..., N) bool, rows used.
     n_used : (...) int, number of used rows.
+    n_states : (...) int, number of estimated states (4, or 3 when no used row
+        has a clock term: the clock is then not estimated).
     WG : (..., N, 4) ``W G``.
     J : (..., 4, 4) ``(GᵀWG)⁻¹`` (NaN where the epoch has no solution).
     A : (..., 4, N) ``J GᵀW`` (NaN where the epoch has no solution).
@@ -159,6 +161,7 @@ class WlsGeometry:
     diag: bool
     mask: NDArray
     n_used: NDArray
+    n_states: NDArray
     WG: NDArray
     J: NDArray
     A: NDArray
@@ -168,8 +171,8 @@ class WlsGeometry:
 
     @property
     def dof(self) -> NDArray:
-        """Degrees of freedom of the test, ``n_used − 4`` (may be ≤ 0)."""
-        return self.n_used - self.G.shape[-1]
+        """Degrees of freedom of the test, ``n_used − n_states`` (may be ≤ 0)."""
+        return self.n_used - self.n_states
 
     @property
     def solvable(self) -> NDArray:
@@ -203,10 +206,17 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
     WlsGeometry
     """
     G0, W0, diag, m, nan_bad, _ = masked_inputs(G, W, mask)
-    n_states = G0.shape[-1]
     n_used = m.sum(-1)
     WG = apply_W(W0, G0, diag)  # (..., N, 4)
     M = np.swapaxes(G0, -1, -2) @ WG  # GᵀWG (..., 4, 4)
+    # A state no used row depends on (the clock when there are no pseudorange
+    # rows) is dropped: it keeps its starting value, J/A rows are zero, and the
+    # test has one more degree of freedom.
+    live = np.abs(G0).max(-2) > 0  # (..., 4)
+    live[..., :3] = True  # only the clock may be dropped; a dead position column is singular
+    n_states = live.sum(-1)
+    eye = np.eye(M.shape[-1])
+    M = np.where(live[..., :, None] & live[..., None, :], M, 0.0) + eye * ~live[..., None, :]
     # Jacobi scaling makes the condition number independent of the units of
     # each state and of an overall weight scale.
     d = np.sqrt(np.abs(np.diagonal(M, axis1=-2, axis2=-1)))
@@ -216,6 +226,7 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
     with np.errstate(divide="ignore", invalid="ignore"):
         cond = np.where(ev[..., 0] > 0, ev[..., -1] / ev[..., 0], np.inf)
     cond = np.where((d > 0).all(-1), cond, np.inf)
+    n_states_full = M.shape[-1]
 
     reason = np.zeros(n_used.shape, np.int8)
     reason = np.where(cond > max_cond, Reason.SINGULAR, reason)
@@ -225,14 +236,15 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
     solvable = (reason == Reason.OK) | (reason == Reason.NO_REDUNDANCY)
 
     # invert only the good elements: a singular element must not raise for the batch
-    M_safe = np.where(solvable[..., None, None], M, np.eye(n_states))
+    M_safe = np.where(solvable[..., None, None], M, np.eye(n_states_full))
     J = np.linalg.inv(M_safe)
+    J = np.where(live[..., :, None] & live[..., None, :], J, 0.0)  # dropped states: not estimated
     J = np.where(solvable[..., None, None], J, np.nan)
     A = J @ np.swapaxes(WG, -1, -2)  # (..., 4, N)
     Wd = W0 if diag else np.diagonal(W0, axis1=-2, axis2=-1)
     ws = Wd - np.einsum("...ni,...ij,...nj->...n", WG, J, WG)  # (W S)_ii
     ws = np.where(m, ws, np.nan)
-    return WlsGeometry(G=G0, W=W0, diag=diag, mask=m, n_used=n_used, WG=WG, J=J, A=A,
+    return WlsGeometry(G=G0, W=W0, diag=diag, mask=m, n_used=n_used, n_states=n_states, WG=WG, J=J, A=A,
                        ws_diag=ws, cond=cond, reason=reason)
 
 
@@ -345,6 +357,72 @@ def slopes(geom: WlsGeometry) -> tuple[NDArray, NDArray]:
     hs = np.where(geom.mask, hs, np.nan)
     vs = np.where(geom.mask, vs, np.nan)
     return hs, vs
+
+
+def max_generalized_eig(P: NDArray, Q: NDArray, rtol: float = 1e-9) -> NDArray:
+    """Largest μ of ``P v = μ Q v`` = ``max_b (bᵀPb)/(bᵀQb)`` for stacked symmetric k×k pairs.
+
+    P, Q : (..., k, k), P ⪰ 0, Q ⪰ 0 (possibly singular). Directions in Q's null
+    space where P is non-zero give ``inf`` (a fault there moves the position but
+    not the test statistic); null directions where P is zero are ignored
+    (padding columns). Returns (...).
+    """
+    q, V = np.linalg.eigh(Q)
+    qmax = np.maximum(q[..., -1:], 0.0)
+    good = q > rtol * qmax
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_sqrt = np.where(good, 1.0 / np.sqrt(np.where(good, q, 1.0)), 0.0)
+    Vs = V * inv_sqrt[..., None, :]
+    Mx = np.swapaxes(Vs, -1, -2) @ P @ Vs
+    mu = np.linalg.eigvalsh(Mx)[..., -1]
+    Pn = np.einsum("...ik,...ij,...jk->...k", V, P, V)  # diag(VᵀPV)
+    scale = np.maximum(np.trace(P, axis1=-2, axis2=-1), np.finfo(float).tiny)
+    leak = (~good & (Pn > rtol * scale[..., None])).any(-1)
+    return np.where(leak, np.inf, np.maximum(mu, 0.0))
+
+
+def subspace_slopes(geom: WlsGeometry, cols: ArrayLike, WS: NDArray | None = None) -> tuple[NDArray, NDArray]:
+    """Worst-direction slopes for faults spanning several rows (patent H2/H3).
+
+    For a fault b confined to the rows ``cols[m]`` the slope² is
+    ``‖A_H b‖² / (bᵀ WS b)``; its maximum over the direction of b is a
+    generalised eigenvalue problem of size ``len(cols[m])`` (exact, no sweep).
+    ``Hslope`` uses A's rows E, N; ``Vslope`` the U row. One-row units reduce
+    to :func:`slopes`.
+
+    Parameters
+    ----------
+    geom : WlsGeometry.
+    cols : (M, c) int row indices of each fault unit, padded with -1
+        (e.g. a satellite ``[i, -1]``, a landmark's pixel pair ``[2l, 2l+1]``,
+        a pair of landmarks ``[u1, v1, u2, v2]``).
+    WS : (..., N, N) optional precomputed ``geom.ws_matrix()``.
+
+    Returns
+    -------
+    hslope, vslope : (..., M); NaN where a unit has an unused row, inf where a
+    fault direction is undetectable but moves the position.
+    """
+    cols = np.asarray(cols, int)
+    if cols.ndim != 2:
+        raise ValueError(f"cols: expected (M, c) row indices padded with -1, got shape {cols.shape}")
+    WS = geom.ws_matrix() if WS is None else WS
+    pad = cols < 0
+    c0 = np.where(pad, 0, cols)
+    A_sel = np.where(pad, 0.0, geom.A[..., :, c0])  # (..., 4, M, c)
+    Q = WS[..., c0[:, :, None], c0[:, None, :]]  # (..., M, c, c)
+    Q = np.where(pad[:, :, None] | pad[:, None, :], 0.0, Q)
+    Ah = A_sel[..., :2, :, :]
+    Av = A_sel[..., 2:3, :, :]
+    Ph = np.einsum("...kmi,...kmj->...mij", Ah, Ah)
+    Pv = np.einsum("...kmi,...kmj->...mij", Av, Av)
+    used = np.where(pad, True, geom.mask[..., c0]).all(-1)  # (..., M)
+    ok = used & geom.solvable[..., None]
+    Qs = np.where(ok[..., None, None], Q, np.eye(cols.shape[1]))
+    with np.errstate(invalid="ignore"):
+        hs = np.sqrt(max_generalized_eig(np.where(ok[..., None, None], Ph, 0.0), Qs))
+        vs = np.sqrt(max_generalized_eig(np.where(ok[..., None, None], Pv, 0.0), Qs))
+    return np.where(ok, hs, np.nan), np.where(ok, vs, np.nan)
 
 
 PlVariant = Literal["seed", "pbias"]
