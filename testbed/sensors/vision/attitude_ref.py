@@ -1,0 +1,56 @@
+"""The navigation side's attitude reference: truth plus an AHRS/IRS-like error.
+
+The monitors of the pixel-domain model (INTEGRITY_MATH §5) and the lever-arm
+correction of §2 need the aircraft attitude; they get this reference, never
+the truth. Error model per Euler angle (roll, pitch, heading)::
+
+    ε_k(t) = b_k + w_k(t),   b_k ~ N(0, bias_sigma_k²) once per flight,
+                              w_k(t) ~ N(0, noise_sigma_k²) white per epoch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from testbed.frames import R_NED_TO_ENU, euler_to_q_body_to_enu, q_to_R
+
+from .settings import AttitudeRefSettings
+
+
+def q_to_euler(q_body_to_enu: ArrayLike) -> NDArray:
+    """Body->ENU quaternions ``(..., 4)`` to Euler angles ``(..., 3)`` rad (roll, pitch, heading)."""
+    q = np.asarray(q_body_to_enu, float)
+    R_b2ned = R_NED_TO_ENU @ q_to_R(q)
+    zyx = Rotation.from_matrix(R_b2ned.reshape(-1, 3, 3)).as_euler("ZYX").reshape(q.shape[:-1] + (3,))
+    return zyx[..., ::-1]
+
+
+def attitude_reference(q_body_to_enu: ArrayLike, settings: AttitudeRefSettings, rng: np.random.Generator,
+                       n_trials: int | None = None) -> tuple[NDArray, NDArray, NDArray]:
+    """The attitude the navigation system reports.
+
+    Parameters
+    ----------
+    q_body_to_enu : (T, 4) true body->local ENU quaternions (scalar last).
+    settings : error model.
+    rng : random source (bias first, then the white noise).
+    n_trials : leading trial axis (independent errors per trial) when given.
+
+    Returns
+    -------
+    q_ref : (B..., T, 4) body->ENU reference quaternions.
+    err_euler : (B..., T, 3) rad, the drawn (roll, pitch, heading) errors (truth side).
+    sigma : (3,) rad, total 1-sigma per axis, sqrt(bias² + noise²) (what the monitor is told).
+    """
+    q = np.asarray(q_body_to_enu, float)
+    batch = () if n_trials is None else (int(n_trials),)
+    sb = np.radians(settings.bias_sigma_deg)
+    sn = np.radians(settings.noise_sigma_deg)
+    bias = rng.standard_normal(batch + (1, 3)) * sb
+    noise = rng.standard_normal(batch + q.shape[:-1] + (3,)) * sn
+    err = bias + noise
+    eul = q_to_euler(q) + err
+    q_ref = euler_to_q_body_to_enu(eul[..., 0], eul[..., 1], eul[..., 2])
+    return q_ref, err, np.sqrt(sb**2 + sn**2)
