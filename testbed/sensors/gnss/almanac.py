@@ -1,0 +1,197 @@
+"""Constellation sources: the shipped DO-229 almanac, YUMA almanacs, RINEX 3 GPS nav files.
+
+Every loader returns an :class:`~testbed.sensors.gnss.orbits.Ephemeris` with
+full GPS weeks. Almanacs carry a 10-bit week (DO-229: week 703); two ways to
+place it in time, chosen by ``week_mode``:
+
+``"periodic"`` (default for DO-229)
+    The almanac is a nominal constellation, not a dated one: its toa is put in
+    the GPS week that brings it nearest the requested time, so the same sky
+    repeats every GPS week at the same time of week (the orbits are exact
+    Keplerian ellipses; only the reference epoch moves). With e = 0 and
+    Ω̇ = 0, as in DO-229, this is also the true propagation of the nominal orbits.
+``"nearest_rollover"`` (default for YUMA)
+    The 10-bit week is unwrapped (week + k·1024) to the value that puts toa
+    nearest the requested time: right for a dated almanac such as a NAVCEN
+    YUMA file used within a few weeks of its issue.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from testbed.sensors.gnss.orbits import Ephemeris, from_keplerian
+from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gpst_calendar_to_gps_seconds
+
+WeekMode = Literal["auto", "periodic", "nearest_rollover"]
+_DO229_FILE = "do229_gps_almanac_24sat.tsv"
+
+
+def resolve_week(week_raw, toa_sow, t_ref_gps: float, mode: str) -> np.ndarray:
+    """Full GPS week(s) for almanac week number(s) ``week_raw`` (see module doc for modes)."""
+    week_raw = np.asarray(week_raw, np.int64)
+    toa_sow = np.asarray(toa_sow, float)
+    if mode == "periodic":
+        return np.round((t_ref_gps - toa_sow) / SECONDS_PER_WEEK).astype(np.int64) + 0 * week_raw
+    if mode == "nearest_rollover":
+        base = np.mod(week_raw, 1024)
+        k = np.round((t_ref_gps - toa_sow - base * SECONDS_PER_WEEK) / (1024 * SECONDS_PER_WEEK))
+        return (base + 1024 * k).astype(np.int64)
+    raise ValueError(f"week_mode: expected 'periodic' or 'nearest_rollover', got {mode!r}")
+
+
+def load_do229(t_ref_gps: float, week_mode: WeekMode = "auto") -> Ephemeris:
+    """The RTCA DO-229 24-satellite almanac shipped as package data, placed near ``t_ref_gps``."""
+    text = importlib.resources.files("testbed.data").joinpath(_DO229_FILE).read_text()
+    return _from_table(text, t_ref_gps, "periodic" if week_mode == "auto" else week_mode, "DO-229")
+
+
+def _from_table(text: str, t_ref_gps: float, mode: str, source: str) -> Ephemeris:
+    rows = [ln.split("\t") for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
+    header, body = rows[0], np.array([[float(v) for v in r] for r in rows[1:]])
+    col = {name: body[:, k] for k, name in enumerate(header)}
+    week = resolve_week(col["week"], col["toa_s"], t_ref_gps, mode)
+    return from_keplerian(col["prn"].astype(int), week=week, toe_sow=col["toa_s"], sqrt_a=col["sqrt_a_m05"],
+                          e=col["eccentricity"], i0=col["inclination_rad"], omega0=col["raan_at_toa_rad"],
+                          omega_dot=col["raan_rate_rad_s"], w=col["arg_perigee_rad"],
+                          m0=col["mean_anomaly_rad"], af0=col["af0_s"], af1=col["af1_s_s"],
+                          health=col["health"].astype(int), source=source)
+
+
+_YUMA_KEYS = {
+    "id": "prn", "health": "health", "eccentricity": "e", "time of applicability": "toa",
+    "orbital inclination": "i0", "rate of right ascen": "omega_dot", "sqrt(a)": "sqrt_a",
+    "right ascen at week": "omega0", "argument of perigee": "w", "mean anom": "m0", "af0": "af0",
+    "af1": "af1", "week": "week",
+}
+
+
+def load_yuma(path: str | Path, t_ref_gps: float, week_mode: WeekMode = "auto") -> Ephemeris:
+    """A YUMA almanac file (NAVCEN / CelesTrak format), weeks resolved near ``t_ref_gps``.
+
+    The Ω0 field ("Right Ascen at Week") is the IS-GPS-200 longitude of the
+    node at the weekly epoch; "Orbital Inclination" is the full inclination.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise ValueError(f"YUMA almanac {path}: cannot read ({exc})") from exc
+    recs, cur = [], None
+    for n, ln in enumerate(lines, 1):
+        if ln.startswith("*"):
+            cur = {}
+            recs.append(cur)
+            continue
+        if ":" not in ln or cur is None:
+            continue
+        key, val = ln.split(":", 1)
+        key = key.strip().lower()
+        for prefix, name in _YUMA_KEYS.items():
+            if key.startswith(prefix):
+                try:
+                    cur[name] = float(val)
+                except ValueError as exc:
+                    raise ValueError(f"YUMA almanac {path}, line {n}: expected a number for "
+                                     f"{key!r}, got {val.strip()!r}") from exc
+                break
+    need = set(_YUMA_KEYS.values())
+    recs = [r for r in recs if r]
+    if not recs:
+        raise ValueError(f"YUMA almanac {path}: no '******** Week ... almanac for PRN-xx' blocks found")
+    for r in recs:
+        if need - set(r):
+            raise ValueError(f"YUMA almanac {path}: PRN {r.get('prn', '?')} lacks {sorted(need - set(r))}")
+    col = {k: np.array([r[k] for r in recs]) for k in need}
+    mode = "nearest_rollover" if week_mode == "auto" else week_mode
+    week = resolve_week(col["week"].astype(int), col["toa"], t_ref_gps, mode)
+    order = np.argsort(col["prn"])
+    return from_keplerian(col["prn"].astype(int), week=week, toe_sow=col["toa"], sqrt_a=col["sqrt_a"],
+                          e=col["e"], i0=col["i0"], omega0=col["omega0"], omega_dot=col["omega_dot"],
+                          w=col["w"], m0=col["m0"], af0=col["af0"], af1=col["af1"],
+                          health=col["health"].astype(int), source=f"YUMA {path.name}").take(order)
+
+
+def _d(s: str) -> float:
+    s = s.strip().replace("D", "E").replace("d", "e")
+    return float(s) if s else 0.0
+
+
+def load_rinex_nav(path: str | Path) -> Ephemeris:
+    """All GPS broadcast records of a RINEX 3.0x navigation file (other systems skipped).
+
+    Returns every record (several per PRN); call :meth:`Ephemeris.select` to
+    keep the one nearest a flight. Full IS-GPS-200 model: Δn, IDOT, the six
+    harmonic terms, af0..af2, TGD are all used.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise ValueError(f"RINEX nav {path}: cannot read ({exc})") from exc
+    try:
+        end = next(k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER")
+    except StopIteration:
+        raise ValueError(f"RINEX nav {path}: no 'END OF HEADER' line") from None
+    vers = lines[0][:9].strip()
+    if not (lines[0][60:].strip() == "RINEX VERSION / TYPE" and vers.startswith("3") and lines[0][20] == "N"):
+        raise ValueError(f"RINEX nav {path}: expected a RINEX 3.xx navigation file, got first line "
+                         f"{lines[0]!r}")
+    recs = []
+    k = end + 1
+    while k < len(lines):
+        ln = lines[k]
+        if not ln.strip():
+            k += 1
+            continue
+        sys = ln[0]
+        nlines = {"G": 8, "E": 8, "J": 8, "C": 8, "I": 8, "R": 4, "S": 4}.get(sys)
+        if nlines is None:
+            raise ValueError(f"RINEX nav {path}, line {k + 1}: unexpected record start {ln[:10]!r}")
+        if sys == "G":
+            block = lines[k:k + 8]
+            if len(block) < 8:
+                raise ValueError(f"RINEX nav {path}, line {k + 1}: truncated GPS record")
+            try:
+                prn = int(ln[1:3])
+                y, mo, d, h, mi, s = (int(ln[4:8]), int(ln[9:11]), int(ln[12:14]), int(ln[15:17]),
+                                      int(ln[18:20]), int(ln[21:23]))
+                vals = [_d(ln[23 + 19 * j:42 + 19 * j]) for j in range(3)]
+                for b in block[1:]:
+                    vals += [_d(b[4 + 19 * j:23 + 19 * j]) for j in range(4)]
+            except ValueError as exc:
+                raise ValueError(f"RINEX nav {path}, lines {k + 1}-{k + 8}: unreadable GPS record "
+                                 f"({exc})") from exc
+            toc_gps = gpst_calendar_to_gps_seconds(y, mo, d, h, mi, s)
+            recs.append((prn, toc_gps, vals))
+        k += nlines
+    if not recs:
+        raise ValueError(f"RINEX nav {path}: no GPS records")
+    P = np.array([r[2] for r in recs])
+    prn = np.array([r[0] for r in recs])
+    week = P[:, 21].astype(np.int64)
+    toc_sow = np.array([r[1] for r in recs]) - week * SECONDS_PER_WEEK
+    return Ephemeris(prn=prn, health=P[:, 24].astype(np.int64), week=week, toe_sow=P[:, 11], toc_sow=toc_sow,
+                     sqrt_a=P[:, 10], e=P[:, 8], i0=P[:, 15], idot=P[:, 19], omega0=P[:, 13],
+                     omega_dot=P[:, 18], w=P[:, 17], m0=P[:, 6], delta_n=P[:, 5], cuc=P[:, 7],
+                     cus=P[:, 9], crc=P[:, 16], crs=P[:, 4], cic=P[:, 12], cis=P[:, 14], af0=P[:, 0],
+                     af1=P[:, 1], af2=P[:, 2], tgd=P[:, 25], iode=P[:, 3].astype(np.int64),
+                     source=f"RINEX nav {path.name}")
+
+
+def load_constellation(source: str, path: str | Path | None, t_ref_gps: float,
+                       week_mode: WeekMode = "auto") -> Ephemeris:
+    """The constellation named by settings (``"do229"``, ``"yuma"``, ``"rinex_nav"``) near ``t_ref_gps``."""
+    if source == "do229":
+        return load_do229(t_ref_gps, week_mode)
+    if path is None:
+        raise ValueError(f"almanac_path: required when almanac_source is {source!r}")
+    if source == "yuma":
+        return load_yuma(path, t_ref_gps, week_mode)
+    if source == "rinex_nav":
+        return load_rinex_nav(path).select(t_ref_gps)
+    raise ValueError(f"almanac_source: expected 'do229', 'yuma' or 'rinex_nav', got {source!r}")

@@ -1,0 +1,212 @@
+"""GPS satellite orbits and clocks from almanac or broadcast ephemeris (IS-GPS-200).
+
+One record type, :class:`Ephemeris`, holds a constellation as arrays over
+satellite slots ``(S,)``. An almanac is an ephemeris whose perturbation terms
+(Δn, IDOT, the six harmonic corrections, af2) are zero, so the same
+IS-GPS-200 equations (Table 20-IV) serve both: semi-major axis from √A,
+corrected mean motion, Kepler's equation, argument of latitude with harmonic
+corrections, and the longitude of the ascending node corrected for Earth
+rotation, Ω = Ω0 + (Ω̇ − Ω̇e)·tk − Ω̇e·toe.
+
+:func:`sat_states` is vectorised over any leading shape of times and returns
+ECEF (WGS84, Earth-fixed at the same instant) position, velocity and the
+satellite clock offset and rate. Velocity is the analytic time derivative of
+the position equations (checked against finite differences in the tests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from testbed.frames import OMEGA_EARTH
+from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK
+
+#: WGS84 gravitational parameter used by GPS (IS-GPS-200), m³/s².
+MU_GPS = 3.986005e14
+#: Relativistic clock-correction constant F = −2√μ/c² (IS-GPS-200 20.3.3.3.3.1), s/√m.
+F_REL = -4.442807633e-10
+_KEPLER_ITERATIONS = 8  # Newton from E0 = M: quadratic convergence, e < 0.03 -> machine precision in 3-4
+
+
+@dataclass(frozen=True)
+class Ephemeris:
+    """Keplerian orbit + clock parameters per satellite slot, all arrays ``(S,)``.
+
+    Angles in rad, rates in rad/s, times in s. ``week`` is the full GPS week of
+    ``toe_sow``/``toc_sow`` (no 10-bit ambiguity left once a record is built).
+    """
+
+    prn: NDArray
+    health: NDArray
+    week: NDArray
+    toe_sow: NDArray
+    toc_sow: NDArray
+    sqrt_a: NDArray
+    e: NDArray
+    i0: NDArray
+    idot: NDArray
+    omega0: NDArray
+    omega_dot: NDArray
+    w: NDArray
+    m0: NDArray
+    delta_n: NDArray
+    cuc: NDArray
+    cus: NDArray
+    crc: NDArray
+    crs: NDArray
+    cic: NDArray
+    cis: NDArray
+    af0: NDArray
+    af1: NDArray
+    af2: NDArray
+    tgd: NDArray
+    iode: NDArray
+    source: str = "ephemeris"
+
+    @property
+    def toe_gps(self) -> NDArray:
+        """Time of ephemeris as seconds since the GPS epoch ``(S,)``."""
+        return self.week * SECONDS_PER_WEEK + self.toe_sow
+
+    @property
+    def toc_gps(self) -> NDArray:
+        return self.week * SECONDS_PER_WEEK + self.toc_sow
+
+    def __len__(self) -> int:
+        return len(self.prn)
+
+    def take(self, idx: ArrayLike) -> "Ephemeris":
+        """A sub-constellation (slots ``idx``)."""
+        idx = np.asarray(idx)
+        return replace(self, **{f.name: np.asarray(getattr(self, f.name))[idx]
+                                for f in fields(self) if f.name != "source"})
+
+    def select(self, t_ref_gps: float) -> "Ephemeris":
+        """One record per PRN: the one whose toe is nearest ``t_ref_gps``; slots sorted by PRN.
+
+        A broadcast navigation file holds one record every ~2 h per satellite;
+        a flight lasts minutes, so one record per satellite (the nearest) is used
+        for the whole flight (its fit interval is ±2 h).
+        """
+        prns = np.unique(self.prn)
+        dist = np.abs(self.toe_gps - float(t_ref_gps))
+        keep = [np.flatnonzero(self.prn == p)[np.argmin(dist[self.prn == p])] for p in prns]
+        return self.take(np.asarray(keep, int))
+
+    def rebased(self, toe_gps: ArrayLike) -> "Ephemeris":
+        """The same orbits and clocks expressed with a new toe = toc (seconds since GPS epoch).
+
+        Exact for the IS-GPS-200 model: time enters only through the mean
+        anomaly, the node, the inclination rate and the clock polynomial, all
+        propagated here; the harmonic terms depend on the argument of latitude only.
+        Used to write broadcast records valid (|t − toe| < 2 h) at a flight's time.
+        """
+        new = np.broadcast_to(np.asarray(toe_gps, float), self.prn.shape)
+        dt = new - self.toe_gps
+        new_week = np.floor(new / SECONDS_PER_WEEK)
+        n = np.sqrt(MU_GPS / self.sqrt_a**6) + self.delta_n
+        # Ω0' = Ω0 + Ω̇·Δ − Ω̇e·604800·Δweek keeps Ω(t) = Ω0 + (Ω̇−Ω̇e)(t−toe) − Ω̇e·toe_sow unchanged.
+        omega0 = self.omega0 + self.omega_dot * dt - OMEGA_EARTH * SECONDS_PER_WEEK * (new_week - self.week)
+        dtc = new - self.toc_gps
+        return replace(
+            self,
+            week=new_week.astype(np.int64), toe_sow=new - new_week * SECONDS_PER_WEEK,
+            toc_sow=new - new_week * SECONDS_PER_WEEK,
+            m0=np.mod(self.m0 + n * dt + np.pi, 2 * np.pi) - np.pi,
+            omega0=np.mod(omega0 + np.pi, 2 * np.pi) - np.pi,
+            i0=self.i0 + self.idot * dt,
+            af0=self.af0 + self.af1 * dtc + self.af2 * dtc**2,
+            af1=self.af1 + 2 * self.af2 * dtc,
+        )
+
+
+def from_keplerian(prn, *, week, toe_sow, sqrt_a, e, i0, omega0, omega_dot, w, m0, af0=0.0, af1=0.0,
+                   health=0, source: str = "almanac") -> Ephemeris:
+    """An :class:`Ephemeris` from almanac-type parameters (perturbations zero). Arrays ``(S,)``."""
+    prn = np.asarray(prn, np.int64)
+    S = prn.shape
+
+    def arr(v, dtype=float):
+        return np.broadcast_to(np.asarray(v, dtype), S).copy()
+
+    z = np.zeros(S)
+    return Ephemeris(prn=prn, health=arr(health, np.int64), week=arr(week, np.int64), toe_sow=arr(toe_sow),
+                     toc_sow=arr(toe_sow), sqrt_a=arr(sqrt_a), e=arr(e), i0=arr(i0), idot=z.copy(),
+                     omega0=arr(omega0), omega_dot=arr(omega_dot), w=arr(w), m0=arr(m0), delta_n=z.copy(),
+                     cuc=z.copy(), cus=z.copy(), crc=z.copy(), crs=z.copy(), cic=z.copy(), cis=z.copy(),
+                     af0=arr(af0), af1=arr(af1), af2=z.copy(), tgd=z.copy(), iode=np.zeros(S, np.int64),
+                     source=source)
+
+
+def _kepler_E(M: NDArray, e: NDArray) -> NDArray:
+    """Solve Kepler's equation M = E − e·sin E (Newton, fixed iteration count, vectorised)."""
+    E = M.copy()
+    for _ in range(_KEPLER_ITERATIONS):
+        E = E - (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
+    return E
+
+
+def sat_states(eph: Ephemeris, t_gps: ArrayLike, *, per_slot: bool = False
+               ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Satellite ECEF position, velocity and clock at GPS times (IS-GPS-200 Table 20-IV).
+
+    Parameters
+    ----------
+    eph : constellation of S slots.
+    t_gps : (...,) seconds since the GPS epoch (system time at which the state is
+        wanted: the transmit time for ranging); with ``per_slot=True`` the last
+        axis is the satellite slot, (..., S), one time per satellite.
+
+    Returns
+    -------
+    pos_ecef : (..., S, 3) m, in the Earth-fixed frame of the same instant.
+    vel_ecef : (..., S, 3) m/s, Earth-relative velocity in that frame.
+    clock_s : (..., S) s, satellite clock offset dtsv incl. the relativistic term (not TGD).
+    clock_rate : (..., S) s/s.
+    """
+    t = np.asarray(t_gps, float)
+    if not per_slot:
+        t = t[..., None]
+    elif t.shape[-1:] != (len(eph),):
+        raise ValueError(f"t_gps: expected shape (..., {len(eph)}) with per_slot=True, got {t.shape}")
+    tk = t - eph.toe_gps  # no week crossover: full GPS times on both sides
+    A = eph.sqrt_a**2
+    n = np.sqrt(MU_GPS / A**3) + eph.delta_n
+    M = eph.m0 + n * tk
+    e = eph.e
+    E = _kepler_E(np.broadcast_to(M, np.broadcast_shapes(M.shape, e.shape)).copy(), e)
+    sE, cE = np.sin(E), np.cos(E)
+    one_m_ecosE = 1.0 - e * cE
+    sq = np.sqrt(1.0 - e**2)
+    nu = np.arctan2(sq * sE, cE - e)
+    phi = nu + eph.w
+    s2, c2 = np.sin(2 * phi), np.cos(2 * phi)
+    u = phi + eph.cus * s2 + eph.cuc * c2
+    r = A * one_m_ecosE + eph.crs * s2 + eph.crc * c2
+    inc = eph.i0 + eph.cis * s2 + eph.cic * c2 + eph.idot * tk
+    Omega_dot_k = eph.omega_dot - OMEGA_EARTH
+    Omega = eph.omega0 + Omega_dot_k * tk - OMEGA_EARTH * eph.toe_sow
+    su, cu, si, ci, sO, cO = np.sin(u), np.cos(u), np.sin(inc), np.cos(inc), np.sin(Omega), np.cos(Omega)
+    xp, yp = r * cu, r * su
+    x = xp * cO - yp * ci * sO
+    y = xp * sO + yp * ci * cO
+    z = yp * si
+    # Time derivatives (chain rule through E, ν, the harmonic terms, i and Ω).
+    E_dot = n / one_m_ecosE
+    phi_dot = E_dot * sq / one_m_ecosE
+    u_dot = phi_dot * (1.0 + 2.0 * (eph.cus * c2 - eph.cuc * s2))
+    r_dot = A * e * sE * E_dot + 2.0 * phi_dot * (eph.crs * c2 - eph.crc * s2)
+    i_dot = eph.idot + 2.0 * phi_dot * (eph.cis * c2 - eph.cic * s2)
+    xp_dot = r_dot * cu - r * u_dot * su
+    yp_dot = r_dot * su + r * u_dot * cu
+    vx = xp_dot * cO - yp_dot * ci * sO + yp * si * sO * i_dot - Omega_dot_k * y
+    vy = xp_dot * sO + yp_dot * ci * cO - yp * si * cO * i_dot + Omega_dot_k * x
+    vz = yp_dot * si + yp * ci * i_dot
+    tc = t - eph.toc_gps
+    rel = F_REL * e * eph.sqrt_a * sE
+    clock = eph.af0 + eph.af1 * tc + eph.af2 * tc**2 + rel
+    clock_rate = eph.af1 + 2 * eph.af2 * tc + F_REL * e * eph.sqrt_a * cE * E_dot
+    return (np.stack([x, y, z], -1), np.stack([vx, vy, vz], -1), clock, clock_rate)

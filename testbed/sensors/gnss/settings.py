@@ -1,0 +1,55 @@
+"""Settings of the GNSS sensor (the ``[gnss]`` table of an approach file).
+
+Defaults reproduce the seed error model (INTEGRITY_MATH.md §1: seed 000 eq. 27,
+DO-229 24-satellite almanac, 5° mask). Every field is documented here; the
+config loader composes this model.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from testbed.schema import StrictModel
+
+
+class GnssSettings(StrictModel):
+    """GPS receiver, constellation and error-model settings."""
+
+    rate_hz: float = Field(1.0, gt=0.0, le=100.0,
+                           description="measurement rate (Hz); the truth is decimated to it inside synthesize_gnss")
+    almanac_source: Literal["do229", "yuma", "rinex_nav"] = Field(
+        "do229", description="constellation: shipped DO-229 24-sat almanac, a YUMA file or a RINEX 3 nav file")
+    almanac_path: Path | None = Field(None, description="file for almanac_source 'yuma' / 'rinex_nav'")
+    almanac_week: Literal["auto", "periodic", "nearest_rollover"] = Field(
+        "auto", description="placing a 10-bit almanac week in time: 'periodic' (toa moved to the week "
+                            "nearest the flight; default for DO-229) or 'nearest_rollover' (default for YUMA)")
+    elevation_mask_deg: float = Field(5.0, ge=0.0, lt=90.0, description="elevation mask (deg above local horizon)")
+    terrain_masking: bool = Field(True, description="mask satellites whose line of sight hits the terrain")
+    airframe_masking: bool = Field(True, description="mask satellites below the antenna plane (body x-y plane)")
+    airframe_mask_deg: float = Field(0.0, ge=-30.0, lt=90.0,
+                                     description="minimum elevation above the antenna plane (deg)")
+    sigma_ura_m: float = Field(0.75, ge=0.0, description="σ_URA, signal-in-space error 1σ (m)")
+    sigma_tropo_zenith_m: float = Field(0.12, ge=0.0,
+                                        description="residual troposphere 1σ at zenith (m), seed eq. 27 factor")
+    multipath_tau_s: float | None = Field(
+        None, gt=0.0, description="multipath correlation time (s), first-order Gauss-Markov; None = white")
+    ura_tropo_tau_s: float | None = Field(
+        None, gt=0.0, description="correlation time of the URA + troposphere residual (s); None = white")
+    range_rate_sigma_m_s: float = Field(0.05, ge=0.0, description="range-rate (Doppler) noise 1σ (m/s), white")
+    clock_model: bool = Field(True, description="two-state receiver clock (bias, drift random walk); "
+                                                "False = zero clock")
+    clock_bias0_sigma_m: float = Field(100.0, ge=0.0, description="initial receiver clock bias 1σ (m)")
+    clock_drift0_sigma_m_s: float = Field(1.0, ge=0.0, description="initial receiver clock drift 1σ (m/s)")
+    clock_sf_m2_s: float = Field(
+        9.0e-3, ge=0.0, description="clock white-FM spectral density S_f = c²·h0/2 (m²/s); TCXO h0 = 2e-19")
+    clock_sg_m2_s3: float = Field(
+        3.55e-2, ge=0.0, description="clock random-walk-FM density S_g = c²·2π²·h-2 (m²/s³); TCXO h-2 = 2e-20")
+
+    @model_validator(mode="after")
+    def _path_needed(self):
+        if self.almanac_source != "do229" and self.almanac_path is None:
+            raise ValueError(f"almanac_path: required when almanac_source is {self.almanac_source!r}")
+        return self

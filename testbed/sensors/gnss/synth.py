@@ -1,0 +1,221 @@
+"""GPS pseudorange and range-rate synthesis: fly once, sample many.
+
+:func:`gnss_geometry` computes everything that depends only on the trajectory
+(orbits, light time, Earth rotation, visibility) once; :func:`sample_gnss`
+draws errors, receiver clock and faults for one or ``n_trials`` trials on top;
+:func:`synthesize_gnss` does both.
+
+Signal model (consistent with the monitors' model, INTEGRITY_MATH.md §1):
+the receive time t_r is the true GPS time of the epoch and the antenna is at
+r(t_r). The transmit time t_t = t_r − τ solves τ = |R₃(Ω̇e τ)·s(t_t) − r(t_r)|/c
+(3 fixed-point iterations, converged to < 1 ps). ``sat_pos_ecef`` is
+s(t_t) rotated into the ECEF frame of t_r (the Sagnac / Earth-rotation
+effect is therefore inside the geometry), so
+
+    pseudorange = |sat_pos_ecef − antenna| + c·δt_rx + ε + fault,
+    range_rate  = u·(sat_vel_ecef − antenna_vel) + c·δṫ_rx + ε_ṙ,
+
+u the unit line of sight. The satellite clock and modelled atmosphere are
+taken as removed by the receiver (ε is the residual of seed eq. 27).
+
+Truth decimation: ``synthesize_gnss`` decimates the truth to
+``settings.rate_hz`` itself (``Truth.decimate``: nearest flight epochs from
+t[0]); a truth already at or below that rate passes unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from testbed.frames import C_LIGHT, OMEGA_EARTH
+from testbed.records import GnssEpochs, GnssTruth, Mount, Truth
+from testbed.sensors.faults import GNSS_KINDS, gnss_fault_bias
+from testbed.sensors.gnss.almanac import load_constellation
+from testbed.sensors.gnss.errors import (IONO_FREE_FACTOR, receiver_clock, sigma_multipath, sigma_noise,
+                                         sigma_pseudorange, sigma_tropo, unit_gauss_markov)
+from testbed.sensors.gnss.orbits import Ephemeris, sat_states
+from testbed.sensors.gnss.settings import GnssSettings
+from testbed.sensors.gnss.timebase import utc_to_gps_seconds
+from testbed.sensors.gnss.visibility import antenna_state, classify
+
+_LIGHT_TIME_ITERATIONS = 3
+
+
+@dataclass(frozen=True)
+class GnssGeometry:
+    """Trajectory-only GNSS quantities (no randomness), computed once per flight.
+
+    Shapes: T epochs, S satellite slots. Frames: ECEF of the receive time.
+
+    t, t_gps : (T,) s since approach start / since the GPS epoch (receive time, true).
+    prn : (S,).  eph : the constellation used.  antenna : the antenna mount.
+    ant_pos_ecef, ant_vel_ecef : (T, 3) true antenna position (m) / velocity (m/s).
+    sat_pos_ecef, sat_vel_ecef : (T, S, 3) transmit-time satellite state in the receive-time frame.
+    sat_clock_s, sat_clock_rate : (T, S) satellite clock offset (s) / rate at transmit time.
+    geometric_range : (T, S) m.  geometric_range_rate : (T, S) m/s.
+    elevation, azimuth, elevation_body : (T, S) rad.  reason : (T, S) int8.  visible : (T, S) bool.
+    """
+
+    t: NDArray
+    t_gps: NDArray
+    prn: NDArray
+    eph: Ephemeris
+    antenna: Mount
+    ant_pos_ecef: NDArray
+    ant_vel_ecef: NDArray
+    sat_pos_ecef: NDArray
+    sat_vel_ecef: NDArray
+    sat_clock_s: NDArray
+    sat_clock_rate: NDArray
+    geometric_range: NDArray
+    geometric_range_rate: NDArray
+    elevation: NDArray
+    azimuth: NDArray
+    elevation_body: NDArray
+    reason: NDArray
+    visible: NDArray
+
+
+def _rotate_z(v: NDArray, theta: NDArray) -> NDArray:
+    """Components in the frame rotated by +θ about z (the Earth-fixed frame θ/Ω̇e later)."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
+
+
+def signal_geometry(eph: Ephemeris, t_gps: NDArray, ant_pos_ecef: NDArray, ant_vel_ecef: NDArray):
+    """Light-time-corrected satellite states in the receive-time ECEF frame.
+
+    Parameters
+    ----------
+    t_gps : (T,) receive times.  ant_pos_ecef, ant_vel_ecef : (T, 3).
+
+    Returns
+    -------
+    sat_pos, sat_vel : (T, S, 3).  clock_s, clock_rate : (T, S).  rng_m, rng_rate : (T, S).
+    """
+    t_gps = np.asarray(t_gps, float)
+    tau = np.full((t_gps.size, len(eph)), 0.075)  # ~ 20 000 km / c
+    for _ in range(_LIGHT_TIME_ITERATIONS):
+        pos, vel, clk, clk_rate = sat_states(eph, t_gps[:, None] - tau, per_slot=True)
+        pos_r = _rotate_z(pos, OMEGA_EARTH * tau)
+        tau = np.linalg.norm(pos_r - ant_pos_ecef[:, None, :], axis=-1) / C_LIGHT
+    pos, vel, clk, clk_rate = sat_states(eph, t_gps[:, None] - tau, per_slot=True)
+    sat_pos = _rotate_z(pos, OMEGA_EARTH * tau)
+    sat_vel = _rotate_z(vel, OMEGA_EARTH * tau)
+    d = sat_pos - ant_pos_ecef[:, None, :]
+    rng_m = np.linalg.norm(d, axis=-1)
+    rate = np.einsum("tsi,tsi->ts", d / rng_m[..., None], sat_vel - ant_vel_ecef[:, None, :])
+    return sat_pos, sat_vel, clk, clk_rate, rng_m, rate
+
+
+def gnss_geometry(truth: Truth, antenna: Mount, settings: GnssSettings, *, start_utc: datetime | str,
+                  terrain: Any = None, constellation: Ephemeris | None = None) -> GnssGeometry:
+    """Satellite geometry and visibility along a trajectory (no noise; see module doc).
+
+    ``truth`` is used at its own epochs (decimate it first, or use
+    :func:`synthesize_gnss`). ``start_utc`` is the UTC time of ``truth.t == 0``.
+    ``terrain`` is any object with ``sky_visible`` (ignored when
+    ``settings.terrain_masking`` is False). ``constellation`` overrides the
+    one named in ``settings``.
+    """
+    t = np.asarray(truth.t, float)
+    t_gps = utc_to_gps_seconds(start_utc) + t
+    eph = constellation if constellation is not None else load_constellation(
+        settings.almanac_source, settings.almanac_path, float(t_gps[t_gps.size // 2]), settings.almanac_week)
+    ant_pos, ant_vel, R_b2e, R_e2n = antenna_state(truth, antenna)
+    sat_pos, sat_vel, clk, clk_rate, rng_m, rate = signal_geometry(eph, t_gps, ant_pos, ant_vel)
+    los = (sat_pos - ant_pos[:, None, :]) / rng_m[..., None]
+    el, az, el_body, reason = classify(
+        los, ant_pos, R_e2n, R_b2e, eph.health, elevation_mask_deg=settings.elevation_mask_deg,
+        terrain=terrain if settings.terrain_masking else None, airframe_masking=settings.airframe_masking,
+        airframe_mask_deg=settings.airframe_mask_deg)
+    return GnssGeometry(t=t, t_gps=t_gps, prn=np.asarray(eph.prn), eph=eph, antenna=antenna,
+                        ant_pos_ecef=ant_pos, ant_vel_ecef=ant_vel, sat_pos_ecef=sat_pos, sat_vel_ecef=sat_vel,
+                        sat_clock_s=clk, sat_clock_rate=clk_rate, geometric_range=rng_m,
+                        geometric_range_rate=rate, elevation=el, azimuth=az, elevation_body=el_body,
+                        reason=reason, visible=reason == 0)
+
+
+def _fault_bias(faults: Sequence, geom: GnssGeometry, rng: np.random.Generator,
+                batch: tuple[int, ...]) -> NDArray:
+    gnss = [f for f in faults if f.kind in GNSS_KINDS]
+    T, S = geom.visible.shape
+    if not gnss:
+        return np.zeros(batch + (T, S))
+    if batch and any(f.prn == "random" for f in gnss):
+        # a fresh random satellite per trial (drawn in trial order from rng)
+        return np.stack([gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng) for _ in range(batch[0])])
+    return np.broadcast_to(gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng), batch + (T, S))
+
+
+def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence = (), rng: np.random.Generator,
+                n_trials: int | None = None) -> tuple[GnssEpochs, GnssTruth]:
+    """Draw errors, receiver clock and faults on a fixed geometry.
+
+    Returns observations with a leading trial axis ``(n_trials, T, S)`` when
+    ``n_trials`` is given, else ``(T, S)``. Geometry-only arrays
+    (satellite states, visibility, sigma) are broadcast views, not copies.
+    Faults (``testbed.sensors.faults``) are added after the noise; the
+    truth records them in ``fault_bias`` and ``faulty = fault_bias != 0``.
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    if n_trials is not None and (int(n_trials) != n_trials or n_trials < 1):
+        raise ValueError(f"n_trials: expected a positive integer or None, got {n_trials!r}")
+    batch = () if n_trials is None else (int(n_trials),)
+    T, S = geom.visible.shape
+    shape = batch + (T, S)
+    el = geom.elevation
+    dt = float(np.median(np.diff(geom.t))) if T > 1 else 1.0
+    sigma = sigma_pseudorange(el, settings.sigma_ura_m, settings.sigma_tropo_zenith_m)
+    if settings.multipath_tau_s is None and settings.ura_tropo_tau_s is None:
+        noise = sigma * rng.standard_normal(shape)
+    else:
+        s_ut = np.hypot(settings.sigma_ura_m, sigma_tropo(el, settings.sigma_tropo_zenith_m))
+        noise = (s_ut * unit_gauss_markov(rng, shape, dt, settings.ura_tropo_tau_s)
+                 + IONO_FREE_FACTOR * sigma_multipath(el) * unit_gauss_markov(rng, shape, dt, settings.multipath_tau_s)
+                 + IONO_FREE_FACTOR * sigma_noise(el) * rng.standard_normal(shape))
+    if settings.clock_model:
+        bias, drift = receiver_clock(rng, geom.t, batch, bias0_sigma_m=settings.clock_bias0_sigma_m,
+                                     drift0_sigma_m_s=settings.clock_drift0_sigma_m_s,
+                                     sf_m2_s=settings.clock_sf_m2_s, sg_m2_s3=settings.clock_sg_m2_s3)
+    else:
+        bias, drift = np.zeros(batch + (T,)), np.zeros(batch + (T,))
+    rr_noise = settings.range_rate_sigma_m_s * rng.standard_normal(shape)
+    fault = _fault_bias(faults, geom, rng, batch)
+    vis = geom.visible
+    pr = np.where(vis, geom.geometric_range + bias[..., None] + noise + fault, np.nan)
+    rr = np.where(vis, geom.geometric_range_rate + drift[..., None] + rr_noise, np.nan)
+
+    def b(x):
+        return np.broadcast_to(x, batch + x.shape)
+
+    epochs = GnssEpochs(t=geom.t, t_gps=geom.t_gps, prn=geom.prn, sat_pos_ecef=b(geom.sat_pos_ecef),
+                        sat_vel_ecef=b(geom.sat_vel_ecef), pseudorange=pr, range_rate=rr,
+                        sigma=b(np.where(vis, sigma, np.nan)), visible=b(vis), reason=b(geom.reason),
+                        antenna=geom.antenna)
+    truth = GnssTruth(antenna_pos_ecef=geom.ant_pos_ecef, geometric_range=geom.geometric_range, clock_bias=bias,
+                      noise=noise, fault_bias=fault, faulty=fault != 0, elevation=geom.elevation,
+                      azimuth=geom.azimuth)
+    return epochs, truth
+
+
+def synthesize_gnss(truth: Truth, antenna: Mount, settings: GnssSettings, *, start_utc: datetime | str,
+                    terrain: Any = None, faults: Sequence = (), rng: np.random.Generator,
+                    n_trials: int | None = None, constellation: Ephemeris | None = None
+                    ) -> tuple[GnssEpochs, GnssTruth]:
+    """GPS observations for a flight (decimated to ``settings.rate_hz``) and their truth.
+
+    Geometry (orbits, light time, visibility) is computed once; noise, clock
+    and faults are drawn with a leading trial axis ``(n_trials, T, S)`` when
+    ``n_trials`` is given. See :func:`gnss_geometry` and :func:`sample_gnss`.
+    The range-rate noise 1σ the monitor should assume is ``settings.range_rate_sigma_m_s``.
+    """
+    geom = gnss_geometry(truth.decimate(settings.rate_hz), antenna, settings, start_utc=start_utc,
+                         terrain=terrain, constellation=constellation)
+    return sample_gnss(geom, settings, faults=faults, rng=rng, n_trials=n_trials)
