@@ -53,6 +53,9 @@ class FlightSettings(StrictModel):
     max_duration_s: float = Field(1800.0, gt=0, le=7200)
     truth_rate_hz: float = Field(10.0, gt=0, le=120, description="rate of the decimated truth for sensors")
     terrain_update_hz: float = Field(10.0, gt=0, le=120, description="how often JSBSim's terrain height is refreshed")
+    speed_kt: float | None = Field(None, gt=30, lt=300, description="overrides the aircraft's approach speed (CAS)")
+    flaps: float | None = Field(None, ge=0, le=1, description="overrides the aircraft's approach flaps")
+    speed_brake: float | None = Field(None, ge=0, le=1, description="overrides the aircraft's speed brake")
 
 
 class ApproachConfig(StrictModel):

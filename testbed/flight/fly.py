@@ -120,16 +120,20 @@ def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: in
     dt = cfg.flight.dt_s
     gusts_cfg = cfg.gusts if gust_seed is None else cfg.gusts.model_copy(update={"seed": gust_seed})
     max_steps = int(cfg.flight.max_duration_s / dt) + 1
+    fl = cfg.flight
+    speed_kt = fl.speed_kt if fl.speed_kt is not None else ac_cfg.approach.speed_kt
+    flaps = fl.flaps if fl.flaps is not None else ac_cfg.approach.flaps
+    brake = fl.speed_brake if fl.speed_brake is not None else ac_cfg.approach.speed_brake
 
     wall0 = time.perf_counter()
     with JSBSimAircraft(ac_cfg.jsbsim_model, ac_cfg.engines, dt) as ac:
         ic = InitialCondition(float(lat0), float(lon0), path.height(d0), math.degrees(track0),
-                              ac_cfg.approach.speed_kt, -math.degrees(path.path_angle(d0)),
+                              speed_kt, -math.degrees(path.path_angle(d0)),
                               ground(float(lat0), float(lon0)))
-        trim = ac.trim(ic, ac_cfg.approach.flaps, ac_cfg.approach.gear_down, ac_cfg.approach.speed_brake)
+        trim = ac.trim(ic, flaps, ac_cfg.approach.gear_down, brake)
         ac.set_wind_ned(wind_ned(cfg.wind))
         gust = GustGenerator(gusts_cfg, max_steps)
-        pilot = Autopilot(path, ac_cfg.gains, trim, ac_cfg.approach.speed_kt * 1852 / 3600, dt)
+        pilot = Autopilot(path, ac_cfg.gains, trim, speed_kt * 1852 / 3600, dt)
         terrain_every = max(1, int(round(1.0 / (cfg.flight.terrain_update_hz * dt))))
         R, o = frame.R, frame.origin_ecef
         rows, xtk, vert, dtg = [], [], [], []
