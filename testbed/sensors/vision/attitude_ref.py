@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from testbed.frames import R_NED_TO_ENU, euler_to_q_body_to_enu, q_to_R
+from testbed.frames import R_NED_TO_ENU, q_to_R
 
 from .settings import AttitudeRefSettings
 
@@ -25,6 +25,27 @@ def q_to_euler(q_body_to_enu: ArrayLike) -> NDArray:
     R_b2ned = R_NED_TO_ENU @ q_to_R(q)
     zyx = Rotation.from_matrix(R_b2ned.reshape(-1, 3, 3)).as_euler("ZYX").reshape(q.shape[:-1] + (3,))
     return zyx[..., ::-1]
+
+
+def euler_to_q_fast(euler: ArrayLike) -> NDArray:
+    """(roll, pitch, heading) ``(..., 3)`` rad to body->ENU quaternions ``(..., 4)`` (scalar last).
+
+    Closed form (same result as :func:`testbed.frames.euler_to_q_body_to_enu`, up to
+    the quaternion sign, which the tests check) because the campaign calls it on
+    millions of epochs: q_b2ned = qz(ψ) ⊗ qy(θ) ⊗ qx(φ), then the NED->ENU swap, a
+    180° rotation about (1, 1, 0)/√2, i.e. q = [1/√2, 1/√2, 0, 0].
+    """
+    e = np.asarray(euler, float) / 2.0
+    cr, sr = np.cos(e[..., 0]), np.sin(e[..., 0])
+    cp, sp = np.cos(e[..., 1]), np.sin(e[..., 1])
+    cy, sy = np.cos(e[..., 2]), np.sin(e[..., 2])
+    w = cr * cp * cy + sr * sp * sy
+    x = sr * cp * cy - cr * sp * sy
+    y = cr * sp * cy + sr * cp * sy
+    z = cr * cp * sy - sr * sp * cy
+    # [a, 0] ⊗ [v, w] with a = (1, 1, 0)/√2 (scalar 0): vector = a w + a × v, scalar = -a·v
+    k = 1.0 / np.sqrt(2.0)
+    return np.stack([k * (w + z), k * (w - z), k * (y - x), -k * (x + y)], axis=-1)
 
 
 def attitude_reference(q_body_to_enu: ArrayLike, settings: AttitudeRefSettings, rng: np.random.Generator,
@@ -52,5 +73,5 @@ def attitude_reference(q_body_to_enu: ArrayLike, settings: AttitudeRefSettings, 
     noise = rng.standard_normal(batch + q.shape[:-1] + (3,)) * sn
     err = bias + noise
     eul = q_to_euler(q) + err
-    q_ref = euler_to_q_body_to_enu(eul[..., 0], eul[..., 1], eul[..., 2])
+    q_ref = euler_to_q_fast(eul)
     return q_ref, err, np.sqrt(sb**2 + sn**2)

@@ -101,7 +101,8 @@ def runway_points_enu(frame: LocalFrame, width_m: float = airport.RUNWAY_WIDTH_M
 
     The four threshold corners (``05L, 05R, 23R, 23L``; left/right as seen
     landing on 05) and, every ``edge_spacing_m`` from the 05 threshold, points
-    on both edges (``L0300``, ``R0300`` ...). Heights vary linearly between the
+    on both edges (``L0300``, ``R0300`` ...), none closer than half a spacing
+    to the 23 threshold. Heights vary linearly between the
     two threshold elevations.
     """
     a = frame.geodetic_to_enu(airport.RWY05.lat_deg, airport.RWY05.lon_deg, airport.RWY05.h)
@@ -114,7 +115,8 @@ def runway_points_enu(frame: LocalFrame, width_m: float = airport.RUNWAY_WIDTH_M
     ids = ["05L", "05R", "23R", "23L"]
     pts = [a - w * right, a + w * right, b + w * right, b - w * right]
     if edge_spacing_m is not None:
-        for d in np.arange(edge_spacing_m, length - 1e-6, edge_spacing_m):
+        # no edge point within half a spacing of the far threshold (its corners are there)
+        for d in np.arange(edge_spacing_m, length - 0.5 * edge_spacing_m, edge_spacing_m):
             c = a + along * d
             ids += [f"L{d:04.0f}", f"R{d:04.0f}"]
             pts += [c - w * right, c + w * right]
