@@ -1,0 +1,777 @@
+"""Terrain models, line of sight, sky visibility and horizon masks.
+
+Every model is a :class:`Terrain`: a height field ``h(lat, lon)`` (WGS84
+ellipsoidal metres; the testbed has no geoid) with vectorised queries:
+
+* :meth:`Terrain.height` ``(lat_deg, lon_deg) -> h``, broadcasting; a scalar
+  call on a grid model is a few microseconds (the flight loop's AGL);
+* :meth:`Terrain.line_of_sight` ``(origin_ecef (...,3), target_ecef (...,3)) -> (...) bool``;
+* :meth:`Terrain.sky_visible` ``(origin_ecef (...,3), direction_ecef (...,3)) -> (...) bool``;
+* :meth:`Terrain.horizon` ``(lat, lon, h, azimuth_rad (K,)) -> elevation_rad (K,)``;
+* :meth:`Terrain.mesh` ``(frame, half_size_m, spacing_m) -> (vertices_enu (V,3), triangles (F,3))``.
+
+Models: :class:`Flat`, :class:`TwoRidges` (the VA-RAIM paper's terrain),
+:class:`GridTerrain` (a regular lat/lon grid: SRTM ``.hgt`` or ``.npz``), and
+:class:`LinZhiSyntheticValley` (the embedded default, SYNTHETIC, rasterised
+on a grid).
+
+How rays are tested (the Earth's curvature is exact, not approximated):
+a ray is sampled at ``step_m`` (half the terrain resolution). Exact geodetic
+coordinates are computed at *knots* every ``KNOT_SAMPLES`` samples (~1.3 km on
+the valley grid); between knots latitude, longitude and height are linear in
+range (error < K^2/(8R) ~ 0.05 m). Before sampling, each ray is clipped to the
+part that lies below the model's maximum height (a conservative sphere bound),
+and a knot-to-knot segment is only sampled when its lowest point is below an
+upper bound of the terrain around it (for grids: block maxima); everything is
+batched over rays. A ray is blocked when a sample has ray height < terrain
+height. Sampling can miss a grazing contact between samples: the disagreement
+with a dense brute-force march is bounded by the terrain's rise over one step
+(tests: a few metres of clearance).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import pymap3d.vincenty
+from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage
+
+from testbed.frames import WGS84, LocalFrame, ecef_to_geodetic, geodetic_to_ecef
+from testbed.world import airport
+from testbed.world.dem import check_regular, fill_voids_nearest, read_hgt_mosaic, read_npz
+
+_A = WGS84.semimajor_axis
+_E2 = 1.0 - (WGS84.semiminor_axis / WGS84.semimajor_axis) ** 2
+#: Sphere radius used to clip rays to "below the maximum terrain height". It is larger
+#: than every radius of curvature of the WGS84 ellipsoid (max a^2/b = 6 399 594 m), so the
+#: sphere under-estimates a ray's ellipsoidal height: the clip is conservative.
+_R_CLIP = 6.41e6
+#: Height slack of the clip and of the segment skip test, m (covers knot interpolation).
+_CLIP_SLACK_M = 2.0
+#: Rays whose samples exceed this count are processed in chunks (memory bound).
+_CHUNK_SAMPLES = 600_000
+
+
+def radii_of_curvature(lat_deg: ArrayLike) -> tuple[NDArray, NDArray]:
+    """Meridian ``M`` and prime-vertical ``N`` radii of curvature (m) of WGS84 at ``lat_deg``."""
+    s2 = np.sin(np.radians(np.asarray(lat_deg, float))) ** 2
+    w = np.sqrt(1.0 - _E2 * s2)
+    return _A * (1 - _E2) / w**3, _A / w
+
+
+def _up_ecef(lat_deg: NDArray, lon_deg: NDArray) -> NDArray:
+    lat, lon = np.radians(lat_deg), np.radians(lon_deg)
+    return np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], -1)
+
+
+def _as_vec3(x: ArrayLike, name: str) -> NDArray:
+    a = np.asarray(x, float)
+    if a.shape[-1:] != (3,):
+        raise ValueError(f"{name}: expected shape (..., 3), got {a.shape}")
+    return a
+
+
+class Terrain:
+    """A terrain height field with batched line-of-sight queries (base class).
+
+    Subclasses provide :meth:`_height_ab` on internal coordinates ``(a, b)``
+    given by :meth:`_param` (identity: latitude/longitude in degrees), the
+    attributes below, and optionally :meth:`_bound_ab` (an upper bound of the
+    terrain within one knot spacing of a point; default ``h_max``).
+
+    Attributes
+    ----------
+    name, description : str.  synthetic : bool (True: invented terrain, say so on plots).
+    h_max : float, m, an upper bound of the terrain height everywhere.
+    step_m : float, m, sampling step along rays (about half the resolution).
+    max_range_m : float, m, how far :meth:`sky_visible` and :meth:`horizon` look.
+    """
+
+    name: str = "terrain"
+    description: str = ""
+    synthetic: bool = True
+    h_max: float = 0.0
+    step_m: float = 50.0
+    max_range_m: float = 150e3
+    #: Samples between knots (exact geodetic conversion at knots, linear between).
+    KNOT_SAMPLES: int = 32
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(name={self.name!r}, synthetic={self.synthetic})"
+
+    # -- subclass hooks --------------------------------------------------------------
+    def _param(self, lat_deg: NDArray, lon_deg: NDArray) -> tuple[NDArray, NDArray]:
+        return lat_deg, lon_deg
+
+    def _height_ab(self, a: NDArray, b: NDArray) -> NDArray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _bound_ab(self, a: NDArray, b: NDArray) -> NDArray:
+        return np.full(np.shape(a), self.h_max)
+
+    # -- heights ---------------------------------------------------------------------
+    def height(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray | float:
+        """Terrain height (m, WGS84 ellipsoidal) at geodetic points; inputs broadcast.
+
+        NaN outside the model's extent. A scalar call returns a float.
+        """
+        lat, lon = np.broadcast_arrays(np.asarray(lat_deg, float), np.asarray(lon_deg, float))
+        h = self._height_ab(*self._param(lat, lon))
+        return float(h) if h.ndim == 0 else h
+
+    # -- rays ------------------------------------------------------------------------
+    def ray_clearance(self, origin_ecef: ArrayLike, direction_ecef: ArrayLike,
+                      s_min: ArrayLike, s_max: ArrayLike) -> NDArray:
+        """Lowest sampled clearance (ray height minus terrain height, m) along rays.
+
+        Parameters
+        ----------
+        origin_ecef : (..., 3) m.  direction_ecef : (..., 3) unit vectors (normalised here).
+        s_min, s_max : (...) m, the range interval of each ray that is tested.
+
+        Returns
+        -------
+        (...) m: ``+inf`` when the tested part never comes below the model's maximum
+        height (or lies outside the model), NaN for non-finite inputs.
+        """
+        o = _as_vec3(origin_ecef, "origin_ecef")
+        d = _as_vec3(direction_ecef, "direction_ecef")
+        o, d, s0, s1 = np.broadcast_arrays(o, d, np.asarray(s_min, float)[..., None],
+                                           np.asarray(s_max, float)[..., None])
+        shape = o.shape[:-1]
+        o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+        s0, s1 = s0[..., 0].reshape(-1), s1[..., 0].reshape(-1)
+        norm = np.linalg.norm(d, axis=-1)
+        good = np.isfinite(o).all(-1) & np.isfinite(d).all(-1) & np.isfinite(s0) & \
+            np.isfinite(s1) & (norm > 0)
+        out = np.full(o.shape[0], np.nan)
+        out[good] = self._clearance(o[good], d[good] / norm[good, None], s0[good], s1[good])
+        return out.reshape(shape)
+
+    def line_of_sight(self, origin_ecef: ArrayLike, target_ecef: ArrayLike,
+                      margin_m: float = 1.0) -> NDArray:
+        """True where the straight segment origin -> target clears the terrain.
+
+        Parameters
+        ----------
+        origin_ecef, target_ecef : (..., 3) m, broadcast.
+        margin_m : the last and first ``margin_m`` of each segment are not tested, so a
+            point lying on the surface (a landmark) does not mask itself.
+
+        Returns
+        -------
+        (...) bool. False for non-finite inputs.
+        """
+        o = _as_vec3(origin_ecef, "origin_ecef")
+        t = _as_vec3(target_ecef, "target_ecef")
+        v = t - o
+        L = np.linalg.norm(v, axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = v / L[..., None]
+        c = self.ray_clearance(o, d, np.minimum(margin_m, L / 2), np.maximum(L - margin_m, L / 2))
+        return np.asarray(np.nan_to_num(c, nan=-1.0) >= 0.0)
+
+    def sky_visible(self, origin_ecef: ArrayLike, direction_ecef: ArrayLike,
+                    margin_m: float = 1.0) -> NDArray:
+        """True where the ray from ``origin_ecef`` along ``direction_ecef`` clears the terrain.
+
+        For satellites (effectively at infinity). The ray is tested from ``margin_m`` to
+        ``max_range_m`` (terrain beyond the model's extent is not modelled).
+
+        Parameters
+        ----------
+        origin_ecef : (..., 3) m.  direction_ecef : (..., 3), normalised here; broadcast.
+
+        Returns
+        -------
+        (...) bool. False for non-finite inputs.
+        """
+        o = _as_vec3(origin_ecef, "origin_ecef")
+        c = self.ray_clearance(o, direction_ecef, margin_m, self.max_range_m)
+        return np.asarray(np.nan_to_num(c, nan=-1.0) >= 0.0)
+
+    def _clearance(self, o: NDArray, d: NDArray, s0: NDArray, s1: NDArray) -> NDArray:
+        """Kernel of :meth:`ray_clearance` on flat arrays ``(n, 3)``, ``(n,)``."""
+        n = o.shape[0]
+        out = np.full(n, np.inf)
+        if n == 0:
+            return out
+        # Clip each ray to where a sphere of radius _R_CLIP (tangent below the origin)
+        # puts it under h_max: |o + s d - C| <= R + H  <=>  s^2 + 2 b s + c <= 0.
+        lat0, lon0, h0 = ecef_to_geodetic(o)
+        sin_eps = np.einsum("ij,ij->i", d, _up_ecef(lat0, lon0))
+        rho = _R_CLIP + h0
+        b = rho * sin_eps
+        c = rho**2 - (_R_CLIP + self.h_max + _CLIP_SLACK_M) ** 2
+        disc = b * b - c
+        root = np.sqrt(np.maximum(disc, 0.0))
+        lo = np.maximum(s0, -b - root)
+        hi = np.minimum(s1, -b + root)
+        active = np.flatnonzero((disc >= 0) & (hi >= lo))
+        if active.size == 0:
+            return out
+        m = self.KNOT_SAMPLES
+        step = self.step_m
+        K = m * step
+        nseg = np.maximum(np.ceil((hi[active] - lo[active]) / K).astype(np.int64), 1)
+        # Chunk rays so that (knots x samples per segment) stays bounded.
+        budget = max(1, _CHUNK_SAMPLES // (m + 1))
+        csum = np.cumsum(nseg)
+        start = 0
+        while start < active.size:
+            stop = int(np.searchsorted(csum, (csum[start - 1] if start else 0) + budget, "right"))
+            stop = max(stop, start + 1)
+            rays = active[start:stop]
+            out[rays] = self._march(o[rays], d[rays], lo[rays], hi[rays], nseg[start:stop], K)
+            start = stop
+        return out
+
+    def _march(self, o: NDArray, d: NDArray, lo: NDArray, hi: NDArray, nseg: NDArray,
+               K: float) -> NDArray:
+        m = self.KNOT_SAMPLES
+        nk = nseg + 1
+        koff = np.concatenate([[0], np.cumsum(nk)[:-1]])
+        ray_k = np.repeat(np.arange(o.shape[0]), nk)
+        q = np.arange(nk.sum()) - np.repeat(koff, nk)
+        sk = lo[ray_k] + q * K
+        lat, lon, hk = ecef_to_geodetic(o[ray_k] + sk[:, None] * d[ray_k])
+        ak, bk = self._param(lat, lon)
+        # Segments k -> k+1 (drop each ray's last knot as a segment start).
+        seg = np.flatnonzero(q < np.repeat(nseg, nk))
+        low = np.minimum(hk[seg], hk[seg + 1]) - _CLIP_SLACK_M
+        suspect = seg[low < self._bound_ab(ak[seg], bk[seg])]
+        out = np.full(o.shape[0], np.inf)
+        if suspect.size == 0:
+            return out
+        t = np.arange(m + 1) / m  # (m+1,) fractions within a segment
+        a = ak[suspect, None] + t * (ak[suspect + 1] - ak[suspect])[:, None]
+        bb = bk[suspect, None] + t * (bk[suspect + 1] - bk[suspect])[:, None]
+        hr = hk[suspect, None] + t * (hk[suspect + 1] - hk[suspect])[:, None]
+        ht = self._height_ab(a, bb)
+        s = sk[suspect, None] + t * K
+        ray = ray_k[suspect]
+        valid = (s <= hi[ray, None] + 1e-6) & np.isfinite(ht)
+        clr = np.where(valid, hr - np.where(valid, ht, 0.0), np.inf).min(axis=1)
+        np.minimum.at(out, ray, clr)
+        return out
+
+    # -- horizon ---------------------------------------------------------------------
+    def horizon(self, lat_deg: float, lon_deg: float, h: float, azimuth_rad: ArrayLike,
+                max_range_m: float | None = None, step_m: float | None = None) -> NDArray:
+        """Terrain elevation angle by azimuth seen from a point: the horizon mask.
+
+        Parameters
+        ----------
+        lat_deg, lon_deg, h : the observer (deg, deg, m ellipsoidal).
+        azimuth_rad : (K,) from north, clockwise.
+        max_range_m : how far to look (default ``max_range_m``).  step_m : range step
+            (default twice ``step_m``, i.e. about the terrain resolution).
+
+        Returns
+        -------
+        (K,) rad: the largest elevation (in the observer's local ENU frame, curvature
+        and refraction-free geometry) of any terrain point within range; NaN where no
+        terrain is modelled along that azimuth.
+        """
+        az = np.atleast_1d(np.asarray(azimuth_rad, float))
+        rmax = self.max_range_m if max_range_m is None else float(max_range_m)
+        dr = 2 * self.step_m if step_m is None else float(step_m)
+        frame = LocalFrame(lat_deg, lon_deg, h)
+        r = np.arange(dr, rmax + 0.5 * dr, dr)
+        out = np.full(az.shape, -np.inf)
+        for chunk in np.array_split(np.arange(az.size), max(1, az.size * r.size // 400_000)):
+            a = az[chunk, None]
+            foot_enu = np.stack(np.broadcast_arrays(r * np.sin(a), r * np.cos(a), 0.0 * a), -1)
+            flat, flon, _ = frame.enu_to_geodetic(foot_enu)
+            ht = self.height(flat, flon)
+            ok = np.isfinite(ht)
+            p = frame.geodetic_to_enu(flat, flon, np.where(ok, ht, 0.0))
+            el = np.arctan2(p[..., 2], np.hypot(p[..., 0], p[..., 1]))
+            out[chunk] = np.where(ok, el, -np.inf).max(axis=1)
+        return np.where(np.isfinite(out), out, np.nan)
+
+    # -- visualisation ---------------------------------------------------------------
+    def mesh(self, frame: LocalFrame, half_size_m: float, spacing_m: float
+             ) -> tuple[NDArray, NDArray]:
+        """A triangle mesh of the terrain around ``frame``'s origin, for Rerun's ``Mesh3D``.
+
+        Parameters
+        ----------
+        frame : the world frame; vertices are in its ENU coordinates.
+        half_size_m : the square covers east and north in ``[-half_size_m, half_size_m]``.
+        spacing_m : vertex spacing in the frame's horizontal plane.
+
+        Returns
+        -------
+        vertices_enu : (V, 3) float64 m.  triangles : (F, 3) uint32 vertex indices
+        (counter-clockwise seen from above). Cells with no terrain are left out.
+        """
+        if not (half_size_m > 0 and spacing_m > 0):
+            raise ValueError(f"mesh: half_size_m and spacing_m must be > 0, got "
+                             f"{half_size_m}, {spacing_m}")
+        n = int(math.ceil(2 * half_size_m / spacing_m)) + 1
+        x = np.linspace(-half_size_m, half_size_m, n)
+        E, N = np.meshgrid(x, x)  # rows north, columns east
+        lat, lon, _ = frame.enu_to_geodetic(np.stack([E, N, np.zeros_like(E)], -1))
+        ht = self.height(lat, lon)
+        ok = np.isfinite(ht)
+        verts = frame.geodetic_to_enu(lat, lon, np.where(ok, ht, 0.0)).reshape(-1, 3)
+        idx = np.arange(n * n).reshape(n, n)
+        v00, v01, v10, v11 = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+        tri = np.concatenate([np.stack([v00, v01, v11], -1).reshape(-1, 3),
+                              np.stack([v00, v11, v10], -1).reshape(-1, 3)])
+        okf = ok.reshape(-1)
+        tri = tri[okf[tri].all(axis=1)]
+        used = np.zeros(n * n, bool)
+        used[tri.reshape(-1)] = True
+        remap = np.cumsum(used) - 1
+        return verts[used], remap[tri].astype(np.uint32)
+
+
+# ------------------------------------------------------------------------------------
+# Analytic models
+# ------------------------------------------------------------------------------------
+class _LocalMap:
+    """Equirectangular map about an anchor: x east, y north (m), linear in lon/lat.
+
+    Used to *define* analytic terrains; it is not a geodetic conversion (its scale
+    error grows with distance, which does not matter for a height field defined on it).
+    """
+
+    def __init__(self, lat_deg: float, lon_deg: float) -> None:
+        self.lat0, self.lon0 = float(lat_deg), float(lon_deg)
+        M, N = radii_of_curvature(self.lat0)
+        self.ky = float(M) * math.pi / 180.0  # m per degree of latitude
+        self.kx = float(N) * math.cos(math.radians(self.lat0)) * math.pi / 180.0
+
+    def xy(self, lat_deg: NDArray, lon_deg: NDArray) -> tuple[NDArray, NDArray]:
+        return (lon_deg - self.lon0) * self.kx, (lat_deg - self.lat0) * self.ky
+
+    def latlon(self, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray]:
+        return self.lat0 + np.asarray(y) / self.ky, self.lon0 + np.asarray(x) / self.kx
+
+
+class Flat(Terrain):
+    """Constant height ``h`` (m ellipsoidal) everywhere; for tests."""
+
+    synthetic = True
+
+    def __init__(self, h: float = airport.ELEVATION_M, max_range_m: float = 150e3) -> None:
+        self.h = float(h)
+        self.h_max = self.h
+        self.step_m = 100.0
+        self.max_range_m = float(max_range_m)
+        self.name = f"flat {self.h:.0f} m"
+        self.description = f"SYNTHETIC flat terrain at {self.h:.1f} m (WGS84 ellipsoidal)."
+
+    def _height_ab(self, a: NDArray, b: NDArray) -> NDArray:
+        return np.full(np.shape(a), self.h)
+
+
+class TwoRidges(Terrain):
+    """The VA-RAIM paper's terrain: two ridges parallel to the approach course.
+
+    Seed 000 §3.1 says "two mountain chains of unified height 1000 m, 3000 m east
+    and west of the centre"; taken literally the western chain stands in the
+    approach path, so (FACTS.md) we read them as two ridges *parallel to the
+    approach course*, their crests ``offset_m`` to either side of the centre.
+
+    Cross-section (our assumption, the paper gives none): a flat floor at the
+    centre's height ``h_field``; each ridge is a raised cosine
+    ``h_field + height_m * cos^2(pi * u / base_width_m)`` for ``|u| < base_width_m / 2``,
+    ``u`` being the cross-course distance from its crest; the ridges are uniform
+    along the course and unbounded. Distances are on a local equirectangular map
+    about the centre.
+    """
+
+    synthetic = True
+
+    def __init__(self, centre_lat_deg: float = airport.VA_RAIM_CENTRE[0],
+                 centre_lon_deg: float = airport.VA_RAIM_CENTRE[1],
+                 h_field: float = airport.VA_RAIM_CENTRE[2], offset_m: float = 3000.0,
+                 height_m: float = 1000.0, course_deg: float = 90.0,
+                 base_width_m: float = 2000.0, max_range_m: float = 150e3) -> None:
+        if not (0 < base_width_m <= 2 * offset_m):
+            raise ValueError(f"TwoRidges: base_width_m must be in (0, 2*offset_m], got {base_width_m}")
+        self.map = _LocalMap(centre_lat_deg, centre_lon_deg)
+        self.h_field, self.offset_m, self.height_m = float(h_field), float(offset_m), float(height_m)
+        self.course = math.radians(course_deg)
+        self.base_width_m = float(base_width_m)
+        self.h_max = self.h_field + max(self.height_m, 0.0)
+        self.step_m = self.base_width_m / 40
+        self.max_range_m = float(max_range_m)
+        self.name = "two ridges (VA-RAIM paper)"
+        self.description = (
+            f"SYNTHETIC: two raised-cosine ridges {self.height_m:.0f} m above {self.h_field:.0f} m, "
+            f"crests {self.offset_m:.0f} m either side of ({centre_lat_deg:.4f}, {centre_lon_deg:.4f}), "
+            f"parallel to course {course_deg:.1f} deg, base width {self.base_width_m:.0f} m.")
+
+    def _height_ab(self, a: NDArray, b: NDArray) -> NDArray:
+        x, y = self.map.xy(a, b)
+        c = x * math.cos(self.course) - y * math.sin(self.course)  # right of course
+        u = np.abs(np.abs(c) - self.offset_m)
+        bump = np.where(u < self.base_width_m / 2, np.cos(np.pi * u / self.base_width_m) ** 2, 0.0)
+        return self.h_field + self.height_m * bump
+
+
+# ------------------------------------------------------------------------------------
+# Grids
+# ------------------------------------------------------------------------------------
+class GridTerrain(Terrain):
+    """Heights on a regular latitude/longitude grid, bilinear in (lat, lon).
+
+    Parameters
+    ----------
+    lat_deg : (M,) ascending, evenly spaced.  lon_deg : (N,) ascending, evenly spaced.
+    height_m : (M, N) m, treated as WGS84 ellipsoidal (see :mod:`testbed.world.dem`).
+        NaN voids are filled from the nearest valid sample when ``fill_voids``,
+        otherwise they stay NaN (no terrain: never blocks a ray).
+    Outside the grid the height is NaN and nothing blocks rays.
+    """
+
+    #: Block size (cells) of the max-pyramid used to skip ray segments well above ground.
+    BLOCK = 16
+
+    def __init__(self, lat_deg: ArrayLike, lon_deg: ArrayLike, height_m: ArrayLike, *,
+                 name: str = "grid", description: str = "", synthetic: bool = False,
+                 fill_voids: bool = True, max_range_m: float = 150e3, source: str = "grid") -> None:
+        lat = np.array(lat_deg, float)
+        lon = np.array(lon_deg, float)
+        H = np.array(height_m, float)
+        if lat.ndim != 1 or lon.ndim != 1 or H.shape != (lat.size, lon.size) or min(H.shape) < 2:
+            raise ValueError(f"{source}: expected lat_deg (M,), lon_deg (N,), height_m (M, N) with "
+                             f"M, N >= 2; got {lat.shape}, {lon.shape}, {H.shape}")
+        check_regular(lat, f"{source}: lat_deg")
+        check_regular(lon, f"{source}: lon_deg")
+        self.n_void = int((~np.isfinite(H)).sum())
+        if fill_voids:
+            H = fill_voids_nearest(H)
+        if not np.isfinite(H).any():
+            raise ValueError(f"{source}: the grid has no valid heights")
+        self.lat_deg, self.lon_deg = lat, lon
+        self._H = np.ascontiguousarray(H, dtype=np.float32)
+        self._H.setflags(write=False)
+        self._Hflat = self._H.reshape(-1)
+        self._M, self._N = H.shape
+        self._lat0, self._lon0 = float(lat[0]), float(lon[0])
+        self._dlat = (float(lat[-1]) - self._lat0) / (self._M - 1)
+        self._dlon = (float(lon[-1]) - self._lon0) / (self._N - 1)
+        self._ilat, self._ilon = 1.0 / self._dlat, 1.0 / self._dlon
+        Mr, Nr = radii_of_curvature(lat.mean())
+        cell_lat_m = float(Mr) * math.radians(self._dlat)
+        cell_lon_m = float(Nr) * math.cos(math.radians(np.abs(lat).max())) * math.radians(self._dlon)
+        self.resolution_m = min(cell_lat_m, cell_lon_m)
+        self.step_m = 0.5 * self.resolution_m
+        self.h_max = float(np.nanmax(self._H))
+        self.max_range_m = float(max_range_m)
+        self.name, self.description, self.synthetic = name, description, synthetic
+        self._blockmax = self._block_max()
+
+    @classmethod
+    def from_hgt(cls, paths: list, **kw) -> "GridTerrain":
+        """Load one or several SRTM ``.hgt`` tiles (one resolution; mosaicked)."""
+        paths = list(paths)
+        lat, lon, h, nvoid = read_hgt_mosaic(paths)
+        names = ", ".join(str(p) for p in paths)
+        kw.setdefault("name", f"SRTM {names}")
+        kw.setdefault("description", f"SRTM DEM {names} ({nvoid} void samples); EGM96 heights "
+                      "used as ellipsoidal (no geoid in the testbed).")
+        return cls(lat, lon, h, source=names, **kw)
+
+    @classmethod
+    def from_npz(cls, path, **kw) -> "GridTerrain":
+        """Load a plain ``.npz`` grid (``lat_deg``, ``lon_deg``, ``height_m``)."""
+        lat, lon, h = read_npz(path)
+        kw.setdefault("name", f"grid {path}")
+        kw.setdefault("description", f"gridded terrain from {path}")
+        return cls(lat, lon, h, source=str(path), **kw)
+
+    @property
+    def extent_deg(self) -> tuple[float, float, float, float]:
+        """``(lat_min, lat_max, lon_min, lon_max)`` of the grid, deg."""
+        return (self._lat0, float(self.lat_deg[-1]), self._lon0, float(self.lon_deg[-1]))
+
+    def _block_max(self) -> NDArray:
+        """Max over each BLOCK x BLOCK cells (including their corner nodes), dilated 3x3.
+
+        A ray segment starting in block (i, j) and no longer than BLOCK cells in either
+        axis only meets terrain bounded by this value (bilinear heights are convex
+        combinations of the cell's nodes).
+        """
+        H = np.where(np.isfinite(self._H), self._H, -np.inf)
+        cell = np.maximum(np.maximum(H[:-1, :-1], H[:-1, 1:]), np.maximum(H[1:, :-1], H[1:, 1:]))
+        B = self.BLOCK
+        mi, ni = -(-cell.shape[0] // B), -(-cell.shape[1] // B)
+        pad = np.full((mi * B, ni * B), -np.inf)
+        pad[: cell.shape[0], : cell.shape[1]] = cell
+        blk = pad.reshape(mi, B, ni, B).max(axis=(1, 3))
+        blk = ndimage.maximum_filter(blk, size=3, mode="nearest")
+        return np.pad(blk, 1, mode="edge")  # one ring for knots just outside the grid
+
+    def _param(self, lat_deg: NDArray, lon_deg: NDArray) -> tuple[NDArray, NDArray]:
+        return (lat_deg - self._lat0) * self._ilat, (lon_deg - self._lon0) * self._ilon
+
+    def _bound_ab(self, a: NDArray, b: NDArray) -> NDArray:
+        B = self.BLOCK
+        bm = self._blockmax
+        inside = (a > -B) & (a < self._M - 1 + B) & (b > -B) & (b < self._N - 1 + B)
+        i = np.floor(np.where(inside, a, 0.0) / B).astype(np.intp) + 1
+        j = np.floor(np.where(inside, b, 0.0) / B).astype(np.intp) + 1
+        i = np.clip(i, 0, bm.shape[0] - 1)
+        j = np.clip(j, 0, bm.shape[1] - 1)
+        return np.where(inside, bm[i, j], -np.inf)
+
+    def _height_ab(self, a: NDArray, b: NDArray) -> NDArray:
+        M, N = self._M, self._N
+        inside = (a >= 0) & (a <= M - 1) & (b >= 0) & (b <= N - 1)
+        a = np.where(inside, a, 0.0)
+        b = np.where(inside, b, 0.0)
+        i = np.minimum(a.astype(np.intp), M - 2)
+        j = np.minimum(b.astype(np.intp), N - 2)
+        fa, fb = a - i, b - j
+        k = i * N + j
+        H = self._Hflat
+        h00, h01, h10, h11 = H[k], H[k + 1], H[k + N], H[k + N + 1]
+        h0 = h00 + fb * (h01 - h00)
+        h1 = h10 + fb * (h11 - h10)
+        return np.where(inside, h0 + fa * (h1 - h0), np.nan)
+
+    def height(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray | float:
+        """Bilinear height (m); NaN outside the grid. Scalar floats take a fast path."""
+        if type(lat_deg) is float and type(lon_deg) is float:
+            a = (lat_deg - self._lat0) * self._ilat
+            b = (lon_deg - self._lon0) * self._ilon
+            if not (0.0 <= a <= self._M - 1 and 0.0 <= b <= self._N - 1):
+                return math.nan
+            i = min(int(a), self._M - 2)
+            j = min(int(b), self._N - 2)
+            fa, fb = a - i, b - j
+            k = i * self._N + j
+            H = self._Hflat
+            h00, h01 = float(H[k]), float(H[k + 1])
+            h10, h11 = float(H[k + self._N]), float(H[k + self._N + 1])
+            h0 = h00 + fb * (h01 - h00)
+            return h0 + fa * (h10 + fb * (h11 - h10) - h0)
+        return super().height(lat_deg, lon_deg)
+
+
+# ------------------------------------------------------------------------------------
+# The synthetic LinZhi valley
+# ------------------------------------------------------------------------------------
+#: Runway course, true (deg), and the heading the valley axis turns to far south-west.
+VALLEY_RUNWAY_COURSE_DEG = airport.RWY05_COURSE_DEG
+VALLEY_FAR_COURSE_DEG = 75.0
+#: The valley axis is straight along the runway course for along-track >= BEND_START_M
+#: and turns (smoothstep in heading) to VALLEY_FAR_COURSE_DEG by BEND_END_M (metres from
+#: the RWY05 threshold along the runway course, negative to the south-west).
+VALLEY_BEND_START_M = -8000.0
+VALLEY_BEND_END_M = -16000.0
+#: Floor: 2939 m at THR05 rising 9 m over the 3 km runway, clipped to this band.
+VALLEY_FLOOR_BAND_M = (2880.0, 3010.0)
+#: Floor half-width: near the runway, in the bend and beyond, and north-east.
+VALLEY_FLOOR_HALF_WIDTH_M = {"runway": 1000.0, "bend": 1800.0, "north_east": 1300.0}
+#: Wall shape: rise = (crest - floor) * (1 - exp(-x^2 / (2 L^2))), x beyond the floor edge.
+VALLEY_WALL_L_M = 950.0
+VALLEY_CREST_M = 5250.0
+VALLEY_CREST_VAR_M = 300.0
+VALLEY_ROUGH_M = 250.0
+VALLEY_SEED = 20_061_003  # fixed: the roughness is part of the model's definition
+#: Broad peaks: (name, height m, range m and bearing deg from the ARP, flank slope, cap radius m).
+VALLEY_PEAKS = (("Namcha Barwa", 7782.0, 79e3, 62.0, 0.30, 2000.0),
+                ("Gyala Peri", 7294.0, 84e3, 47.0, 0.30, 2000.0))
+
+
+def _smoothstep(t: NDArray) -> NDArray:
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+class _ValleyGeometry:
+    """The valley's coordinates on the equirectangular map about the RWY05 threshold."""
+
+    def __init__(self) -> None:
+        t05, t23 = airport.RWY05, airport.RWY23
+        self.map = _LocalMap(t05.lat_deg, t05.lon_deg)
+        x23, y23 = self.map.xy(t23.lat_deg, t23.lon_deg)
+        L = math.hypot(x23, y23)
+        self.u = np.array([x23, y23]) / L  # along the runway (north-east)
+        self.v = np.array([self.u[1], -self.u[0]])  # right of it (south-east)
+        self.a23 = L
+        self.floor_slope = (t23.h - t05.h) / L
+        # Centreline offset g(a) from the straight extended axis: g' = tan(theta(a)).
+        a = np.arange(-400e3, VALLEY_BEND_START_M + 1.0, 25.0)
+        th = self.theta(a)
+        tan = np.tan(th)
+        cum = np.concatenate([[0.0], np.cumsum(0.5 * (tan[1:] + tan[:-1]) * np.diff(a))])
+        self._ga, self._gv = a, cum - cum[-1]
+
+    @staticmethod
+    def theta(a: NDArray) -> NDArray:
+        t = (VALLEY_BEND_START_M - np.asarray(a, float)) / (VALLEY_BEND_START_M - VALLEY_BEND_END_M)
+        return math.radians(VALLEY_FAR_COURSE_DEG - VALLEY_RUNWAY_COURSE_DEG) * _smoothstep(t)
+
+    def g(self, a: NDArray) -> NDArray:
+        return np.interp(a, self._ga, self._gv, right=0.0)
+
+    def half_width(self, a: NDArray) -> NDArray:
+        w = VALLEY_FLOOR_HALF_WIDTH_M
+        sw = _smoothstep((-6000.0 - np.asarray(a)) / 8000.0)
+        ne = _smoothstep((np.asarray(a) - 8000.0) / 8000.0)
+        return w["runway"] + (w["bend"] - w["runway"]) * sw + (w["north_east"] - w["runway"]) * ne
+
+    def floor(self, a: NDArray) -> NDArray:
+        return np.clip(airport.RWY05.h + self.floor_slope * np.asarray(a), *VALLEY_FLOOR_BAND_M)
+
+    def along_cross(self, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray]:
+        """Along-axis coordinate (m from THR05) and signed distance from the centreline (m)."""
+        a = x * self.u[0] + y * self.u[1]
+        c = x * self.v[0] + y * self.v[1]
+        return a, (c - self.g(a)) * np.cos(self.theta(a))
+
+
+@functools.lru_cache(maxsize=None)
+def _valley_geometry() -> _ValleyGeometry:
+    return _ValleyGeometry()
+
+
+def valley_centreline(along_m: ArrayLike) -> tuple[NDArray, NDArray]:
+    """Points on the synthetic valley's floor centreline: ``(lat_deg, lon_deg)``.
+
+    ``along_m`` is the distance along the runway course from the RWY05 threshold
+    (negative to the south-west). For ``along_m >= VALLEY_BEND_START_M`` (-8 km) the
+    centreline is the runway centreline and its extension; between -8 and -16 km its
+    heading turns smoothly (smoothstep in angle) from 054.65 deg to 075 deg, so far
+    south-west the valley comes from the WSW (bearing 255 deg). The lateral offset at
+    -14 km is ~0.75 km to the north-west, so the straight-in final stays on the floor.
+    Exactly: centreline = straight axis point at ``along_m`` plus ``g(along_m)`` metres to the
+    right (south-east) of the runway course on the local equirectangular map, with
+    ``g' = tan(theta)``, ``theta`` the heading change.
+    """
+    geo = _valley_geometry()
+    a = np.asarray(along_m, float)
+    g = geo.g(a)
+    x = a * geo.u[0] + g * geo.v[0]
+    y = a * geo.u[1] + g * geo.v[1]
+    return geo.map.latlon(x, y)
+
+
+def valley_axis_heading_deg(along_m: ArrayLike) -> NDArray:
+    """Heading (true, deg, pointing north-east) of the valley centreline at ``along_m``."""
+    return VALLEY_RUNWAY_COURSE_DEG + np.degrees(_ValleyGeometry.theta(along_m))
+
+
+def valley_floor_half_width_m(along_m: ArrayLike) -> NDArray:
+    """Half-width of the flat valley floor (no roughness there) at ``along_m``, m."""
+    return _valley_geometry().half_width(along_m)
+
+
+def _noise_field(rng: np.random.Generator, shape: tuple[int, int], sigma_cells: float) -> NDArray:
+    f = ndimage.gaussian_filter(rng.standard_normal(shape), sigma_cells, mode="wrap")
+    return f / f.std()
+
+
+def valley_height_xy(x: NDArray, y: NDArray) -> NDArray:
+    """The synthetic valley's defining height function on its map (x east, y north, m).
+
+    Heights m. Floor (no roughness), walls rising to crests of
+    ``VALLEY_CREST_M +- VALLEY_CREST_VAR_M`` with ``+-VALLEY_ROUGH_M`` spur roughness
+    (fixed-seed smooth noise on a 500 m lattice), and the two broad peaks.
+    """
+    geo = _valley_geometry()
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    a, c = geo.along_cross(x, y)
+    floor = geo.floor(a)
+    big, small, spur = _valley_noise(x, y)
+    # Spurs: the wall edge moves in and out by up to 400 m, except along the approach
+    # and runway (along -16 .. +4 km) where the floor width is kept as designed.
+    keep = _smoothstep((-16000.0 - a) / 3000.0) + _smoothstep((a - 4000.0) / 3000.0)
+    xw = np.maximum(np.abs(c) - geo.half_width(a) + 400.0 * np.tanh(spur) * keep, 0.0)
+    crest = VALLEY_CREST_M + VALLEY_CREST_VAR_M * np.tanh(big)
+    rise = 1.0 - np.exp(-0.5 * (xw / VALLEY_WALL_L_M) ** 2)
+    # Ridged noise (1 - 2|n|) has sharp crests along the noise's zero lines: spurs.
+    rough = VALLEY_ROUGH_M * (1.0 - 2.0 * np.abs(np.tanh(small))) * \
+        (1.0 - np.exp(-0.5 * (xw / 600.0) ** 2))
+    h = floor + (crest - floor) * rise + rough
+    for _, P, rng_m, brg, slope, r0 in VALLEY_PEAKS:
+        px, py = _peak_xy(rng_m, brg)
+        r = np.hypot(x - px, y - py)
+        h = np.maximum(h, P - slope * (np.sqrt(r * r + r0 * r0) - r0))
+    return h
+
+
+@functools.lru_cache(maxsize=None)
+def _peak_xy(range_m: float, bearing_deg: float) -> tuple[float, float]:
+    lat, lon = pymap3d.vincenty.vreckon(airport.ARP_LAT_DEG, airport.ARP_LON_DEG, range_m, bearing_deg)
+    x, y = _valley_geometry().map.xy(float(lat), float(lon))
+    return float(x), float(y)
+
+
+_NOISE_LATTICE_M = 500.0
+_NOISE_HALF_M = 160e3
+
+
+@functools.lru_cache(maxsize=None)
+def _noise_lattice() -> tuple[NDArray, NDArray, NDArray]:
+    rng = np.random.default_rng(VALLEY_SEED)
+    n = int(2 * _NOISE_HALF_M / _NOISE_LATTICE_M) + 1
+    return (_noise_field(rng, (n, n), 12.0), _noise_field(rng, (n, n), 2.5),
+            _noise_field(rng, (n, n), 5.0))
+
+
+def _valley_noise(x: NDArray, y: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    coords = np.stack([(y + _NOISE_HALF_M) / _NOISE_LATTICE_M, (x + _NOISE_HALF_M) / _NOISE_LATTICE_M])
+    return tuple(ndimage.map_coordinates(f, coords, order=1, mode="nearest") for f in _noise_lattice())
+
+
+#: Grid of the rasterised valley: spacing (arc-seconds) and half extents (deg) about THR05.
+VALLEY_GRID_ARCSEC = 3.0
+VALLEY_HALF_EXTENT_DEG = (0.9, 1.0)
+
+
+@functools.lru_cache(maxsize=2)
+def _valley_grid(spacing_arcsec: float, half_lat: float, half_lon: float
+                 ) -> tuple[NDArray, NDArray, NDArray]:
+    t05 = airport.RWY05
+    d = spacing_arcsec / 3600.0
+    nlat, nlon = int(round(half_lat / d)), int(round(half_lon / d))
+    lat = t05.lat_deg + d * np.arange(-nlat, nlat + 1)
+    lon = t05.lon_deg + d * np.arange(-nlon, nlon + 1)
+    geo = _valley_geometry()
+    x, y = geo.map.xy(lat[:, None], lon[None, :])
+    rows = []
+    for i0 in range(0, lat.size, 256):  # bound temporaries
+        xx, yy = np.broadcast_arrays(x, y[i0:i0 + 256])
+        rows.append(valley_height_xy(xx, yy).astype(np.float32))
+    return lat, lon, np.concatenate(rows)
+
+
+class LinZhiSyntheticValley(GridTerrain):
+    """SYNTHETIC terrain around ZUNZ built from the published figures (FACTS.md).
+
+    Not a survey: a valley along the runway course (054.65 deg true) through both
+    thresholds, floor 2939 m at THR05 rising linearly to 2948 m at THR23 (then
+    continuing at 3 m/km, clipped to 2880-3010 m), flat floor half-width 1.0 km at
+    the runway (1.8 km in the south-western bend, 1.3 km north-east), walls rising
+    as ``(crest - floor)(1 - exp(-x^2/2L^2))`` with L = 950 m beyond the floor edge,
+    so the 4000 m contours are ~4 km apart at the runway; crests 4950-5550 m plus
+    +-250 m fixed-seed roughness (5000-6000 m class); beyond 16 km south-west
+    the valley turns to come from the WSW (see :func:`valley_centreline`); Namcha
+    Barwa (7782 m, 79 km at 062 deg) and Gyala Peri (7294 m, 84 km at 047 deg) as
+    broad cones (flanks 0.3, i.e. 17 deg). Rasterised on a 3" grid (~90 x 81 m)
+    +-0.9 deg lat, +-1.0 deg lon about THR05 (about +-100 km); heights WGS84
+    ellipsoidal. Built once per process (~1-2 s) and shared.
+    """
+
+    def __init__(self, max_range_m: float = 150e3) -> None:
+        lat, lon, H = _valley_grid(VALLEY_GRID_ARCSEC, *VALLEY_HALF_EXTENT_DEG)
+        super().__init__(lat, lon, H, name="LinZhi synthetic valley (SYNTHETIC)",
+                         synthetic=True, fill_voids=False, max_range_m=max_range_m,
+                         source="LinZhiSyntheticValley",
+                         description=("SYNTHETIC terrain, not a survey: a valley along runway 05/23 "
+                                      "at ZUNZ built from published figures (floor ~2940 m, 4000 m "
+                                      "walls ~2 km either side, crests 5000-6000 m, Namcha Barwa and "
+                                      "Gyala Peri as broad peaks)."))
