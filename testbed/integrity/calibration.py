@@ -1,0 +1,189 @@
+"""GPS-based calibration of vision pseudoranges (seed 000 eq. 12-18, INTEGRITY_MATH.md §3).
+
+At a calibration epoch k = 0 (GPS-only RAIM available, its PLs within the alert
+limits, no alert, vision ranges available) the GPS fix ``x̃(0)`` with
+covariance ``Δ_G(0)`` and the vision quantities ``z_V(0), A(0), B(0), Σ_c(0)``
+are stored. For a later epoch k with the *same landmark set*::
+
+    β(0) = z_V(0) − r(x̃(0))                      (r: ranges from the camera at x̃(0))
+    β(k) = M A(0) β(0),      M = A⁺(k) B(k) B(0)⁻¹
+    ẑ_V(k) = z_V(k) − β(k)
+
+The landmark-survey error δd² cancels (to first order), leaving the errors of
+the current detections, of the calibration-epoch detections and of the GPS fix::
+
+    ẑ_V(k) − r(x(k)) = A⁺(k) δc(k) − M P₀ δc(0) + M A(0) H_V(0) (x̃(0) − x(0))
+                       + (A⁺(k) B(k) − M P₀ B(0)) δd²,       P₀ = A(0) A⁺(0)
+
+    Σ̂_V(k) = Σ_V(k) + M P₀ Σ_c(0) P₀ᵀ Mᵀ + M A(0) H_V(0) Δ_G(0) H_V(0)ᵀ A(0)ᵀ Mᵀ
+             + L_d Σ_d L_dᵀ,   L_d = A⁺(k) B(k) − M P₀ B(0).
+
+For N_V = 3 (the seed's case) A(0) is square, ``P₀ = I``, ``L_d = 0`` and this
+is exactly the seed's Σ̂_V (eq. 17). For N_V > 3 the seed's cancellation is
+incomplete — ``A(0)A⁺(0)`` is a projector, not the identity, so ``δc(0)`` enters
+through ``P₀`` and a residual survey term ``L_d δd²`` remains; both are carried
+here (a deliberate extension: the seed only derives N_V = 3). ``Δ_G`` is the
+position block of the GPS ``J`` (``H_V`` has no clock column).
+
+Calibration is a sequential choice in time, implemented without an epoch
+loop: for each distinct landmark set (a handful per flight) the first valid
+epoch per trial is an ``argmax`` over the epoch axis. An epoch uses the
+calibration made at the first valid epoch *with the same landmark set* at or
+before it; a new set is recalibrated as soon as GPS allows, and returning to
+an earlier set reuses its calibration (the survey bias is time-invariant).
+Epochs with no calibration yet are "uncalibrated": the monitor excludes them
+or inflates their covariance by the survey term ``A⁺ B Σ_d B A⁺ᵀ``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from testbed.integrity.vision_ranges import VisionRanges, pair_indices, survey_covariance
+
+
+def landmark_set_key(used: NDArray, ok: NDArray) -> NDArray:
+    """Integer code (..., T) of the landmark set used at each epoch; -1 where vision is unavailable.
+
+    used : (..., T, L) bool (L ≤ 62).  ok : (..., T) bool.
+    """
+    L = used.shape[-1]
+    if L > 62:
+        raise ValueError(f"landmark slots: expected at most 62 for the set code, got {L}")
+    key = np.sum(used.astype(np.int64) << np.arange(L, dtype=np.int64), axis=-1)
+    return np.where(ok, key, -1)
+
+
+def calibration_epochs(candidate: ArrayLike, set_key: ArrayLike) -> NDArray:
+    """Index of the calibration epoch used at each epoch, or -1 (uncalibrated).
+
+    Parameters
+    ----------
+    candidate : (..., T) bool, epochs where a calibration may be made.
+    set_key : (..., T) int, landmark set code (-1: no vision).
+
+    Returns
+    -------
+    cal_idx : (..., T) int, for epoch k the first epoch k0 ≤ k with
+        ``candidate[k0]`` and ``set_key[k0] == set_key[k]``; -1 if none.
+
+    Vectorised over trials and epochs: one ``argmax`` per distinct landmark set.
+    """
+    cand = np.asarray(candidate, bool)
+    key = np.asarray(set_key)
+    if cand.shape != key.shape:
+        raise ValueError(f"candidate and set_key: expected equal shapes, got {cand.shape} and {key.shape}")
+    T = key.shape[-1]
+    t = np.arange(T)
+    out = np.full(key.shape, -1, np.int64)
+    for kappa in np.unique(key[(key >= 0) & cand]):
+        valid = cand & (key == kappa)
+        has = valid.any(-1)
+        first = np.argmax(valid, axis=-1)  # first True (0 where none: masked by `has`)
+        use = (key == kappa) & has[..., None] & (t >= first[..., None])
+        out = np.where(use, first[..., None], out)
+    return out
+
+
+def _gather_t(a: NDArray, idx: NDArray) -> NDArray:
+    """``a[..., idx[...], tail...]`` along the epoch axis (axis ``idx.ndim − 1``)."""
+    ax = idx.ndim - 1
+    ii = idx.reshape(idx.shape + (1,) * (a.ndim - idx.ndim))
+    return np.take_along_axis(a, np.broadcast_to(ii, idx.shape + a.shape[idx.ndim:]) if a.ndim > idx.ndim
+                              else ii, axis=ax)
+
+
+def ranges_and_rows(pos_enu: NDArray, cam_offset_enu: NDArray, landmark_enu: NDArray) -> tuple[NDArray, NDArray]:
+    """Ranges r (..., L) from the camera at ``pos + offset`` and position rows H (..., L, 3) = ∂r/∂pos."""
+    d = landmark_enu - (pos_enu + cam_offset_enu)[..., None, :]
+    r = np.linalg.norm(d, axis=-1)
+    return r, -d / r[..., None]
+
+
+@dataclass(frozen=True)
+class CalibratedRanges:
+    """Calibrated vision ranges for a batch (shape ``(..., T)``).
+
+    z_hat : (..., T, L) m, ẑ_V (NaN where not calibrated or unavailable).
+    Sigma_hat : (..., T, L, L) m², Σ̂_V (zero on unused slots; NaN where not calibrated).
+    beta : (..., T, L) m, the carried bias β(k).  beta0 : (..., T, L) m, β(0) of the calibration used.
+    calibrated : (..., T) bool.  cal_idx : (..., T) int, calibration epoch (-1 none).
+    Sigma_uncal : (..., T, L, L) m², Σ_V plus the survey term (for 'inflate').
+    """
+
+    z_hat: NDArray
+    Sigma_hat: NDArray
+    beta: NDArray
+    beta0: NDArray
+    calibrated: NDArray
+    cal_idx: NDArray
+    Sigma_uncal: NDArray
+
+
+def uncalibrated_covariance(vr: VisionRanges, survey_cov: NDArray) -> NDArray:
+    """Σ_V + A⁺ B Σ_d B A⁺ᵀ (..., L, L): the snapshot covariance of *uncalibrated* ranges."""
+    AB = vr.A_pinv * vr.B[..., None, :]
+    return vr.Sigma_V + AB @ survey_cov @ np.swapaxes(AB, -1, -2)
+
+
+def calibrate(vr: VisionRanges, cal_idx: ArrayLike, x_gps_enu: ArrayLike, P_gps: ArrayLike,
+              cam_offset_enu: ArrayLike, landmark_enu: ArrayLike, survey_sigma_m: float) -> CalibratedRanges:
+    """Apply the GPS calibration (seed eq. 16-17, generalised to N_V ≥ 3).
+
+    Parameters
+    ----------
+    vr : :class:`VisionRanges` for every epoch (batch shape (..., T)).
+    cal_idx : (..., T) int from :func:`calibration_epochs` (-1: uncalibrated).
+    x_gps_enu : (..., T, 3) m, GPS-only position fix of the reference point (read at the
+        calibration epochs only).
+    P_gps : (..., T, 3, 3) m², its covariance (position block of J_G).
+    cam_offset_enu : (..., T, 3) m, camera position minus reference point (lever arm
+        rotated by the attitude *reference*).
+    landmark_enu : (L, 3) m, surveyed landmark positions in the world frame.
+    survey_sigma_m : landmark survey 1-sigma per axis σ_g (m), for the residual
+        survey term (N_V > 3) and the uncalibrated covariance.
+    """
+    idx = np.asarray(cal_idx)
+    has = idx >= 0
+    i0 = np.where(has, idx, 0)
+    p = np.asarray(landmark_enu, float)
+    L = p.shape[0]
+    Sd = survey_covariance(p, survey_sigma_m)
+
+    # epoch-0 quantities, gathered for every epoch k
+    z0 = _gather_t(vr.m, i0)
+    A0 = _gather_t(vr.A, i0)
+    B0 = _gather_t(vr.B, i0)
+    Ap0 = _gather_t(vr.A_pinv, i0)
+    Sc0 = _gather_t(vr.Sigma_c, i0)
+    x0 = _gather_t(np.asarray(x_gps_enu, float), i0)
+    P0g = _gather_t(np.asarray(P_gps, float), i0)
+    off0 = _gather_t(np.asarray(cam_offset_enu, float), i0)
+    used0 = _gather_t(vr.used, i0)
+
+    r0, H0 = ranges_and_rows(x0, off0, p)
+    with np.errstate(invalid="ignore"):
+        beta0 = np.where(used0, z0 - r0, 0.0)
+    beta0 = np.where(np.isfinite(beta0), beta0, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(B0 != 0, vr.B / B0, 0.0)  # diag of B(k) B(0)⁻¹
+    ratio = np.where(np.isfinite(ratio), ratio, 0.0)
+    M = vr.A_pinv * ratio[..., None, :]  # (..., L, N_C)
+    MA0 = M @ A0  # (..., L, L)
+    beta = np.einsum("...ij,...j->...i", MA0, beta0)
+    P0 = A0 @ Ap0  # (..., N_C, N_C) = I on the valid pairs when N_V = 3
+    MP0 = M @ P0
+    MAH = MA0 @ (H0 * used0[..., None])  # (..., L, 3)
+    Ld = vr.A_pinv * vr.B[..., None, :] - MP0 * B0[..., None, :]
+    tr = lambda X: np.swapaxes(X, -1, -2)  # noqa: E731
+    Sigma_hat = (vr.Sigma_V + MP0 @ Sc0 @ tr(MP0) + MAH @ P0g @ tr(MAH) + Ld @ Sd @ tr(Ld))
+
+    calibrated = has & vr.ok
+    z_hat = np.where(calibrated[..., None] & vr.used, vr.m - beta, np.nan)
+    Sigma_hat = np.where(calibrated[..., None, None], Sigma_hat, np.nan)
+    return CalibratedRanges(z_hat=z_hat, Sigma_hat=Sigma_hat, beta=np.where(calibrated[..., None], beta, np.nan),
+                            beta0=np.where(calibrated[..., None], beta0, np.nan), calibrated=calibrated,
+                            cal_idx=np.where(calibrated, idx, -1), Sigma_uncal=uncalibrated_covariance(vr, Sd))

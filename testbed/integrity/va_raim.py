@@ -1,0 +1,291 @@
+"""Vision-aided RAIM (VA-RAIM, seed 000 §2.3; INTEGRITY_MATH.md §2-§4).
+
+Per epoch (batched over trials and epochs, no epoch loop):
+
+1. GPS-only RAIM (:func:`testbed.integrity.raim.gps_raim`) gives the GPS fix,
+   its covariance ``J_G`` and the calibration criteria.
+2. Vision pseudoranges by the cosine rule (:mod:`.vision_ranges`), started
+   from ranges predicted from the GPS fix (or the last one, forward-filled
+   with a growing covariance) — never from truth; non-convergence and branch
+   jumps make vision unavailable for that epoch.
+3. GPS calibration (:mod:`.calibration`) removes the landmark-survey bias.
+4. Integrated iterated WLS on the stacked rows (:mod:`.lsq`):
+   * N_V = 3: the modified, single-fault-preserving equation (seed eq. 18)
+     ``z′ = A ẑ_V``, ``H′ = A H_V``, ``Σ′ = A Σ̂_V Aᵀ``;
+   * N_V > 3: ``ẑ_V`` with its full covariance Σ̂_V (``A Σ̂_V Aᵀ`` would be
+     N_C × N_C of rank N_V: singular);
+   then the SSE test, slopes, both PL variants and availability per level.
+
+The state is the aircraft reference point ``[E, N, U, clock]`` in the world
+frame: GPS rows see the antenna at ``x + R·l_ant`` and vision rows the camera
+at ``ĉ = x + R·l_cam``, with R from the navigation attitude *reference*
+(``VisionEpochs.q_body_to_enu_ref``), never truth. Vision rows have no clock
+term, so an epoch with no GPS rows is singular (the clock is unobservable).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import Field, field_validator
+
+from testbed.frames import LocalFrame, q_to_R
+from testbed.integrity import lsq
+from testbed.integrity.calibration import CalibratedRanges, calibrate, calibration_epochs, landmark_set_key
+from testbed.integrity.levels import SERVICE_LEVELS, availability, service_level
+from testbed.integrity.raim import compact_rows, gps_raim
+from testbed.integrity.settings import IntegritySettings
+from testbed.integrity.vision_ranges import (VISION_REASONS, VisionRanges, VisionRangeSettings,
+                                             vision_pseudoranges, _safe_solve)
+from testbed.records import GnssEpochs, MonitorOutput, VisionEpochs
+from testbed.schema import StrictModel
+
+
+class VaRaimSettings(StrictModel):
+    """Settings of the VA-RAIM monitor."""
+
+    integrity: IntegritySettings = Field(default_factory=IntegritySettings,
+                                         description="P_FA, P_MD, PL variant, service levels, WLS tolerances "
+                                                     "(shared with GPS-only RAIM).")
+    vision: VisionRangeSettings = Field(default_factory=VisionRangeSettings,
+                                        description="Cosine-rule solve and branch protection.")
+    calibration: Literal["gps", "none"] = Field(
+        "gps", description="'gps': calibrate vision ranges with GPS (seed eq. 12-18); 'none': use raw ranges "
+                           "with the survey error in their covariance (for comparison).")
+    calibration_level: str = Field(
+        "APV-I", description="Service level whose alert limits the GPS-only PLs must meet at a calibration epoch.")
+    uncalibrated: Literal["exclude", "inflate"] = Field(
+        "exclude", description="Vision rows at epochs without a valid calibration for the current landmark set: "
+                               "'exclude' them, or 'inflate' = use raw ranges with covariance "
+                               "Σ_V + A⁺BΣ_dBA⁺ᵀ (survey error included).")
+    landmark_survey_sigma_m: float = Field(
+        0.05, ge=0.0, description="Landmark survey error σ_g per axis (m) the monitor assumes (LPE).")
+    modified_equation: bool = Field(
+        True, description="N_V = 3: use the single-fault-preserving rows z′ = A ẑ_V (seed eq. 18). False: use ẑ_V "
+                          "with Σ̂_V (same fix and SSE, different slopes).")
+    prior_floor_m: float = Field(
+        30.0, ge=0.0, description="1-sigma (m per axis) added to the GPS-fix covariance when it predicts the vision "
+                                  "ranges for the branch gate: covers undetected GPS errors, so a GPS fault does not "
+                                  "masquerade as a P3P branch jump.")
+    prior_speed_m_s: float = Field(
+        150.0, gt=0.0, description="When an epoch has no GPS fix the last one is carried forward with sigma growing "
+                                   "by this speed (m/s) times the elapsed time.")
+
+    @field_validator("calibration_level")
+    @classmethod
+    def _known(cls, v: str) -> str:
+        if v not in SERVICE_LEVELS:
+            raise ValueError(f"unknown service level {v!r}; expected one of {list(SERVICE_LEVELS)}")
+        return v
+
+
+def _forward_fill_index(valid: NDArray) -> NDArray:
+    """(..., T) index of the latest valid epoch at or before each epoch (-1 if none)."""
+    T = valid.shape[-1]
+    i = np.where(valid, np.arange(T), -1)
+    return np.maximum.accumulate(i, axis=-1)
+
+
+def _take_t(a: NDArray, idx: NDArray) -> NDArray:
+    ii = idx.reshape(idx.shape + (1,) * (a.ndim - idx.ndim))
+    return np.take_along_axis(a, ii, axis=idx.ndim - 1)
+
+
+@dataclass(frozen=True)
+class _VisionRows:
+    z: NDArray  # (..., R)
+    Tm: NDArray  # (..., R, L)
+    W: NDArray  # (..., R, R)
+    mask: NDArray  # (..., R)
+    modified: NDArray  # (...) bool
+
+
+def _vision_rows(vr: VisionRanges, z: NDArray, Sigma: NDArray, use: NDArray, modified_ok: bool) -> _VisionRows:
+    """Rows, transform and weights of the vision block (R = N_C rows; see module doc)."""
+    L = vr.m.shape[-1]
+    nc = vr.A.shape[-2]
+    modified = use & (vr.n_v == 3) & modified_ok
+    eye = np.eye(nc, L)
+    Tm = np.where(modified[..., None, None], vr.A, eye)
+    used = vr.used & use[..., None]
+    mask_plain = np.concatenate([used, np.zeros(used.shape[:-1] + (nc - L,), bool)], axis=-1)
+    mask = np.where(modified[..., None], vr.pair_mask & use[..., None], mask_plain)
+    z0 = np.where(used, z, 0.0)
+    z0 = np.where(np.isfinite(z0), z0, 0.0)
+    zr = np.einsum("...rl,...l->...r", Tm, z0)
+    S0 = np.where(used[..., :, None] & used[..., None, :], Sigma, 0.0)
+    S0 = np.where(np.isfinite(S0), S0, 0.0)
+    Sp = Tm @ S0 @ np.swapaxes(Tm, -1, -2)
+    mm = mask[..., :, None] & mask[..., None, :]
+    Sp = np.where(mm, Sp, 0.0) + np.einsum("...i,ij->...ij", (~mask).astype(float), np.eye(nc))
+    W, good = _safe_solve(Sp, np.broadcast_to(np.eye(nc), Sp.shape))
+    W = np.where(mm, W, 0.0)
+    mask = mask & good[..., None]
+    W = np.where(good[..., None, None], W, 0.0)
+    return _VisionRows(z=np.where(mask, zr, np.nan), Tm=Tm, W=W, mask=mask, modified=modified)
+
+
+def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
+            settings: VaRaimSettings | None = None, name: str = "va_raim") -> MonitorOutput:
+    """The vision-aided RAIM monitor for every epoch (and trial) of a run.
+
+    Parameters
+    ----------
+    gnss : GnssEpochs, pseudoranges (B..., T, S).
+    vision : VisionEpochs, pixel_uv (B..., T, L, 2), detected / sigma_px (B..., T, L),
+        q_body_to_enu_ref (B..., T, 4), surveyed landmark_pos_ecef (L, 3), K, camera mount.
+    frame : the world frame; the state is [E, N, U, clock] of the reference point in it.
+    settings : :class:`VaRaimSettings`.
+
+    Returns
+    -------
+    MonitorOutput (reasons: :data:`testbed.integrity.lsq.REASONS`) with diagnostics:
+    ``gps`` (the GPS-only RAIM MonitorOutput), ``vision_m`` (B..., T, L) raw vision ranges,
+    ``vision_Sigma_V`` (B..., T, L, L), ``vision_reason`` (B..., T) with texts
+    ``vision_reasons``, ``vision_iterations``, ``vision_residual_stat``, ``vision_gate_stat``
+    (branch flags), ``z_hat`` / ``Sigma_hat`` / ``beta`` / ``calibrated`` / ``cal_idx``
+    (calibration), ``vision_rows_used`` (B..., T) bool, ``modified`` (B..., T) bool,
+    ``n_gps``, ``n_vision_rows``, ``hslope``/``vslope`` (B..., T, N) over the stacked rows
+    (GPS rows compacted first, then the vision block), ``hpl_seed``/``vpl_seed``/
+    ``hpl_pbias``/``vpl_pbias``, ``lam_det``, ``cond``, ``converged``.
+    """
+    st = settings or VaRaimSettings()
+    ist = st.integrity
+    pr = np.asarray(gnss.pseudorange, float)
+    bt = pr.shape[:-1]  # (B..., T)
+    S = pr.shape[-1]
+    T = bt[-1]
+    t = np.asarray(gnss.t, float)
+    uv = np.asarray(vision.pixel_uv, float)
+    if uv.shape[:-2] != bt:
+        raise ValueError(f"vision.pixel_uv: expected batch/epoch shape {bt} (from gnss.pseudorange), "
+                         f"got {uv.shape[:-2]}")
+    if len(vision.t) != T or not np.allclose(np.asarray(vision.t, float), t):
+        raise ValueError("vision.t: expected the same epochs as gnss.t (resample one of them first)")
+    p_enu = frame.ecef_to_enu(np.asarray(vision.landmark_pos_ecef, float))  # (L, 3)
+    L = p_enu.shape[0]
+
+    # --- lever arms through the attitude reference (local ENU at the aircraft ≈ world ENU:
+    # the frames differ by ~0.16 mrad per km from the origin, < 5 mm on a 5 m lever arm at 6 km)
+    q = np.broadcast_to(np.asarray(vision.q_body_to_enu_ref, float), bt + (4,))
+    R = q_to_R(q)
+    off_ant = R @ np.asarray(gnss.antenna.lever_arm_body, float)
+    off_cam = R @ np.asarray(vision.camera.lever_arm_body, float)
+
+    # --- 1. GPS-only RAIM, and the covariance of its fix
+    gps = gps_raim(gnss, frame, ist, antenna_offset_enu=off_ant, name="gps_raim")
+    vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
+    idx, mg, NG = compact_rows(vis)
+    sat_enu = frame.ecef_to_enu(np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,)))
+    anchor_g = np.take_along_axis(sat_enu, idx[..., None], -2)
+    zg = np.take_along_axis(pr, idx, -1)
+    wg = lsq.weights_from_sigma(np.take_along_axis(np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape),
+                                                   idx, -1))
+    gps_model = lsq.range_model(anchor_g, np.ones(NG), off_ant[..., None, :])
+    x_g = np.concatenate([gps.pos_enu, gps.clock[..., None]], axis=-1)
+    has_fix = np.isfinite(x_g).all(-1)
+    x_g0 = np.where(has_fix[..., None], x_g, 0.0)
+    _, Gg = gps_model(x_g0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        geom_g = lsq.wls_geometry(Gg, wg, mg, ist.max_cond)
+    P_g = np.where(has_fix[..., None, None], geom_g.J[..., :3, :3], np.nan)
+
+    # --- 2. prior for the vision solve: this epoch's fix, else the last one carried forward
+    last = _forward_fill_index(has_fix & np.isfinite(P_g).all((-1, -2)))
+    have_prior = last >= 0
+    li = np.where(have_prior, last, 0)
+    x_pr = _take_t(x_g0, li)
+    P_pr = _take_t(np.where(np.isfinite(P_g), P_g, 0.0), li)
+    dt = t - t[li]
+    grow = (st.prior_speed_m_s * dt) ** 2 + st.prior_floor_m**2
+    P_pr = P_pr + grow[..., None, None] * np.eye(3)
+    d = p_enu - (x_pr[..., :3] + off_cam)[..., None, :]
+    m_pred = np.linalg.norm(d, axis=-1)
+    Hp = -d / m_pred[..., None]
+    Sigma_pred = Hp @ P_pr @ np.swapaxes(Hp, -1, -2)
+    m_pred = np.where(have_prior[..., None], m_pred, np.nan)
+
+    det = np.broadcast_to(np.asarray(vision.detected, bool), bt + (L,))
+    sig = np.broadcast_to(np.asarray(vision.sigma_px, float), bt + (L,))
+    vr = vision_pseudoranges(uv, det, vision.K, sig, p_enu, m_pred, Sigma_pred, st.vision)
+
+    # --- 3. calibration
+    lvl = service_level(st.calibration_level)
+    with np.errstate(invalid="ignore"):
+        cand = ((gps.reason == 0) & (gps.hpl <= lvl.hal) & (gps.vpl <= lvl.val) & ~gps.alert & vr.ok)
+    cal_idx = calibration_epochs(cand, landmark_set_key(vr.used, vr.ok))
+    if st.calibration == "none":
+        cal_idx = np.full(bt, -1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cr: CalibratedRanges = calibrate(vr, cal_idx, x_g0[..., :3], np.where(np.isfinite(P_g), P_g, 0.0),
+                                         off_cam, p_enu, st.landmark_survey_sigma_m)
+    # At its own calibration epoch ẑ_V(0) = r(x̃(0)) exactly: the vision rows are a function of
+    # that epoch's GPS rows (no new information, and correlated with them), so they are not used.
+    at_cal = cr.calibrated & (cr.cal_idx == np.arange(T))
+    use_cal = cr.calibrated & ~at_cal
+    use_raw = vr.ok & ~use_cal & ((st.uncalibrated == "inflate") | (st.calibration == "none"))
+    z_v = np.where(use_cal[..., None], cr.z_hat, vr.m)
+    S_v = np.where(use_cal[..., None, None], cr.Sigma_hat, cr.Sigma_uncal)
+    use_v = use_cal | use_raw
+    rows = _vision_rows(vr, z_v, S_v, use_v, st.modified_equation)
+    use_v = use_v & rows.mask.any(-1)
+
+    # --- 4. integrated iterated WLS
+    nc = rows.z.shape[-1]
+    N = NG + nc
+    z_all = np.concatenate([zg, rows.z], axis=-1)
+    mask_all = np.concatenate([mg, rows.mask], axis=-1)
+    W_all = np.zeros(bt + (N, N))
+    W_all[..., np.arange(NG), np.arange(NG)] = np.where(mg, wg, 0.0)
+    W_all[..., NG:, NG:] = rows.W
+    vis_model = lsq.range_model(p_enu, np.zeros(L), off_cam[..., None, :])
+    Tm = rows.Tm
+
+    def model(x: NDArray) -> tuple[NDArray, NDArray]:
+        hg, Gg_ = gps_model(x)
+        hv, Gv = vis_model(x)
+        return (np.concatenate([hg, np.einsum("...rl,...l->...r", Tm, hv)], axis=-1),
+                np.concatenate([Gg_, Tm @ Gv], axis=-2))
+
+    x0 = _take_t(x_g0, li)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        sol = lsq.iterate_wls(model, z_all, W_all, mask_all, x0, n_iter=ist.max_iter, tol_m=ist.tol_m,
+                              max_cond=ist.max_cond)
+        geom = sol.geometry
+        pls = {v: lsq.protection_levels(geom, ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
+    pl = pls[ist.pl_variant]
+    reason = np.where(sol.reason != lsq.Reason.OK, sol.reason, pl.reason).astype(np.int8)
+    ok = reason == lsq.Reason.OK
+    hpl = np.where(ok, pl.hpl, np.nan)
+    vpl = np.where(ok, pl.vpl, np.nan)
+    sse = np.where(ok, sol.sse, np.nan)
+    T2 = np.where(ok, pl.T2, np.nan)
+    with np.errstate(invalid="ignore"):
+        alert = ok & (sse > T2)
+    levels = tuple(service_level(s) for s in ist.service_levels)
+    avail = availability(hpl, vpl, levels, ok)
+
+    diag = {
+        "gps": gps,
+        "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,
+        "vision_reasons": VISION_REASONS, "vision_n_v": vr.n_v, "vision_iterations": vr.iterations,
+        "vision_residual_stat": vr.residual_stat, "vision_gate_stat": vr.gate_stat, "vision_m_pred": vr.m_pred,
+        "z_hat": cr.z_hat, "Sigma_hat": cr.Sigma_hat, "beta": cr.beta, "calibrated": cr.calibrated, "at_calibration_epoch": at_cal,
+        "cal_idx": cr.cal_idx, "vision_rows_used": use_v, "modified": rows.modified,
+        "n_gps": mg.sum(-1), "n_vision_rows": rows.mask.sum(-1),
+        "hslope": pl.hslope, "vslope": pl.vslope, "residual": sol.residual,
+        "lam_det": np.where(ok, pl.lam_det, np.nan), "cond": geom.cond, "converged": sol.converged,
+        "n_iter": sol.n_iter, "gps_P": P_g,
+    }
+    for v, p in pls.items():
+        diag[f"hpl_{v}"] = np.where(ok, p.hpl, np.nan)
+        diag[f"vpl_{v}"] = np.where(ok, p.vpl, np.nan)
+    x = sol.x
+    return MonitorOutput(
+        name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl, test_stat=sse, threshold=T2,
+        alert=alert, available=avail, service_levels=tuple(ist.service_levels),
+        n_used=geom.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
+        reasons=lsq.REASONS, diagnostics=diag)
