@@ -23,7 +23,7 @@ of the batch is computed as usual.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from functools import lru_cache
 from typing import Callable, Literal
@@ -68,8 +68,13 @@ MAX_COND = 1e10
 
 
 def _is_diag(W: NDArray, G: NDArray) -> bool:
-    """True when W is given as a vector of diagonal weights ``(..., N)``."""
-    if W.ndim == G.ndim - 1 and W.shape[-1] == G.shape[-2]:
+    """True when W is given as a vector of diagonal weights ``(..., N)``.
+
+    ``W.ndim == G.ndim − 1`` (or fewer dims, broadcast over the batch) means
+    diagonal; ``W.ndim == G.ndim`` means full. To share one full W across a
+    batch, broadcast it to ``G.shape[:-1] + (N,)`` first.
+    """
+    if W.ndim <= G.ndim - 1 and W.ndim >= 1 and W.shape[-1] == G.shape[-2]:
         return True
     if W.ndim == G.ndim and W.shape[-2:] == (G.shape[-2], G.shape[-2]):
         return False
@@ -561,6 +566,8 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
     reason = np.where((reason == Reason.OK) & ~converged, Reason.NOT_CONVERGED, reason).astype(np.int8)
     bad = ~geom.solvable | frozen
     x = np.where(bad[..., None], np.nan, x)
+    # the geometry carries the solve's verdict, so PLs computed from it are NaN too
+    geom = replace(geom, reason=reason)
     return WlsSolution(x=x, residual=np.where(bad[..., None], np.nan, r), sse=np.where(bad, np.nan, sse),
                        geometry=geom, converged=converged & ~bad, n_iter=it, reason=reason)
 
