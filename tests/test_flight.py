@@ -104,3 +104,21 @@ def test_jsbsim_opens_no_port_and_writes_nothing_here(tmp_path, monkeypatch):
                 s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
                 s.bind(("0.0.0.0", port))  # would fail if JSBSim listened there
     assert os.listdir(tmp_path) == []
+
+
+def test_rnp_flies_its_turn_over_the_synthetic_valley():
+    from testbed.api import fly_approach, load_approach, load_terrain_for
+
+    ap = load_approach("zunz-rwy05-rnp")
+    terrain = load_terrain_for(ap)
+    r = fly_approach(ap)
+    s, tr = r.summary, r.truth
+    track = np.degrees(np.arctan2(tr.vel_enu[:, 0], tr.vel_enu[:, 1]))
+    assert track[0] == pytest.approx(75.0, abs=1.0) and track[-1] == pytest.approx(54.65, abs=2.0)
+    assert s.reached_end and abs(s.end_height_above_m - 15.0) < TCH_TOL_M
+    # RNP 0.3 containment is 556 m; we hold tens of metres at most through the RF leg
+    assert s.xtk_max_m < 30.0 and s.max_bank_deg < 30.0
+    # JSBSim's AGL follows the terrain model we feed it (refreshed at 10 Hz)
+    agl_model = tr.h - terrain.height(tr.lat_deg, tr.lon_deg)
+    assert np.median(np.abs(agl_model - tr.agl)) < 1.0
+    assert s.min_agl_m > 10.0
