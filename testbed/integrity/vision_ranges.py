@@ -439,8 +439,9 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     Ap, good = weighted_pinv(A, W, colm)
     # Degenerate A (e.g. the danger cylinder): column-scaled condition number.
     As = A * np.where(colm, m, 1.0)[..., None, :]
-    As = As + np.einsum("...j,ij->...ij", (~colm).astype(float), np.eye(nc, L))
-    sv = np.linalg.svd(np.where(np.isfinite(As), As, 0.0), compute_uv=False)
+    Gs = np.swapaxes(As, -1, -2) @ As + np.einsum("...i,ij->...ij", (~colm).astype(float), np.eye(L))
+    ev = np.linalg.eigvalsh(np.where(np.isfinite(Gs), Gs, 0.0))
+    sv = np.sqrt(np.clip(ev[..., ::-1], 0.0, None))
     cond = sv[..., 0] / np.maximum(sv[..., -1], 1e-300)
     bad_A = active & (~good | (cond > s.cond_max))
     reason[bad_A] = VisionReason.DEGENERATE_GEOMETRY
