@@ -265,9 +265,12 @@ def synthesize_vision(truth: Truth, settings: VisionSettings, *, landmarks: Land
             continue
         i, j = lm.index(f.landmarks[0]), lm.index(f.landmarks[1])
         on = active(f, t)
-        for arr in (uv_meas, detected, rep_reason, sigma_told):
-            a_i, a_j = arr[..., on, i].copy(), arr[..., on, j].copy()
-            arr[..., on, i], arr[..., on, j] = a_j, a_i
+        perm = np.arange(L)
+        perm[[i, j]] = [j, i]
+        uv_meas = np.where(on[:, None, None], uv_meas[..., perm, :], uv_meas)
+        detected = np.where(on[:, None], detected[..., perm], detected)
+        rep_reason = np.where(on[:, None], rep_reason[..., perm], rep_reason)
+        sigma_told = np.where(on[:, None], sigma_told[..., perm], sigma_told)
         swapped = np.zeros((T, L), bool)
         swapped[on, i] = swapped[on, j] = True
         kind = np.where(swapped & detected, FaultKind.MISASSOCIATION, kind).astype(np.int8)
