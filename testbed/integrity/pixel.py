@@ -240,9 +240,6 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
         x_start = np.broadcast_to(np.asarray(x0, float), lead + (4,))
     x_start = np.where(np.isfinite(x_start), x_start, 0.0)
     R_b2w = body_to_world(frame, x_start[..., :3], q_ref)
-    ant_off = np.einsum("...ij,j->...i", R_b2w, gnss.antenna.lever_arm_body)
-    cam_off = np.einsum("...ij,j->...i", R_b2w, vision.camera.lever_arm_body)
-    R_c2w = R_b2w @ vision.camera.R_sensor_to_body
 
     # weights: blockdiag(W_G, W_pix), W_pix the inverse of the full pixel covariance
     att_sigma = np.asarray(vision.attitude_sigma, float) if st.pixel_attitude_noise else None
@@ -257,11 +254,14 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     mask = np.concatenate([mg, m_pix], axis=-1)
     z = np.concatenate([z_g, uv_meas.reshape(lead + (2 * L,))], axis=-1)
 
-    range_rows = lsq.range_model(anchor, np.ones(Ng), ant_off[..., None, :])
-
     def model(x: NDArray) -> tuple[NDArray, NDArray]:
-        h_g, G_g = range_rows(x)
-        uv, H, s = project_landmarks(x[..., :3], R_c2w, cam_off, lm_enu, K)
+        # the local-ENU -> world rotation follows the current estimate (its
+        # 1.6e-7 rad/m dependence on x is left out of the Jacobian)
+        Rb = body_to_world(frame, x[..., :3], q_ref)
+        ant = np.einsum("...ij,j->...i", Rb, gnss.antenna.lever_arm_body)
+        h_g, G_g = lsq.range_model(anchor, np.ones(Ng), ant[..., None, :])(x)
+        cam = np.einsum("...ij,j->...i", Rb, vision.camera.lever_arm_body)
+        uv, H, s = project_landmarks(x[..., :3], Rb @ vision.camera.R_sensor_to_body, cam, lm_enu, K)
         behind = s[..., 2] <= 0.0  # a landmark behind the camera has no pixel
         uv = np.where(behind[..., None], np.nan, uv)
         H = np.where(behind[..., None, None], np.nan, H)
