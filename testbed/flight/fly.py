@@ -135,15 +135,16 @@ def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: in
         gust = GustGenerator(gusts_cfg, max_steps)
         pilot = Autopilot(path, ac_cfg.gains, trim, speed_kt * 1852 / 3600, dt)
         terrain_every = max(1, int(round(1.0 / (cfg.flight.terrain_update_hz * dt))))
-        R, o = frame.R, frame.origin_ecef
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = frame.R.tolist()
+        o0, o1, o2 = frame.origin_ecef.tolist()
         rows, xtk, vert, dtg = [], [], [], []
         reached = False
         for k in range(max_steps):
             s = ac.read()
             x, y, z = s["ecef"]
-            d = np.array([x - o[0], y - o[1], z - o[2]])
-            enu = R @ d
-            cmd = pilot.update(s, float(enu[0]), float(enu[1]))
+            dx, dy, dz = x - o0, y - o1, z - o2
+            enu = (r00 * dx + r01 * dy + r02 * dz, r10 * dx + r11 * dy + r12 * dz, r20 * dx + r21 * dy + r22 * dz)
+            cmd = pilot.update(s, enu[0], enu[1])
             ps = pilot.last
             rows.append((ac.time, x, y, z, s["lat_deg"], s["lon_deg"], s["h"], *enu, s["vel_ned"][1],
                          s["vel_ned"][0], -s["vel_ned"][2], s["phi"], s["theta"], s["psi"], s["p"], s["q"],

@@ -104,6 +104,7 @@ class ApproachPath:
         # distance to go from the *end* of each leg
         self._after = np.concatenate([np.cumsum(self.lengths[::-1])[::-1][1:], [0.0]])
         self.total_length = float(self.lengths.sum())
+        self._tan_gpa = math.tan(math.radians(vertical.glide_path_deg)) if vertical.glide_path_deg else math.nan
 
     @staticmethod
     def _build(lateral: PathSettings, end: tuple[float, float]) -> list[LegGeometry]:
@@ -156,22 +157,24 @@ class ApproachPath:
     def height(self, distance_to_go: float | NDArray) -> float | NDArray:
         """Path height (WGS84 ellipsoidal, m) at a distance to go."""
         v = self.vertical
+        if isinstance(distance_to_go, float) and not v.constraints:  # the flight loop's fast path
+            return self.end_h + v.crossing_height_m + distance_to_go * self._tan_gpa
         d = np.asarray(distance_to_go, float)
         if v.constraints:
             dd, hh = np.array(v.constraints).T
             out = np.interp(d, dd, hh)
         else:
-            out = self.end_h + v.crossing_height_m + d * math.tan(math.radians(v.glide_path_deg))
+            out = self.end_h + v.crossing_height_m + d * self._tan_gpa
         return float(out) if np.ndim(out) == 0 else out
 
     def path_angle(self, distance_to_go: float) -> float:
         """Descent angle of the profile here (rad, positive descending)."""
         v = self.vertical
-        if v.constraints:
-            dd, hh = np.array(v.constraints).T
-            k = int(np.clip(np.searchsorted(dd, distance_to_go) - 1, 0, len(dd) - 2))
-            return math.atan2(hh[k + 1] - hh[k], dd[k + 1] - dd[k])
-        return math.radians(v.glide_path_deg)
+        if not v.constraints:
+            return math.radians(v.glide_path_deg)
+        dd, hh = np.array(v.constraints).T
+        k = int(np.clip(np.searchsorted(dd, distance_to_go) - 1, 0, len(dd) - 2))
+        return math.atan2(hh[k + 1] - hh[k], dd[k + 1] - dd[k])
 
     # -- drawing ---------------------------------------------------------------
     def sample(self, spacing_m: float = 50.0) -> tuple[NDArray, NDArray]:
