@@ -384,3 +384,23 @@ def test_runway_final_points_come_into_view():
         assert ep.detected[i:, k].sum() > 0 and not ep.detected[:i, k].any()
         assert r_on - step <= vt.range_m[i, k] <= r_on
         assert (ep.reason[:i, k] == NotVisible.TOO_SMALL).all()
+
+
+def test_distortion_is_removed_from_reported_pixels():
+    """With lens distortion the detector works in the raw image; reported pixels are ideal pinhole ones."""
+    base = dict(dithering={"enabled": False}, detection={"sigma_px": 0.0, "exposure_s": 0.0})
+    lms = seed_triangle_settings(lpe_sigma_m=0.0)
+    ep0, _ = synthesize_vision(seed_truth(), VisionSettings(**base), landmarks=lms, rng=np.random.default_rng(0))
+    s = VisionSettings(**base, camera={"preset": "approach-1080p", "k1": -0.2, "k2": 0.05, "p1": 1e-3})
+    ep, vt = synthesize_vision(seed_truth(), s, landmarks=lms, rng=np.random.default_rng(0))
+    assert ep.detected.all()
+    np.testing.assert_allclose(ep.pixel_uv, ep0.pixel_uv, atol=1e-6)
+    np.testing.assert_allclose(ep.pixel_uv, vt.pixel_true, atol=1e-6)
+
+
+def test_seed_scenario_with_the_two_ridge_terrain():
+    terrain_mod = pytest.importorskip("testbed.world.terrain")
+    s = VisionSettings(camera={"preset": "va-raim-2015", "dpi": 120})
+    ep, _ = synthesize_vision(seed_truth(), s, landmarks=seed_triangle_settings(), terrain=terrain_mod.TwoRidges(),
+                              rng=np.random.default_rng(0))
+    assert ep.detected.all(), np.unique(ep.reason)
