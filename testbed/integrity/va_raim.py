@@ -278,7 +278,7 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
         "n_gps": mg.sum(-1), "n_vision_rows": rows.mask.sum(-1),
         "hslope": pl.hslope, "vslope": pl.vslope, "residual": sol.residual,
         "lam_det": np.where(ok, pl.lam_det, np.nan), "cond": geom.cond, "converged": sol.converged,
-        "n_iter": sol.n_iter, "gps_P": P_g,
+        "n_iter": sol.n_iter, "gps_P": P_g, "ws_diag": geom.ws_diag, "gps_slot": idx,
     }
     for v, p in pls.items():
         diag[f"hpl_{v}"] = np.where(ok, p.hpl, np.nan)
