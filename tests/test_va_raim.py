@@ -177,28 +177,30 @@ def test_false_alarm_rate_within_binomial_interval(record_property):
 
 
 def test_gps_bias_detection_power_matches_noncentral_chi_square(record_property):
-    """A 15 m step on one satellite: the alert rate matches 1 − F_ncx2(T²; N−4, λ = b²(WS)_ii)."""
+    """A step on one satellite sized for λ ≈ 12 (detection probability ≈ 0.6): the VA-RAIM alert rate
+    matches 1 − F_ncx2(T²; N−4, λ = b²(WS)_ii) within the binomial 99% interval."""
     n = 3000
-    rng = np.random.default_rng(9)
-    sc0 = make_scenario(rng, (1,), t0=40.0, t1=60.0, rate_hz=0.1, gps_noise=False)
-    vis = sc0.gnss.visible[0, -1]
+    sc0, out0 = _fa_run(9, 1, gps_noise=False)
+    k = -1
+    vis = sc0.gnss.visible[0, k]
     slot = int(np.nonzero(vis)[0][2])
+    row = int(np.nonzero(out0.diagnostics["gps_slot"][0, k] == slot)[0][0])
+    b = float(np.sqrt(12.0 / out0.diagnostics["ws_diag"][0, k, row]))
     bias = np.zeros((n, 3, vis.size))
-    bias[:, -1, slot] = 15.0
+    bias[:, k, slot] = b
     sc, out = _fa_run(10, n, gps_bias=bias)
     d = out.diagnostics
-    k = -1
-    row = int(np.nonzero(d["gps_slot"][0, k] == slot)[0][0])
-    lam = 15.0**2 * d["ws_diag"][:, k, row]
+    lam = b**2 * d["ws_diag"][:, k, row]
     assert np.std(lam) < 0.05 * lam.mean()  # geometry and weights barely vary across trials
     dof = out.n_used[0, k] - 4
-    T2 = out.threshold[0, k]
-    p_det = 1 - stats.ncx2.cdf(T2, dof, lam.mean())
+    p_det = 1 - stats.ncx2.cdf(out.threshold[0, k], dof, lam.mean())
     det = int(out.alert[:, k].sum())
     lo, hi = stats.binom.interval(0.99, n, p_det)
+    record_property("bias_m", round(b, 2))
     record_property("va_raim_detections", det)
-    record_property("predicted_p_det", float(p_det))
+    record_property("predicted_p_det", round(float(p_det), 4))
     record_property("gps_only_detections", int(d["gps"].alert[:, k].sum()))
+    assert 0.2 < p_det < 0.95
     assert lo <= det <= hi, (det, lo, hi, p_det)
 
 
