@@ -8,15 +8,18 @@ for the IS-GPS-200 model, see :meth:`Ephemeris.rebased`).
 
 What the observation file holds (and why):
 
-* ``C1C`` = synthesized pseudorange + c·dtsv. Our pseudoranges are
+* ``C1C`` = synthesized pseudorange − c·dtsv (a receiver measures
+  c·(receiver clock time − satellite clock time), ρ = r + c·δt_rx − c·dtsv).
+  Our pseudoranges are
   *iono-free-equivalent* residual ranges (seed eq. 27: geometric range +
   receiver clock + iono-free residual error); a real L1 receiver would also
   see the ionosphere and troposphere. So the export is the iono-free-equivalent
   range, and RTKLIB must run with ionosphere and troposphere models OFF
   (``pos1-ionoopt=off``, ``pos1-tropopt=off``, ``-sys G``): otherwise it would
-  "correct" delays that are not there. The satellite clock is added back
-  because RTKLIB removes it using the nav file (zero for DO-229; TGD written 0).
-* ``D1C`` = −(range rate + c·dṫsv)/λ_L1 (Hz; positive when approaching).
+  "correct" delays that are not there. The satellite clock (incl. the
+  relativistic term) is put back because RTKLIB removes it using the nav
+  file (zero for DO-229; TGD written 0).
+* ``D1C`` = −(range rate − c·dṫsv)/λ_L1 (Hz; positive when approaching).
 * ``S1C`` = C/N0 (dB-Hz) rising linearly in sin(elevation) between
   ``cn0_horizon_dbhz`` and ``cn0_zenith_dbhz``: a display/weighting value only.
 * Epoch time tags are the true GPS time of the epoch (GPST, the receive time
@@ -125,8 +128,8 @@ def write_rinex(gnss: GnssEpochs, geometry: GnssGeometry, out_dir: str | Path, *
     pr = _pick(gnss.pseudorange, trial, 2)
     rr = _pick(gnss.range_rate, trial, 2)
     vis = _pick(gnss.visible, trial, 2) & np.isfinite(pr)
-    c1c = pr + C_LIGHT * geometry.sat_clock_s
-    d1c = -(rr + C_LIGHT * geometry.sat_clock_rate) / LAMBDA_L1
+    c1c = pr - C_LIGHT * geometry.sat_clock_s
+    d1c = -(rr - C_LIGHT * geometry.sat_clock_rate) / LAMBDA_L1
     s1c = cn0_from_elevation(geometry.elevation, cn0_horizon_dbhz, cn0_zenith_dbhz)
     t_gps = np.asarray(gnss.t_gps, float)
     c0 = gps_seconds_to_calendar(t_gps[0])
