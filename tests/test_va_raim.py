@@ -265,3 +265,19 @@ def test_settings_reject_impossible_values():
         VaRaimSettings(landmark_survey_sigma_m=-1.0)
     with pytest.raises(ValueError):
         VaRaimSettings(unknown_key=1)
+
+
+def test_gps_baseline_equals_the_gps_raim_module():
+    """VA-RAIM's internal GPS-only solution (kept for J) is the same as raim.gps_raim."""
+    from testbed.frames import q_to_R
+    from testbed.integrity.raim import gps_raim
+    sc = make_scenario(np.random.default_rng(16), (5,), t0=40.0, t1=60.0, rate_hz=0.5)
+    out = va_raim(sc.gnss, sc.vision, sc.frame)
+    off = q_to_R(sc.vision.q_body_to_enu_ref) @ sc.gnss.antenna.lever_arm_body
+    ref = gps_raim(sc.gnss, sc.frame, IntegritySettings(), antenna_offset_enu=off)
+    g = out.diagnostics["gps"]
+    np.testing.assert_allclose(g.pos_enu, ref.pos_enu, atol=1e-3)
+    for f in ("hpl", "vpl", "test_stat", "threshold"):
+        np.testing.assert_allclose(getattr(g, f), getattr(ref, f), rtol=1e-6, atol=1e-9, err_msg=f)
+    np.testing.assert_array_equal(g.reason, ref.reason)
+    np.testing.assert_array_equal(g.alert, ref.alert)

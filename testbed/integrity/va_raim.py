@@ -36,7 +36,7 @@ from testbed.frames import LocalFrame, q_to_R
 from testbed.integrity import lsq
 from testbed.integrity.calibration import CalibratedRanges, calibrate, calibration_epochs, landmark_set_key
 from testbed.integrity.levels import SERVICE_LEVELS, availability, service_level
-from testbed.integrity.raim import compact_rows, gps_raim
+from testbed.integrity.raim import compact_rows
 from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.vision_ranges import (VISION_REASONS, VisionRanges, VisionRangeSettings,
                                              vision_pseudoranges, _safe_solve)
@@ -92,6 +92,75 @@ def _forward_fill_index(valid: NDArray) -> NDArray:
 def _take_t(a: NDArray, idx: NDArray) -> NDArray:
     ii = idx.reshape(idx.shape + (1,) * (a.ndim - idx.ndim))
     return np.take_along_axis(a, ii, axis=idx.ndim - 1)
+
+
+def _gauss_newton(model, z: NDArray, W: NDArray, diag: bool, mask: NDArray, x0: NDArray, n_iter: int,
+                  tol_m: float) -> tuple[NDArray, NDArray]:
+    """Cheap batched Gauss–Newton iterations (normal equations, no per-iteration condition checks).
+
+    The core's :func:`lsq.wls_geometry` is then evaluated once, at the solution, for the
+    reasons, SSE, slopes and PLs; iterating with it costs a 4×4 eigen-decomposition per
+    epoch and iteration. Returns the state (..., 4) and a converged flag (...).
+    """
+    x = np.array(x0, float)
+    conv = np.zeros(x.shape[:-1], bool)
+    z0 = np.where(mask & np.isfinite(z), z, 0.0)
+    for _ in range(n_iter):
+        h, G = model(x)
+        G = np.where(mask[..., None] & np.isfinite(G), G, 0.0)
+        dz = np.where(mask & np.isfinite(h), z0 - h, 0.0)
+        WG = W[..., :, None] * G if diag else W @ G
+        Nm = np.swapaxes(G, -1, -2) @ WG
+        rhs = np.einsum("...ni,...n->...i", WG, dz)
+        dx, good = _safe_solve(Nm, rhs[..., None])
+        dx = np.where(good[..., None], dx[..., 0], 0.0)
+        x = x + dx
+        conv = np.linalg.norm(dx[..., :3], axis=-1) < tol_m
+        if np.all(conv | ~good):
+            break
+    return x, conv
+
+
+def _finish(model, z: NDArray, W: NDArray, mask: NDArray, x: NDArray, conv: NDArray, ist: IntegritySettings):
+    """Geometry, residuals, SSE, both PL variants and the reason code at the solution x."""
+    h, G = model(x)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        geom = lsq.wls_geometry(G, W, mask, ist.max_cond)
+        r = np.where(geom.mask, z - h, 0.0)
+        nan_z = (geom.mask & ~np.isfinite(r)).any(-1)
+        r = np.where(np.isfinite(r), r, 0.0)
+        sse = lsq.weighted_sse(r, geom.W, geom.mask)
+        pls = {v: lsq.protection_levels(geom, ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
+    reason = np.where(nan_z, lsq.Reason.NAN_INPUT, geom.reason)
+    reason = np.where((reason == lsq.Reason.OK) & ~conv, lsq.Reason.NOT_CONVERGED, reason)
+    pl = pls[ist.pl_variant]
+    reason = np.where(reason != lsq.Reason.OK, reason, pl.reason).astype(np.int8)
+    ok = reason == lsq.Reason.OK
+    bad = ~geom.solvable | nan_z
+    x = np.where(bad[..., None], np.nan, x)
+    return geom, pls, reason, ok, x, np.where(bad[..., None], np.nan, r), np.where(bad, np.nan, sse)
+
+
+def _monitor_output(name, t, x, geom, pls, reason, ok, r, sse, ist, extra) -> MonitorOutput:
+    pl = pls[ist.pl_variant]
+    hpl = np.where(ok, pl.hpl, np.nan)
+    vpl = np.where(ok, pl.vpl, np.nan)
+    sse = np.where(ok, sse, np.nan)
+    T2 = np.where(ok, pl.T2, np.nan)
+    with np.errstate(invalid="ignore"):
+        alert = ok & (sse > T2)
+    levels = tuple(service_level(s) for s in ist.service_levels)
+    diag = {"hslope": pl.hslope, "vslope": pl.vslope, "residual": r, "lam_det": np.where(ok, pl.lam_det, np.nan),
+            "cond": geom.cond, "ws_diag": geom.ws_diag}
+    for v, p in pls.items():
+        diag[f"hpl_{v}"] = np.where(ok, p.hpl, np.nan)
+        diag[f"vpl_{v}"] = np.where(ok, p.vpl, np.nan)
+    diag.update(extra)
+    return MonitorOutput(
+        name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl, test_stat=sse, threshold=T2,
+        alert=alert, available=availability(hpl, vpl, levels, ok), service_levels=tuple(ist.service_levels),
+        n_used=geom.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
+        reasons=lsq.REASONS, diagnostics=diag)
 
 
 @dataclass(frozen=True)
@@ -175,8 +244,7 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     off_ant = R @ np.asarray(gnss.antenna.lever_arm_body, float)
     off_cam = R @ np.asarray(vision.camera.lever_arm_body, float)
 
-    # --- 1. GPS-only RAIM, and the covariance of its fix
-    gps = gps_raim(gnss, frame, ist, antenna_offset_enu=off_ant, name="gps_raim")
+    # --- 1. GPS-only RAIM (same math as raim.gps_raim, with the fix covariance J kept)
     vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
     idx, mg, NG = compact_rows(vis)
     sat_enu = frame.ecef_to_enu(np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,)))
@@ -184,13 +252,15 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     zg = np.take_along_axis(pr, idx, -1)
     wg = lsq.weights_from_sigma(np.take_along_axis(np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape),
                                                    idx, -1))
+    wg = np.where(mg, wg, 0.0)
     gps_model = lsq.range_model(anchor_g, np.ones(NG), off_ant[..., None, :])
-    x_g = np.concatenate([gps.pos_enu, gps.clock[..., None]], axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xg_it, conv_g = _gauss_newton(gps_model, zg, wg, True, mg, np.zeros(bt + (4,)), ist.max_iter, ist.tol_m)
+    geom_g, pls_g, reason_g, ok_g, x_g, r_g, sse_g = _finish(gps_model, zg, wg, mg, xg_it, conv_g, ist)
+    gps = _monitor_output("gps_raim", t, x_g, geom_g, pls_g, reason_g, ok_g, r_g, sse_g, ist,
+                          {"converged": conv_g, "gps_slot": idx})
     has_fix = np.isfinite(x_g).all(-1)
     x_g0 = np.where(has_fix[..., None], x_g, 0.0)
-    _, Gg = gps_model(x_g0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        geom_g = lsq.wls_geometry(Gg, wg, mg, ist.max_cond)
     P_g = np.where(has_fix[..., None, None], geom_g.J[..., :3, :3], np.nan)
 
     # --- 2. prior for the vision solve: this epoch's fix, else the last one carried forward
@@ -252,40 +322,16 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
 
     x0 = _take_t(x_g0, li)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        sol = lsq.iterate_wls(model, z_all, W_all, mask_all, x0, n_iter=ist.max_iter, tol_m=ist.tol_m,
-                              max_cond=ist.max_cond)
-        geom = sol.geometry
-        pls = {v: lsq.protection_levels(geom, ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
-    pl = pls[ist.pl_variant]
-    reason = np.where(sol.reason != lsq.Reason.OK, sol.reason, pl.reason).astype(np.int8)
-    ok = reason == lsq.Reason.OK
-    hpl = np.where(ok, pl.hpl, np.nan)
-    vpl = np.where(ok, pl.vpl, np.nan)
-    sse = np.where(ok, sol.sse, np.nan)
-    T2 = np.where(ok, pl.T2, np.nan)
-    with np.errstate(invalid="ignore"):
-        alert = ok & (sse > T2)
-    levels = tuple(service_level(s) for s in ist.service_levels)
-    avail = availability(hpl, vpl, levels, ok)
-
-    diag = {
+        x_it, conv = _gauss_newton(model, z_all, W_all, False, mask_all, x0, ist.max_iter, ist.tol_m)
+    geom, pls, reason, ok, x, r, sse = _finish(model, z_all, W_all, mask_all, x_it, conv, ist)
+    extra = {
         "gps": gps,
         "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,
         "vision_reasons": VISION_REASONS, "vision_n_v": vr.n_v, "vision_iterations": vr.iterations,
         "vision_residual_stat": vr.residual_stat, "vision_gate_stat": vr.gate_stat, "vision_m_pred": vr.m_pred,
-        "z_hat": cr.z_hat, "Sigma_hat": cr.Sigma_hat, "beta": cr.beta, "calibrated": cr.calibrated, "at_calibration_epoch": at_cal,
-        "cal_idx": cr.cal_idx, "vision_rows_used": use_v, "modified": rows.modified,
-        "n_gps": mg.sum(-1), "n_vision_rows": rows.mask.sum(-1),
-        "hslope": pl.hslope, "vslope": pl.vslope, "residual": sol.residual,
-        "lam_det": np.where(ok, pl.lam_det, np.nan), "cond": geom.cond, "converged": sol.converged,
-        "n_iter": sol.n_iter, "gps_P": P_g, "ws_diag": geom.ws_diag, "gps_slot": idx,
+        "z_hat": cr.z_hat, "Sigma_hat": cr.Sigma_hat, "beta": cr.beta, "calibrated": cr.calibrated,
+        "at_calibration_epoch": at_cal, "cal_idx": cr.cal_idx, "vision_rows_used": use_v,
+        "modified": rows.modified, "n_gps": mg.sum(-1), "n_vision_rows": rows.mask.sum(-1),
+        "converged": conv, "gps_P": P_g, "gps_slot": idx,
     }
-    for v, p in pls.items():
-        diag[f"hpl_{v}"] = np.where(ok, p.hpl, np.nan)
-        diag[f"vpl_{v}"] = np.where(ok, p.vpl, np.nan)
-    x = sol.x
-    return MonitorOutput(
-        name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl, test_stat=sse, threshold=T2,
-        alert=alert, available=avail, service_levels=tuple(ist.service_levels),
-        n_used=geom.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
-        reasons=lsq.REASONS, diagnostics=diag)
+    return _monitor_output(name, t, x, geom, pls, reason, ok, r, sse, ist, extra)
