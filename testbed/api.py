@@ -20,11 +20,12 @@ __all__ = ["Approach", "FlightResult", "check_file", "fly_approach", "list_appro
 
 def load_terrain_for(approach: Approach):
     """The terrain model an approach names (its ``[terrain]`` table)."""
-    from testbed.world.settings import TerrainSettings, load_terrain
-    from testbed.config import validate
+    from testbed.world.settings import load_terrain
 
-    settings = validate(TerrainSettings, approach.config.terrain, approach.source, prefix="terrain.")
-    return load_terrain(settings, approach.source.parent)
+    try:
+        return load_terrain(approach.config.terrain, approach.source.parent)
+    except (ValueError, OSError) as exc:
+        raise ConfigError(approach.source, [f"terrain: {exc}"]) from None
 
 
 def fly_approach(approach: str | Path | Approach, *, gust_seed: int | None = None,

@@ -13,12 +13,19 @@ import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field, ValidationError, field_validator
 
 from testbed.flight.settings import AircraftSettings, Gusts, PathSettings, VerticalSettings, Wind
+from testbed.integrity.settings import IntegritySettings
 from testbed.schema import ConfigError, StrictModel, format_validation_error
+from testbed.sensors.faults import Fault
+from testbed.sensors.gnss.settings import GnssSettings
+from testbed.sensors.vision.settings import LandmarkSettings, VisionSettings
+from testbed.world.settings import TerrainSettings
+
+MONITORS = ("gps_raim", "va_raim", "pixel")
 
 
 def project_root() -> Path:
@@ -72,14 +79,16 @@ class ApproachConfig(StrictModel):
     flight: FlightSettings = FlightSettings()
     wind: Wind = Wind()
     gusts: Gusts = Gusts()
-    # Sections owned by other rooms; validated by their own models when loaded.
-    terrain: dict[str, Any] = Field(default_factory=dict)
-    gnss: dict[str, Any] = Field(default_factory=dict)
-    vision: dict[str, Any] = Field(default_factory=dict)
-    landmarks: list[dict[str, Any]] = Field(default_factory=list)
-    integrity: dict[str, Any] = Field(default_factory=dict)
-    monitors: list[str] = Field(default_factory=lambda: ["gps_raim"])
-    faults: list[dict[str, Any]] = Field(default_factory=list)
+    terrain: TerrainSettings = TerrainSettings()
+    gnss: GnssSettings = GnssSettings()
+    vision: VisionSettings = Field(default_factory=VisionSettings,
+                                   description="camera sensor; its mount defaults to the aircraft's camera")
+    landmarks: LandmarkSettings = LandmarkSettings()
+    integrity: IntegritySettings = IntegritySettings()
+    va_raim: dict[str, Any] = Field(default_factory=dict, description="VA-RAIM options (VaRaimSettings without integrity)")
+    monitors: list[Literal["gps_raim", "va_raim", "pixel"]] = Field(
+        default_factory=lambda: list(MONITORS), min_length=1)
+    faults: list[Fault] = Field(default_factory=list, description="fault schedule ([[faults]] tables)")
 
     @field_validator("start_time_utc")
     @classmethod

@@ -99,8 +99,23 @@ def check_start_clearance(approach: Approach, terrain: TerrainLike | None) -> fl
     return clearance
 
 
+ROW_FIELDS = 25  # columns of a flight row (see truth_from_rows)
+
+
+def truth_from_rows(rows, frame: LocalFrame, t0: float = 0.0) -> Truth:
+    """Build a Truth record from flight rows (``fly``'s per-step tuples); ``t0`` is the start time."""
+    a = np.asarray(rows, float).reshape(-1, ROW_FIELDS)
+    euler = a[:, 13:16]
+    return Truth(
+        t=a[:, 0] - t0, pos_ecef=a[:, 1:4], lat_deg=a[:, 4], lon_deg=a[:, 5], h=a[:, 6],
+        pos_enu=a[:, 7:10], vel_enu=a[:, 10:13],
+        q_body_to_enu=euler_to_q_body_to_enu(euler[:, 0], euler[:, 1], euler[:, 2]),
+        euler=euler, omega_body=a[:, 16:19], specific_force_body=a[:, 19:22], agl=a[:, 22],
+        airspeed=a[:, 23], frame_origin=np.array([frame.lat_deg, frame.lon_deg, frame.h]))
+
+
 def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: int | None = None,
-        on_step: Callable[[float, dict], None] | None = None) -> FlightResult:
+        on_step: Callable[[int, tuple], None] | None = None) -> FlightResult:
     """Fly ``approach`` in JSBSim with our guidance until the end of the path.
 
     Parameters
@@ -108,7 +123,9 @@ def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: in
     approach : a loaded approach (:func:`testbed.config.load_approach`).
     terrain : terrain model feeding JSBSim's ground height (None: flat at the frame origin).
     gust_seed : overrides the approach's gust seed (campaigns vary it per trajectory).
-    on_step : observer called after each integration step with (t, state in SI).
+    on_step : observer called at each integration step with (step index, flight row);
+        :func:`truth_from_rows` turns rows into a Truth record. The row at step 0 is
+        the trimmed initial state.
     """
     cfg, ac_cfg = approach.config, approach.aircraft
     frame, path = approach_geometry(approach)
@@ -146,14 +163,15 @@ def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: in
             enu = (r00 * dx + r01 * dy + r02 * dz, r10 * dx + r11 * dy + r12 * dz, r20 * dx + r21 * dy + r22 * dz)
             cmd = pilot.update(s, enu[0], enu[1])
             ps = pilot.last
-            rows.append((ac.time, x, y, z, s["lat_deg"], s["lon_deg"], s["h"], *enu, s["vel_ned"][1],
-                         s["vel_ned"][0], -s["vel_ned"][2], s["phi"], s["theta"], s["psi"], s["p"], s["q"],
-                         s["r"], *s["f_body"], s["agl"], s["tas"], s["cas"]))
+            row = (ac.time, x, y, z, s["lat_deg"], s["lon_deg"], s["h"], *enu, s["vel_ned"][1],
+                   s["vel_ned"][0], -s["vel_ned"][2], s["phi"], s["theta"], s["psi"], s["p"], s["q"],
+                   s["r"], *s["f_body"], s["agl"], s["tas"], s["cas"])
+            rows.append(row)
             xtk.append(ps.cross_track)
             vert.append(pilot.h_error)
             dtg.append(ps.distance_to_go)
             if on_step is not None:
-                on_step(ac.time, s)
+                on_step(k, row)
             if ps.distance_to_go <= 0.0:
                 reached = True
                 break
@@ -167,13 +185,7 @@ def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: in
     wall = time.perf_counter() - wall0
 
     a = np.asarray(rows)
-    euler = a[:, 13:16]
-    truth = Truth(
-        t=a[:, 0] - a[0, 0], pos_ecef=a[:, 1:4], lat_deg=a[:, 4], lon_deg=a[:, 5], h=a[:, 6],
-        pos_enu=a[:, 7:10], vel_enu=a[:, 10:13],
-        q_body_to_enu=euler_to_q_body_to_enu(euler[:, 0], euler[:, 1], euler[:, 2]),
-        euler=euler, omega_body=a[:, 16:19], specific_force_body=a[:, 19:22], agl=a[:, 22],
-        airspeed=a[:, 23], frame_origin=np.array([frame.lat_deg, frame.lon_deg, frame.h]))
+    truth = truth_from_rows(a, frame, t0=a[0, 0])
     xtk_a, vert_a, dtg_a = np.asarray(xtk), np.asarray(vert), np.asarray(dtg)
     summary = _summarise(approach, truth, a[:, 24], xtk_a, vert_a, dtg_a, path, reached, wall)
     return FlightResult(truth, path, frame, summary, xtk_a, vert_a, dtg_a)

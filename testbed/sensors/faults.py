@@ -139,14 +139,16 @@ def gnss_fault_bias(faults: list, t: NDArray, prn: NDArray, visible: NDArray,
                     rng: np.random.Generator) -> NDArray:
     """Total injected pseudorange error ``(T, S)`` from the GNSS faults of a schedule.
 
-    Non-GNSS faults are ignored. ``rng`` is used only for "random" selections,
-    in schedule order, so a schedule is reproducible from its seed.
+    Non-GNSS faults are ignored. ``rng`` is used only for "random" selections;
+    each fault gets its own child generator (spawned in schedule order), so a
+    fault's choice does not depend on whether another fault's onset is inside
+    ``t`` yet: the result is stable when ``t`` grows (the closed loop relies on it).
     """
     t = np.asarray(t, float)
     bias = np.zeros((t.size, len(prn)))
-    for f in faults:
+    for f, g in zip(faults, rng.spawn(len(faults))):
         if f.kind not in GNSS_KINDS:
             continue
-        hit = select_satellites(f, t, prn, np.asarray(visible, bool), rng)
+        hit = select_satellites(f, t, prn, np.asarray(visible, bool), g)
         bias[:, hit] += fault_profile(f, t)[:, None]
     return bias

@@ -172,22 +172,27 @@ def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence 
     shape = batch + (T, S)
     el = geom.elevation
     dt = float(np.median(np.diff(geom.t))) if T > 1 else 1.0
+    # One child generator per random component: each time-dependent array is the
+    # only draw from its generator, so for n_trials=None the first T1 epochs do
+    # not depend on T (prefix-stable): the closed loop can synthesise block by
+    # block and get exactly the whole-flight result.
+    g_ut, g_mp, g_white, g_clock, g_rr, g_fault = rng.spawn(6)
     sigma = sigma_pseudorange(el, settings.sigma_ura_m, settings.sigma_tropo_zenith_m)
     if settings.multipath_tau_s is None and settings.ura_tropo_tau_s is None:
-        noise = sigma * rng.standard_normal(shape)
+        noise = sigma * g_white.standard_normal(shape)
     else:
         s_ut = np.hypot(settings.sigma_ura_m, sigma_tropo(el, settings.sigma_tropo_zenith_m))
-        noise = (s_ut * unit_gauss_markov(rng, shape, dt, settings.ura_tropo_tau_s)
-                 + IONO_FREE_FACTOR * sigma_multipath(el) * unit_gauss_markov(rng, shape, dt, settings.multipath_tau_s)
-                 + IONO_FREE_FACTOR * sigma_noise(el) * rng.standard_normal(shape))
+        noise = (s_ut * unit_gauss_markov(g_ut, shape, dt, settings.ura_tropo_tau_s)
+                 + IONO_FREE_FACTOR * sigma_multipath(el) * unit_gauss_markov(g_mp, shape, dt, settings.multipath_tau_s)
+                 + IONO_FREE_FACTOR * sigma_noise(el) * g_white.standard_normal(shape))
     if settings.clock_model:
-        bias, drift = receiver_clock(rng, geom.t, batch, bias0_sigma_m=settings.clock_bias0_sigma_m,
+        bias, drift = receiver_clock(g_clock, geom.t, batch, bias0_sigma_m=settings.clock_bias0_sigma_m,
                                      drift0_sigma_m_s=settings.clock_drift0_sigma_m_s,
                                      sf_m2_s=settings.clock_sf_m2_s, sg_m2_s3=settings.clock_sg_m2_s3)
     else:
         bias, drift = np.zeros(batch + (T,)), np.zeros(batch + (T,))
-    rr_noise = settings.range_rate_sigma_m_s * rng.standard_normal(shape)
-    fault = _fault_bias(faults, geom, rng, batch)
+    rr_noise = settings.range_rate_sigma_m_s * g_rr.standard_normal(shape)
+    fault = _fault_bias(faults, geom, g_fault, batch)
     vis = geom.visible
     pr = np.where(vis, geom.geometric_range + bias[..., None] + noise + fault, np.nan)
     rr = np.where(vis, geom.geometric_range_rate + drift[..., None] + rr_noise, np.nan)

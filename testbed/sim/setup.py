@@ -1,0 +1,140 @@
+"""Everything a run needs, built once from an approach: terrain, sensors, scene, monitors.
+
+Nothing here flies or draws random numbers; :mod:`testbed.sim.loop` does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from testbed.config import Approach
+from testbed.flight.fly import approach_geometry
+from testbed.flight.path import ApproachPath
+from testbed.frames import LocalFrame, euler_to_R_body_to_ned
+from testbed.integrity.settings import IntegritySettings
+from testbed.integrity.va_raim import VaRaimSettings
+from testbed.integrity.levels import service_level
+from testbed.records import Mount
+from testbed.schema import ConfigError
+from testbed.sensors.gnss.settings import GnssSettings
+from testbed.sensors.vision.landmarks import Landmarks, build_landmarks
+from testbed.sensors.vision.settings import MountSettings, VisionSettings
+from testbed.world import airport
+
+
+@dataclass(frozen=True)
+class RunSetup:
+    approach: Approach
+    frame: LocalFrame
+    path: ApproachPath
+    terrain: object
+    gnss: GnssSettings
+    antenna: Mount
+    vision: VisionSettings
+    landmarks: Landmarks
+    integrity: IntegritySettings
+    va_raim: VaRaimSettings
+    monitors: tuple[str, ...]
+    faults: tuple
+
+    @property
+    def uses_vision(self) -> bool:
+        return any(m in ("va_raim", "pixel") for m in self.monitors)
+
+    @property
+    def alert_limits(self) -> tuple[float, float]:
+        """(HAL, VAL) of the most demanding configured service level (for plots)."""
+        levels = [service_level(n) for n in self.integrity.service_levels]
+        return min(lv.hal for lv in levels), min(lv.val for lv in levels)
+
+
+def antenna_mount(approach: Approach) -> Mount:
+    return Mount(lever_arm_body=np.asarray(approach.aircraft.antenna_lever_arm_m, float))
+
+
+def vision_settings(approach: Approach) -> VisionSettings:
+    """The approach's camera settings; the mount comes from the aircraft unless the file sets one."""
+    v = approach.config.vision
+    if "mount" in v.model_fields_set:
+        return v
+    ac = approach.aircraft
+    mount = MountSettings(lever_arm_body_m=ac.camera_lever_arm_m, pitch_deg=-ac.camera_pitch_down_deg,
+                          yaw_deg=ac.camera_yaw_deg)
+    return v.model_copy(update={"mount": mount})
+
+
+def build_setup(approach: Approach, terrain) -> RunSetup:
+    c = approach.config
+    frame, path = approach_geometry(approach)
+    vision = vision_settings(approach)
+    gnss = c.gnss
+    ratio = vision.rate_hz / gnss.rate_hz
+    if any(m in ("va_raim", "pixel") for m in c.monitors) and abs(ratio - round(ratio)) > 1e-9:
+        raise ConfigError(approach.source, [
+            f"vision.rate_hz ({vision.rate_hz}) must be an integer multiple of gnss.rate_hz ({gnss.rate_hz}): "
+            "the vision monitors combine both at the GNSS epochs"])
+    try:
+        va = VaRaimSettings.model_validate({**c.va_raim, "integrity": c.integrity})
+    except Exception as exc:  # pydantic ValidationError -> file/key message
+        from pydantic import ValidationError
+
+        from testbed.schema import format_validation_error
+        if isinstance(exc, ValidationError):
+            raise ConfigError(approach.source, ["va_raim." + p for p in format_validation_error(exc)]) from None
+        raise
+    return RunSetup(approach=approach, frame=frame, path=path, terrain=terrain, gnss=gnss,
+                    antenna=antenna_mount(approach), vision=vision, landmarks=build_landmarks(c.landmarks),
+                    integrity=c.integrity, va_raim=va, monitors=tuple(dict.fromkeys(c.monitors)),
+                    faults=tuple(c.faults))
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Static content for the sinks (drawn once)."""
+
+    title: str
+    monitors: tuple[str, ...]
+    planned_enu: np.ndarray
+    terrain_mesh: tuple[np.ndarray, np.ndarray] | None
+    runway_enu: np.ndarray | None
+    landmarks_enu: np.ndarray | None
+    landmark_ids: tuple[str, ...]
+    camera_K: np.ndarray | None
+    camera_resolution: tuple[int, int]
+
+
+def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 20_000.0,
+                mesh_spacing_m: float = 250.0) -> Scene:
+    """The static scene in the world frame: terrain mesh around the path, runway, landmarks, path."""
+    planned = setup.path.sample_enu(50.0)
+    centre = planned[len(planned) // 2]
+    mesh = None
+    if setup.terrain is not None and hasattr(setup.terrain, "mesh"):
+        # a frame at the middle of the path so the mesh covers the whole approach
+        lat, lon, _ = setup.frame.enu_to_geodetic(np.array([centre[0], centre[1], 0.0]))
+        mid = LocalFrame(float(lat), float(lon), setup.frame.h)
+        half = max(mesh_half_size_m, 0.6 * float(np.ptp(planned[:, :2], axis=0).max()))
+        v_mid, f = setup.terrain.mesh(mid, half, mesh_spacing_m)
+        mesh = (setup.frame.ecef_to_enu(mid.enu_to_ecef(v_mid)), f)
+    runway = airport.runway_corners_enu(setup.frame)
+    if np.linalg.norm(runway[0]) > 100e3:
+        runway = None
+    lm_enu = setup.frame.ecef_to_enu(setup.landmarks.pos_ecef) if setup.uses_vision else None
+    K, res = None, (0, 0)
+    if camera is not None and setup.uses_vision:
+        K, res = camera.K, (camera.width_px, camera.height_px)
+    ap = setup.approach
+    return Scene(title=f"{ap.name} ({ap.aircraft.name})", monitors=setup.monitors, planned_enu=planned,
+                 terrain_mesh=mesh, runway_enu=runway, landmarks_enu=lm_enu,
+                 landmark_ids=tuple(str(i) for i in setup.landmarks.id), camera_K=K, camera_resolution=res)
+
+
+def R_body_to_world(frame: LocalFrame, euler: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
+    """Body -> world-ENU rotations ``(T, 3, 3)`` from Euler angles at the aircraft's position."""
+    from testbed.frames import R_NED_TO_ENU, R_ecef_to_enu
+
+    R_b2n = euler_to_R_body_to_ned(euler[:, 0], euler[:, 1], euler[:, 2])
+    R_loc = R_ecef_to_enu(lat_deg, lon_deg)  # ECEF -> local ENU
+    return frame.R @ np.swapaxes(R_loc, -1, -2) @ R_NED_TO_ENU @ R_b2n

@@ -1,0 +1,40 @@
+"""The default Rerun layout stored in every recording.
+
+Left: the 3D world (terrain, runway, landmarks, planned path, flown trail,
+aircraft, satellite lines of sight) above the camera view with its
+detections. Right: one tab per monitor with HPL/VPL against HAL/VAL and the
+test statistic against its threshold; below, satellites/landmarks in use, the
+alert log and the map track.
+"""
+
+from __future__ import annotations
+
+import rerun.blueprint as rrb
+
+
+def default_blueprint(monitors: list[str]) -> rrb.Blueprint:
+    monitor_tabs = [
+        rrb.Vertical(
+            rrb.TimeSeriesView(name=f"{m}: HPL vs HAL", origin=f"/integrity/{m}/horizontal"),
+            rrb.TimeSeriesView(name=f"{m}: VPL vs VAL", origin=f"/integrity/{m}/vertical"),
+            rrb.TimeSeriesView(name=f"{m}: test statistic vs threshold", origin=f"/integrity/{m}/detection"),
+            name=m,
+        )
+        for m in monitors
+    ]
+    left = rrb.Vertical(
+        rrb.Spatial3DView(name="world", origin="/world",
+                          contents=["/world/**", "- /world/camera/detections/**"]),
+        rrb.Spatial2DView(name="camera", origin="/world/camera"),
+        row_shares=[3, 2],
+    )
+    right = rrb.Vertical(
+        rrb.Tabs(*monitor_tabs) if monitor_tabs else rrb.TextLogView(name="alerts", origin="/alerts"),
+        rrb.Horizontal(
+            rrb.TimeSeriesView(name="in use", origin="/sensors"),
+            rrb.TextLogView(name="alerts", origin="/alerts"),
+        ),
+        rrb.MapView(name="map", origin="/map"),
+        row_shares=[3, 2, 2],
+    )
+    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[3, 2]), collapse_panels=True)
