@@ -322,6 +322,12 @@ class VisionRanges:
     m_pred: NDArray
 
 
+def _chi2_isf(p: float, dof: NDArray) -> NDArray:
+    """chi2.isf(p, dof) evaluated once per distinct dof."""
+    u, inv = np.unique(dof, return_inverse=True)
+    return chi2.isf(p, u)[inv.reshape(np.shape(dof))]
+
+
 def _geometry_degenerate(p: NDArray, used: NDArray, s: VisionRangeSettings) -> NDArray:
     """(...) bool: the used landmark set is collinear or has coincident members."""
     I, J = pair_indices(p.shape[0])
@@ -389,7 +395,11 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     few = n_v < 3
     reason[few & (n_det >= 3)] = VisionReason.NAN_PIXELS
     reason[few & (n_det < 3)] = VisionReason.TOO_FEW_LANDMARKS
-    degenerate = ~few & _geometry_degenerate(p, used, s)
+    # the landmark positions are fixed: test each distinct landmark set once
+    code = np.sum(used.astype(np.int64) << np.arange(L, dtype=np.int64), axis=-1)
+    ucode, inv = np.unique(code, return_inverse=True)
+    uused = ((ucode[:, None] >> np.arange(L)) & 1).astype(bool)
+    degenerate = ~few & _geometry_degenerate(p, uused, s)[inv.reshape(code.shape)]
     reason[degenerate] = VisionReason.DEGENERATE_GEOMETRY
     no_prior = (reason == 0) & ~np.all(np.isfinite(mp) | ~used, axis=-1)
     reason[no_prior] = VisionReason.NO_PRIOR
@@ -403,7 +413,12 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     c, dci, dcj = cosines(b, db)
     Sigma_c = cosine_covariance(dci, dcj, np.where(colm, sig, 0.0), L)
     Sigma_c = np.where(pair_mask[..., :, None] & pair_mask[..., None, :], Sigma_c, 0.0)
-    W = _masked_pinv_weight(Sigma_c, pair_mask, np.where(active, n_v, 0))
+    # N_V = 3: A is square, A⁺ = A⁻¹ whatever the (regular) weight, so the identity on the valid
+    # pairs serves; the rank-aware pseudo-inverse (an eigen-decomposition) only where N_V > 3.
+    W = np.einsum("...i,ij->...ij", pair_mask.astype(float), np.eye(nc))
+    big = active & (n_v > 3)
+    if big.any():
+        W[big] = _masked_pinv_weight(Sigma_c[big], pair_mask[big], n_v[big])
 
     # --- batched Gauss-Newton on the weighted cosine residual (loop over iterations only)
     m = np.where(colm, mp, 1.0)
@@ -438,11 +453,13 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     Bd = np.where(pair_mask, Bd, 0.0)
     Ap, good = weighted_pinv(A, W, colm)
     # Degenerate A (e.g. the danger cylinder): column-scaled condition number.
-    As = A * np.where(colm, m, 1.0)[..., None, :]
-    Gs = np.swapaxes(As, -1, -2) @ As + np.einsum("...i,ij->...ij", (~colm).astype(float), np.eye(L))
-    ev = np.linalg.eigvalsh(np.where(np.isfinite(Gs), Gs, 0.0))
-    sv = np.sqrt(np.clip(ev[..., ::-1], 0.0, None))
-    cond = sv[..., 0] / np.maximum(sv[..., -1], 1e-300)
+    # Condition of the column-scaled A (ranges as units): Frobenius estimate
+    # ‖A diag(m)‖_F ‖diag(1/m) A⁺‖_F, an upper bound of the 2-norm one, cheap from A⁺.
+    msafe = np.where(colm, m, 1.0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        cond = (np.sqrt(np.sum((A * msafe[..., None, :]) ** 2, axis=(-2, -1)))
+                * np.sqrt(np.sum((Ap / msafe[..., :, None]) ** 2, axis=(-2, -1))))
+    cond = np.where(np.isfinite(cond), cond, np.inf)
     bad_A = active & (~good | (cond > s.cond_max))
     reason[bad_A] = VisionReason.DEGENERATE_GEOMETRY
     active = reason == 0
@@ -457,7 +474,7 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     r_w = np.einsum("...i,...ij,...j->...", r, W, r)
     dof = np.maximum(n_v - 3, 1)
     res_bad3 = (n_v == 3) & (r_norm > s.residual_sigma_max)
-    res_badn = (n_v > 3) & (r_w > chi2.isf(s.residual_p, dof))
+    res_badn = (n_v > 3) & (r_w > _chi2_isf(s.residual_p, dof))
     residual_stat = np.where(n_v == 3, r_norm, r_w)
     reason[active & (res_bad3 | res_badn)] = VisionReason.RESIDUAL
     active = reason == 0
@@ -470,7 +487,7 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
         C = C + np.einsum("...i,ij->...ij", (~colm).astype(float), np.eye(L))
         x, gok = _safe_solve(C, dm[..., None])
         gate = np.einsum("...i,...i->...", dm, x[..., 0])
-        gate_bad = active & (~gok | (gate > chi2.isf(s.gate_p, np.maximum(n_v, 1))))
+        gate_bad = active & (~gok | (gate > _chi2_isf(s.gate_p, np.maximum(n_v, 1))))
         reason[gate_bad] = VisionReason.BRANCH_JUMP
         gate_stat = np.where(gok, gate, np.nan)
     else:
