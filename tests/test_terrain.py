@@ -244,14 +244,18 @@ def _cross_section(valley, along, offsets):
     return valley.height(lat, lon)
 
 
-@pytest.mark.parametrize("along", [-14000.0, -8000.0, -3000.0, 0.0, 1500.0, 3000.0, 6000.0])
-def test_valley_walls_rise_above_4000_m_within_a_few_km(valley, along):
-    c = np.arange(10.0, 3500.0, 10.0)
+@pytest.mark.parametrize("along,within", [(-14000.0, 6000.0), (-8000.0, 4000.0), (-3000.0, 3000.0),
+                                          (0.0, 3000.0), (1500.0, 3000.0), (3000.0, 3000.0),
+                                          (6000.0, 3000.0)])
+def test_valley_walls_rise_above_4000_m_within_a_few_km(valley, along, within):
+    """Walls above 4000 m within 3 km of the runway; the approach floor (valley plus
+    the straight-in corridor) is wider."""
+    c = np.arange(10.0, within + 500.0, 10.0)
     for side in (-1, 1):
         h = _cross_section(valley, along, side * c)
         first = c[np.argmax(h > 4000)] if (h > 4000).any() else np.inf
-        assert first < 3000.0, f"along {along}: no 4000 m wall within 3 km on side {side}"
-    if -16000.0 <= along <= 4000.0:  # no spurs here: the floor is smooth to its half width
+        assert first < within, f"along {along}: no 4000 m wall within {within} m on side {side}"
+    if -20000.0 <= along <= 4000.0:  # no spurs here: the floor is smooth to its half width
         w = float(valley_floor_half_width_m(along))
         c = np.linspace(-0.95 * w, 0.95 * w, 21)
         hf = _cross_section(valley, along, c)
@@ -261,11 +265,11 @@ def test_valley_walls_rise_above_4000_m_within_a_few_km(valley, along):
 
 def test_valley_narrowest_4000_m_gap_is_about_4_km(valley):
     gaps = []
-    c = np.arange(10.0, 4000.0, 10.0)
+    c = np.arange(10.0, 8000.0, 10.0)
     for along in np.arange(-14000.0, 3001.0, 500.0):
-        lo = c[np.argmax(_cross_section(valley, along, -c) > 4000)]
-        hi = c[np.argmax(_cross_section(valley, along, c) > 4000)]
-        gaps.append(lo + hi)
+        left, right = _cross_section(valley, along, -c) > 4000, _cross_section(valley, along, c) > 4000
+        assert left.any() and right.any()
+        gaps.append(c[np.argmax(left)] + c[np.argmax(right)])
     assert 3500.0 < min(gaps) < 4500.0, min(gaps)
 
 
@@ -311,9 +315,11 @@ def test_valley_glide_path_clearance(valley):
     assert valley.line_of_sight(o, geodetic_to_ecef(t05.lat_deg, t05.lon_deg, t05.h + 15.0)).all()
 
 
-def test_valley_bends_to_the_wsw_beyond_16_km():
+def test_valley_bends_to_the_wsw_4_to_12_km_out():
     assert float(valley_axis_heading_deg(0.0)) == pytest.approx(airport.RWY05_COURSE_DEG)
-    assert float(valley_axis_heading_deg(-7000.0)) == pytest.approx(airport.RWY05_COURSE_DEG)
+    assert float(valley_axis_heading_deg(-3900.0)) == pytest.approx(airport.RWY05_COURSE_DEG)
+    # an RNP path along the valley is within 5 deg of the runway course 6 km out
+    assert float(valley_axis_heading_deg(-6000.0)) - airport.RWY05_COURSE_DEG < 5.0
     assert float(valley_axis_heading_deg(-30000.0)) == pytest.approx(VALLEY_FAR_COURSE_DEG)
     # far south-west the centreline lies north-west of the extended runway centreline
     lat, lon = valley_centreline(-30000.0)
@@ -426,3 +432,14 @@ def test_short_and_coincident_segments_are_clear():
     t = Flat(0.0)
     p = geodetic_to_ecef(29.0, 94.0, 100.0)
     np.testing.assert_array_equal(t.line_of_sight(p, np.stack([p, p + 1.0])), [True, True])
+
+
+def test_valley_centreline_path_stays_on_the_floor(valley):
+    """An RNP path following the valley centreline from 60 km out: only floor within 500 m."""
+    a = np.arange(-60000.0, 0.0, 50.0)
+    lat, lon = valley_centreline(a)
+    hd = valley_axis_heading_deg(a)
+    floor = np.clip(2939.0 + 9.0 / 2999.6 * a, 2880.0, 3010.0)
+    for off in (-500.0, 500.0):
+        la, lo = pymap3d.vincenty.vreckon(lat, lon, np.full(a.shape, abs(off)), hd + np.sign(off) * 90)
+        assert np.all(valley.height(la, lo) - floor < 2.0)

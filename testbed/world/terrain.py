@@ -620,15 +620,23 @@ class GridTerrain(Terrain):
 #: Runway course, true (deg), and the heading the valley axis turns to far south-west.
 VALLEY_RUNWAY_COURSE_DEG = airport.RWY05_COURSE_DEG
 VALLEY_FAR_COURSE_DEG = 75.0
-#: The valley axis is straight along the runway course for along-track >= BEND_START_M
-#: and turns (smoothstep in heading) to VALLEY_FAR_COURSE_DEG by BEND_END_M (metres from
-#: the RWY05 threshold along the runway course, negative to the south-west).
-VALLEY_BEND_START_M = -8000.0
-VALLEY_BEND_END_M = -16000.0
+#: The floor is the union of two corridors (along-track = metres from the RWY05
+#: threshold along the runway course, negative to the south-west):
+#: * the valley (B), whose centreline (:func:`valley_centreline`) is the runway's for
+#:   along-track >= BEND_START_M and turns (smoothstep in heading) to
+#:   VALLEY_FAR_COURSE_DEG by BEND_END_M: the path an RNP approach follows, turning
+#:   onto the runway course 4-12 km out (84 % of the turn done 6 km out);
+#: * the runway corridor (A) along the extended runway centreline out to
+#:   RUNWAY_CORRIDOR_END_M (16 km), where a straight-in 3 deg final flies; it tapers shut beyond.
+VALLEY_BEND_START_M = -4000.0
+VALLEY_BEND_END_M = -12000.0
+VALLEY_RUNWAY_CORRIDOR_END_M = -16000.0
 #: Floor: 2939 m at THR05 rising 9 m over the 3 km runway, clipped to this band.
 VALLEY_FLOOR_BAND_M = (2880.0, 3010.0)
-#: Floor half-width: near the runway, in the bend and beyond, and north-east.
-VALLEY_FLOOR_HALF_WIDTH_M = {"runway": 1000.0, "bend": 1800.0, "north_east": 1300.0}
+#: Floor half-widths: valley at the runway, valley beyond the bend, valley north-east,
+#: runway corridor at its south-west end.
+VALLEY_FLOOR_HALF_WIDTH_M = {"runway": 1000.0, "bend": 1800.0, "north_east": 1300.0,
+                             "corridor": 1300.0}
 #: Wall shape: rise = (crest - floor) * (1 - exp(-x^2 / (2 L^2))), x beyond the floor edge.
 VALLEY_WALL_L_M = 950.0
 VALLEY_CREST_M = 5250.0
@@ -674,18 +682,26 @@ class _ValleyGeometry:
 
     def half_width(self, a: NDArray) -> NDArray:
         w = VALLEY_FLOOR_HALF_WIDTH_M
-        sw = _smoothstep((-6000.0 - np.asarray(a)) / 8000.0)
+        sw = _smoothstep((-4000.0 - np.asarray(a)) / 10000.0)
         ne = _smoothstep((np.asarray(a) - 8000.0) / 8000.0)
         return w["runway"] + (w["bend"] - w["runway"]) * sw + (w["north_east"] - w["runway"]) * ne
 
     def floor(self, a: NDArray) -> NDArray:
         return np.clip(airport.RWY05.h + self.floor_slope * np.asarray(a), *VALLEY_FLOOR_BAND_M)
 
-    def along_cross(self, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray]:
-        """Along-axis coordinate (m from THR05) and signed distance from the centreline (m)."""
+    def corridor_excess(self, a: NDArray, c: NDArray) -> NDArray:
+        """Distance (m) beyond the runway corridor's floor edge (negative inside)."""
+        w = VALLEY_FLOOR_HALF_WIDTH_M
+        half = w["runway"] + (w["corridor"] - w["runway"]) * _smoothstep((-2000.0 - a) / 10000.0)
+        # tapers shut over ~4 km beyond its end
+        return np.abs(c) - half + 0.35 * np.maximum(VALLEY_RUNWAY_CORRIDOR_END_M - a, 0.0)
+
+    def along_cross(self, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        """Along-axis coordinate (m from THR05), signed distance from the valley
+        centreline and from the straight runway axis (m, positive south-east)."""
         a = x * self.u[0] + y * self.u[1]
         c = x * self.v[0] + y * self.v[1]
-        return a, (c - self.g(a)) * np.cos(self.theta(a))
+        return a, (c - self.g(a)) * np.cos(self.theta(a)), c
 
 
 @functools.lru_cache(maxsize=None)
@@ -697,12 +713,12 @@ def valley_centreline(along_m: ArrayLike) -> tuple[NDArray, NDArray]:
     """Points on the synthetic valley's floor centreline: ``(lat_deg, lon_deg)``.
 
     ``along_m`` is the distance along the runway course from the RWY05 threshold
-    (negative to the south-west). For ``along_m >= VALLEY_BEND_START_M`` (-8 km) the
-    centreline is the runway centreline and its extension; between -8 and -16 km its
-    heading turns smoothly (smoothstep in angle) from 054.65 deg to 075 deg, so far
-    south-west the valley comes from the WSW (bearing 255 deg). The lateral offset at
-    -14 km is ~0.75 km to the north-west, so the straight-in final stays on the floor.
-    Exactly: centreline = straight axis point at ``along_m`` plus ``g(along_m)`` metres to the
+    (negative to the south-west). For ``along_m >= VALLEY_BEND_START_M`` (-4 km) the
+    centreline is the runway centreline; between -4 and -12 km its heading turns
+    smoothly (smoothstep in angle, least radius ~15 km) from 054.65 deg to 075 deg, so
+    far south-west the valley comes from the WSW (bearing 255 deg): an RNP path can
+    follow it and be on the runway course 4-8 km out. A straight-in final stays on
+    the floor of the separate runway corridor (to 16 km out, tapering shut by ~20 km). Exactly: centreline = straight axis point at ``along_m`` plus ``g(along_m)`` metres to the
     right (south-east) of the runway course on the local equirectangular map, with
     ``g' = tan(theta)``, ``theta`` the heading change.
     """
@@ -722,7 +738,7 @@ def valley_axis_heading_deg(along_m: ArrayLike) -> NDArray:
 def valley_floor_half_width_m(along_m: ArrayLike) -> NDArray:
     """Half-width of the flat valley floor (no roughness there) at ``along_m``, m.
 
-    Outside along -16 .. +4 km spurs move the wall edge in or out by up to 400 m.
+    Outside along -20 .. +4 km spurs move the wall edge in or out by up to 400 m.
     """
     return _valley_geometry().half_width(along_m)
 
@@ -742,13 +758,15 @@ def valley_height_xy(x: NDArray, y: NDArray) -> NDArray:
     geo = _valley_geometry()
     x = np.asarray(x, float)
     y = np.asarray(y, float)
-    a, c = geo.along_cross(x, y)
+    a, c, c_axis = geo.along_cross(x, y)
     floor = geo.floor(a)
     big, small, spur = _valley_noise(x, y)
-    # Spurs: the wall edge moves in and out by up to 400 m, except along the approach
-    # and runway (along -16 .. +4 km) where the floor width is kept as designed.
-    keep = _smoothstep((-16000.0 - a) / 3000.0) + _smoothstep((a - 4000.0) / 3000.0)
-    xw = np.maximum(np.abs(c) - geo.half_width(a) + 400.0 * np.tanh(spur) * keep, 0.0)
+    # Distance beyond the floor edge of the union of the valley and the runway corridor.
+    xw = np.minimum(np.abs(c) - geo.half_width(a), geo.corridor_excess(a, c_axis))
+    # Spurs: the wall edge moves in and out by up to 400 m, except along the approaches
+    # and runway (along -20 .. +4 km) where the floor is kept as designed.
+    keep = _smoothstep((-20000.0 - a) / 3000.0) + _smoothstep((a - 4000.0) / 3000.0)
+    xw = np.maximum(xw + 400.0 * np.tanh(spur) * keep, 0.0)
     crest = VALLEY_CREST_M + VALLEY_CREST_VAR_M * np.tanh(big)
     rise = 1.0 - np.exp(-0.5 * (xw / VALLEY_WALL_L_M) ** 2)
     # Ridged noise (1 - 2|n|) has sharp crests along the noise's zero lines: spurs.
@@ -814,11 +832,12 @@ class LinZhiSyntheticValley(GridTerrain):
     Not a survey: a valley along the runway course (054.65 deg true) through both
     thresholds, floor 2939 m at THR05 rising linearly to 2948 m at THR23 (then
     continuing at 3 m/km, clipped to 2880-3010 m), flat floor half-width 1.0 km at
-    the runway (1.8 km in the south-western bend, 1.3 km north-east), walls rising
+    the runway (1.8 km in the south-western bend, 1.3 km north-east; plus a straight
+    runway corridor to 16 km out for straight-in finals), walls rising
     as ``(crest - floor)(1 - exp(-x^2/2L^2))`` with L = 950 m beyond the floor edge,
     so the 4000 m contours are ~4 km apart at the runway; crests 4950-5550 m plus
-    +-250 m fixed-seed roughness (5000-6000 m class); beyond 16 km south-west
-    the valley turns to come from the WSW (see :func:`valley_centreline`); Namcha
+    +-250 m fixed-seed roughness (5000-6000 m class); 4-12 km south-west of the
+    threshold the valley turns to come from the WSW (see :func:`valley_centreline`); Namcha
     Barwa (7782 m, 79 km at 062 deg) and Gyala Peri (7294 m, 84 km at 047 deg) as
     broad cones (flanks 0.3, i.e. 17 deg). Rasterised on a 3" grid (~90 x 81 m)
     +-0.9 deg lat, +-1.0 deg lon about THR05 (about +-100 km); heights WGS84
