@@ -443,3 +443,15 @@ def test_valley_centreline_path_stays_on_the_floor(valley):
     for off in (-500.0, 500.0):
         la, lo = pymap3d.vincenty.vreckon(lat, lon, np.full(a.shape, abs(off)), hd + np.sign(off) * 90)
         assert np.all(valley.height(la, lo) - floor < 2.0)
+
+
+@pytest.mark.parametrize("model", [Flat(1234.0), TwoRidges(course_deg=54.65)])
+def test_scalar_fast_paths_agree_with_vector_paths(model):
+    rng = np.random.default_rng(7)
+    lat = rng.uniform(29.25, 29.36, 200)
+    lon = rng.uniform(94.28, 94.39, 200)
+    vec = model.height(lat, lon)
+    sca = np.array([model.height(float(a), float(b)) for a, b in zip(lat, lon)])
+    np.testing.assert_allclose(sca, vec, atol=1e-9, rtol=0)
+    if isinstance(model, TwoRidges):
+        assert np.ptp(vec) > 500.0  # the sample crosses the ridges

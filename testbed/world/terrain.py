@@ -24,9 +24,12 @@ part that lies below the model's maximum height (a conservative sphere bound),
 and a knot-to-knot segment is only sampled when its lowest point is below an
 upper bound of the terrain around it (for grids: block maxima); everything is
 batched over rays. A ray is blocked when a sample has ray height < terrain
-height. Sampling can miss a grazing contact between samples: the disagreement
-with a dense brute-force march is bounded by the terrain's rise over one step
-(tests: a few metres of clearance).
+height. Sampling can miss a grazing contact between samples: a disagreement
+with a dense brute-force march needs a clearance within (steepest slope x half a
+step) of zero (<= 50 m on the valley; measured: 0 of 1000 landmark rays and 0 of
+1000 sky rays at 0-30 deg elevation disagree with a 1-2 m brute-force march).
+Rays leaving a grid model's extent see no terrain beyond it; the antimeridian
+is not handled.
 """
 
 from __future__ import annotations
@@ -314,9 +317,9 @@ class Terrain:
 
         Returns
         -------
-        (K,) rad: the largest elevation (in the observer's local ENU frame, curvature
-        and refraction-free geometry) of any terrain point within range; NaN where no
-        terrain is modelled along that azimuth.
+        (K,) rad: the largest elevation (in the observer's local ENU frame; geometric,
+        Earth curvature included, no refraction) of any terrain point within range;
+        NaN where no terrain is modelled along that azimuth.
         """
         az = np.atleast_1d(np.asarray(azimuth_rad, float))
         rmax = self.max_range_m if max_range_m is None else float(max_range_m)
@@ -424,6 +427,11 @@ class Flat(Terrain):
     def _height_ab(self, a: NDArray, b: NDArray) -> NDArray:
         return np.full(np.shape(a), self.h)
 
+    def height(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray | float:
+        if type(lat_deg) is float and type(lon_deg) is float:
+            return self.h
+        return super().height(lat_deg, lon_deg)
+
 
 class TwoRidges(Terrain):
     """The VA-RAIM paper's terrain: two ridges parallel to the approach course.
@@ -438,7 +446,7 @@ class TwoRidges(Terrain):
     ``h_field + height_m * cos^2(pi * u / base_width_m)`` for ``|u| < base_width_m / 2``,
     ``u`` being the cross-course distance from its crest; the ridges are uniform
     along the course and unbounded. Distances are on a local equirectangular map
-    about the centre.
+    about the centre (so for course 090 the crests follow parallels of latitude).
     """
 
     synthetic = True
@@ -469,6 +477,16 @@ class TwoRidges(Terrain):
         u = np.abs(np.abs(c) - self.offset_m)
         bump = np.where(u < self.base_width_m / 2, np.cos(np.pi * u / self.base_width_m) ** 2, 0.0)
         return self.h_field + self.height_m * bump
+
+    def height(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray | float:
+        if type(lat_deg) is float and type(lon_deg) is float:  # the flight loop's fast path
+            x = (lon_deg - self.map.lon0) * self.map.kx
+            y = (lat_deg - self.map.lat0) * self.map.ky
+            u = abs(abs(x * math.cos(self.course) - y * math.sin(self.course)) - self.offset_m)
+            if u >= self.base_width_m / 2:
+                return self.h_field
+            return self.h_field + self.height_m * math.cos(math.pi * u / self.base_width_m) ** 2
+        return super().height(lat_deg, lon_deg)
 
 
 # ------------------------------------------------------------------------------------
