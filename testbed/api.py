@@ -7,15 +7,20 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from testbed.config import Approach, list_approaches, load_approach, read_toml
 from testbed.flight.fly import FlightResult, check_start_clearance, fly
 from testbed.schema import ConfigError
 from testbed.sim.truth_io import write_truth
 
-__all__ = ["Approach", "FlightResult", "check_file", "fly_approach", "list_approaches", "load_approach",
-           "load_terrain_for", "print_flight_summary"]
+if TYPE_CHECKING:  # pragma: no cover
+    from testbed.sim.loop import LoopResult
+
+__all__ = ["Approach", "FlightResult", "RunResult", "check_file", "fly_approach", "list_approaches",
+           "load_approach", "load_terrain_for", "print_flight_summary", "print_run_summary", "run_approach"]
 
 
 def load_terrain_for(approach: Approach):
@@ -67,3 +72,127 @@ def print_flight_summary(result: FlightResult) -> None:
     for k, v in rows:
         t.add_row(k, v)
     Console().print(t)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """A flight with sensors and monitors in the loop, evaluated against truth."""
+
+    loop: "LoopResult"
+    summaries: dict
+    rrd_path: Path | None
+    live_url: str | None
+    wall_s: float
+
+    @property
+    def flight(self) -> FlightResult:
+        return self.loop.flight
+
+    @property
+    def outputs(self) -> dict:
+        return self.loop.outputs
+
+
+def default_rrd_path(approach: Approach, seed: int) -> Path:
+    return Path("runs") / f"{approach.name}-seed{seed}.rrd"
+
+
+def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: str | Path | None = "default",
+                 live: bool = False, bind_ip: str = "127.0.0.1", port: int = 9876, block_s: float = 1.0,
+                 monitors: list[str] | None = None, gust_seed: int | None = None,
+                 truth_path: str | Path | None = None) -> RunResult:
+    """Fly an approach with sensors and monitors in the loop; record it; evaluate it.
+
+    Parameters
+    ----------
+    approach : shipped name, TOML path or a loaded :class:`Approach`.
+    seed : seeds every sensor draw (same seed, same results, bit for bit).
+    rrd_path : the recording; ``"default"`` = ``runs/<approach>-seed<seed>.rrd``; None = no file.
+    live : also serve the stream to a Rerun viewer (gRPC on ``bind_ip:port``, loopback by default).
+    block_s : simulated seconds between live updates.
+    monitors : override the approach's monitor list.
+    """
+    import time
+
+    from testbed.sim.evaluate import summarise_monitor
+    from testbed.sim.loop import gnss_fault_onset, run_loop
+    from testbed.sim.setup import build_scene, build_setup
+
+    ap = approach if isinstance(approach, Approach) else load_approach(approach)
+    if monitors is not None:
+        from testbed.config import validate, ApproachConfig
+
+        cfg = validate(ApproachConfig, {**ap.config.model_dump(exclude_unset=True), "monitors": monitors},
+                       ap.source)
+        ap = replace(ap, config=cfg)
+    wall0 = time.perf_counter()
+    setup = build_setup(ap, load_terrain_for(ap))
+    if rrd_path == "default":
+        rrd_path = default_rrd_path(ap, seed)
+    sinks, sink = [], None
+    if rrd_path is not None or live:
+        from testbed.viz.rerun_sink import RerunSink
+
+        sink = RerunSink(Path(rrd_path) if rrd_path is not None else None, live=live, bind_ip=bind_ip, port=port,
+                         recording_id=f"{ap.name}-seed{seed}")
+        sink.start(build_scene(setup, setup.vision.camera.build()))
+        sinks.append(sink)
+    try:
+        loop = run_loop(setup, seed=seed, sinks=sinks, block_s=block_s, gust_seed=gust_seed)
+    finally:
+        if sink is not None:
+            sink.close()
+    onset = gnss_fault_onset(setup)
+    if onset is None and setup.faults:
+        onset = min(f.onset_s for f in setup.faults)
+    truth_cg = setup.frame.ecef_to_enu(loop.truth_at_gnss.pos_ecef)
+    truth_ant = setup.frame.ecef_to_enu(loop.gnss_truth.antenna_pos_ecef)
+    summaries = {}
+    for name, out in loop.outputs.items():
+        ref, pos = ("antenna", truth_ant) if name == "gps_raim" else ("reference point (CG)", truth_cg)
+        summaries[name] = summarise_monitor(out, pos, reference=ref, fault_onset_s=onset)
+    if truth_path is not None:
+        write_truth(loop.flight.truth, truth_path)
+    return RunResult(loop, summaries, Path(rrd_path) if rrd_path is not None else None,
+                     sink.live_url if sink is not None else None, time.perf_counter() - wall0)
+
+
+def print_run_summary(result: RunResult) -> None:
+    """The flight summary, then one table row per monitor."""
+    from rich.console import Console
+    from rich.table import Table
+
+    print_flight_summary(result.flight)
+    t = Table(title="integrity monitors (evaluated against truth)")
+    t.add_column("")
+    names = list(result.summaries)
+    for name in names:
+        t.add_column(name, justify="right")
+    S = [result.summaries[n] for n in names]
+
+    def nan(x, fmt):
+        return "-" if x != x else fmt.format(x)
+
+    rows = [("reference", [s.reference for s in S])]
+    for lv in (S[0].availability if S else {}):
+        rows.append((f"available {lv}", [f"{100 * s.availability[lv]:.0f} %" for s in S]))
+    rows += [
+        ("HPL max / p95", [f"{nan(s.hpl_max, '{:.1f}')} / {nan(s.hpl_p95, '{:.1f}')} m" for s in S]),
+        ("VPL max / p95", [f"{nan(s.vpl_max, '{:.1f}')} / {nan(s.vpl_p95, '{:.1f}')} m" for s in S]),
+        ("HPE95 / VPE95", [f"{nan(s.hpe95, '{:.1f}')} / {nan(s.vpe95, '{:.1f}')} m" for s in S]),
+        ("alert epochs", [f"{s.alert_epochs} / {s.epochs}" for s in S]),
+        ("time to alert", [nan(s.time_to_alert_s, "{:.1f} s") for s in S]),
+        ("misleading (err > PL, no alert)", [str(s.mi_epochs) for s in S]),
+        ("hazardously misleading", [str(s.hmi_epochs) for s in S]),
+    ]
+    for label, vals in rows:
+        t.add_row(label, *vals)
+    con = Console()
+    con.print(t)
+    tm = result.loop.timings
+    sim_s = result.flight.summary.duration_s
+    con.print(f"run: {sim_s:.0f} s simulated in {result.wall_s:.2f} s ({sim_s / result.wall_s:.0f}x real time); "
+              f"flight {tm.flight:.2f} s, sensors {tm.sensors:.2f} s, monitors {tm.monitors:.2f} s, "
+              f"logging {tm.logging:.2f} s")
+    if result.rrd_path is not None:
+        con.print(f"recording: {result.rrd_path}  (replay: rerun {result.rrd_path})")

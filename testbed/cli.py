@@ -34,13 +34,38 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_fly(args: argparse.Namespace) -> int:
-    from testbed.api import fly_approach, print_flight_summary
+    from testbed.api import fly_approach, print_flight_summary, print_run_summary, run_approach
 
-    result = fly_approach(args.approach, gust_seed=args.gust_seed, truth_path=args.truth)
-    print_flight_summary(result)
+    if args.flight_only:
+        result = fly_approach(args.approach, gust_seed=args.gust_seed, truth_path=args.truth)
+        print_flight_summary(result)
+    else:
+        rrd = None if args.no_record else (args.rrd if args.rrd is not None else "default")
+        if args.live:
+            print(f"live: serving on {args.bind}:{args.port}; connect with: rerun --connect "
+                  f"rerun+http://{'127.0.0.1' if args.bind in ('0.0.0.0', '127.0.0.1') else args.bind}:{args.port}/proxy",
+                  flush=True)
+        result = run_approach(args.approach, seed=args.seed, rrd_path=rrd, live=args.live, bind_ip=args.bind,
+                              port=args.port, block_s=args.block, monitors=args.monitors, gust_seed=args.gust_seed,
+                              truth_path=args.truth)
+        print_run_summary(result)
+        if args.live:
+            _wait_for_viewer(args.linger)
     if args.truth:
         print(f"truth written to {args.truth}")
     return 0
+
+
+def _wait_for_viewer(linger_s: float) -> None:
+    """Keep the live server up a while after the flight so a viewer can still connect."""
+    import time
+
+    if linger_s > 0:
+        print(f"live server stays up {linger_s:.0f} s more (Ctrl-C to stop)", flush=True)
+        try:
+            time.sleep(linger_s)
+        except KeyboardInterrupt:
+            pass
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,6 +77,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="shipped approach name or path to an approach TOML (default: zunz-rwy05-final)")
     f.add_argument("--truth", type=Path, help="write the full-rate truth trajectory (.npz, .csv or .parquet)")
     f.add_argument("--gust-seed", type=int, help="override the approach's gust seed")
+    f.add_argument("--seed", type=int, default=0, help="seed of every sensor random draw (default 0)")
+    f.add_argument("--rrd", type=Path, help="recording path (default runs/<approach>-seed<seed>.rrd)")
+    f.add_argument("--no-record", action="store_true", help="write no recording")
+    f.add_argument("--live", action="store_true", help="also serve the stream to a Rerun viewer (gRPC)")
+    f.add_argument("--bind", default="127.0.0.1", help="live server address (default loopback 127.0.0.1)")
+    f.add_argument("--port", type=int, default=9876, help="live server port (default 9876)")
+    f.add_argument("--linger", type=float, default=60.0, help="with --live: seconds to keep serving after landing")
+    f.add_argument("--block", type=float, default=1.0, help="simulated seconds between live updates (default 1)")
+    f.add_argument("--monitors", nargs="+", choices=["gps_raim", "va_raim", "pixel"],
+                   help="override the approach's monitors")
+    f.add_argument("--flight-only", action="store_true", help="fly without sensors, monitors or recording")
     f.set_defaults(func=_cmd_fly)
 
     a = sub.add_parser("approaches", help="list the shipped approaches")

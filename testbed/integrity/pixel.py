@@ -168,20 +168,26 @@ def fault_units(n_sat: int, n_landmark: int, two_faults: bool = True) -> tuple[N
     return cols1, cols2, labels
 
 
-def _ffill_epochs(x: NDArray) -> NDArray:
-    """Forward-fill NaN rows along the epoch axis (-2) of ``x`` (..., T, k)."""
+def _ffill_epochs(x: NDArray, carry: NDArray | None = None) -> NDArray:
+    """Forward-fill NaN rows along the epoch axis (-2) of ``x`` (..., T, k).
+
+    ``carry`` (..., k) is the value in force before the first epoch (e.g. the
+    last fix of the previous block of a live run); None leaves leading gaps NaN.
+    """
     ok = np.isfinite(x).all(-1)
     T = x.shape[-2]
     idx = np.where(ok, np.arange(T), 0)
     idx = np.maximum.accumulate(idx, axis=-1)
     out = np.take_along_axis(x, idx[..., None], -2)
     seen = np.maximum.accumulate(ok, axis=-1)
+    if carry is not None:
+        return np.where(seen[..., None], out, np.asarray(carry, float)[..., None, :])
     return np.where(seen[..., None], out, np.nan)
 
 
 def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
                   settings: IntegritySettings | None = None, x0: ArrayLike | None = None,
-                  name: str = "pixel") -> MonitorOutput:
+                  name: str = "pixel", x_carry: ArrayLike | None = None) -> MonitorOutput:
     """The patent's pixel-domain integrity monitor, GPS + landmark pixels, batched.
 
     Parameters
@@ -194,6 +200,10 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     settings : IntegritySettings (``p_fa``, ``p_md``, ``p_ff``, ``pixel_two_faults``,
         ``pixel_attitude_noise``, solver tolerances, service levels).
     x0 : (B..., T, 4) start of the iteration (e.g. the navigation prediction).
+        Default: the GPS-only fix, forward-filled over epochs without one.
+    x_carry : (B..., 4) the start state in force before the first epoch (a live
+        run passes the previous block's ``diagnostics["x_start"][..., -1, :]``
+        so that block-by-block equals one call over the whole flight).
         Default: the GPS-only WLS fix, carried forward over epochs without one.
 
     Returns
@@ -235,7 +245,7 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
         ant0 = np.einsum("...ij,j->...i", q_to_R(q_ref), gnss.antenna.lever_arm_body)
         gps = lsq.solve_ranges(anchor, z_g, w_g, mg, np.ones(Ng), offset_enu=ant0[..., None, :],
                                n_iter=st.max_iter, tol_m=st.tol_m, max_cond=st.max_cond)
-        x_start = _ffill_epochs(gps.x)
+        x_start = _ffill_epochs(gps.x, x_carry)
     else:
         x_start = np.broadcast_to(np.asarray(x0, float), lead + (4,))
     x_start = np.where(np.isfinite(x_start), x_start, 0.0)
@@ -307,6 +317,7 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
 
     r = sol.residual
     diag = {
+        "x_start": x_start,
         "hpl1": hpl1, "hpl2": hpl2, "hpl3": hpl3, "vpl1": vpl1, "vpl2": vpl2, "vpl3": vpl3,
         "sigma_x": sigma_x, "lam_det": lam, "k_ff": k_ff,
         "hslope_sat": scatter_rows(hs1[..., :Ng], idx, mg, S),

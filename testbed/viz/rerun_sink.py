@@ -127,7 +127,7 @@ class RerunSink:
         tr = block.truth
         # aircraft pose (the truth record's local ENU attitude ~ world ENU near the field)
         rec.send_columns("world/aircraft", indexes=times,
-                         columns=rr.Transform3D.columns(translation=tr.pos_enu, quaternion=tr.q_body_to_enu_world))
+                         columns=rr.Transform3D.columns(translation=tr.pos_enu, quaternion=tr.q_body_to_enu))
         # flown trail: the whole trail up to each epoch would be O(T^2); log the new points
         rec.send_columns("world/path/flown", indexes=times,
                          columns=rr.Points3D.columns(positions=tr.pos_enu, colors=np.tile(COLOURS["flown"], (t.size, 1)),

@@ -1,0 +1,109 @@
+"""Evaluation: monitor outputs against truth (outside the monitors, which never see it).
+
+Stanford-diagram regions for one dimension (horizontal or vertical), with
+position error ``e``, protection level ``PL`` and alert limit ``AL``:
+
+- ``normal``: PL <= AL and e <= PL
+- ``unavailable``: PL > AL and e <= PL (the system says "don't use me")
+- ``misleading``: e > PL and e <= AL (the bound failed, no hazard yet)
+- ``hazardous``: e > AL and PL <= AL (hazardously misleading information)
+- ``unavailable_misleading``: PL > AL and e > PL and e > AL
+- ``no_solution``: no position or PL (fewer than 5 measurements, singular...)
+
+Epochs with an alert are counted in their region too (``alerted`` tells how
+many); misleading epochs that were alerted are not *undetected* misleading.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from testbed.integrity.levels import service_level
+from testbed.records import MonitorOutput
+
+REGIONS = ("normal", "unavailable", "misleading", "hazardous", "unavailable_misleading", "no_solution")
+
+
+def stanford_regions(err: NDArray, pl: NDArray, al: float) -> dict[str, NDArray]:
+    """Boolean masks of the Stanford regions (any shape); exactly one is True per epoch."""
+    err, pl = np.asarray(err, float), np.asarray(pl, float)
+    ok = np.isfinite(err) & np.isfinite(pl)
+    e = np.where(ok, err, 0.0)
+    p = np.where(ok, pl, 0.0)
+    bounded = e <= p
+    avail = p <= al
+    return {
+        "normal": ok & bounded & avail,
+        "unavailable": ok & bounded & ~avail,
+        "misleading": ok & ~bounded & (e <= al),
+        "hazardous": ok & ~bounded & (e > al) & avail,
+        "unavailable_misleading": ok & ~bounded & (e > al) & ~avail,
+        "no_solution": ~ok,
+    }
+
+
+@dataclass(frozen=True)
+class MonitorSummary:
+    name: str
+    epochs: int
+    reference: str
+    availability: dict[str, float]  # per service level, fraction of epochs
+    hpl_max: float
+    hpl_p95: float
+    vpl_max: float
+    vpl_p95: float
+    hpe95: float
+    vpe95: float
+    alert_epochs: int
+    first_alert_s: float  # nan if none
+    time_to_alert_s: float  # from the first fault onset; nan if no fault or never alerted
+    mi_epochs: int  # error > PL (H or V) with no alert
+    hmi_epochs: int  # error > AL while PL <= AL (H or V) with no alert, for the most demanding level
+    regions_h: dict[str, int] = field(default_factory=dict)
+    regions_v: dict[str, int] = field(default_factory=dict)
+
+
+def _pct(x: NDArray, q: float) -> float:
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return float(np.percentile(x, q)) if x.size else float("nan")
+
+
+def position_errors(out: MonitorOutput, true_pos_enu: NDArray) -> tuple[NDArray, NDArray]:
+    """Horizontal and vertical position error magnitudes (m) of a monitor's estimate."""
+    d = np.asarray(out.pos_enu, float) - np.asarray(true_pos_enu, float)
+    return np.hypot(d[..., 0], d[..., 1]), np.abs(d[..., 2])
+
+
+def summarise_monitor(out: MonitorOutput, true_pos_enu: NDArray, *, reference: str,
+                      fault_onset_s: float | None = None) -> MonitorSummary:
+    """Figures an integrity engineer reads for one monitor over one run (unbatched)."""
+    he, ve = position_errors(out, true_pos_enu)
+    alert = np.asarray(out.alert, bool)
+    hpl, vpl = np.asarray(out.hpl, float), np.asarray(out.vpl, float)
+    avail = np.asarray(out.available, bool)
+    levels = [service_level(n) for n in out.service_levels]
+    hal = min(lv.hal for lv in levels)
+    val = min(lv.val for lv in levels)
+    rh, rv = stanford_regions(he, hpl, hal), stanford_regions(ve, vpl, val)
+    mi = ((he > hpl) | (ve > vpl)) & ~alert & np.isfinite(hpl) & np.isfinite(vpl)
+    hmi = (rh["hazardous"] | rv["hazardous"]) & ~alert
+    t = np.asarray(out.t, float)
+    first_alert = float(t[alert][0]) if alert.any() else float("nan")
+    tta = float("nan")
+    if fault_onset_s is not None:
+        after = alert & (t >= fault_onset_s - 1e-9)
+        if after.any():
+            tta = float(t[after][0] - fault_onset_s)
+    sol = np.isfinite(he)
+    return MonitorSummary(
+        name=out.name, epochs=int(t.size), reference=reference,
+        availability={lv.name: float(avail[..., k].mean()) for k, lv in enumerate(levels)},
+        hpl_max=float(np.nanmax(hpl)) if np.isfinite(hpl).any() else float("nan"), hpl_p95=_pct(hpl, 95),
+        vpl_max=float(np.nanmax(vpl)) if np.isfinite(vpl).any() else float("nan"), vpl_p95=_pct(vpl, 95),
+        hpe95=_pct(he[sol], 95), vpe95=_pct(ve[sol], 95), alert_epochs=int(alert.sum()),
+        first_alert_s=first_alert, time_to_alert_s=tta, mi_epochs=int(mi.sum()), hmi_epochs=int(hmi.sum()),
+        regions_h={k: int(v.sum()) for k, v in rh.items()}, regions_v={k: int(v.sum()) for k, v in rv.items()})

@@ -1,0 +1,282 @@
+"""The closed loop: flight -> sensors -> monitors -> sinks, block by block while flying.
+
+JSBSim flies at its own rate; an observer collects the truth at the sensor
+epochs and, every ``block_s`` of simulated time, synthesises the observations
+for the epochs just flown, runs every configured monitor on them and hands a
+:class:`LoopBlock` to the sinks (Rerun, tables...). Nothing is post-processed.
+
+Why the result does not depend on the block size: sensor geometry is computed
+per epoch (no cross-epoch state) and accumulated; sensor noise is drawn
+prefix-stably (one child generator per random component, causal filters), so
+sampling the first T epochs again after every block reproduces the earlier
+epochs bit for bit and adds the new ones; the monitors are snapshot monitors
+whose only cross-epoch state (the pixel monitor's start point, VA-RAIM's
+calibration) is carried across blocks. ``tests/test_loop.py`` checks that a
+live run equals the batch functions applied to the whole flight.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from testbed.flight.fly import FlightResult, fly, truth_from_rows
+from testbed.integrity.pixel import pixel_monitor
+from testbed.integrity.raim import gps_raim
+from testbed.integrity.va_raim import va_raim
+from testbed.records import GnssEpochs, GnssTruth, MonitorOutput, Truth
+from testbed.sensors.faults import GNSS_KINDS
+from testbed.sensors.gnss.almanac import load_constellation
+from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
+from testbed.sensors.gnss.timebase import utc_to_gps_seconds
+from testbed.sensors.vision import detect as vdetect
+from testbed.sim import slicing
+from testbed.sim.setup import RunSetup
+
+INFO, WARN, ERROR = "INFO", "WARN", "ERROR"
+
+
+@dataclass
+class LoopBlock:
+    """What the sinks receive for one block of sensor epochs (world frame = the approach's ENU)."""
+
+    t: np.ndarray  # (T,) GNSS (monitor) epochs
+    truth: Truth  # at the GNSS epochs
+    gnss: GnssEpochs | None
+    gnss_truth: GnssTruth | None
+    los_enu: np.ndarray | None  # (T, S, 3) unit lines of sight, world frame
+    antenna_enu: np.ndarray | None  # (T, 3)
+    vision: object | None  # VisionEpochs at the vision rate
+    vision_truth: object | None
+    camera_enu: np.ndarray | None  # (Tv, 3) true camera positions
+    R_cam_to_world: np.ndarray | None  # (Tv, 3, 3)
+    outputs: dict[str, MonitorOutput]
+    events: list[tuple[float, str, str]]
+    alert_limits: tuple[float, float]
+
+
+class Sink(Protocol):
+    def start(self, scene) -> None: ...
+    def log_block(self, block: LoopBlock) -> None: ...
+    def close(self) -> None: ...
+
+
+@dataclass
+class Timings:
+    flight: float = 0.0
+    sensors: float = 0.0
+    monitors: float = 0.0
+    logging: float = 0.0
+
+    def as_dict(self) -> dict[str, float]:
+        return {"flight": self.flight, "sensors": self.sensors, "monitors": self.monitors, "logging": self.logging}
+
+
+@dataclass
+class LoopResult:
+    flight: FlightResult
+    gnss: GnssEpochs
+    gnss_truth: GnssTruth
+    vision: object | None
+    vision_truth: object | None
+    outputs: dict[str, MonitorOutput]
+    truth_at_gnss: Truth
+    timings: Timings
+    events: list[tuple[float, str, str]] = field(default_factory=list)
+
+
+class _Runner:
+    """The observer that turns flight steps into blocks of observations and monitor outputs."""
+
+    def __init__(self, setup: RunSetup, seed: int, sinks: list, block_s: float) -> None:
+        cfg = setup.approach.config
+        self.setup, self.sinks = setup, sinks
+        dt = cfg.flight.dt_s
+        self.g_step = max(1, int(round(1.0 / (setup.gnss.rate_hz * dt))))
+        self.v_step = max(1, int(round(1.0 / (setup.vision.rate_hz * dt)))) if setup.uses_vision else self.g_step
+        if self.g_step % self.v_step:
+            self.v_step = self.g_step  # vision epochs must include the GNSS epochs
+        self.block_steps = max(self.g_step, int(round(block_s / dt / self.g_step)) * self.g_step)
+        ss = np.random.SeedSequence(seed)
+        self.seed_gnss, self.seed_vision = ss.spawn(2)
+        self.start_utc = cfg.start_time_utc
+        self.eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path,
+                                      utc_to_gps_seconds(self.start_utc), setup.gnss.almanac_week)
+        self.t0: float | None = None
+        self.pending: list[tuple] = []  # rows at the vision (sensor) rate not yet processed
+        self.pending_k: list[int] = []
+        self.g_geom = None
+        self.v_geom = None
+        self.n_g = 0  # GNSS epochs processed
+        self.n_v = 0
+        self.parts: dict[str, list] = {"gnss": [], "gnss_truth": [], "vision": [], "vision_truth": [], "truth": []}
+        self.outputs: dict[str, list[MonitorOutput]] = {m: [] for m in setup.monitors}
+        self.pixel_carry = None
+        self.prev_alert = {m: False for m in setup.monitors}
+        self.prev_avail = {m: True for m in setup.monitors}
+        self.onsets = sorted({(f.onset_s, f.kind) for f in setup.faults})
+        self.onset_logged: set = set()
+        self.events: list[tuple[float, str, str]] = []
+        self.timings = Timings()
+
+    # -- observer --------------------------------------------------------------
+    def on_step(self, k: int, row: tuple) -> None:
+        if self.t0 is None:
+            self.t0 = row[0]
+        if k % self.v_step == 0:
+            self.pending.append(row)
+            self.pending_k.append(k)
+        if k > 0 and k % self.block_steps == self.block_steps - 1:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self.pending:
+            return
+        t_a = time.perf_counter()
+        rows, ks = self.pending, np.asarray(self.pending_k)
+        self.pending, self.pending_k = [], []
+        s = self.setup
+        truth_v = truth_from_rows(rows, s.frame, t0=self.t0)
+        g_sel = np.flatnonzero(ks % self.g_step == 0)
+        truth_g = truth_v.at_indices(g_sel)
+        block = LoopBlock(t=truth_g.t, truth=truth_g, gnss=None, gnss_truth=None, los_enu=None, antenna_enu=None,
+                          vision=None, vision_truth=None, camera_enu=None, R_cam_to_world=None, outputs={},
+                          events=[], alert_limits=s.alert_limits)
+        self.parts["truth"].append(truth_g)
+        # GNSS: geometry of the new epochs, noise re-drawn prefix-stably over all epochs so far
+        if g_sel.size:
+            geom_new = gnss_geometry(truth_g, s.antenna, s.gnss, start_utc=self.start_utc, terrain=s.terrain,
+                                     constellation=self.eph)
+            self.g_geom = slicing.geometry_concat(self.g_geom, geom_new)
+            g_all, gt_all = sample_gnss(self.g_geom, s.gnss, faults=s.faults,
+                                        rng=np.random.default_rng(self.seed_gnss))
+            new = slice(self.n_g, self.n_g + g_sel.size)
+            block.gnss, block.gnss_truth = slicing.take(g_all, new), slicing.take(gt_all, new)
+            self.n_g += g_sel.size
+            ant_enu = s.frame.ecef_to_enu(block.gnss_truth.antenna_pos_ecef)
+            sat_enu = s.frame.ecef_to_enu(block.gnss.sat_pos_ecef)
+            los = sat_enu - ant_enu[:, None, :]
+            block.los_enu = los / np.linalg.norm(los, axis=-1, keepdims=True)
+            block.antenna_enu = ant_enu
+            self.parts["gnss"].append(block.gnss)
+            self.parts["gnss_truth"].append(block.gnss_truth)
+        # vision at its own rate (GNSS epochs are a subset)
+        v_at_g = None
+        if s.uses_vision:
+            geom_new = vdetect.vision_geometry(truth_v, s.vision, landmarks=s.landmarks, terrain=s.terrain)
+            self.v_geom = geom_new if self.v_geom is None else vdetect.concat_geometry([self.v_geom, geom_new])
+            v_all, vt_all = vdetect.sample_vision(self.v_geom, s.vision, landmarks=s.landmarks, faults=list(s.faults),
+                                                  rng=np.random.default_rng(self.seed_vision))
+            new = slice(self.n_v, self.n_v + len(truth_v.t))
+            block.vision, block.vision_truth = slicing.take(v_all, new), slicing.take(vt_all, new)
+            self.n_v += len(truth_v.t)
+            block.camera_enu = s.frame.ecef_to_enu(block.vision_truth.cam_pos_ecef)
+            from testbed.frames import q_to_R
+            block.R_cam_to_world = s.frame.R @ q_to_R(block.vision_truth.q_cam_to_ecef)
+            self.parts["vision"].append(block.vision)
+            self.parts["vision_truth"].append(block.vision_truth)
+            v_at_g = slicing.take(block.vision, g_sel)
+        t_b = time.perf_counter()
+        self.timings.sensors += t_b - t_a
+        if block.gnss is not None:
+            self._monitors(block, v_at_g)
+        t_c = time.perf_counter()
+        self.timings.monitors += t_c - t_b
+        self._events(block)
+        for sink in self.sinks:
+            sink.log_block(block)
+        self.timings.logging += time.perf_counter() - t_c
+
+    # -- monitors --------------------------------------------------------------
+    def _monitors(self, block: LoopBlock, v_at_g) -> None:
+        s = self.setup
+        for m in s.monitors:
+            if m == "gps_raim":
+                out = gps_raim(block.gnss, s.frame, s.integrity)
+            elif m == "pixel":
+                out = pixel_monitor(block.gnss, v_at_g, s.frame, s.integrity, x_carry=self.pixel_carry)
+                self.pixel_carry = out.diagnostics["x_start"][-1]
+            else:  # va_raim: its calibration is causal; re-run on the epochs so far, keep the new ones
+                g_all = slicing.concat(self.parts["gnss"])
+                v_all = slicing.concat([slicing.take(v, self._g_in_v(v)) for v in self.parts["vision"]])
+                full = va_raim(g_all, v_all, s.frame, s.va_raim)
+                out = slicing.take(full, slice(len(g_all.t) - len(block.t), len(g_all.t)))
+            block.outputs[m] = out
+            self.outputs[m].append(out)
+
+    def _g_in_v(self, v) -> np.ndarray:
+        ratio = max(1, self.g_step // self.v_step)
+        k0 = int(round(v.t[0] * self.setup.vision.rate_hz)) if len(v.t) else 0
+        return np.flatnonzero((np.arange(len(v.t)) + k0) % ratio == 0)
+
+    # -- events ----------------------------------------------------------------
+    def _events(self, block: LoopBlock) -> None:
+        t_end = float(block.t[-1]) if block.t.size else -1.0
+        for onset, kind in self.onsets:
+            if onset <= t_end and (onset, kind) not in self.onset_logged:
+                self.onset_logged.add((onset, kind))
+                block.events.append((onset, WARN, f"[truth] fault injected: {kind} at t = {onset:.1f} s"))
+        for name, out in block.outputs.items():
+            level0 = out.service_levels[0] if out.service_levels else "?"
+            for i, t in enumerate(out.t):
+                a = bool(out.alert[i])
+                if a and not self.prev_alert[name]:
+                    block.events.append((float(t), ERROR, f"{name}: ALERT test statistic {out.test_stat[i]:.1f} "
+                                                           f"> threshold {out.threshold[i]:.1f}"))
+                elif not a and self.prev_alert[name]:
+                    block.events.append((float(t), INFO, f"{name}: alert cleared"))
+                self.prev_alert[name] = a
+                av = bool(out.available[i, 0]) if out.available.ndim == 2 and out.available.shape[1] else True
+                if av != self.prev_avail[name]:
+                    why = out.reasons[out.reason[i]] if out.reason[i] else "PL above alert limit"
+                    block.events.append((float(t), WARN if not av else INFO,
+                                         f"{name}: {level0} {'available' if av else 'UNAVAILABLE (' + why + ')'}"))
+                self.prev_avail[name] = av
+        block.events.sort(key=lambda e: e[0])
+        self.events.extend(block.events)
+
+
+def run_loop(setup: RunSetup, *, seed: int = 0, sinks: list | None = None, block_s: float = 1.0,
+             gust_seed: int | None = None) -> LoopResult:
+    """Fly ``setup``'s approach with sensors and monitors in the loop.
+
+    Parameters
+    ----------
+    setup : :func:`testbed.sim.setup.build_setup`.
+    seed : seeds every sensor random draw (SeedSequence -> GNSS, vision).
+    sinks : observers with ``log_block`` (e.g. :class:`testbed.viz.rerun_sink.RerunSink`).
+    block_s : simulated seconds per block (the live update period).
+    """
+    sinks = list(sinks or [])
+    runner = _Runner(setup, seed, sinks, block_s)
+    wall0 = time.perf_counter()
+    flight = fly(setup.approach, setup.terrain, gust_seed=gust_seed, on_step=runner.on_step)
+    runner.flush()
+    total = time.perf_counter() - wall0
+    tm = runner.timings
+    tm.flight = total - tm.sensors - tm.monitors - tm.logging
+    p = runner.parts
+    return LoopResult(
+        flight=flight, gnss=slicing.concat(p["gnss"]), gnss_truth=slicing.concat(p["gnss_truth"]),
+        vision=slicing.concat(p["vision"]) if p["vision"] else None,
+        vision_truth=slicing.concat(p["vision_truth"]) if p["vision_truth"] else None,
+        outputs={m: slicing.concat(v) for m, v in runner.outputs.items() if v},
+        truth_at_gnss=_concat_truth(p["truth"]), timings=tm, events=runner.events)
+
+
+def _concat_truth(parts: list[Truth]) -> Truth:
+    from dataclasses import fields, replace
+
+    if len(parts) == 1:
+        return parts[0]
+    kw = {f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Truth) if f.name != "frame_origin"}
+    return replace(parts[0], **kw)
+
+
+def gnss_fault_onset(setup: RunSetup) -> float | None:
+    """Onset of the first GNSS fault in the schedule (for time-to-alert), or None."""
+    on = [f.onset_s for f in setup.faults if f.kind in GNSS_KINDS]
+    return min(on) if on else None
