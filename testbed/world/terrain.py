@@ -428,7 +428,7 @@ class Flat(Terrain):
         return np.full(np.shape(a), self.h)
 
     def height(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray | float:
-        if type(lat_deg) is float and type(lon_deg) is float:
+        if isinstance(lat_deg, float) and isinstance(lon_deg, float):
             return self.h
         return super().height(lat_deg, lon_deg)
 
@@ -479,7 +479,7 @@ class TwoRidges(Terrain):
         return self.h_field + self.height_m * bump
 
     def height(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray | float:
-        if type(lat_deg) is float and type(lon_deg) is float:  # the flight loop's fast path
+        if isinstance(lat_deg, float) and isinstance(lon_deg, float):  # the flight loop's fast path
             x = (lon_deg - self.map.lon0) * self.map.kx
             y = (lat_deg - self.map.lat0) * self.map.ky
             u = abs(abs(x * math.cos(self.course) - y * math.sin(self.course)) - self.offset_m)
@@ -615,7 +615,7 @@ class GridTerrain(Terrain):
 
     def height(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray | float:
         """Bilinear height (m); NaN outside the grid. Scalar floats take a fast path."""
-        if type(lat_deg) is float and type(lon_deg) is float:
+        if isinstance(lat_deg, float) and isinstance(lon_deg, float):
             a = (lat_deg - self._lat0) * self._ilat
             b = (lon_deg - self._lon0) * self._ilon
             if not (0.0 <= a <= self._M - 1 and 0.0 <= b <= self._N - 1):
