@@ -88,6 +88,17 @@ class LoopResult:
     events: list[tuple[float, str, str]] = field(default_factory=list)
 
 
+def sensor_seeds(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed seed words for the GNSS and vision generators of a run.
+
+    Words, not SeedSequence objects: ``Generator.spawn`` advances the
+    SeedSequence it came from, so re-seeding from the same object after every
+    block would give different children. Words give the same stream each time.
+    """
+    g, v = np.random.SeedSequence(seed).spawn(2)
+    return g.generate_state(4), v.generate_state(4)
+
+
 class _Runner:
     """The observer that turns flight steps into blocks of observations and monitor outputs."""
 
@@ -100,8 +111,7 @@ class _Runner:
         if self.g_step % self.v_step:
             self.v_step = self.g_step  # vision epochs must include the GNSS epochs
         self.block_steps = max(self.g_step, int(round(block_s / dt / self.g_step)) * self.g_step)
-        ss = np.random.SeedSequence(seed)
-        self.seed_gnss, self.seed_vision = ss.spawn(2)
+        self.seed_gnss, self.seed_vision = sensor_seeds(seed)
         self.start_utc = cfg.start_time_utc
         self.eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path,
                                       utc_to_gps_seconds(self.start_utc), setup.gnss.almanac_week)
