@@ -163,7 +163,7 @@ def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: in
             enu = (r00 * dx + r01 * dy + r02 * dz, r10 * dx + r11 * dy + r12 * dz, r20 * dx + r21 * dy + r22 * dz)
             cmd = pilot.update(s, enu[0], enu[1])
             ps = pilot.last
-            row = (k * dt, x, y, z, s["lat_deg"], s["lon_deg"], s["h"], *enu, s["vel_ned"][1],
+            row = (round(k * dt, 9), x, y, z, s["lat_deg"], s["lon_deg"], s["h"], *enu, s["vel_ned"][1],
                    s["vel_ned"][0], -s["vel_ned"][2], s["phi"], s["theta"], s["psi"], s["p"], s["q"],
                    s["r"], *s["f_body"], s["agl"], s["tas"], s["cas"])
             rows.append(row)

@@ -125,6 +125,10 @@ class _Runner:
         self.parts: dict[str, list] = {"gnss": [], "gnss_truth": [], "vision": [], "vision_truth": [], "truth": []}
         self.outputs: dict[str, list[MonitorOutput]] = {m: [] for m in setup.monitors}
         self.pixel_carry = None
+        self.va_ctx: list[int] = []
+        self.va_cal: set[int] = set()
+        self.va_last_fix: int | None = None
+        self.va_hist_g = self.va_hist_v = None
         self.prev_alert = {m: False for m in setup.monitors}
         self.prev_avail = {m: True for m in setup.monitors}
         self.onsets = sorted({(f.onset_s, f.kind) for f in setup.faults})
@@ -209,18 +213,41 @@ class _Runner:
             elif m == "pixel":
                 out = pixel_monitor(block.gnss, v_at_g, s.frame, s.integrity, x_carry=self.pixel_carry)
                 self.pixel_carry = out.diagnostics["x_start"][-1]
-            else:  # va_raim: its calibration is causal; re-run on the epochs so far, keep the new ones
-                g_all = slicing.concat(self.parts["gnss"])
-                v_all = slicing.concat([slicing.take(v, self._g_in_v(v)) for v in self.parts["vision"]])
-                full = va_raim(g_all, v_all, s.frame, s.va_raim)
-                out = slicing.take(full, slice(len(g_all.t) - len(block.t), len(g_all.t)))
+            else:
+                out = self._va_raim(block, v_at_g)
             block.outputs[m] = out
             self.outputs[m].append(out)
 
-    def _g_in_v(self, v) -> np.ndarray:
-        ratio = max(1, self.g_step // self.v_step)
-        k0 = int(round(v.t[0] * self.setup.vision.rate_hz)) if len(v.t) else 0
-        return np.flatnonzero((np.arange(len(v.t)) + k0) % ratio == 0)
+    def _va_raim(self, block: LoopBlock, v_at_g) -> MonitorOutput:
+        """VA-RAIM on the new epochs, preceded by its context epochs.
+
+        Its only cross-epoch state is (a) the calibration epoch of each landmark
+        set and (b) the last epoch with a GPS fix (the prior of the vision
+        solve). Prepending exactly those epochs reproduces the whole-flight
+        result for the new epochs without re-running the past.
+        """
+        s = self.setup
+        n_new = len(block.t)
+        first_new = self.n_g - n_new
+        if self.va_ctx:
+            ctx = np.asarray(self.va_ctx)
+            g_in = slicing.concat([slicing.take(self.va_hist_g, ctx), block.gnss])
+            v_in = slicing.concat([slicing.take(self.va_hist_v, ctx), v_at_g])
+        else:
+            ctx = np.zeros(0, int)
+            g_in, v_in = block.gnss, v_at_g
+        full = va_raim(g_in, v_in, s.frame, s.va_raim)
+        gidx = np.concatenate([ctx, np.arange(first_new, self.n_g)])
+        cal = np.asarray(full.diagnostics["cal_idx"])
+        self.va_cal.update(int(i) for i in gidx[cal[cal >= 0]])
+        fix = np.isfinite(full.diagnostics["gps"].pos_enu).all(-1)
+        if fix.any():
+            self.va_last_fix = int(gidx[np.flatnonzero(fix)[-1]])
+        # keep the history the context may point into (the GNSS epochs so far, vision at them)
+        self.va_hist_g = block.gnss if self.va_hist_g is None else slicing.concat([self.va_hist_g, block.gnss])
+        self.va_hist_v = v_at_g if self.va_hist_v is None else slicing.concat([self.va_hist_v, v_at_g])
+        self.va_ctx = sorted(self.va_cal | ({self.va_last_fix} if self.va_last_fix is not None else set()))
+        return slicing.take(full, slice(len(ctx), None))
 
     # -- events ----------------------------------------------------------------
     def _events(self, block: LoopBlock) -> None:

@@ -66,6 +66,7 @@ class RerunSink:
                  port: int = 9876, recording_id: str = "testbed", memory_limit: str = "512MiB") -> None:
         self.rrd_path = Path(rrd_path) if rrd_path is not None else None
         self.rec = rr.RecordingStream("testbed", recording_id=recording_id)
+        self.rec.set_log_time_enabled(False)  # wall-clock stamps would make recordings irreproducible
         sinks = []
         if self.rrd_path is not None:
             self.rrd_path.parent.mkdir(parents=True, exist_ok=True)

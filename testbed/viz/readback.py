@@ -1,0 +1,68 @@
+"""Read a testbed recording back without a viewer (for scripts and tests).
+
+Uses ``rerun.chunk.RrdReader`` (rerun-sdk ``catalog`` extra). Times are on the
+``sim_time`` timeline, returned in seconds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import rerun.chunk as rrc
+
+
+def _chunks(path: str | Path):
+    return rrc.RrdReader(str(path)).stream()
+
+
+def entity_paths(path: str | Path) -> set[str]:
+    """Every entity path in the recording (with a leading '/')."""
+    return {ch.entity_path for ch in _chunks(path)}
+
+
+def has_blueprint(path: str | Path) -> bool:
+    return bool(rrc.RrdReader(str(path)).blueprints())
+
+
+def _column(rb, name):
+    names = rb.schema.names
+    return rb.column(names.index(name)) if name in names else None
+
+
+def scalar_series(path: str | Path, entity: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(t_s, values)`` of a ``Scalars`` series, sorted by time."""
+    entity = entity if entity.startswith("/") else "/" + entity
+    ts, vs = [], []
+    for ch in _chunks(path):
+        if ch.entity_path != entity or ch.is_static:
+            continue
+        rb = ch.to_record_batch()
+        t, v = _column(rb, "sim_time"), _column(rb, "Scalars:scalars")
+        if t is None or v is None:
+            continue
+        ts.append(t.cast("int64").to_numpy() * 1e-9)
+        vs.append(np.array([x[0] if x is not None and len(x) else np.nan for x in v.to_pylist()], float))
+    if not ts:
+        raise KeyError(f"{path}: no scalar series at {entity}")
+    t, v = np.concatenate(ts), np.concatenate(vs)
+    order = np.argsort(t, kind="stable")
+    return t[order], v[order]
+
+
+def text_log(path: str | Path, entity: str = "/alerts") -> list[tuple[float, str, str]]:
+    """``[(t_s, level, text)]`` of a TextLog entity, sorted by time (static entries at t = -inf)."""
+    out = []
+    for ch in _chunks(path):
+        if ch.entity_path != entity:
+            continue
+        rb = ch.to_record_batch()
+        t, lv, tx = _column(rb, "sim_time"), _column(rb, "TextLog:level"), _column(rb, "TextLog:text")
+        times = t.cast("int64").to_numpy() * 1e-9 if t is not None else np.full(rb.num_rows, -np.inf)
+        for k in range(rb.num_rows):
+            level = lv[k].as_py() if lv is not None else None
+            text = tx[k].as_py() if tx is not None else None
+            level = level[0] if isinstance(level, list) and level else level
+            text = text[0] if isinstance(text, list) and text else text
+            out.append((float(times[k]), str(level), str(text)))
+    return sorted(out, key=lambda e: e[0])
