@@ -65,13 +65,25 @@ def attitude_reference(q_body_to_enu: ArrayLike, settings: AttitudeRefSettings, 
     err_euler : (B..., T, 3) rad, the drawn (roll, pitch, heading) errors (truth side).
     sigma : (3,) rad, total 1-sigma per axis, sqrt(bias² + noise²) (what the monitor is told).
     """
-    q = np.asarray(q_body_to_enu, float)
+    return attitude_reference_from_euler(q_to_euler(q_body_to_enu), settings, rng, n_trials)
+
+
+def attitude_reference_from_euler(euler_true: ArrayLike, settings: AttitudeRefSettings, rng: np.random.Generator,
+                                  n_trials: int | None = None) -> tuple[NDArray, NDArray, NDArray]:
+    """:func:`attitude_reference` from the true Euler angles ``(T, 3)`` rad (roll, pitch, heading),
+    i.e. ``q_to_euler(q_body_to_enu)`` (the truth-only part, computed once per epoch).
+
+    The bias ``(B..., 1, 3)`` is drawn before the time-major noise ``(B..., T, 3)``, so
+    without ``n_trials`` the first k epochs do not depend on T (prefix stable).
+    Returns ``(q_ref, err_euler, sigma)`` as :func:`attitude_reference`.
+    """
+    eul_true = np.asarray(euler_true, float)
     batch = () if n_trials is None else (int(n_trials),)
     sb = np.radians(settings.bias_sigma_deg)
     sn = np.radians(settings.noise_sigma_deg)
     bias = rng.standard_normal(batch + (1, 3)) * sb
-    noise = rng.standard_normal(batch + q.shape[:-1] + (3,)) * sn
+    noise = rng.standard_normal(batch + eul_true.shape[:-1] + (3,)) * sn
     err = bias + noise
-    eul = q_to_euler(q) + err
+    eul = eul_true + err
     q_ref = euler_to_q_fast(eul)
     return q_ref, err, np.sqrt(sb**2 + sn**2)

@@ -40,52 +40,76 @@ def mount_from_settings(settings: MountSettings) -> Mount:
 
 
 def _lowpass_noise(t: NDArray, rms: NDArray, bandwidth_hz: float, rng: np.random.Generator,
-                   batch: tuple[int, ...]) -> tuple[NDArray, NDArray]:
+                   batch: tuple[int, ...], sample_rate_hz: float | None = None) -> tuple[NDArray, NDArray]:
     """Band-limited Gaussian noise and its time derivative sampled at ``t``.
 
-    White noise on a fine grid (10 × the bandwidth, at least 2 × the sample
-    rate) through a 2nd-order Butterworth low-pass, scaled by the filter's
-    impulse-response energy so the stationary std is ``rms`` per component;
-    a burn-in of 20 / bandwidth seconds removes the start-up transient.
-    Returns arrays ``(*batch, T, 3)`` (rad, rad/s).
+    White noise on a fine grid (fs = max(10 × the bandwidth, 2 × the sample
+    rate)) through a 2nd-order Butterworth low-pass, scaled by the filter's
+    impulse-response energy so the stationary std is ``rms`` per component.
+    The grid starts 20 / bandwidth seconds before ``t[0]`` (burn-in: the causal
+    filter is stationary by ``t[0]``, its start-up transient decays as
+    exp(-2π·0.7·20) ≈ 1e-38), the rate is the central difference on the grid,
+    linearly interpolated like the angle.
+
+    Prefix stable: the white noise is drawn time-major ``(*batch, n, 3)``, the
+    filter is causal and the grid depends only on ``t[0]``, the bandwidth and
+    ``sample_rate_hz``, so with ``batch = ()`` the output at ``t[:k]`` does not
+    depend on the samples after ``t[k - 1]`` (bit for bit).
+
+    Parameters
+    ----------
+    t : (T,) s.  rms : (3,) per-component stationary std.
+    sample_rate_hz : nominal rate of ``t``; None = 1 / min Δt of ``t`` (1 Hz for a
+        single sample). Give it when ``t`` grows block by block.
+
+    Returns
+    -------
+    (*batch, T, 3) noise and (*batch, T, 3) its rate (rad, rad/s for angle rms).
     """
     T = t.size
     if T == 0:
         z = np.zeros(batch + (0, 3))
         return z, z
-    dt_min = np.min(np.diff(t)) if T > 1 else 1.0
-    fs = max(10.0 * bandwidth_hz, 2.0 / dt_min)
+    if sample_rate_hz is None:
+        sample_rate_hz = 1.0 / np.min(np.diff(t)) if T > 1 else 1.0
+    fs = max(10.0 * bandwidth_hz, 2.0 * float(sample_rate_hz))
     sos = signal.butter(2, bandwidth_hz, fs=fs, output="sos") if bandwidth_hz < 0.45 * fs else None
     burn = 20.0 / bandwidth_hz
     t0 = t[0] - burn
-    n = int(np.ceil((t[-1] - t0) * fs)) + 2
-    w = rng.standard_normal(batch + (3, n))
+    # + 3: the two grid points around every sample are inner points (central differences)
+    n = int(np.ceil((t[-1] - t0) * fs)) + 3
+    w = rng.standard_normal(batch + (n, 3))  # time-major: its first rows do not depend on n
     if sos is not None:
         h = signal.sosfilt(sos, np.r_[1.0, np.zeros(int(50 * fs / bandwidth_hz))])
         gain = 1.0 / np.sqrt(np.sum(h * h))
-        x = signal.sosfilt(sos, w, axis=-1) * gain
+        x = signal.sosfilt(sos, w, axis=-2) * gain
     else:
         x = w
-    x = x * rms[:, None]
-    xdot = np.gradient(x, 1.0 / fs, axis=-1)
+    x = x * rms
+    xdot = np.gradient(x, 1.0 / fs, axis=-2)
     pos = (t - t0) * fs
     i = np.clip(np.floor(pos).astype(int), 0, n - 2)
-    f = pos - i
-    samp = x[..., i] * (1 - f) + x[..., i + 1] * f
-    sampd = xdot[..., i] * (1 - f) + xdot[..., i + 1] * f
-    return np.moveaxis(samp, -2, -1), np.moveaxis(sampd, -2, -1)
+    f = (pos - i)[:, None]
+    samp = x[..., i, :] * (1 - f) + x[..., i + 1, :] * f
+    sampd = xdot[..., i, :] * (1 - f) + xdot[..., i + 1, :] * f
+    return samp, sampd
 
 
 def dithering_angles(t: ArrayLike, settings: DitheringSettings, rng: np.random.Generator,
-                     n_trials: int | None = None) -> tuple[NDArray, NDArray]:
+                     n_trials: int | None = None, *, sample_rate_hz: float | None = None) -> tuple[NDArray, NDArray]:
     """Dithering rotation vectors and their rates at times ``t``.
 
     Parameters
     ----------
     t : (T,) s.
     settings : tones and band-limited noise.
-    rng : source of tone phases (when not given) and noise.
+    rng : source of tone phases (when not given; one per tone, fixed count) and then
+        of the noise (one time-major draw), so without ``n_trials`` the result at
+        ``t[:k]`` is the same for every longer ``t`` with the same ``t[0]`` and
+        ``sample_rate_hz`` (prefix stable).
     n_trials : leading trial axis (independent draws per trial) when given.
+    sample_rate_hz : nominal rate of ``t`` for the noise grid (see :func:`_lowpass_noise`);
+        None = from ``t``. Give it for block-by-block use.
 
     Returns
     -------
@@ -111,7 +135,7 @@ def dithering_angles(t: ArrayLike, settings: DitheringSettings, rng: np.random.G
     rms_cam = np.zeros(3)
     rms_cam[RPY_TO_CAM] = np.radians(settings.noise_rms_deg)
     if np.any(rms_cam > 0):
-        nz, nzd = _lowpass_noise(t, rms_cam, settings.noise_bandwidth_hz, rng, batch)
+        nz, nzd = _lowpass_noise(t, rms_cam, settings.noise_bandwidth_hz, rng, batch, sample_rate_hz)
         delta += nz
         rate += nzd
     return delta, rate
