@@ -180,7 +180,8 @@ class _Runner:
         # vision at its own rate (GNSS epochs are a subset)
         v_at_g = None
         if s.uses_vision:
-            geom_new = vdetect.vision_geometry(truth_v, s.vision, landmarks=s.landmarks, terrain=s.terrain)
+            geom_new = vdetect.vision_geometry(truth_v, s.vision, landmarks=s.landmarks, terrain=s.terrain,
+                                               faults=list(s.faults))
             self.v_geom = geom_new if self.v_geom is None else vdetect.concat_geometry([self.v_geom, geom_new])
             v_all, vt_all = vdetect.sample_vision(self.v_geom, s.vision, landmarks=s.landmarks, faults=list(s.faults),
                                                   rng=np.random.default_rng(self.seed_vision))

@@ -1,0 +1,99 @@
+"""The .rrd recording: layout entities, stored blueprint, PL series = monitor outputs, alert timing, verify."""
+
+import dataclasses
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from testbed.api import load_approach, run_approach
+from testbed.sensors.faults import GpsStep
+from testbed.viz import readback
+
+FAULT_ONSET_S = 30.0
+MAX_RRD_MB = 8.0
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    ap = load_approach("va-raim-2015")
+    cfg = ap.config.model_copy(update={"faults": [GpsStep(kind="gps_step", prn="random", bias_m=100.0,
+                                                          onset_s=FAULT_ONSET_S)]})
+    path = tmp_path_factory.mktemp("rrd") / "run.rrd"
+    return run_approach(dataclasses.replace(ap, config=cfg), seed=4, rrd_path=path)
+
+
+def test_layout_entities_and_blueprint(run):
+    paths = readback.entity_paths(run.rrd_path)
+    expected = {"/world/terrain", "/world/runway", "/world/landmarks", "/world/path/planned", "/world/path/flown",
+                "/world/aircraft", "/world/gnss/los", "/world/camera", "/world/camera/detections", "/alerts",
+                "/map/aircraft", "/sensors/satellites_visible"}
+    for m in ("gps_raim", "va_raim", "pixel"):
+        expected |= {f"/integrity/{m}/horizontal/hpl", f"/integrity/{m}/vertical/vpl",
+                     f"/integrity/{m}/horizontal/hal", f"/integrity/{m}/detection/test_stat",
+                     f"/integrity/{m}/detection/threshold"}
+    assert expected <= paths, sorted(expected - paths)
+    assert readback.has_blueprint(run.rrd_path)
+
+
+@pytest.mark.parametrize("monitor", ["gps_raim", "va_raim", "pixel"])
+def test_pl_series_equal_monitor_outputs(run, monitor):
+    out = run.outputs[monitor]
+    for entity, values in [("horizontal/hpl", out.hpl), ("vertical/vpl", out.vpl),
+                           ("detection/test_stat", out.test_stat)]:
+        t, v = readback.scalar_series(run.rrd_path, f"integrity/{monitor}/{entity}")
+        np.testing.assert_allclose(t, out.t, atol=1e-9)
+        np.testing.assert_array_equal(v, np.asarray(values, float))  # float64 series, bit for bit
+
+
+def test_step_fault_alert_logged_at_the_right_time(run):
+    out = run.outputs["gps_raim"]
+    first = float(out.t[np.flatnonzero(out.alert)[0]])
+    assert first == pytest.approx(FAULT_ONSET_S)  # 100 m on a visible satellite, 8 in view: immediate
+    log = readback.text_log(run.rrd_path)
+    alerts = [e for e in log if e[1] == "ERROR" and e[2].startswith("gps_raim: ALERT")]
+    assert alerts and alerts[0][0] == pytest.approx(first)
+    assert any("[truth] fault injected: gps_step" in e[2] and e[0] == pytest.approx(FAULT_ONSET_S) for e in log)
+    assert run.summaries["gps_raim"].time_to_alert_s == pytest.approx(0.0)
+
+
+def test_rrd_verify_and_size(run):
+    rerun_cli = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
+    res = subprocess.run([rerun_cli, "rrd", "verify", str(run.rrd_path)], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert os.path.getsize(run.rrd_path) < MAX_RRD_MB * 2**20
+
+
+def _listening(port: int) -> list[str]:
+    """Local addresses (hex, as in /proc/net/tcp) listening on ``port``."""
+    out = []
+    for f in ("/proc/net/tcp", "/proc/net/tcp6"):
+        if not os.path.exists(f):
+            continue
+        for line in open(f).read().splitlines()[1:]:
+            local, state = line.split()[1], line.split()[3]
+            addr, p = local.rsplit(":", 1)
+            if state == "0A" and int(p, 16) == port:
+                out.append(addr)
+    return out
+
+
+def test_live_sink_binds_loopback_and_flight_completes_without_viewer(tmp_path):
+    from testbed.viz.rerun_sink import RerunSink
+
+    port = 19876
+    sink = RerunSink(None, live=True, port=port, recording_id="live-test")
+    try:
+        addrs = _listening(port)
+        assert addrs and all(a == "0100007F" for a in addrs), addrs  # 127.0.0.1 only
+        assert sink.live_url == f"rerun+http://127.0.0.1:{port}/proxy"
+    finally:
+        sink.close()
+    res = run_approach("va-raim-2015", seed=1, rrd_path=None, live=True, port=port + 1,
+                       monitors=["gps_raim"])
+    assert res.flight.summary.reached_end and res.live_url is not None
