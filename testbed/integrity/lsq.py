@@ -23,6 +23,7 @@ of the batch is computed as usual.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, replace
 from enum import IntEnum
 from functools import lru_cache
@@ -195,6 +196,107 @@ class WlsGeometry:
         return np.eye(N) - self.G @ self.A
 
 
+#: Above this condition estimate the extreme eigenvalues are recomputed by LAPACK.
+_COND_RECHECK = 1e5
+
+
+def _eigvalsh_cond(Ms: NDArray) -> NDArray:
+    """λ_max / λ_min of symmetric matrices by LAPACK (inf where λ_min ≤ 0)."""
+    ev = np.linalg.eigvalsh(Ms)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(ev[..., 0] > 0, ev[..., -1] / ev[..., 0], np.inf)
+
+
+def _scaled_cond(Ms: NDArray) -> NDArray:
+    """Condition number ``λ_max / λ_min`` of finite symmetric 4×4 matrices (inf if not PD).
+
+    Equal (to rounding) to the ``eigvalsh`` ratio but much cheaper on large batches:
+    the extreme roots of the characteristic polynomial (coefficients from the principal
+    minors) by Laguerre's method, started at 0 and at the trace — outside the root
+    interval of a real-rooted polynomial it converges monotonically to the nearest root.
+    Elements that are not clearly positive definite and well conditioned (estimate above
+    ``_COND_RECHECK``, no convergence) are recomputed with ``eigvalsh``, so the SINGULAR
+    flag at ``max_cond`` is decided exactly as before.
+    """
+    n = Ms.shape[-1]
+    if n != 4 or Ms.size == 0:
+        return _eigvalsh_cond(Ms)
+    X = Ms.reshape(-1, 4, 4)
+    a = [[X[:, i, j].copy() for j in range(4)] for i in range(4)]
+    a00, a01, a02, a03 = a[0]
+    a11, a12, a13 = a[1][1], a[1][2], a[1][3]
+    a22, a23 = a[2][2], a[2][3]
+    a33 = a[3][3]
+    # 2x2 minors of rows (0,1) and (2,3) for the determinant (Laplace expansion)
+    s0 = a00 * a11 - a01 * a01
+    s1 = a00 * a12 - a02 * a01
+    s2 = a00 * a13 - a03 * a01
+    s3 = a01 * a12 - a02 * a11
+    s4 = a01 * a13 - a03 * a11
+    s5 = a02 * a13 - a03 * a12
+    c5 = a22 * a33 - a23 * a23
+    c4 = a12 * a33 - a13 * a23
+    c3 = a12 * a23 - a13 * a22
+    c2 = a02 * a33 - a03 * a23
+    c1 = a02 * a23 - a03 * a22
+    c0 = a02 * a13 - a03 * a12
+    det = s0 * c5 - s1 * c4 + s2 * c3 + s3 * c2 - s4 * c1 + s5 * c0
+    k1 = a00 + a11 + a22 + a33
+    k2 = (s0 + a00 * a22 - a02 * a02 + a00 * a33 - a03 * a03 + a11 * a22 - a12 * a12
+          + a11 * a33 - a13 * a13 + c5)
+
+    def m3(p, q, r, s_, t, u):  # det of [[p, q, r], [q, s_, t], [r, t, u]]
+        return p * (s_ * u - t * t) - q * (q * u - t * r) + r * (q * t - s_ * r)
+
+    k3 = (m3(a00, a01, a02, a11, a12, a22) + m3(a00, a01, a03, a11, a13, a33)
+          + m3(a00, a02, a03, a22, a23, a33) + m3(a11, a12, a13, a22, a23, a33))
+
+    def laguerre(lam: NDArray) -> tuple[NDArray, NDArray]:
+        done = np.zeros(lam.shape, bool)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            for _ in range(10):
+                p = (((lam - k1) * lam + k2) * lam - k3) * lam + det
+                dp = ((4.0 * lam - 3.0 * k1) * lam + 2.0 * k2) * lam - k3
+                d2p = (12.0 * lam - 6.0 * k1) * lam + 2.0 * k2
+                G = dp / p
+                H = G * G - d2p / p
+                sq = np.sqrt(np.maximum(3.0 * (4.0 * H - G * G), 0.0))
+                den = np.where(G < 0, G - sq, G + sq)
+                step = np.where(p == 0, 0.0, 4.0 / den)
+                step = np.where(done, 0.0, step)
+                lam = lam - step
+                done = done | ~(np.abs(step) > 1e-13 * np.abs(lam))
+                if done.all():
+                    break
+        return lam, done
+
+    lo, ok_lo = laguerre(np.zeros_like(k1))
+    hi, ok_hi = laguerre(k1.copy())
+
+    def pos_def(sign: float, shift: NDArray) -> NDArray:
+        # LDLᵀ pivots of sign·(A − shift·I) all > 0: no eigenvalue of A on the wrong side of shift
+        b = [[sign * (a[i][j] - shift) if i == j else sign * a[i][j] for j in range(4)] for i in range(4)]
+        d0 = b[0][0]
+        l10, l20, l30 = b[0][1] / d0, b[0][2] / d0, b[0][3] / d0
+        d1 = b[1][1] - l10 * b[0][1]
+        t12 = b[1][2] - l20 * b[0][1]
+        t13 = b[1][3] - l30 * b[0][1]
+        l21, l31 = t12 / d1, t13 / d1
+        d2 = b[2][2] - l20 * b[0][2] - l21 * t12
+        t23 = b[2][3] - l30 * b[0][2] - l21 * t13
+        d3 = b[3][3] - l30 * b[0][3] - l31 * t13 - (t23 / d2) * t23
+        return (d0 > 0) & (d1 > 0) & (d2 > 0) & (d3 > 0)
+
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        cond = hi / lo
+        # the roots found are the extreme eigenvalues (guards against noisy coefficients)
+        bracket = pos_def(1.0, lo * (1.0 - 1e-6)) & pos_def(-1.0, hi * (1.0 + 1e-6))
+    recheck = ~(ok_lo & ok_hi & bracket & (lo > 0) & (det > 0) & np.isfinite(cond) & (cond <= _COND_RECHECK))
+    if recheck.any():
+        cond[recheck] = _eigvalsh_cond(X[recheck])
+    return cond.reshape(Ms.shape[:-2])
+
+
 def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
                  max_cond: float = MAX_COND) -> WlsGeometry:
     """Weighted-LS matrices for a batch of epochs.
@@ -217,7 +319,7 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
     # A state no used row depends on (the clock when there are no pseudorange
     # rows) is dropped: it keeps its starting value, J/A rows are zero, and the
     # test has one more degree of freedom.
-    live = np.abs(G0).max(-2) > 0  # (..., 4)
+    live = (G0 != 0).any(-2)  # (..., 4): a used row depends on the state (G0 has no NaN)
     live[..., :3] = True  # only the clock may be dropped; a dead position column is singular
     n_states = live.sum(-1)
     eye = np.eye(M.shape[-1])
@@ -227,9 +329,7 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
     d = np.sqrt(np.abs(np.diagonal(M, axis1=-2, axis2=-1)))
     d_safe = np.where(d > 0, d, 1.0)
     Ms = M / (d_safe[..., :, None] * d_safe[..., None, :])
-    ev = np.linalg.eigvalsh(np.where(np.isfinite(Ms), Ms, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cond = np.where(ev[..., 0] > 0, ev[..., -1] / ev[..., 0], np.inf)
+    cond = _scaled_cond(np.where(np.isfinite(Ms), Ms, 0.0))
     cond = np.where((d > 0).all(-1), cond, np.inf)
     n_states_full = M.shape[-1]
 
@@ -364,6 +464,18 @@ def slopes(geom: WlsGeometry) -> tuple[NDArray, NDArray]:
     return hs, vs
 
 
+_SLOPES_LAST: list = []  # [(weakref to a geometry, (hslope, vslope))]: both PL variants share them
+
+
+def _slopes_once(geom: WlsGeometry) -> tuple[NDArray, NDArray]:
+    """:func:`slopes` of ``geom``, reused when called again for the same (immutable) geometry."""
+    if _SLOPES_LAST and _SLOPES_LAST[0][0]() is geom:
+        return _SLOPES_LAST[0][1]
+    out = slopes(geom)
+    _SLOPES_LAST[:] = [(weakref.ref(geom, lambda _r: _SLOPES_LAST.clear()), out)]
+    return out
+
+
 def max_generalized_eig(P: NDArray, Q: NDArray, rtol: float = 1e-9) -> NDArray:
     """Largest μ of ``P v = μ Q v`` = ``max_b (bᵀPb)/(bᵀQb)`` for stacked symmetric k×k pairs.
 
@@ -467,7 +579,7 @@ def protection_levels(geom: WlsGeometry, p_fa: float, p_md: float,
     """
     if variant not in ("seed", "pbias"):
         raise ValueError(f"variant: expected 'seed' or 'pbias', got {variant!r}")
-    hs, vs = slopes(geom)
+    hs, vs = _slopes_once(geom)
     dof = geom.dof
     T2 = chi2_threshold(dof, p_fa)
     lam = lambda_det(dof, p_fa, p_md)
@@ -601,12 +713,13 @@ def range_model(anchor_enu: ArrayLike, clock_col: ArrayLike,
         if o is not None:
             p = p + o
         d = a - p
-        rng = np.linalg.norm(d, axis=-1)
+        dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+        rng = np.sqrt(dx * dx + dy * dy + dz * dz)  # = norm(d, axis=-1), same summation order
+        G = np.empty(rng.shape + (4,))
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = d / rng[..., None]
+            np.divide(d, -rng[..., None], out=G[..., :3])  # −u
         h = rng + c * x[..., None, 3]
-        cc = np.broadcast_to(c, rng.shape)
-        G = np.concatenate([-u, cc[..., None]], axis=-1)
+        G[..., 3] = c
         return h, G
 
     return model

@@ -223,8 +223,11 @@ def _safe_solve(M: NDArray, rhs: NDArray) -> tuple[NDArray, NDArray]:
     Returns the solution and a (...,) bool mask of elements that were solvable.
     """
     finite = np.isfinite(M).all(axis=(-2, -1))
-    eye = np.broadcast_to(np.eye(M.shape[-1]), M.shape)
-    Ms = np.where(finite[..., None, None], M, eye)
+    if finite.all():
+        Ms = M
+    else:
+        eye = np.broadcast_to(np.eye(M.shape[-1]), M.shape)
+        Ms = np.where(finite[..., None, None], M, eye)
     try:
         x = np.linalg.solve(Ms, rhs)
         good = finite & np.isfinite(x).all(axis=tuple(range(M.ndim - 2, x.ndim)))
