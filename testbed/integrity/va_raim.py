@@ -309,7 +309,7 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     z_all = np.concatenate([zg, rows.z], axis=-1)
     mask_all = np.concatenate([mg, rows.mask], axis=-1)
     W_all = np.zeros(bt + (N, N))
-    W_all[..., np.arange(NG), np.arange(NG)] = np.where(mg, wg, 0.0)
+    W_all.reshape(bt + (N * N,))[..., 0:NG * (N + 1):N + 1] = np.where(mg, wg, 0.0)  # GPS diagonal
     W_all[..., NG:, NG:] = rows.W
     vis_model = lsq.range_model(p_enu, np.zeros(L), off_cam[..., None, :])
     Tm = rows.Tm
