@@ -98,7 +98,7 @@ def default_rrd_path(approach: Approach, seed: int) -> Path:
 
 
 def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: str | Path | None = "default",
-                 live: bool = False, bind_ip: str = "127.0.0.1", port: int = 9876, block_s: float = 1.0,
+                 live: bool = False, bind_ip: str = "127.0.0.1", port: int = 9876, block_s: float = 5.0,
                  monitors: list[str] | None = None, gust_seed: int | None = None,
                  truth_path: str | Path | None = None) -> RunResult:
     """Fly an approach with sensors and monitors in the loop; record it; evaluate it.

@@ -84,7 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--bind", default="127.0.0.1", help="live server address (default loopback 127.0.0.1)")
     f.add_argument("--port", type=int, default=9876, help="live server port (default 9876)")
     f.add_argument("--linger", type=float, default=60.0, help="with --live: seconds to keep serving after landing")
-    f.add_argument("--block", type=float, default=1.0, help="simulated seconds between live updates (default 1)")
+    f.add_argument("--block", type=float, default=5.0,
+                   help="simulated seconds between live updates (default 5: ~0.1 s of wall time)")
     f.add_argument("--monitors", nargs="+", choices=["gps_raim", "va_raim", "pixel"],
                    help="override the approach's monitors")
     f.add_argument("--flight-only", action="store_true", help="fly without sensors, monitors or recording")
