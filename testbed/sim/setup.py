@@ -105,8 +105,8 @@ class Scene:
     camera_resolution: tuple[int, int]
 
 
-def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 20_000.0,
-                mesh_spacing_m: float = 250.0) -> Scene:
+def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
+                mesh_spacing_m: float = 150.0) -> Scene:
     """The static scene in the world frame: terrain mesh around the path, runway, landmarks, path."""
     planned = setup.path.sample_enu(50.0)
     centre = planned[len(planned) // 2]

@@ -12,7 +12,19 @@ from __future__ import annotations
 import rerun.blueprint as rrb
 
 
-def default_blueprint(monitors: list[str]) -> rrb.Blueprint:
+def approach_eye(planned_enu) -> rrb.EyeControls3D:
+    """A 3D eye behind, right of and above the start of the approach, looking at its end."""
+    import numpy as np
+
+    start, end = np.asarray(planned_enu[0], float), np.asarray(planned_enu[-1], float)
+    back = start - end
+    L = float(np.linalg.norm(back[:2])) or 1000.0
+    right = np.array([back[1], -back[0], 0.0]) / L  # right of the inbound track
+    pos = start + 0.15 * back + 0.45 * L * right + np.array([0.0, 0.0, 0.55 * L])
+    return rrb.EyeControls3D(position=pos, look_target=0.5 * (start + end), eye_up=[0.0, 0.0, 1.0])
+
+
+def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None) -> rrb.Blueprint:
     monitor_tabs = [
         rrb.Vertical(
             rrb.TimeSeriesView(name=f"{m}: HPL vs HAL", origin=f"/integrity/{m}/horizontal"),
@@ -23,7 +35,7 @@ def default_blueprint(monitors: list[str]) -> rrb.Blueprint:
         for m in monitors
     ]
     left = rrb.Vertical(
-        rrb.Spatial3DView(name="world", origin="/world",
+        rrb.Spatial3DView(name="world", origin="/world", eye_controls=eye,
                           contents=["/world/**", "- /world/camera/detections/**"]),
         rrb.Spatial2DView(name="camera", origin="/world/camera"),
         row_shares=[3, 2],

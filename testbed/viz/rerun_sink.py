@@ -26,7 +26,7 @@ import rerun as rr
 
 from testbed.frames import q_to_R
 from testbed.records import NotVisible
-from testbed.viz.blueprint import default_blueprint
+from testbed.viz.blueprint import approach_eye, default_blueprint
 
 if TYPE_CHECKING:  # pragma: no cover
     from testbed.sim.loop import LoopBlock, Scene
@@ -86,7 +86,8 @@ class RerunSink:
     def start(self, scene: "Scene") -> None:
         rec = self.rec
         self.monitors = list(scene.monitors)
-        rec.send_blueprint(default_blueprint(self.monitors), make_active=True, make_default=True)
+        rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu)),
+                           make_active=True, make_default=True)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scene.terrain_mesh is not None:
             v, f = scene.terrain_mesh
