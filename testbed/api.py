@@ -196,3 +196,41 @@ def print_run_summary(result: RunResult) -> None:
               f"logging {tm.logging:.2f} s")
     if result.rrd_path is not None:
         con.print(f"recording: {result.rrd_path}  (replay: rerun {result.rrd_path})")
+
+
+def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: int = 0,
+                 gust_seed: int | None = None) -> tuple[Path, Path]:
+    """Fly an approach, synthesise its GPS observations and write RINEX 3.04 obs + nav files.
+
+    The observations are the ones a ``testbed fly`` run with the same seed sees
+    (same generator words), including the approach's GNSS faults. Returns the
+    ``(obs_path, nav_path)``; the truth trajectory is written beside them as
+    ``<name>.truth.csv`` (antenna position, for comparison with a solver).
+    """
+    import numpy as np
+
+    from testbed.sensors.gnss.almanac import load_constellation
+    from testbed.sensors.gnss.rinex import write_rinex
+    from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
+    from testbed.sensors.gnss.timebase import utc_to_gps_seconds
+    from testbed.sim.loop import sensor_seeds
+    from testbed.sim.setup import build_setup
+
+    ap = approach if isinstance(approach, Approach) else load_approach(approach)
+    setup = build_setup(ap, load_terrain_for(ap))
+    flight = fly(ap, setup.terrain, gust_seed=gust_seed)
+    start = ap.config.start_time_utc
+    eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path, utc_to_gps_seconds(start),
+                             setup.gnss.almanac_week)
+    geom = gnss_geometry(flight.truth.decimate(setup.gnss.rate_hz), setup.antenna, setup.gnss, start_utc=start,
+                         terrain=setup.terrain, constellation=eph)
+    g_seed, _ = sensor_seeds(seed)
+    obs, gtruth = sample_gnss(geom, setup.gnss, faults=list(setup.faults), rng=np.random.default_rng(g_seed))
+    paths = write_rinex(obs, geom, out_dir, name=ap.name)
+    lat, lon, h = (np.asarray(v) for v in __import__("testbed.frames", fromlist=["x"]).ecef_to_geodetic(
+        gtruth.antenna_pos_ecef))
+    np.savetxt(Path(out_dir) / f"{ap.name}.truth.csv",
+               np.column_stack([obs.t_gps, gtruth.antenna_pos_ecef, lat, lon, h]), delimiter=",",
+               header="t_gps_s,ant_x_ecef_m,ant_y_ecef_m,ant_z_ecef_m,lat_deg,lon_deg,h_m", comments="",
+               fmt="%.6f")
+    return paths

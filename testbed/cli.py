@@ -68,6 +68,15 @@ def _wait_for_viewer(linger_s: float) -> None:
             pass
 
 
+def _cmd_export_rinex(args: argparse.Namespace) -> int:
+    from testbed.api import export_rinex
+
+    obs, nav = export_rinex(args.approach, args.dir, seed=args.seed, gust_seed=args.gust_seed)
+    print(f"wrote {obs}\nwrote {nav}")
+    print(f"check with RTKLIB: rnx2rtkp -p 0 -sys G -o out.pos {obs} {nav}  (iono/tropo models off: see README)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="testbed", description="GNSS/vision integrity testbed for approaches into ZUNZ")
     sub = p.add_subparsers(dest="command", required=True)
@@ -93,6 +102,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     a = sub.add_parser("approaches", help="list the shipped approaches")
     a.set_defaults(func=_cmd_approaches)
+
+    r = sub.add_parser("export-rinex", help="fly an approach and write RINEX 3.04 observation + navigation files")
+    r.add_argument("approach", help="shipped approach name or path to an approach TOML")
+    r.add_argument("dir", type=Path, help="output folder")
+    r.add_argument("--seed", type=int, default=0, help="sensor seed (same as testbed fly --seed)")
+    r.add_argument("--gust-seed", type=int, help="override the approach's gust seed")
+    r.set_defaults(func=_cmd_export_rinex)
 
     c = sub.add_parser("check", help="validate approach (or campaign) files and explain every problem")
     c.add_argument("files", nargs="+", type=Path)
