@@ -1,0 +1,99 @@
+"""``testbed campaign | report | reproduce``: subcommands for the lead to wire into testbed/cli.py.
+
+>>> sub = parser.add_subparsers(dest="command")
+>>> add_campaign_parsers(sub)      # registers campaign, report, reproduce with handlers
+
+Each handler is set as ``func`` (``args.func(args) -> exit code``), thin over
+:mod:`testbed.campaign` (run_campaign, write_report, reproduce_va_raim_2015).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from testbed.schema import ConfigError
+
+
+def _cmd_campaign(args: argparse.Namespace) -> int:
+    from testbed.campaign.report import write_report
+    from testbed.campaign.runner import run_campaign
+    from testbed.campaign.spec import load_spec
+
+    try:
+        loaded = load_spec(args.spec)  # every spec problem is reported before any work starts
+    except ConfigError as exc:
+        print(exc)
+        return 2
+    out = Path(args.out) if args.out else Path("campaigns") / loaded.spec.name
+    try:
+        res = run_campaign(loaded, out, resume=args.resume, scheduler=args.scheduler, progress=not args.quiet)
+    except ConfigError as exc:
+        print(exc)
+        return 2
+    print(f"{res.cells} cells, {res.trials} trials: {res.chunks_run} chunks run, {res.chunks_skipped} already stored; "
+          f"{res.wall_s:.1f} s ({res.epochs_per_s:,.0f} sortie-epochs/s)")
+    if not args.no_report:
+        idx = write_report(out)
+        print(f"report: {idx}")
+    print(f"results: {out}")
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from testbed.campaign.report import write_report
+
+    try:
+        idx = write_report(args.dir)
+    except (ConfigError, FileNotFoundError) as exc:
+        print(exc)
+        return 2
+    print(f"report: {idx}")
+    return 0
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from testbed.campaign.reproduce import PAPERS, reproduce_va_raim_2015
+
+    if args.paper not in PAPERS:
+        print(f"unknown paper {args.paper!r}; expected one of {sorted(PAPERS)}")
+        return 2
+    out = Path(args.out) if args.out else Path("campaigns") / f"reproduce-{args.paper}"
+    idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
+                                 progress=not args.quiet)
+    print(f"reproduction: {idx}")
+    return 0
+
+
+def add_campaign_parsers(subparsers) -> None:
+    """Register ``campaign``, ``report`` and ``reproduce`` on an argparse subparsers object."""
+    p = subparsers.add_parser("campaign", help="run a fault-injection Monte Carlo campaign from a spec")
+    p.add_argument("spec", help="campaign spec (approaches/campaigns/<name>.toml)")
+    p.add_argument("--out", help="result folder (default: campaigns/<spec name>)")
+    p.add_argument("--scheduler", help="Dask scheduler address (default: batched in-process)")
+    p.add_argument("--resume", action="store_true", help="complete an interrupted run in --out")
+    p.add_argument("--no-report", action="store_true", help="do not draw the figures and report.md")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_campaign)
+
+    p = subparsers.add_parser("report", help="redraw a campaign's figures and report.md from stored results")
+    p.add_argument("dir", help="campaign result folder")
+    p.set_defaults(func=_cmd_report)
+
+    p = subparsers.add_parser("reproduce", help="reproduce a seed paper's experiments (va-raim-2015)")
+    p.add_argument("paper", help="va-raim-2015")
+    p.add_argument("--full", action="store_true", help="the paper's scale: 1e5 sorties x 60 s per setting")
+    p.add_argument("--out", help="result folder (default: campaigns/reproduce-<paper>)")
+    p.add_argument("--scheduler", help="Dask scheduler address")
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_reproduce)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m testbed.campaign <campaign|report|reproduce> ...`` (until the lead wires testbed/cli.py)."""
+    parser = argparse.ArgumentParser(prog="python -m testbed.campaign")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_campaign_parsers(sub)
+    args = parser.parse_args(argv)
+    return args.func(args)

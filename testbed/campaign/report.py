@@ -1,0 +1,391 @@
+"""Figures and the index page (``report.md``) of a campaign, drawn from its stored tables.
+
+:func:`write_report` reads ``cells.parquet``, ``trials.parquet``, ``epochs.parquet``
+and ``stanford_hist.parquet`` of a result folder and writes ``figures/*.png`` and
+``report.md``; it never re-runs anything (``testbed report DIR``).
+
+Statistics:
+- detection rate per cell = detected trials / trials, with a binomial confidence
+  band (Clopper-Pearson exact, or Wilson score; ``[report]`` of the spec);
+- minimal detectable bias (MDB) at power P = the smallest fault size at which the
+  detection rate reaches P, linearly interpolated between swept sizes (NaN if never);
+  also given: the MDB from the *lower* confidence bound (conservative);
+- pooled 95 % accuracy = 95th percentile of all epochs' errors, read from the
+  Stanford histogram (0.05-decade bins: about ±6 % resolution).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from testbed.sim.evaluate import REGIONS
+
+AXES = ("approach", "start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "landmark_set", "calibration")
+AXIS_LABEL = {"approach": "approach", "start_time_utc": "start", "dpi": "dpi", "sigma_px": "DE px",
+              "lpe_sigma_m": "LPE m", "landmark_set": "landmark set", "calibration": "cal"}
+
+
+def binomial_interval(k: np.ndarray, n: np.ndarray, confidence: float = 0.95,
+                      method: str = "clopper-pearson") -> tuple[np.ndarray, np.ndarray]:
+    """Two-sided confidence interval of a binomial proportion k/n (arrays, any shape)."""
+    from scipy import stats
+
+    k, n = np.asarray(k, float), np.asarray(n, float)
+    a = 1.0 - confidence
+    if method == "wilson":
+        z = stats.norm.ppf(1 - a / 2)
+        p = np.where(n > 0, k / np.maximum(n, 1), np.nan)
+        den = 1 + z**2 / n
+        c = (p + z**2 / (2 * n)) / den
+        h = z * np.sqrt(p * (1 - p) / n + z**2 / (4 * n**2)) / den
+        return np.clip(c - h, 0, 1), np.clip(c + h, 0, 1)
+    with np.errstate(invalid="ignore"):
+        lo = np.where(k > 0, stats.beta.ppf(a / 2, k, n - k + 1), 0.0)
+        hi = np.where(k < n, stats.beta.ppf(1 - a / 2, k + 1, n - k), 1.0)
+    return lo, hi
+
+
+def minimal_detectable_bias(size: np.ndarray, rate: np.ndarray, power: float) -> float:
+    """Smallest size where ``rate`` reaches ``power`` (linear interpolation; NaN if never)."""
+    o = np.argsort(size)
+    s, r = np.asarray(size, float)[o], np.asarray(rate, float)[o]
+    hit = np.flatnonzero(r >= power)
+    if hit.size == 0:
+        return float("nan")
+    i = hit[0]
+    if i == 0:
+        return float(s[0])
+    s0, s1, r0, r1 = s[i - 1], s[i], r[i - 1], r[i]
+    return float(s0 + (power - r0) * (s1 - s0) / (r1 - r0)) if r1 > r0 else float(s1)
+
+
+def _load(out_dir: Path):
+    cells = pq.read_table(out_dir / "cells.parquet").to_pylist()
+    p = out_dir / "trials.parquet"
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no consolidated results (the campaign is incomplete: run it with --resume)")
+    trials = pq.read_table(p)
+    epochs = pq.read_table(out_dir / "epochs.parquet") if (out_dir / "epochs.parquet").exists() else None
+    hist = pq.read_table(out_dir / "stanford_hist.parquet") if (out_dir / "stanford_hist.parquet").exists() else None
+    man = json.loads((out_dir / "manifest.json").read_text())
+    return man, cells, trials, epochs, hist
+
+
+def _cols(t, names=None) -> dict[str, np.ndarray]:
+    names = names or t.column_names
+    out = {}
+    for n in names:
+        c = t.column(n)
+        try:
+            out[n] = c.to_numpy(zero_copy_only=False)
+        except Exception:  # pragma: no cover
+            out[n] = np.asarray(c.to_pylist())
+    return out
+
+
+def detection_table(cells: list[dict], trials, confidence: float = 0.95, method: str = "clopper-pearson") -> list[dict]:
+    """Per cell and monitor: trials, detections, rate, interval, false-alarm flag."""
+    c = _cols(trials, ["cell", "monitor", "detected"])
+    rows = []
+    for m in sorted(set(c["monitor"].tolist())):
+        sel_m = c["monitor"] == m
+        cnt = np.bincount(c["cell"][sel_m], minlength=len(cells))
+        det = np.bincount(c["cell"][sel_m], weights=c["detected"][sel_m].astype(float), minlength=len(cells))
+        lo, hi = binomial_interval(det, np.maximum(cnt, 1), confidence, method)
+        for cell in cells:
+            i = cell["cell"]
+            if cnt[i] == 0:
+                continue
+            rows.append({**cell, "monitor": m, "n": int(cnt[i]), "k": int(det[i]), "rate": det[i] / cnt[i],
+                         "lo": float(lo[i]), "hi": float(hi[i])})
+    return rows
+
+
+def _varying(cells: list[dict]) -> list[str]:
+    return [a for a in AXES if len({str(c[a]) for c in cells}) > 1]
+
+
+def _label(row: dict, axes: list[str]) -> str:
+    parts = [row["monitor"]]
+    for a in axes:
+        v = row[a]
+        parts.append(f"{AXIS_LABEL[a]} {v:g}" if isinstance(v, float) else f"{AXIS_LABEL[a]} {v}")
+    return ", ".join(parts)
+
+
+def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
+    """Draw every figure of a finished campaign and write ``report.md``; returns its path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    out_dir = Path(out_dir)
+    man, cells, trials, epochs, hist = _load(out_dir)
+    rep = man["spec"].get("report", {})
+    power = power if power is not None else rep.get("power", 0.99)
+    conf, method = rep.get("confidence", 0.95), rep.get("interval", "clopper-pearson")
+    figdir = out_dir / "figures"
+    figdir.mkdir(exist_ok=True)
+    md = [f"# Campaign `{man['name']}`", "",
+          f"{man['spec'].get('description', '')}".strip(), "",
+          f"- spec hash `{man['spec_hash']}`, {len(cells)} cells x {man['spec']['trials']} trials, "
+          f"monitors {', '.join(man['spec']['monitors'])}, base seed {man['spec']['base_seed']}",
+          f"- tables: `cells.parquet`, `trials.parquet` (per trial and monitor), `epochs.parquet` "
+          f"(first {man['spec']['per_epoch_trials']} trials per cell), `stanford_hist.parquet`", ""]
+    varying = _varying(cells)
+    det_rows = detection_table(cells, trials, conf, method)
+    figures: list[tuple[str, str]] = []
+
+    # ---- detection rate vs fault size, per fault family
+    fams = sorted({(c["fault_family"], c["fault_sweep_kind"], c["fault_unit"]) for c in cells})
+    mdb_rows = []
+    for fam, kind, unit in fams:
+        if kind == "none":
+            continue
+        fig, ax = plt.subplots(figsize=(7.5, 4.8))
+        rows = [r for r in det_rows if r["fault_family"] == fam]
+        groups: dict[str, list[dict]] = {}
+        for r in rows:
+            groups.setdefault(_label(r, varying), []).append(r)
+        for lab, rs in sorted(groups.items()):
+            rs.sort(key=lambda r: r["fault_size"])
+            x = np.array([r["fault_size"] for r in rs])
+            y = np.array([r["rate"] for r in rs])
+            lo, hi = np.array([r["lo"] for r in rs]), np.array([r["hi"] for r in rs])
+            (ln,) = ax.plot(x, y, "o-", ms=3, label=lab)
+            ax.fill_between(x, lo, hi, color=ln.get_color(), alpha=0.18, lw=0)
+            mdb = minimal_detectable_bias(x, y, power)
+            mdb_lo = minimal_detectable_bias(x, lo, power)
+            fa = [r for r in rs if r["fault_size"] == 0]
+            mdb_rows.append({"fault": kind, "unit": unit, "group": lab, "mdb": mdb, "mdb_lo": mdb_lo,
+                             "fa": fa[0]["rate"] if fa else float("nan"), "n": rs[0]["n"]})
+        ax.axhline(power, color="k", ls=":", lw=0.8)
+        ax.set_xlabel(f"{kind} size ({unit})")
+        ax.set_ylabel("detection rate")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_title(f"{kind}: detection rate ({method} {100 * conf:.0f} % bands); dotted: power {power:g}")
+        ax.legend(fontsize=7, loc="lower right")
+        ax.grid(alpha=0.3)
+        name = f"detection_{fam}_{kind}.png"
+        fig.tight_layout()
+        fig.savefig(figdir / name, dpi=110)
+        plt.close(fig)
+        figures.append((f"Detection rate vs {kind} size", name))
+    if mdb_rows:
+        md += [f"## Minimal detectable bias at {100 * power:g} % power", "",
+               "| fault | group | trials/cell | false-alarm rate (size 0) | MDB | MDB (lower bound) |",
+               "|---|---|---|---|---|---|"]
+        for r in mdb_rows:
+            md.append(f"| {r['fault']} | {r['group']} | {r['n']} | {_f(r['fa'], '{:.4f}')} | "
+                      f"{_f(r['mdb'], '{:.1f}')} {r['unit']} | {_f(r['mdb_lo'], '{:.1f}')} {r['unit']} |")
+        md.append("")
+
+    # ---- Stanford diagrams and region counts
+    tc = _cols(trials)
+    monitors = sorted(set(tc["monitor"].tolist()))
+    hal = min(c["hal"] for c in cells)
+    val = min(c["val"] for c in cells)
+    from testbed.campaign.runner import hist_edges
+
+    edges = hist_edges()
+    region_rows = []
+    acc_rows = []
+    for m in monitors:
+        sel = tc["monitor"] == m
+        fig, axs = plt.subplots(1, 2, figsize=(11, 4.8))
+        for ax, dim, al in ((axs[0], "H", hal), (axs[1], "V", val)):
+            counts = {r: int(tc[f"{dim.lower()}_{r}"][sel].sum()) for r in REGIONS}
+            total = int(tc["epochs"][sel].sum())
+            region_rows.append({"monitor": m, "dim": dim, **counts, "epochs": total})
+            H = np.zeros((len(edges) - 1, len(edges) - 1))
+            if hist is not None:
+                hc = _cols(hist)
+                hs = (hc["monitor"] == m) & (hc["dim"] == dim)
+                np.add.at(H, (hc["err_bin"][hs], hc["pl_bin"][hs]), hc["count"][hs])
+            if H.sum() > 0:
+                pcm = ax.pcolormesh(edges, edges, H, norm=LogNorm(vmin=1, vmax=max(H.max(), 2)), cmap="viridis",
+                                    shading="flat")
+                fig.colorbar(pcm, ax=ax, label="epochs")
+                cum = np.cumsum(H.sum(axis=1))
+                e95 = float(edges[1:][np.searchsorted(cum, 0.95 * cum[-1])])
+            else:
+                e95 = float("nan")
+            acc_rows.append({"monitor": m, "dim": dim, "e95": e95})
+            lim = (edges[0], edges[-1])
+            ax.plot(lim, lim, "k-", lw=0.8)
+            ax.axhline(al, color="r", lw=0.8)
+            ax.axvline(al, color="r", lw=0.8)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlim(1e-2, 1e3)
+            ax.set_ylim(1e-1, 1e4)
+            ax.set_xlabel(f"{dim} position error (m)")
+            ax.set_ylabel(f"{dim}PL (m)")
+            txt = (f"normal {counts['normal']}\nunavailable {counts['unavailable']}\n"
+                   f"misleading {counts['misleading']}\nhazardous (HMI) {counts['hazardous']}\n"
+                   f"unavail.+misleading {counts['unavailable_misleading']}\nno solution {counts['no_solution']}\n"
+                   f"total {total} epochs")
+            ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", fontsize=7,
+                    bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
+            ax.set_title(f"{m}: {dim} Stanford diagram ({dim}AL {al:g} m)")
+        name = f"stanford_{m}.png"
+        fig.tight_layout()
+        fig.savefig(figdir / name, dpi=110)
+        plt.close(fig)
+        figures.append((f"Stanford diagrams, {m}", name))
+    md += ["## Integrity regions (all cells, all epochs; most demanding service level)", "",
+           "| monitor | dim | " + " | ".join(REGIONS) + " | epochs |", "|---|---|" + "---|" * (len(REGIONS) + 1)]
+    for r in region_rows:
+        md.append(f"| {r['monitor']} | {r['dim']} | " + " | ".join(str(r[k]) for k in REGIONS) + f" | {r['epochs']} |")
+    md += ["", "## 95 % accuracy (pooled over all cells and epochs, from the Stanford histograms)", "",
+           "| monitor | HPE95 (m) | VPE95 (m) |", "|---|---|---|"]
+    for m in monitors:
+        h = [a["e95"] for a in acc_rows if a["monitor"] == m and a["dim"] == "H"][0]
+        v = [a["e95"] for a in acc_rows if a["monitor"] == m and a["dim"] == "V"][0]
+        md.append(f"| {m} | {_f(h, '{:.2f}')} | {_f(v, '{:.2f}')} |")
+    md.append("")
+
+    # ---- availability per service level
+    levels = [c[len("avail_"):] for c in tc if c.startswith("avail_")]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    groups = sorted({_label({**cells[i], "monitor": m}, [a for a in varying if a in ("dpi", "sigma_px", "start_time_utc",
+                                                                                       "lpe_sigma_m", "landmark_set",
+                                                                                       "approach", "calibration")])
+                     for i, m in zip(tc["cell"], tc["monitor"])})
+    lab_of = np.array([_label({**cells[i], "monitor": m}, [a for a in varying]) for i, m in zip(tc["cell"], tc["monitor"])])
+    w = 0.8 / max(len(levels), 1)
+    av_rows = []
+    for j, lv in enumerate(levels):
+        vals = [float(np.mean(tc[f"avail_{lv}"][lab_of == g])) for g in groups]
+        ax.bar(np.arange(len(groups)) + j * w, vals, w, label=lv)
+        av_rows += [(g, lv, v) for g, v in zip(groups, vals)]
+    ax.set_xticks(np.arange(len(groups)) + w * (len(levels) - 1) / 2)
+    ax.set_xticklabels(groups, rotation=30, ha="right", fontsize=7)
+    ax.set_ylabel("availability (fraction of epochs)")
+    ax.set_ylim(0, 1.05)
+    ax.legend(fontsize=8)
+    ax.set_title("availability per service level")
+    fig.tight_layout()
+    fig.savefig(figdir / "availability.png", dpi=110)
+    plt.close(fig)
+    figures.append(("Availability per service level", "availability.png"))
+    md += ["## Availability per service level", "", "| group | level | availability |", "|---|---|---|"]
+    md += [f"| {g} | {lv} | {100 * v:.2f} % |" for g, lv, v in av_rows]
+    md.append("")
+
+    # ---- HPL/VPL over time
+    if epochs is not None and epochs.num_rows:
+        ec = _cols(epochs)
+        nofault = {c["cell"] for c in cells if c["fault_kind"] == "none"}
+        use = np.isin(ec["cell"], list(nofault)) if nofault else np.ones(len(ec["cell"]), bool)
+        ep_groups = sorted({_label({**cells[i], "monitor": m}, [a for a in varying if a != "start_time_utc"])
+                            for i, m in zip(ec["cell"][use], ec["monitor"][use])})
+        ep_lab = np.array([_label({**cells[i], "monitor": m}, [a for a in varying if a != "start_time_utc"])
+                           for i, m in zip(ec["cell"], ec["monitor"])])
+        fig, axs = plt.subplots(1, 2, figsize=(12, 4.5), sharex=True)
+        for ax, key, al in ((axs[0], "hpl", hal), (axs[1], "vpl", val)):
+            for g in ep_groups:
+                s = use & (ep_lab == g)
+                tt = np.unique(ec["t"][s])
+                q = np.full((tt.size, 3), np.nan)
+                for i, t in enumerate(tt):
+                    v = ec[key][s & (ec["t"] == t)]
+                    v = v[np.isfinite(v)]
+                    if v.size:
+                        q[i] = np.percentile(v, [5, 50, 95])
+                (ln,) = ax.plot(tt, q[:, 1], lw=1.2, label=g)
+                ax.fill_between(tt, q[:, 0], q[:, 2], color=ln.get_color(), alpha=0.2, lw=0)
+            ax.axhline(al, color="r", lw=0.8, ls="--")
+            ax.set_xlabel("time since approach start (s)")
+            ax.set_ylabel(f"{key.upper()} (m)")
+            ax.set_title(f"{key.upper()}: median and 5-95 % across trials" + (" (fault-free cells)" if nofault else ""))
+            ax.grid(alpha=0.3)
+        axs[0].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(figdir / "pl_time.png", dpi=110)
+        plt.close(fig)
+        figures.append(("HPL/VPL over time", "pl_time.png"))
+
+    # ---- vision-range error
+    if "vre_raw_n" in tc:
+        vr = vision_range_error_table(cells, trials)
+        if vr:
+            vaxes = [a for a in ("lpe_sigma_m", "dpi", "sigma_px") if len({r[a] for r in vr}) > 1] or ["lpe_sigma_m"]
+            fig, axs = plt.subplots(1, len(vaxes), figsize=(5.2 * len(vaxes), 4.2), squeeze=False)
+            for ax, a in zip(axs[0], vaxes):
+                others = [b for b in ("lpe_sigma_m", "dpi", "sigma_px", "calibration") if b != a and len({r[b] for r in vr}) > 1]
+                grp: dict[str, list] = {}
+                for r in vr:
+                    grp.setdefault(", ".join(f"{AXIS_LABEL[b]} {r[b]}" for b in others), []).append(r)
+                for g, rs in sorted(grp.items()):
+                    rs.sort(key=lambda r: r[a])
+                    x = np.array([r[a] for r in rs], float)
+                    for tag, mk in (("raw", "o--"), ("cal", "s-")):
+                        mu = np.array([r[f"{tag}_mean"] for r in rs])
+                        sd = np.array([r[f"{tag}_std"] for r in rs])
+                        if np.isfinite(mu).any():
+                            ax.errorbar(x, mu, yerr=sd, fmt=mk, ms=3, capsize=2,
+                                        label=f"{'calibrated' if tag == 'cal' else 'uncalibrated'} {g}".strip())
+                ax.set_xlabel(AXIS_LABEL[a])
+                ax.set_ylabel("vision-range error (m): mean ± 1 sd")
+                ax.grid(alpha=0.3)
+                ax.legend(fontsize=6)
+            fig.suptitle("vision-range error (VA-RAIM) vs " + ", ".join(AXIS_LABEL[a] for a in vaxes))
+            fig.tight_layout()
+            fig.savefig(figdir / "vision_range_error.png", dpi=110)
+            plt.close(fig)
+            figures.append(("Vision-range error", "vision_range_error.png"))
+            md += ["## Vision-range error (VA-RAIM; error = estimated - true camera-landmark range)", "",
+                   "| cell | dpi | DE px | LPE m | cal mode | raw mean | raw sd | calibrated mean | calibrated sd |",
+                   "|---|---|---|---|---|---|---|---|---|"]
+            for r in vr:
+                md.append(f"| {r['cell']} | {r['dpi']:g} | {r['sigma_px']:g} | {r['lpe_sigma_m']:g} | {r['calibration']} | "
+                          f"{_f(r['raw_mean'], '{:.3f}')} | {_f(r['raw_std'], '{:.3f}')} | {_f(r['cal_mean'], '{:.3f}')} | "
+                          f"{_f(r['cal_std'], '{:.3f}')} |")
+            md.append("")
+
+    md += ["## Figures", ""]
+    for title, name in figures:
+        md += [f"### {title}", "", f"![{title}](figures/{name})", ""]
+    md += ["## Detection rates per cell", "", "| cell | monitor | fault | size | " +
+           " | ".join(AXIS_LABEL[a] for a in varying) + " | trials | detected | rate | interval |",
+           "|---|---|---|---|" + "---|" * len(varying) + "---|---|---|---|"]
+    for r in det_rows:
+        md.append(f"| {r['cell']} | {r['monitor']} | {r['fault_sweep_kind']} | {r['fault_size']:g} {r['fault_unit']} | "
+                  + " | ".join(str(r[a]) for a in varying) + ("" if not varying else "") +
+                  f" | {r['n']} | {r['k']} | {r['rate']:.4f} | [{r['lo']:.4f}, {r['hi']:.4f}] |")
+    idx = out_dir / "report.md"
+    idx.write_text("\n".join(md) + "\n")
+    return idx
+
+
+def vision_range_error_table(cells: list[dict], trials) -> list[dict]:
+    """Pooled vision-range error per cell (VA-RAIM rows): mean and sd, raw and calibrated."""
+    tc = _cols(trials)
+    sel = tc["monitor"] == "va_raim"
+    out = []
+    for c in cells:
+        s = sel & (tc["cell"] == c["cell"])
+        if not s.any():
+            continue
+        row = dict(c)
+        for tag in ("raw", "cal"):
+            n = np.nansum(tc[f"vre_{tag}_n"][s].astype(float))
+            sm = np.nansum(tc[f"vre_{tag}_sum"][s].astype(float))
+            sq = np.nansum(tc[f"vre_{tag}_sumsq"][s].astype(float))
+            mu = sm / n if n > 0 else float("nan")
+            row[f"{tag}_mean"] = mu
+            row[f"{tag}_std"] = float(np.sqrt(max(sq / n - mu**2, 0.0))) if n > 0 else float("nan")
+            row[f"{tag}_n"] = int(n)
+        out.append(row)
+    return out
+
+
+def _f(x: float, fmt: str) -> str:
+    return "-" if x is None or x != x else fmt.format(x)

@@ -1,0 +1,480 @@
+"""The batched campaign runner: fly once, sample many.
+
+Work is split in three levels:
+
+- a **cell context** (:func:`cell_context`) is computed once per cell and cached per
+  process: the flight (cached by approach and wind/gust settings, so all cells on one
+  trajectory share one JSBSim run), the GNSS geometry (per trajectory and start time)
+  and the vision geometry (per trajectory, camera and landmark scene);
+- a **draw block** of ``block_trials`` trials (:func:`run_block`) draws the noise and
+  faults of its trials in one ``n_trials`` batch from generators seeded by
+  ``SeedSequence(base_seed, spawn_key=(cell, block))`` and runs the monitors on the
+  batch. The block is the unit of randomness *and* of computation, so results do not
+  depend on how blocks are grouped into chunks or spread over workers;
+- a **chunk** (:func:`run_chunk`, ``chunk_trials`` trials = whole blocks) is the unit of
+  scheduling and storage: a pure function of (spec, cell, chunk) returning small
+  tables (:data:`TABLES`), which the driver writes atomically (:mod:`.store`).
+
+One landmark survey is drawn per block (the survey error is what VA-RAIM calibrates
+away; a surveyed scene serves many sorties). The monitors need one set of landmark
+coordinates per call, which a block provides.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pyarrow as pa
+
+from testbed.campaign.spec import Cell, LoadedSpec, expand_cells, resolve_spec
+from testbed.integrity.levels import service_level
+from testbed.sim.evaluate import REGIONS, position_errors, stanford_regions
+
+TABLES = ("trials", "epochs", "hist")
+
+#: Stanford histogram bins: log10 of error and PL in metres, 0.01 m .. 10 km, 0.05 dex
+HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS = -2.0, 4.0, 120
+
+
+def hist_edges() -> np.ndarray:
+    """(HIST_BINS + 1,) bin edges in metres of the Stanford histograms."""
+    return 10.0 ** np.linspace(HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS + 1)
+
+
+# ----------------------------------------------------------------------------- caches (per process)
+
+_CACHE: dict[tuple, object] = {}
+_CACHE_MAX = 64
+
+
+def _cached(key: tuple, make: Callable[[], object]):
+    if key not in _CACHE:
+        if len(_CACHE) >= _CACHE_MAX:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE[key] = make()
+    return _CACHE[key]
+
+
+def clear_caches() -> None:
+    _CACHE.clear()
+
+
+def _flight_key(cell: Cell) -> tuple:
+    c = cell.config
+    d = c.model_dump(mode="json", include={"aircraft", "frame", "path", "vertical", "flight", "wind", "gusts",
+                                          "terrain"})
+    return ("flight", str(cell.approach.source), str(cell.approach.aircraft_source), json.dumps(d, sort_keys=True))
+
+
+def _terrain(cell: Cell):
+    from testbed.api import load_terrain_for
+
+    c = cell.config
+    key = ("terrain", str(cell.approach.source), json.dumps(c.terrain.model_dump(mode="json"), sort_keys=True))
+    return _cached(key, lambda: load_terrain_for(cell.approach))
+
+
+def flown_truth(cell: Cell):
+    """The cell's trajectory flown by JSBSim (cached: one flight per distinct trajectory)."""
+    from testbed.flight.fly import fly
+
+    return _cached(_flight_key(cell), lambda: fly(cell.approach, _terrain(cell)).truth)
+
+
+@dataclass(frozen=True)
+class CellContext:
+    """Everything a cell's trials share (no randomness)."""
+
+    cell: Cell
+    setup: object  # RunSetup
+    t: np.ndarray  # (T,) GNSS (monitor) epochs
+    g_geom: object
+    v_geom: object | None
+    landmarks: object | None  # Landmarks with lpe 0 (the survey is drawn per block)
+    truth_cg_enu: np.ndarray  # (T, 3)
+    truth_ant_enu: np.ndarray  # (T, 3)
+    hal: float
+    val: float
+    levels: tuple[str, ...]
+    onset_s: float  # nan without fault
+
+
+def cell_context(cell: Cell, duration_s: float | None = None) -> CellContext:
+    """The cached geometry of a cell: flight, GNSS geometry, vision geometry."""
+    from testbed.sensors.gnss.almanac import load_constellation
+    from testbed.sensors.gnss.synth import gnss_geometry
+    from testbed.sensors.gnss.timebase import utc_to_gps_seconds
+    from testbed.sensors.vision import detect as vdetect
+    from testbed.sim.setup import build_setup
+
+    c = cell.config
+    terrain = _terrain(cell)
+    setup = build_setup(cell.approach, terrain)
+    fkey = _flight_key(cell)
+
+    def truth_g():
+        tr = flown_truth(cell).decimate(setup.gnss.rate_hz)
+        if duration_s is not None:
+            tr = tr.at_indices(np.flatnonzero(tr.t <= duration_s + 1e-9))
+        return tr
+
+    tkey = ("truth_g", fkey, setup.gnss.rate_hz, duration_s)
+    truth = _cached(tkey, truth_g)
+    gkey = ("gnss_geom", tkey, c.start_time_utc.isoformat(), json.dumps(c.gnss.model_dump(mode="json"), sort_keys=True),
+            json.dumps(c.aircraft and cell.approach.aircraft.antenna_lever_arm_m))
+
+    def ggeom():
+        eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path,
+                                 utc_to_gps_seconds(c.start_time_utc), setup.gnss.almanac_week)
+        return gnss_geometry(truth, setup.antenna, setup.gnss, start_utc=c.start_time_utc, terrain=terrain,
+                             constellation=eph)
+
+    g_geom = _cached(gkey, ggeom)
+    v_geom, lm = None, None
+    if setup.uses_vision:
+        lm = replace(setup.landmarks, lpe_sigma_m=0.0)
+        vkey = ("vision_geom", tkey, json.dumps(setup.vision.model_dump(mode="json"), sort_keys=True),
+                json.dumps(c.landmarks.model_dump(mode="json"), sort_keys=True),
+                json.dumps([f.model_dump(mode="json") for f in setup.faults], sort_keys=True))
+        v_geom = _cached(vkey, lambda: vdetect.vision_geometry(truth, setup.vision, landmarks=lm, terrain=terrain,
+                                                               faults=list(setup.faults)))
+    levels = tuple(setup.integrity.service_levels)
+    lv = [service_level(n) for n in levels]
+    onset = min((f.onset_s for f in setup.faults), default=float("nan"))
+    return CellContext(cell=cell, setup=setup, t=np.asarray(truth.t, float), g_geom=g_geom, v_geom=v_geom,
+                       landmarks=lm, truth_cg_enu=setup.frame.ecef_to_enu(truth.pos_ecef),
+                       truth_ant_enu=setup.frame.ecef_to_enu(g_geom.ant_pos_ecef),
+                       hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset))
+
+
+# ----------------------------------------------------------------------------- one block
+
+def block_seed(base_seed: int, cell_index: int, block: int, common: bool) -> np.random.SeedSequence:
+    """The SeedSequence of one draw block (a pure function of its keys)."""
+    key = (block,) if common else (cell_index, block)
+    return np.random.SeedSequence(base_seed, spawn_key=key)
+
+
+def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndarray]]:
+    """Draw and monitor the trials of one block; per-trial, per-epoch and histogram columns."""
+    from testbed.integrity.pixel import pixel_monitor
+    from testbed.integrity.raim import gps_raim
+    from testbed.integrity.va_raim import va_raim
+    from testbed.sensors.gnss.synth import sample_gnss
+    from testbed.sensors.vision import detect as vdetect
+
+    s = ctx.setup
+    i0 = block * spec.block_trials
+    n = min(spec.block_trials, spec.trials - i0)
+    ss_g, ss_v, ss_s = block_seed(spec.base_seed, ctx.cell.index, block, spec.common_random_numbers).spawn(3)
+    faults = list(s.faults)
+    gnss, gtruth = sample_gnss(ctx.g_geom, s.gnss, faults=faults, rng=np.random.default_rng(ss_g), n_trials=n)
+    vis = vtruth = None
+    if ctx.v_geom is not None:
+        vis, vtruth = vdetect.sample_vision(ctx.v_geom, s.vision, landmarks=ctx.landmarks, faults=faults,
+                                            rng=np.random.default_rng(ss_v), n_trials=n)
+        # one survey per block: the monitor believes true + e, the landmarks stand at true (+ a fault's move)
+        lpe = s.landmarks.lpe_sigma_m
+        e = np.random.default_rng(ss_s).standard_normal(ctx.landmarks.pos_ecef.shape) * lpe
+        vis = replace(vis, landmark_pos_ecef=ctx.landmarks.pos_ecef + e)
+    trials = np.arange(i0, i0 + n)
+    t = ctx.t
+    T = t.size
+    onset = ctx.onset_s
+    # what was faulted (truth side): PRN of the faulty satellite / index of the faulty landmark
+    target = np.full(n, -1, np.int64)
+    if gtruth.faulty.any():
+        hit = gtruth.faulty.any(axis=-2)  # (n, S)
+        target = np.where(hit.any(-1), np.asarray(gnss.prn)[hit.argmax(-1)], -1)
+    elif vtruth is not None and np.asarray(vtruth.faulty).any():
+        hit = np.asarray(vtruth.faulty).any(axis=-2)
+        target = np.where(hit.any(-1), hit.argmax(-1), -1)
+    rows: dict[str, list] = {}
+    ep: dict[str, list] = {}
+    hist: dict[str, list] = {}
+    keep_ep = trials < spec.per_epoch_trials
+    edges_log = np.linspace(HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS + 1)
+    for m in s.monitors:
+        if m == "gps_raim":
+            out, ref = gps_raim(gnss, s.frame, s.integrity), ctx.truth_ant_enu
+        elif m == "va_raim":
+            out, ref = va_raim(gnss, vis, s.frame, s.va_raim), ctx.truth_cg_enu
+        else:
+            out, ref = pixel_monitor(gnss, vis, s.frame, s.integrity), ctx.truth_cg_enu
+        he, ve = position_errors(out, ref)  # (n, T)
+        hpl, vpl = np.asarray(out.hpl, float), np.asarray(out.vpl, float)
+        alert = np.asarray(out.alert, bool)
+        avail = np.asarray(out.available, bool)  # (n, T, K)
+        rh, rv = stanford_regions(he, hpl, ctx.hal), stanford_regions(ve, vpl, ctx.val)
+        after = t >= onset - 1e-9 if np.isfinite(onset) else np.ones(T, bool)
+        det = alert & after
+        detected = det.any(-1)
+        first_any = np.where(alert.any(-1), t[alert.argmax(-1)], np.nan)
+        tta = np.where(detected, t[det.argmax(-1)] - (onset if np.isfinite(onset) else 0.0), np.nan)
+        mi = ((he > hpl) | (ve > vpl)) & ~alert & np.isfinite(hpl) & np.isfinite(vpl)
+        hmi = (rh["hazardous"] | rv["hazardous"]) & ~alert
+        with np.errstate(all="ignore"):
+            col = {
+                "cell": np.full(n, ctx.cell.index, np.int32), "trial": trials.astype(np.int64),
+                "monitor": np.full(n, m, object), "epochs": np.full(n, T, np.int32),
+                "fault_target": target, "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
+                "first_alert_s": first_any, "time_to_alert_s": tta,
+                "max_he": _nanmax(he), "max_ve": _nanmax(ve), "max_hpl": _nanmax(hpl), "max_vpl": _nanmax(vpl),
+                "mi_epochs": mi.sum(-1).astype(np.int32), "hmi_epochs": hmi.sum(-1).astype(np.int32),
+            }
+            for k, lv in enumerate(ctx.levels):
+                col[f"avail_{lv}"] = avail[..., k].mean(-1)
+            for r in REGIONS:
+                col[f"h_{r}"] = rh[r].sum(-1).astype(np.int32)
+                col[f"v_{r}"] = rv[r].sum(-1).astype(np.int32)
+            if m == "va_raim":
+                d = out.diagnostics
+                m_true = np.asarray(vtruth.range_m, float)
+                for tag, est, ok in (("raw", d["vision_m"], None), ("cal", d["z_hat"], d["calibrated"])):
+                    err = np.asarray(est, float) - m_true
+                    good = np.isfinite(err)
+                    if ok is not None:
+                        good &= np.asarray(ok, bool)[..., None] if np.ndim(ok) == err.ndim - 1 else np.asarray(ok, bool)
+                    e0 = np.where(good, err, 0.0)
+                    cnt = good.sum((-1, -2))
+                    col[f"vre_{tag}_n"] = cnt.astype(np.int64)
+                    col[f"vre_{tag}_sum"] = e0.sum((-1, -2))
+                    col[f"vre_{tag}_sumsq"] = (e0**2).sum((-1, -2))
+        rows[m] = col
+        # Stanford histograms over all epochs of the block
+        for dim, e, p in (("H", he, hpl), ("V", ve, vpl)):
+            ok = np.isfinite(e) & np.isfinite(p)
+            le = np.clip(np.log10(np.maximum(e[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
+            lp = np.clip(np.log10(np.maximum(p[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
+            H, _, _ = np.histogram2d(le, lp, bins=[edges_log, edges_log])
+            ei, pi = np.nonzero(H)
+            hist[f"{m}/{dim}"] = [ei, pi, H[ei, pi].astype(np.int64)]
+        if keep_ep.any():
+            k_idx = np.flatnonzero(keep_ep)
+            nk = k_idx.size
+            e = {"cell": np.full(nk * T, ctx.cell.index, np.int32), "trial": np.repeat(trials[k_idx], T),
+                 "monitor": np.full(nk * T, m, object), "t": np.tile(t, nk),
+                 "he": he[k_idx].ravel(), "ve": ve[k_idx].ravel(), "hpl": hpl[k_idx].ravel(),
+                 "vpl": vpl[k_idx].ravel(), "test_stat": np.asarray(out.test_stat, float)[k_idx].ravel(),
+                 "threshold": np.asarray(out.threshold, float)[k_idx].ravel(), "alert": alert[k_idx].ravel()}
+            for k, lv in enumerate(ctx.levels):
+                e[f"avail_{lv}"] = avail[k_idx, :, k].ravel()
+            ep[m] = e
+    return {"trials": rows, "epochs": ep, "hist": hist}
+
+
+def _nanmax(x: np.ndarray) -> np.ndarray:
+    fin = np.isfinite(x)
+    return np.where(fin.any(-1), np.max(np.where(fin, x, -np.inf), axis=-1), np.nan)
+
+
+def _cat_cols(parts: list[dict[str, np.ndarray]]) -> pa.Table | None:
+    if not parts:
+        return None
+    keys = list(parts[0])
+    return pa.table({k: np.concatenate([p[k] for p in parts]) for k in keys})
+
+
+def _concat(tables: list) -> pa.Table | None:
+    """Tables of different monitors (columns differ: nulls where a monitor has none)."""
+    tables = [t for t in tables if t is not None]
+    return pa.concat_tables(tables, promote_options="default") if tables else None
+
+
+def run_chunk(loaded: LoadedSpec, cell_index: int, chunk: int) -> dict[str, pa.Table | None]:
+    """A chunk's tables (pure function of spec, cell and chunk index)."""
+    spec = loaded.spec
+    cell = _cells(loaded)[cell_index]
+    ctx = cell_context(cell, spec.duration_s)
+    per_chunk = spec.chunk_trials // spec.block_trials
+    n_blocks = -(-spec.trials // spec.block_trials)
+    blocks = range(chunk * per_chunk, min((chunk + 1) * per_chunk, n_blocks))
+    res = [run_block(ctx, spec, b) for b in blocks]
+    monitors = list(ctx.setup.monitors)
+    trials = _concat([_cat_cols([r["trials"][m] for r in res]) for m in monitors])
+    epochs = _concat([_cat_cols([r["epochs"][m] for r in res if m in r["epochs"]]) for m in monitors])
+    # histogram: sum the blocks' sparse counts
+    hrows = []
+    for m in monitors:
+        for dim in ("H", "V"):
+            acc: dict[tuple[int, int], int] = {}
+            for r in res:
+                ei, pi, c = r["hist"][f"{m}/{dim}"]
+                for a, b, k in zip(ei.tolist(), pi.tolist(), c.tolist()):
+                    acc[(a, b)] = acc.get((a, b), 0) + k
+            if acc:
+                kk = sorted(acc)
+                hrows.append({"cell": np.full(len(kk), cell_index, np.int32), "monitor": np.full(len(kk), m, object),
+                              "dim": np.full(len(kk), dim, object), "err_bin": np.array([a for a, _ in kk], np.int16),
+                              "pl_bin": np.array([b for _, b in kk], np.int16),
+                              "count": np.array([acc[x] for x in kk], np.int64)})
+    hist = _cat_cols(hrows)
+    throttle = float(os.environ.get("TESTBED_CAMPAIGN_THROTTLE_S", "0") or 0)  # test hook: slow chunks down
+    if throttle > 0:
+        time.sleep(throttle)
+    return {"trials": trials, "epochs": epochs, "hist": hist}
+
+
+_CELLS: dict[str, list[Cell]] = {}
+
+
+def _cells(loaded: LoadedSpec) -> list[Cell]:
+    key = loaded.hash + str(loaded.source)
+    if key not in _CELLS:
+        _CELLS[key] = expand_cells(loaded)
+    return _CELLS[key]
+
+
+def chunk_plan(loaded: LoadedSpec) -> list[tuple[int, int, int]]:
+    """Every (cell, chunk, n_trials) task of a campaign, in order."""
+    spec = loaded.spec
+    n_chunks = -(-spec.trials // spec.chunk_trials)
+    out = []
+    for c in range(len(_cells(loaded))):
+        for k in range(n_chunks):
+            out.append((c, k, min(spec.chunk_trials, spec.trials - k * spec.chunk_trials)))
+    return out
+
+
+def _dask_chunk(spec_json: str, source: str, cell_index: int, chunk: int) -> dict:
+    """Entry point on a Dask worker: rebuild the spec from its JSON (cheap, cached per process)."""
+    from testbed.campaign.spec import CampaignSpec
+
+    key = ("loaded", spec_json, source)
+    loaded = _cached(key, lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
+    return run_chunk(loaded, cell_index, chunk)
+
+
+# ----------------------------------------------------------------------------- driver
+
+@dataclass
+class CampaignResult:
+    out_dir: Path
+    cells: int
+    trials: int
+    chunks_run: int
+    chunks_skipped: int
+    wall_s: float
+    epochs_run: int
+
+    @property
+    def epochs_per_s(self) -> float:
+        return self.epochs_run / self.wall_s if self.wall_s > 0 else float("nan")
+
+
+def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: bool = False,
+                 scheduler: str | object | None = None, progress: bool = True,
+                 max_chunks: int | None = None) -> CampaignResult:
+    """Run (or resume) a campaign into ``out_dir``.
+
+    Parameters
+    ----------
+    spec : a spec file or a :class:`LoadedSpec` (validated before any work starts).
+    out_dir : result folder (manifest, Parquet parts, consolidated tables).
+    resume : continue a run in ``out_dir`` (same spec hash), skipping stored chunks.
+    scheduler : None = batched in-process; a Dask scheduler address, or a
+        ``distributed.Client`` / ``LocalCluster``, sends the same chunk tasks there.
+    progress : show a rich progress bar (trials/s, ETA).
+    max_chunks : stop after this many new chunks (tests; the run stays resumable).
+    """
+    from testbed.campaign.store import ResultStore
+
+    from testbed.campaign.spec import load_spec
+
+    loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)
+    store = ResultStore(out_dir)
+    cells = _cells(loaded)
+    store.open(loaded, cells, resume=resume)
+    plan = chunk_plan(loaded)
+    done = store.done_chunks()
+    todo = [p for p in plan if (p[0], p[1]) not in done]
+    if max_chunks is not None:
+        todo = todo[:max_chunks]
+    total_trials = sum(n for _, _, n in plan)
+    done_trials = total_trials - sum(n for c, k, n in plan if (c, k) not in done)
+    wall0 = time.perf_counter()
+    epochs_run = 0
+    bar = _Progress(total_trials, done_trials, loaded.spec.name, enabled=progress)
+    with bar:
+        if scheduler is None:
+            for c, k, n in todo:
+                tables = run_chunk(loaded, c, k)
+                store.write_chunk(c, k, tables)
+                epochs_run += n * _epochs_of(tables)
+                bar.advance(n)
+        else:
+            client, own = _client(scheduler)
+            try:
+                from distributed import as_completed
+
+                sj = loaded.spec.model_dump_json()
+                futs = {client.submit(_dask_chunk, sj, str(loaded.source), c, k, pure=False, key=f"campaign-{loaded.hash}-{c}-{k}"): (c, k, n)
+                        for c, k, n in todo}
+                for fut in as_completed(list(futs)):
+                    c, k, n = futs[fut]
+                    tables = fut.result()
+                    store.write_chunk(c, k, tables)
+                    epochs_run += n * _epochs_of(tables)
+                    bar.advance(n)
+            finally:
+                if own:
+                    client.close()
+    if len(store.done_chunks()) == len(plan):
+        store.finalize()
+    return CampaignResult(Path(out_dir), len(cells), total_trials, len(todo), len(done),
+                          time.perf_counter() - wall0, epochs_run)
+
+
+def _epochs_of(tables: dict) -> int:
+    t = tables.get("trials")
+    if t is None or t.num_rows == 0:
+        return 0
+    return int(t.column("epochs")[0].as_py())
+
+
+def _client(scheduler):
+    from distributed import Client
+
+    if isinstance(scheduler, str):
+        return Client(scheduler), True
+    if isinstance(scheduler, Client):
+        return scheduler, False
+    return Client(scheduler), True  # a cluster object
+
+
+class _Progress:
+    """A rich progress bar with trials/s and ETA (a no-op when disabled)."""
+
+    def __init__(self, total: int, done: int, name: str, enabled: bool = True) -> None:
+        self.enabled = enabled
+        if enabled:
+            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskProgressColumn, TextColumn,
+                                       TimeElapsedColumn, TimeRemainingColumn)
+
+            self.p = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                              TaskProgressColumn(), TextColumn("{task.fields[rate]} trials/s"),
+                              TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=False)
+            self.task = self.p.add_task(name, total=total, completed=done, rate="-")
+            self.t0 = time.perf_counter()
+            self.n = 0
+
+    def __enter__(self):
+        if self.enabled:
+            self.p.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self.enabled:
+            self.p.__exit__(*exc)
+
+    def advance(self, n: int) -> None:
+        if self.enabled:
+            self.n += n
+            rate = self.n / max(time.perf_counter() - self.t0, 1e-9)
+            self.p.update(self.task, advance=n, rate=f"{rate:,.0f}")

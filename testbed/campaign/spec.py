@@ -1,0 +1,302 @@
+"""Campaign specs: what to sweep, how many trials, which monitors (``approaches/campaigns/*.toml``).
+
+A spec is validated by :class:`CampaignSpec` (a :class:`~testbed.schema.StrictModel`:
+unknown keys are errors naming the file and key path). :func:`expand_cells`
+turns it into the list of :class:`Cell` s, the Cartesian product of
+
+- the approaches,
+- the start times (``sweep.start_time_utc``),
+- every fault family and magnitude (``[[faults]]``; magnitude 0 or ``kind = "none"``
+  gives fault-free trials, the false-alarm cells),
+- the camera resolutions (``sweep.camera_dpi``), detection errors
+  (``sweep.detection_sigma_px``), landmark position errors (``sweep.lpe_sigma_m``),
+  landmark sets (``sweep.landmark_sets``) and VA-RAIM calibration modes
+  (``sweep.calibration``).
+
+Each cell becomes a concrete, validated :class:`~testbed.config.ApproachConfig`
+(overrides applied to the approach file), so a bad combination (a dpi on a
+camera preset that has no dpi, say) is reported before any work starts.
+
+Randomness: trial ``i`` of cell ``c`` belongs to *draw block* ``b = i // block_trials``;
+a block's generators come from ``SeedSequence(base_seed, spawn_key=(c, b))``
+(``(b,)`` with ``common_random_numbers``), so a trial is a pure function of
+(spec, cell, trial index) whatever the chunk size or number of workers.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from testbed.config import Approach, ApproachConfig, load_approach, read_toml, validate
+from testbed.integrity.levels import service_level
+from testbed.schema import ConfigError, StrictModel
+from testbed.sensors.vision.settings import LandmarkSet
+
+MonitorName = Literal["gps_raim", "va_raim", "pixel"]
+FaultKindName = Literal["none", "gps_step", "gps_ramp", "pixel_bias", "landmark_moved"]
+
+#: what the magnitude of each fault family means (units go into tables and figure labels)
+MAGNITUDE_UNITS = {"none": "", "gps_step": "m", "gps_ramp": "m/s", "pixel_bias": "px", "landmark_moved": "m"}
+
+
+class FaultSweep(StrictModel):
+    """One fault family swept over magnitudes (``[[faults]]`` in a spec)."""
+
+    kind: FaultKindName = Field(..., description="none | gps_step (bias_m) | gps_ramp (rate_m_s) | "
+                                                 "pixel_bias (magnitude_px) | landmark_moved (metres along direction_enu)")
+    magnitudes: list[float] = Field([0.0], min_length=1, description="fault sizes; 0 = a fault-free cell")
+    onset_s: float = Field(20.0, ge=0, description="fault onset, s after the approach start")
+    end_s: float | None = Field(None, description="fault end (exclusive), s; None = to the end")
+    prn: int | Literal["random"] = Field("random", description="GPS faults: PRN or 'random' (a visible one per trial)")
+    landmark: str = Field("random", description="vision faults: landmark id or 'random' (per trial)")
+    angle_deg: float = Field(0.0, description="pixel_bias: direction in the image, deg")
+    direction_enu: tuple[float, float, float] = Field((1.0, 0.0, 0.0),
+                                                      description="landmark_moved: unit direction (ENU) of the move")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.end_s is not None and self.end_s <= self.onset_s:
+            raise ValueError(f"end_s ({self.end_s}) must be after onset_s ({self.onset_s})")
+        if self.kind in ("pixel_bias",) and any(m < 0 for m in self.magnitudes):
+            raise ValueError(f"pixel_bias magnitudes must be >= 0, got {self.magnitudes}")
+        if self.kind == "none" and any(m != 0 for m in self.magnitudes):
+            raise ValueError(f"kind 'none' takes no magnitudes other than 0, got {self.magnitudes}")
+        if self.kind == "landmark_moved" and sum(c * c for c in self.direction_enu) == 0:
+            raise ValueError("direction_enu: expected a non-zero vector")
+        return self
+
+    def fault(self, magnitude: float) -> dict | None:
+        """The fault table (testbed.sensors.faults) for one magnitude; None = no fault."""
+        if self.kind == "none" or magnitude == 0:
+            return None
+        win = {"onset_s": self.onset_s, **({"end_s": self.end_s} if self.end_s is not None else {})}
+        if self.kind == "gps_step":
+            return {"kind": "gps_step", "prn": self.prn, "bias_m": magnitude, **win}
+        if self.kind == "gps_ramp":
+            return {"kind": "gps_ramp", "prn": self.prn, "rate_m_s": magnitude, **win}
+        if self.kind == "pixel_bias":
+            return {"kind": "pixel_bias", "landmark": self.landmark, "magnitude_px": magnitude,
+                    "angle_deg": self.angle_deg, **win}
+        n = sum(c * c for c in self.direction_enu) ** 0.5
+        return {"kind": "landmark_moved", "landmark": self.landmark,
+                "delta_enu_m": tuple(magnitude * c / n for c in self.direction_enu), **win}
+
+
+class Sweep(StrictModel):
+    """Sensor and scenario axes; an empty list / missing key = the approach file's value."""
+
+    start_time_utc: list[dt.datetime] = Field(default_factory=list, description="start times across the day (UTC)")
+    camera_dpi: list[float] = Field(default_factory=list, description="camera resolution, dpi (va-raim-2015 / custom dpi cameras)")
+    detection_sigma_px: list[float] = Field(default_factory=list, description="detection error 1-sigma, px")
+    lpe_sigma_m: list[float] = Field(default_factory=list, description="landmark position (survey) error 1-sigma, m")
+    landmark_sets: list[list[LandmarkSet]] = Field(default_factory=list, description="each entry: a full landmark set list")
+    calibration: list[Literal["gps", "none"]] = Field(default_factory=list, description="VA-RAIM calibration modes")
+
+    @field_validator("start_time_utc")
+    @classmethod
+    def _utc(cls, v):
+        for t in v:
+            if t.tzinfo is None:
+                raise ValueError("expected UTC times with an offset, e.g. 2026-03-01T04:00:00Z")
+        return [t.astimezone(dt.timezone.utc) for t in v]
+
+    @field_validator("camera_dpi", "detection_sigma_px", "lpe_sigma_m")
+    @classmethod
+    def _nonneg(cls, v):
+        bad = [x for x in v if x < 0]
+        if bad:
+            raise ValueError(f"expected values >= 0, got {bad}")
+        return v
+
+
+class ReportSettings(StrictModel):
+    power: float = Field(0.99, gt=0, lt=1, description="detection power for the minimal detectable bias")
+    confidence: float = Field(0.95, gt=0, lt=1, description="confidence of the binomial bands")
+    interval: Literal["clopper-pearson", "wilson"] = "clopper-pearson"
+
+
+class CampaignSpec(StrictModel):
+    """A fault-injection Monte Carlo campaign (``approaches/campaigns/<name>.toml``)."""
+
+    name: str = Field(..., min_length=1)
+    description: str = ""
+    approaches: list[str] = Field(..., min_length=1, description="approach names or paths (relative to the spec)")
+    monitors: list[MonitorName] = Field(..., min_length=1)
+    trials: int = Field(..., ge=1, le=10_000_000, description="trials (sorties) per cell")
+    base_seed: int = Field(0, ge=0)
+    block_trials: int = Field(100, ge=1, le=100_000, description="trials per draw block (share a landmark survey)")
+    chunk_trials: int = Field(1000, ge=1, description="trials per stored chunk/task (a multiple of block_trials)")
+    common_random_numbers: bool = Field(False, description="same noise draws in every cell (smoother sweeps)")
+    per_epoch_trials: int = Field(20, ge=0, description="store per-epoch records for the first N trials of each cell")
+    duration_s: float | None = Field(None, gt=0, description="use only the first duration_s of each flight")
+    faults: list[FaultSweep] = Field(default_factory=lambda: [FaultSweep(kind="none")])
+    sweep: Sweep = Field(default_factory=Sweep)
+    report: ReportSettings = Field(default_factory=ReportSettings)
+
+    @model_validator(mode="after")
+    def _chunks(self):
+        if self.chunk_trials % self.block_trials:
+            raise ValueError(f"chunk_trials ({self.chunk_trials}) must be a multiple of block_trials "
+                             f"({self.block_trials})")
+        if ("va_raim" in self.monitors or "pixel" in self.monitors) is False:
+            vis = [f.kind for f in self.faults if f.kind in ("pixel_bias", "landmark_moved")]
+            if vis:
+                raise ValueError(f"vision faults {vis} need a vision monitor (va_raim or pixel) in monitors")
+        return self
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One point of the sweep: a concrete approach config and the fault it carries."""
+
+    index: int
+    approach: Approach
+    params: dict  # flat, table-friendly: approach, start_time_utc, fault_kind, fault_size, dpi, ...
+
+    @property
+    def config(self) -> ApproachConfig:
+        return self.approach.config
+
+
+@dataclass(frozen=True)
+class LoadedSpec:
+    spec: CampaignSpec
+    source: Path
+    approaches: tuple[Approach, ...]
+
+    @property
+    def hash(self) -> str:
+        return spec_hash(self.spec)
+
+
+def spec_hash(spec: CampaignSpec) -> str:
+    """A short hash of everything that changes results (the report settings excluded)."""
+    d = spec.model_dump(mode="json", exclude={"report", "description"})
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def load_spec(path: str | Path) -> LoadedSpec:
+    """Read and validate a spec and every approach it names; errors name file and key path."""
+    src = Path(path)
+    spec = validate(CampaignSpec, read_toml(src), src)
+    return resolve_spec(spec, src)
+
+
+def resolve_spec(spec: CampaignSpec, source: Path) -> LoadedSpec:
+    """Load the spec's approaches and expand its cells once (so every problem shows up now)."""
+    aps = []
+    problems = []
+    for k, name in enumerate(spec.approaches):
+        p = Path(name)
+        if (p.suffix == ".toml" or "/" in name) and not p.is_absolute():
+            cand = source.parent / p
+            name = str(cand) if cand.exists() else name
+        try:
+            aps.append(load_approach(name))
+        except ConfigError as exc:
+            problems.append(f"approaches.{k}: {name!r}: " + "; ".join(exc.problems))
+    if problems:
+        raise ConfigError(source, problems)
+    loaded = LoadedSpec(spec, source, tuple(aps))
+    expand_cells(loaded)  # validates every combination
+    return loaded
+
+
+def _set(d: dict, dotted: str, value: Any) -> None:
+    keys = dotted.split(".")
+    for k in keys[:-1]:
+        d = d.setdefault(k, {})
+    d[keys[-1]] = value
+
+
+def expand_cells(loaded: LoadedSpec) -> list[Cell]:
+    """Every cell of the sweep, in a fixed order (the cell index is part of each trial's seed)."""
+    spec, sw = loaded.spec, loaded.spec.sweep
+    axes = [
+        ("start_time_utc", sw.start_time_utc or [None]),
+        ("fault", [(k, f, m) for k, f in enumerate(spec.faults) for m in f.magnitudes]),
+        ("dpi", sw.camera_dpi or [None]),
+        ("sigma_px", sw.detection_sigma_px or [None]),
+        ("lpe_sigma_m", sw.lpe_sigma_m or [None]),
+        ("landmark_set", list(enumerate(sw.landmark_sets)) or [None]),
+        ("calibration", sw.calibration or [None]),
+    ]
+    names = [a for a, _ in axes]
+    cells: list[Cell] = []
+    problems: list[str] = []
+    for ap in loaded.approaches:
+        base = ap.config.model_dump(mode="json", exclude_unset=True)
+        for combo in itertools.product(*[v for _, v in axes]):
+            c = dict(zip(names, combo))
+            d = json.loads(json.dumps(base))
+            d["monitors"] = list(spec.monitors)
+            d["faults"] = []
+            fk, fam, mag = c["fault"]
+            fault = fam.fault(mag)
+            if fault is not None:
+                d["faults"] = [fault]
+            if c["start_time_utc"] is not None:
+                d["start_time_utc"] = c["start_time_utc"].isoformat()
+            if c["dpi"] is not None:
+                _set(d, "vision.camera.dpi", c["dpi"])
+            if c["sigma_px"] is not None:
+                _set(d, "vision.detection.sigma_px", c["sigma_px"])
+            if c["lpe_sigma_m"] is not None:
+                _set(d, "landmarks.lpe_sigma_m", c["lpe_sigma_m"])
+                # the monitor is told the survey error it faces (seed: sigma_g known)
+                d.setdefault("va_raim", {})["landmark_survey_sigma_m"] = c["lpe_sigma_m"]
+            if c["landmark_set"] is not None:
+                _set(d, "landmarks.sets", [s.model_dump(mode="json") for s in sw.landmark_sets[c["landmark_set"][0]]])
+            if c["calibration"] is not None:
+                d.setdefault("va_raim", {})["calibration"] = c["calibration"]
+            if any(m in ("va_raim", "pixel") for m in spec.monitors):
+                # the vision monitors combine both sensors at the GNSS epochs
+                _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
+            idx = len(cells)
+            try:
+                cfg = validate(ApproachConfig, d, ap.source)
+                from testbed.integrity.va_raim import VaRaimSettings
+                VaRaimSettings.model_validate({**cfg.va_raim, "integrity": cfg.integrity})
+            except ConfigError as exc:
+                problems.append(f"cell {idx} ({_describe(ap.name, c)}): " + "; ".join(exc.problems))
+                continue
+            except Exception as exc:  # pydantic error of the va_raim table
+                problems.append(f"cell {idx} ({_describe(ap.name, c)}): va_raim: {exc}")
+                continue
+            vis = cfg.vision
+            params = {
+                "cell": idx, "approach": ap.name, "start_time_utc": cfg.start_time_utc.isoformat(),
+                "fault_family": fk, "fault_kind": "none" if fault is None else fam.kind,
+                "fault_sweep_kind": fam.kind, "fault_size": float(mag), "fault_unit": MAGNITUDE_UNITS[fam.kind],
+                "onset_s": float(fam.onset_s) if fault is not None else float("nan"),
+                "dpi": float(vis.camera.dpi) if vis.camera.dpi is not None else float("nan"),
+                "sigma_px": float(vis.detection.sigma_px), "lpe_sigma_m": float(cfg.landmarks.lpe_sigma_m),
+                "landmark_set": -1 if c["landmark_set"] is None else int(c["landmark_set"][0]),
+                "calibration": str(cfg.va_raim.get("calibration", "gps")),
+                "hal": min(service_level(n).hal for n in cfg.integrity.service_levels),
+                "val": min(service_level(n).val for n in cfg.integrity.service_levels),
+            }
+            cells.append(Cell(idx, replace(ap, config=cfg), params))
+    if problems:
+        raise ConfigError(loaded.source, problems)
+    return cells
+
+
+def _describe(name: str, c: dict) -> str:
+    parts = [name]
+    fk, fam, mag = c["fault"]
+    parts.append(f"faults.{fk} {fam.kind} {mag:g}")
+    for k in ("start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "calibration"):
+        if c[k] is not None:
+            parts.append(f"{k}={c[k]}")
+    if c["landmark_set"] is not None:
+        parts.append(f"landmark_sets.{c['landmark_set'][0]}")
+    return ", ".join(parts)

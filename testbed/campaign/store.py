@@ -1,0 +1,155 @@
+"""The resumable result store of a campaign (a folder of Parquet files).
+
+Layout of ``out_dir``::
+
+    manifest.json         spec (JSON), spec hash, cell count, chunk plan size
+    cells.parquet         one row per cell: its sweep parameters
+    parts/c00003-k00002/  one folder per finished chunk: trials/epochs/hist .parquet
+    trials.parquet        consolidated (sorted by cell, trial, monitor) when all chunks are done
+    epochs.parquet        per-epoch records of the first ``per_epoch_trials`` trials of each cell
+    stanford_hist.parquet Stanford-diagram counts (cell, monitor, dim, err_bin, pl_bin, count)
+
+A chunk folder is written under a temporary name and renamed into place in one
+``os.rename`` (atomic on POSIX), so after a kill a chunk is either complete or
+absent; ``resume`` skips complete chunks and deletes leftovers. The manifest's
+spec hash stops a resume with a different spec from mixing results.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from testbed.schema import ConfigError
+
+NAMES = {"trials": "trials.parquet", "epochs": "epochs.parquet", "hist": "stanford_hist.parquet"}
+
+
+class ResultStore:
+    def __init__(self, out_dir: str | Path) -> None:
+        self.dir = Path(out_dir)
+        self.parts = self.dir / "parts"
+
+    # -- lifecycle -------------------------------------------------------------
+    def open(self, loaded, cells, *, resume: bool) -> None:
+        """Create the folder (or check it for a resume) before any work starts."""
+        man = self.dir / "manifest.json"
+        if man.exists():
+            old = json.loads(man.read_text())
+            if old.get("spec_hash") != loaded.hash:
+                raise ConfigError(loaded.source, [
+                    f"{self.dir} holds results of another spec (hash {old.get('spec_hash')}, this spec "
+                    f"{loaded.hash}): choose another --out folder"])
+            if not resume:
+                raise ConfigError(loaded.source, [f"{self.dir} already holds this campaign: pass --resume to "
+                                                  "complete it, or choose another --out folder"])
+        elif resume and self.parts.exists():
+            raise ConfigError(loaded.source, [f"{self.dir}: no manifest.json to resume from"])
+        self.parts.mkdir(parents=True, exist_ok=True)
+        for p in self.parts.glob("*.tmp-*"):  # leftovers of a killed run
+            shutil.rmtree(p, ignore_errors=True)
+        self._write_cells(cells)
+        if not man.exists():
+            manifest = {"name": loaded.spec.name, "spec_hash": loaded.hash, "cells": len(cells),
+                        "spec": loaded.spec.model_dump(mode="json"), "source": str(loaded.source),
+                        "format": 1}
+            _atomic_bytes(man, json.dumps(manifest, indent=1).encode())
+
+    def _write_cells(self, cells) -> None:
+        rows = [c.params for c in cells]
+        keys = list(rows[0])
+        t = pa.table({k: [r[k] for r in rows] for k in keys})
+        _atomic_table(self.dir / "cells.parquet", t)
+
+    def manifest(self) -> dict:
+        return json.loads((self.dir / "manifest.json").read_text())
+
+    # -- chunks ----------------------------------------------------------------
+    @staticmethod
+    def chunk_name(cell: int, chunk: int) -> str:
+        return f"c{cell:05d}-k{chunk:05d}"
+
+    def done_chunks(self) -> set[tuple[int, int]]:
+        out = set()
+        if not self.parts.exists():
+            return out
+        for p in self.parts.iterdir():
+            if p.is_dir() and ".tmp-" not in p.name and p.name.startswith("c"):
+                c, k = p.name[1:].split("-k")
+                out.add((int(c), int(k)))
+        return out
+
+    def write_chunk(self, cell: int, chunk: int, tables: dict) -> None:
+        final = self.parts / self.chunk_name(cell, chunk)
+        if final.exists():
+            return
+        tmp = self.parts / f"{final.name}.tmp-{uuid.uuid4().hex[:8]}"
+        tmp.mkdir(parents=True)
+        for key, t in tables.items():
+            if t is not None and t.num_rows:
+                pq.write_table(t, tmp / f"{key}.parquet")
+                _fsync(tmp / f"{key}.parquet")
+        os.rename(tmp, final)
+        _fsync_dir(self.parts)
+
+    # -- consolidation -----------------------------------------------------------
+    def finalize(self) -> None:
+        """Merge the chunk parts into the sorted top-level tables (atomically, each)."""
+        for key, name in NAMES.items():
+            files = sorted(self.parts.glob(f"c*-k*/{key}.parquet"))
+            files = [f for f in files if ".tmp-" not in f.parent.name]
+            if not files:
+                continue
+            t = pa.concat_tables([pq.read_table(f) for f in files], promote_options="default")
+            sort = {"trials": [("cell", "ascending"), ("trial", "ascending"), ("monitor", "ascending")],
+                    "epochs": [("cell", "ascending"), ("trial", "ascending"), ("monitor", "ascending"),
+                               ("t", "ascending")],
+                    "hist": [("cell", "ascending"), ("monitor", "ascending"), ("dim", "ascending"),
+                             ("err_bin", "ascending"), ("pl_bin", "ascending")]}[key]
+            if key == "hist":  # chunks of one cell add up
+                t = t.group_by(["cell", "monitor", "dim", "err_bin", "pl_bin"]).aggregate([("count", "sum")])
+                t = t.rename_columns([c if c != "count_sum" else "count" for c in t.column_names])
+            t = t.sort_by(sort)
+            _atomic_table(self.dir / name, t)
+
+    def complete(self) -> bool:
+        return (self.dir / NAMES["trials"]).exists()
+
+    def table(self, key: str) -> pa.Table | None:
+        p = self.dir / NAMES.get(key, f"{key}.parquet")
+        return pq.read_table(p) if p.exists() else None
+
+
+def _atomic_table(path: Path, t: pa.Table) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+    pq.write_table(t, tmp)
+    _fsync(tmp)
+    os.replace(tmp, path)
+
+
+def _atomic_bytes(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+    tmp.write_bytes(data)
+    _fsync(tmp)
+    os.replace(tmp, path)
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        _fsync(path)
+    except OSError:  # pragma: no cover - some filesystems refuse directory fsync
+        pass

@@ -1,0 +1,241 @@
+"""Campaigns: spec validation, determinism across chunkings/workers, kill-and-resume, Dask, figures."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from testbed.campaign.report import binomial_interval, minimal_detectable_bias, write_report
+from testbed.campaign.runner import run_campaign
+from testbed.campaign.spec import expand_cells, load_spec
+from testbed.schema import ConfigError
+from testbed.sim.evaluate import REGIONS
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TINY = """
+name = "tiny"
+approaches = ["va-raim-2015"]
+monitors = {monitors}
+trials = 40
+block_trials = 10
+chunk_trials = {chunk}
+base_seed = 7
+per_epoch_trials = 4
+duration_s = 40.0
+
+[[faults]]
+kind = "gps_step"
+magnitudes = [0.0, 60.0]
+onset_s = 15.0
+
+[sweep]
+camera_dpi = [720.0]
+"""
+
+
+def write_spec(tmp_path: Path, name: str = "tiny.toml", chunk: int = 20,
+               monitors: str = '["gps_raim", "va_raim"]', text: str | None = None) -> Path:
+    p = tmp_path / name
+    p.write_text(text if text is not None else TINY.format(chunk=chunk, monitors=monitors))
+    return p
+
+
+def table(out: Path, name: str = "trials.parquet"):
+    return pq.read_table(out / name)
+
+
+def same(a, b) -> bool:
+    """Tables equal bit for bit (NaN == NaN, same schema and row order)."""
+    if a.schema != b.schema or a.num_rows != b.num_rows:
+        return False
+    for n in a.column_names:
+        x, y = a.column(n).to_numpy(zero_copy_only=False), b.column(n).to_numpy(zero_copy_only=False)
+        if x.dtype.kind == "f":
+            if not np.array_equal(x, y, equal_nan=True):
+                return False
+        elif list(x) != list(y):
+            return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted run of the tiny spec (chunks of 20 trials)."""
+    d = tmp_path_factory.mktemp("ref")
+    spec = write_spec(d)
+    res = run_campaign(spec, d / "out", progress=False)
+    assert res.chunks_run == 4 and res.trials == 80
+    return d / "out"
+
+
+# ----------------------------------------------------------------------------- spec validation
+
+@pytest.mark.parametrize("text, where, expected", [
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\ntrails = 3\n',
+     "trails", "unknown key"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["raim"]\ntrials = 10\n',
+     "monitors.0", "gps_raim"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
+     'block_trials = 4\nchunk_trials = 10\n', "<top level>", "multiple of block_trials"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
+     '[[faults]]\nkind = "gps_step"\nmagnitudes = ["big"]\n', "faults.0.magnitudes.0", "valid number"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
+     '[sweep]\nstart_time_utc = [2026-03-01T04:00:00]\n', "sweep.start_time_utc", "UTC"),
+    ('name = "x"\napproaches = ["no-such-approach"]\nmonitors = ["gps_raim"]\ntrials = 10\n',
+     "approaches.0", "no such approach"),
+])
+def test_spec_errors_name_file_key_and_expectation(tmp_path, text, where, expected):
+    p = write_spec(tmp_path, "bad.toml", text=text)
+    with pytest.raises(ConfigError) as ei:
+        load_spec(p)
+    msg = str(ei.value)
+    assert str(p) in msg and where in msg and expected in msg, msg
+
+
+def test_bad_cell_combination_is_reported_before_any_work(tmp_path):
+    # the zunz approach's 1080p camera preset takes no dpi: caught at load time, per cell
+    text = ('name = "x"\napproaches = ["zunz-rwy05-final"]\nmonitors = ["va_raim"]\ntrials = 10\n'
+            '[sweep]\ncamera_dpi = [300.0]\n')
+    p = write_spec(tmp_path, "bad.toml", text=text)
+    with pytest.raises(ConfigError) as ei:
+        run_campaign(p, tmp_path / "out", progress=False)
+    assert "cell 0" in str(ei.value) and "dpi" in str(ei.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_cells_are_the_product_of_the_axes(tmp_path):
+    text = TINY.format(chunk=20, monitors='["gps_raim", "va_raim"]').replace(
+        "camera_dpi = [720.0]", "camera_dpi = [120.0, 720.0]\ndetection_sigma_px = [1.0, 2.0, 4.0]")
+    cells = expand_cells(load_spec(write_spec(tmp_path, text=text)))
+    assert len(cells) == 2 * 2 * 3
+    assert {(c.params["dpi"], c.params["sigma_px"]) for c in cells} == {(d, s) for d in (120, 720) for s in (1, 2, 4)}
+    assert all(c.config.vision.rate_hz == c.config.gnss.rate_hz for c in cells)
+    assert [c.params["fault_size"] for c in cells[:6]] == [0.0] * 6
+
+
+# ----------------------------------------------------------------------------- determinism
+
+def test_results_do_not_depend_on_chunk_size(reference, tmp_path):
+    spec = write_spec(tmp_path, chunk=10)
+    run_campaign(spec, tmp_path / "out", progress=False)
+    a, b = table(reference), table(tmp_path / "out")
+    assert a.num_rows == 2 * 40 * 2
+    assert same(a, b)
+    assert same(table(reference, "stanford_hist.parquet"), table(tmp_path / "out", "stanford_hist.parquet"))
+    assert same(table(reference, "epochs.parquet"), table(tmp_path / "out", "epochs.parquet"))
+
+
+def test_dask_local_cluster_gives_the_same_tables(reference, tmp_path):
+    from distributed import Client, LocalCluster
+
+    spec = write_spec(tmp_path, chunk=10)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        res = run_campaign(spec, tmp_path / "out", scheduler=client, progress=False)
+    assert res.chunks_run == 8
+    assert same(table(reference), table(tmp_path / "out"))
+
+
+def test_faults_are_detected_and_fault_free_trials_carry_no_fault(reference):
+    t = table(reference).to_pylist()
+    cells = pq.read_table(reference / "cells.parquet").to_pylist()
+    size = {c["cell"]: c["fault_size"] for c in cells}
+    free = [r for r in t if size[r["cell"]] == 0]
+    faulty = [r for r in t if size[r["cell"]] > 0]
+    assert all(r["fault_target"] == -1 for r in free)
+    assert all(r["fault_target"] > 0 for r in faulty)  # a PRN
+    # a 60 m step on one of 7 satellites: GPS RAIM sees most of them
+    det = np.mean([r["detected"] for r in faulty if r["monitor"] == "gps_raim"])
+    assert det > 0.5
+    assert all(np.isnan(r["time_to_alert_s"]) or r["time_to_alert_s"] >= 0 for r in faulty)
+
+
+# ----------------------------------------------------------------------------- resume
+
+def test_kill_and_resume_equals_an_uninterrupted_run(reference, tmp_path):
+    spec = write_spec(tmp_path)
+    out = tmp_path / "out"
+    env = dict(os.environ, TESTBED_CAMPAIGN_THROTTLE_S="0.6", PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "testbed.campaign", "campaign", str(spec), "--out", str(out),
+                             "--quiet", "--no-report"], cwd=tmp_path, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    parts = out / "parts"
+    t0 = time.monotonic()
+    try:
+        while time.monotonic() - t0 < 60:
+            done = [p for p in parts.glob("c*-k*") if ".tmp-" not in p.name] if parts.exists() else []
+            if done:
+                break
+            assert proc.poll() is None, proc.stderr.read().decode()
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    stored = [p for p in parts.glob("c*-k*") if ".tmp-" not in p.name]
+    assert 1 <= len(stored) < 4, "the run was not interrupted mid-way"
+    assert not (out / "trials.parquet").exists()
+    # without --resume the folder is refused, with it the run completes
+    with pytest.raises(ConfigError, match="--resume"):
+        run_campaign(spec, out, progress=False)
+    res = run_campaign(spec, out, resume=True, progress=False)
+    assert res.chunks_skipped == len(stored) and res.chunks_run == 4 - len(stored)
+    a, b = table(reference), table(out)
+    assert same(a, b)
+    assert len({(r["cell"], r["trial"], r["monitor"]) for r in b.to_pylist()}) == b.num_rows  # no duplicates
+    assert same(table(reference, "stanford_hist.parquet"), table(out, "stanford_hist.parquet"))
+
+
+def test_resume_with_another_spec_is_refused(reference, tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(reference, out)
+    spec = write_spec(tmp_path, text=TINY.format(chunk=20, monitors='["gps_raim"]'))
+    with pytest.raises(ConfigError, match="another spec"):
+        run_campaign(spec, out, resume=True, progress=False)
+
+
+# ----------------------------------------------------------------------------- report
+
+def test_report_figures_and_region_counts(reference):
+    idx = write_report(reference)
+    figs = {p.name for p in (reference / "figures").glob("*.png")}
+    assert {"availability.png", "pl_time.png", "stanford_gps_raim.png", "stanford_va_raim.png",
+            "vision_range_error.png", "detection_0_gps_step.png"} <= figs
+    text = idx.read_text()
+    for f in figs:
+        assert f"figures/{f}" in text
+    t = table(reference).to_pydict()
+    epochs = np.asarray(t["epochs"])
+    for dim in "hv":
+        total = sum(np.asarray(t[f"{dim}_{r}"]) for r in REGIONS)
+        assert np.array_equal(total, epochs)  # every epoch in exactly one region
+    h = table(reference, "stanford_hist.parquet").to_pydict()
+    for m in ("gps_raim", "va_raim"):
+        for dim in "HV":
+            n_hist = sum(c for c, mm, d in zip(h["count"], h["monitor"], h["dim"]) if mm == m and d == dim)
+            sel = np.asarray(t["monitor"]) == m
+            assert n_hist + np.asarray(t[f"{dim.lower()}_no_solution"])[sel].sum() == epochs[sel].sum()
+
+
+def test_binomial_intervals_and_mdb():
+    lo, hi = binomial_interval(np.array([0, 5, 10]), np.array([10, 10, 10]), 0.95)
+    # Clopper-Pearson, n = 10: k = 0 -> [0, 0.3085]; k = 5 -> [0.1871, 0.8129]
+    assert lo[0] == 0 and hi[0] == pytest.approx(0.30850, abs=1e-4)
+    assert lo[1] == pytest.approx(0.18709, abs=1e-4) and hi[1] == pytest.approx(0.81291, abs=1e-4)
+    assert hi[2] == 1
+    wl, wh = binomial_interval(np.array([5]), np.array([10]), 0.95, "wilson")
+    assert wl[0] == pytest.approx(0.2366, abs=1e-3) and wh[0] == pytest.approx(0.7634, abs=1e-3)
+    assert minimal_detectable_bias(np.array([0, 10, 20]), np.array([0.0, 0.5, 1.0]), 0.99) == pytest.approx(19.8)
+    assert np.isnan(minimal_detectable_bias(np.array([0, 10]), np.array([0.0, 0.5]), 0.99))
