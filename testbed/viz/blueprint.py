@@ -36,7 +36,11 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None)
     ]
     left = rrb.Vertical(
         rrb.Spatial3DView(name="world", origin="/world", eye_controls=eye,
-                          contents=["/world/**", "- /world/camera/detections/**"]),
+                          contents=["/world/**", "- /world/camera/detections/**"],
+                          # the flown trail is one point per epoch: show all of them up to the cursor
+                          overrides={"world/path/flown": rrb.VisibleTimeRanges(rrb.VisibleTimeRange(
+                              "sim_time", start=rrb.TimeRangeBoundary.infinite(),
+                              end=rrb.TimeRangeBoundary.cursor_relative()))}),
         rrb.Spatial2DView(name="camera", origin="/world/camera"),
         row_shares=[3, 2],
     )

@@ -98,12 +98,12 @@ class RerunSink:
                     static=True)
         if scene.runway_enu is not None:
             ring = np.vstack([scene.runway_enu, scene.runway_enu[:1]])
-            rec.log("world/runway", rr.LineStrips3D([ring], colors=[COLOURS["runway"]], radii=[1.5]), static=True)
+            rec.log("world/runway", rr.LineStrips3D([ring], colors=[COLOURS["runway"]], radii=[-1.5]), static=True)
         if scene.landmarks_enu is not None and len(scene.landmarks_enu):
             rec.log("world/landmarks", rr.Points3D(scene.landmarks_enu, labels=list(scene.landmark_ids),
-                                                   colors=[COLOURS["landmark"]], radii=[4.0]), static=True)
+                                                   colors=[COLOURS["landmark"]], radii=[-3.0]), static=True)
         rec.log("world/path/planned", rr.LineStrips3D([scene.planned_enu], colors=[COLOURS["planned"]],
-                                                      radii=[2.0]), static=True)
+                                                      radii=[-1.5]), static=True)
         rec.log("world/aircraft/body", rr.Boxes3D(half_sizes=[[18.0, 3.0, 2.0]], colors=[(255, 255, 255)]),
                 static=True)
         if scene.camera_K is not None:
@@ -117,7 +117,8 @@ class RerunSink:
                         static=True)
         rec.log("sensors/satellites_visible", rr.SeriesLines(names=["satellites visible"]), static=True)
         rec.log("sensors/landmarks_detected", rr.SeriesLines(names=["landmarks detected"]), static=True)
-        rec.log("alerts", rr.TextLog(f"start: {scene.title}", level=rr.TextLogLevel.INFO), static=False)
+        rec.set_time("sim_time", duration=0.0)
+        rec.log("alerts", rr.TextLog(f"start: {scene.title}", level=rr.TextLogLevel.INFO))
 
     # -- per block -------------------------------------------------------------
     def log_block(self, block: "LoopBlock") -> None:
@@ -133,7 +134,7 @@ class RerunSink:
         # flown trail: the whole trail up to each epoch would be O(T^2); log the new points
         rec.send_columns("world/path/flown", indexes=times,
                          columns=rr.Points3D.columns(positions=tr.pos_enu, colors=np.tile(COLOURS["flown"], (t.size, 1)),
-                                                     radii=np.full(t.size, 1.5)).partition(np.ones(t.size, int)))
+                                                     radii=np.full(t.size, -2.5)).partition(np.ones(t.size, int)))
         lat, lon = tr.lat_deg, tr.lon_deg
         rec.send_columns("map/aircraft", indexes=times,
                          columns=rr.GeoPoints.columns(positions=np.column_stack([lat, lon])).partition(np.ones(t.size, int)))
@@ -165,7 +166,7 @@ class RerunSink:
         self.rec.send_columns(
             "world/gnss/los", indexes=times,
             columns=rr.LineStrips3D.columns(strips=list(strips), colors=colour[draw],
-                                            radii=np.full(len(strips), 0.8)).partition(lengths))
+                                            radii=np.full(len(strips), -1.0)).partition(lengths))
         self.rec.send_columns("sensors/satellites_visible", indexes=times,
                               columns=rr.Scalars.columns(scalars=np.asarray(g.visible).sum(axis=-1).astype(float)))
 
