@@ -8,6 +8,7 @@ from testbed.records import Mount
 from testbed.sensors.faults import GpsRamp, GpsStep
 from testbed.sensors.gnss.settings import GnssSettings
 from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
+from testbed.sim.slicing import geometry_prefix
 from testbed.world.airport import runway_frame
 
 
@@ -22,21 +23,10 @@ def test_prefix_stable(settings):
     whole, whole_t = sample_gnss(geom, settings, faults=faults, rng=np.random.default_rng(5))
     assert whole_t.faulty[:, :].any(axis=1)[31] and whole_t.faulty.any(axis=1)[81]
     for T1 in (1, 17, 31, 60, 81, 100):
-        part_geom = _prefix(geom, T1)
+        part_geom = geometry_prefix(geom, T1)
         part, part_t = sample_gnss(part_geom, settings, faults=faults, rng=np.random.default_rng(5))
         np.testing.assert_array_equal(part.pseudorange, whole.pseudorange[:T1])
         np.testing.assert_array_equal(part.range_rate, whole.range_rate[:T1])
         np.testing.assert_array_equal(part_t.fault_bias, whole_t.fault_bias[:T1])
         np.testing.assert_array_equal(part_t.clock_bias, whole_t.clock_bias[:T1])
 
-
-def _prefix(geom, T1):
-    from dataclasses import fields, replace
-
-    T = len(geom.t)
-    kw = {}
-    for fld in fields(geom):
-        v = getattr(geom, fld.name)
-        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == T and fld.name != "prn":
-            kw[fld.name] = v[:T1]
-    return replace(geom, **kw)

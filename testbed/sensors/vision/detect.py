@@ -355,6 +355,14 @@ def _check_geometry(g: VisionGeometry, settings: VisionSettings, lm: Landmarks) 
         raise ValueError("sample_vision: the geometry was built with another mount or max_range_m than `settings`")
 
 
+def _check_rng_trials(rng, n_trials) -> None:
+    """Fail early, before any geometry is computed, on a bad generator or trial count."""
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng: expected numpy.random.Generator, got {type(rng).__name__}")
+    if n_trials is not None and int(n_trials) < 1:
+        raise ValueError(f"n_trials: expected >= 1 or None, got {n_trials}")
+
+
 def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmarks: Landmarks | LandmarkSettings,
                   faults: list | None = None, rng: np.random.Generator,
                   n_trials: int | None = None) -> tuple[VisionEpochs, VisionTruth]:
@@ -384,10 +392,7 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     ``n_trials`` is None. ``VisionEpochs.landmark_pos_ecef`` is ``(B..., L, 3)``:
     the survey error is drawn per trial.
     """
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng: expected numpy.random.Generator, got {type(rng).__name__}")
-    if n_trials is not None and int(n_trials) < 1:
-        raise ValueError(f"n_trials: expected >= 1 or None, got {n_trials}")
+    _check_rng_trials(rng, n_trials)
     lm = _as_landmarks(landmarks)
     g = geometry
     _check_geometry(g, settings, lm)
@@ -532,10 +537,7 @@ def synthesize_vision(truth: Truth, settings: VisionSettings, *, landmarks: Land
     ``n_trials`` is None. ``VisionEpochs.landmark_pos_ecef`` is ``(B..., L, 3)``:
     the survey error is drawn per trial.
     """
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng: expected numpy.random.Generator, got {type(rng).__name__}")
-    if n_trials is not None and int(n_trials) < 1:
-        raise ValueError(f"n_trials: expected >= 1 or None, got {n_trials}")
+    _check_rng_trials(rng, n_trials)
     lm = _as_landmarks(landmarks)
     geometry = vision_geometry(truth.decimate(settings.rate_hz), settings, landmarks=lm, terrain=terrain,
                                faults=faults)
