@@ -239,3 +239,35 @@ def test_binomial_intervals_and_mdb():
     assert wl[0] == pytest.approx(0.2366, abs=1e-3) and wh[0] == pytest.approx(0.7634, abs=1e-3)
     assert minimal_detectable_bias(np.array([0, 10, 20]), np.array([0.0, 0.5, 1.0]), 0.99) == pytest.approx(19.8)
     assert np.isnan(minimal_detectable_bias(np.array([0, 10]), np.array([0.0, 0.5]), 0.99))
+
+
+# ----------------------------------------------------------------------------- shipped specs, CLI
+
+@pytest.mark.parametrize("spec", sorted((ROOT / "approaches" / "campaigns").glob("*.toml")), ids=lambda p: p.stem)
+def test_shipped_specs_are_valid(spec):
+    assert len(expand_cells(load_spec(spec))) >= 2
+
+
+def test_reproduction_specs_are_valid():
+    from testbed.campaign.reproduce import loaded_experiments
+
+    exps = loaded_experiments(200)
+    assert set(exps) == {"vision-calibration", "resolution", "gps-faults", "vision-faults"}
+    assert len(expand_cells(exps["resolution"])) == 16  # 4 resolutions x 4 detection errors
+
+
+def test_cli_parsers_register_three_subcommands(tmp_path, capsys):
+    import argparse
+
+    from testbed.campaign.cli_commands import add_campaign_parsers
+
+    parser = argparse.ArgumentParser()
+    add_campaign_parsers(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["campaign", "x.toml", "--out", "d", "--resume", "--scheduler", "tcp://h:8786"])
+    assert args.resume and args.scheduler == "tcp://h:8786" and callable(args.func)
+    assert parser.parse_args(["report", "d"]).func is not None
+    assert parser.parse_args(["reproduce", "va-raim-2015", "--full"]).full
+    bad = write_spec(tmp_path, "bad.toml", text='name = "x"\n')
+    assert args.func(parser.parse_args(["campaign", str(bad), "--out", str(tmp_path / "o")])) == 2
+    assert "approaches" in capsys.readouterr().out
+    assert not (tmp_path / "o").exists()
