@@ -43,11 +43,28 @@ def fly_approach(approach: str | Path | Approach, *, gust_seed: int | None = Non
     return result
 
 
-def check_file(path: str | Path) -> list[str]:
-    """Every problem with an approach file (empty list when it is valid)."""
+def is_campaign_file(path: str | Path) -> bool:
+    """A campaign spec names ``approaches`` and ``trials``; an approach file has a ``[path]``."""
     try:
+        data = read_toml(Path(path))
+    except ConfigError:
+        return False
+    return "trials" in data and "path" not in data
+
+
+def check_file(path: str | Path) -> list[str]:
+    """Every problem with an approach or campaign file (empty list when it is valid)."""
+    try:
+        if is_campaign_file(path):
+            from testbed.campaign.spec import expand_cells, load_spec
+
+            expand_cells(load_spec(path))  # validates every cell's approach too
+            return []
         ap = load_approach(path)
         check_start_clearance(ap, load_terrain_for(ap))
+        from testbed.sim.setup import build_setup
+
+        build_setup(ap, None)  # cross-section rules (rates, VA-RAIM options)
     except ConfigError as exc:
         return exc.problems
     return []

@@ -110,6 +110,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--gust-seed", type=int, help="override the approach's gust seed")
     r.set_defaults(func=_cmd_export_rinex)
 
+    from testbed.campaign.cli_commands import add_campaign_parsers
+
+    add_campaign_parsers(sub)
+
     c = sub.add_parser("check", help="validate approach (or campaign) files and explain every problem")
     c.add_argument("files", nargs="+", type=Path)
     c.set_defaults(func=_cmd_check)

@@ -86,3 +86,18 @@ def test_all_problems_reported_at_once_and_cli_exit_code(tmp_path, capsys):
     assert main(["check", str(p)]) == 1
     out = capsys.readouterr().out
     assert "2 problem(s)" in out and "vertical.glide_path_deg" in out and "wind.gust: unknown key" in out
+
+
+CAMPAIGNS = sorted((approaches_dir() / "campaigns").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", CAMPAIGNS, ids=[p.stem for p in CAMPAIGNS])
+def test_shipped_campaign_specs_are_valid(path):
+    assert check_file(path) == []
+
+
+def test_bad_campaign_spec_lists_every_problem(tmp_path):
+    p = write(tmp_path, 'name = "x"\ndescription = "y"\napproaches = ["va-raim-2015"]\ntrials = -3\nbogus = 1\n')
+    probs = check_file(p)
+    assert any(q.startswith("trials:") and "greater than or equal to 1" in q for q in probs)
+    assert any(q.startswith("bogus: unknown key") for q in probs)
