@@ -10,7 +10,7 @@ landmark triangle, flown once by JSBSim), as four campaigns:
    (120/300/480/720 dpi) x detection error (1-4 px), LPE 5 cm: vision-range
    spread, HPL/VPL over the sortie, 95 % accuracy, availability per service level.
 3. ``gps-faults``: a GPS step on a random visible satellite (onset 20 s) of
-   0-100 m; GPS RAIM vs VA-RAIM at 120 and 720 dpi x DE 1 and 4 px: detection
+   0-50 m; GPS RAIM vs VA-RAIM at 120 and 720 dpi x DE 1 and 4 px: detection
    rate vs bias, false-alarm rate, minimal detectable bias at 99 % power.
 4. ``vision-faults``: a pixel bias (0-50 px) on a random landmark from 20 s;
    VA-RAIM detection rate and MDB at 720 dpi, DE 1 px.
@@ -87,7 +87,7 @@ def experiments(trials: int) -> dict[str, CampaignSpec]:
             "common_random_numbers": True,
             "description": "GPS step on a random visible satellite from 20 s: detection rate vs bias",
             "faults": [{"kind": "gps_step", "onset_s": 20.0,
-                        "magnitudes": [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 80.0, 100.0]}],
+                        "magnitudes": [0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0, 50.0]}],
             "sweep": {"camera_dpi": [120.0, 720.0], "detection_sigma_px": [1.0, 4.0], "lpe_sigma_m": [0.05]}}),
         "vision-faults": CampaignSpec.model_validate({
             **common, "name": "va-raim-2015-vision-faults", "monitors": ["va_raim"], "common_random_numbers": True,
