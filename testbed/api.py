@@ -154,11 +154,13 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
                          recording_id=f"{ap.name}-seed{seed}")
         sink.start(build_scene(setup, setup.vision.camera.build()))
         sinks.append(sink)
+    ok = False
     try:
         loop = run_loop(setup, seed=seed, sinks=sinks, block_s=block_s, gust_seed=gust_seed)
+        ok = True
     finally:
         if sink is not None:
-            sink.close()
+            sink.close(ok=ok)
     onset = gnss_fault_onset(setup)
     if onset is None and setup.faults:
         onset = min(f.onset_s for f in setup.faults)

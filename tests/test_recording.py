@@ -97,3 +97,18 @@ def test_live_sink_binds_loopback_and_flight_completes_without_viewer(tmp_path):
     res = run_approach("va-raim-2015", seed=1, rrd_path=None, live=True, port=port + 1,
                        monitors=["gps_raim"])
     assert res.flight.summary.reached_end and res.live_url is not None
+
+
+def test_failed_run_keeps_the_earlier_recording(tmp_path, monkeypatch):
+    import testbed.sim.loop as loop_mod
+
+    path = tmp_path / "keep.rrd"
+    path.write_bytes(b"an earlier recording")
+
+    def boom(*a, **k):
+        raise RuntimeError("simulated failure mid-run")
+
+    monkeypatch.setattr(loop_mod, "fly", boom)
+    with pytest.raises(RuntimeError):
+        run_approach("va-raim-2015", rrd_path=path, monitors=["gps_raim"])
+    assert path.read_bytes() == b"an earlier recording"

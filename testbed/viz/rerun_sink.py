@@ -68,9 +68,13 @@ class RerunSink:
         self.rec = rr.RecordingStream("testbed", recording_id=recording_id)
         self.rec.set_log_time_enabled(False)  # wall-clock stamps would make recordings irreproducible
         sinks = []
+        self._part = None
         if self.rrd_path is not None:
             self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
-            sinks.append(rr.FileSink(str(self.rrd_path)))
+            # write beside the target and rename on a clean close: a failed run never
+            # destroys an earlier recording of the same name
+            self._part = self.rrd_path.with_name(self.rrd_path.name + ".part")
+            sinks.append(rr.FileSink(str(self._part)))
         self.live_url = None
         if live:
             sinks.append(rr.GrpcServerSink(bind_ip=bind_ip, port=port, server_memory_limit=memory_limit))
@@ -202,6 +206,11 @@ class RerunSink:
         self.rec.send_columns(f"sensors/satellites_used/{name}", indexes=tm,
                               columns=rr.Scalars.columns(scalars=np.asarray(out.n_used, float)))
 
-    def close(self) -> None:
+    def close(self, ok: bool = True) -> None:
+        """Flush and close; with ``ok`` the recording replaces ``rrd_path`` atomically."""
         self.rec.flush()
         self.rec.disconnect()
+        if self._part is not None and self._part.exists():
+            if ok:
+                self._part.replace(self.rrd_path)
+            # on failure the .part file is left for inspection; rrd_path is untouched
