@@ -196,6 +196,12 @@ class WlsGeometry:
         return np.eye(N) - self.G @ self.A
 
 
+#: wls_geometry: elements with a Jacobi-scaled condition number up to this get the explicit
+#: LDLᵀ inverse (agrees with LAPACK to ~1e-12 relative); a (WS)_ii at or below _FAST_WS_RTOL·W_ii
+#: (zero redundancy: the value is rounding noise) sends its element through the old operations.
+_FAST_INV_COND = 1e3
+_FAST_WS_RTOL = 1e-3
+
 #: Above this condition estimate the extreme eigenvalues are recomputed by LAPACK.
 _COND_RECHECK = 1e5
 
@@ -312,18 +318,67 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
     -------
     WlsGeometry
     """
+    return _wls_geometry(G, W, mask, max_cond, fast_inverse=True)
+
+
+def _wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None, max_cond: float,
+                  fast_inverse: bool) -> WlsGeometry:
+    """:func:`wls_geometry`; ``fast_inverse=False`` keeps LAPACK's inverse for every element."""
     G0, W0, diag, m, nan_bad, _ = masked_inputs(G, W, mask)
-    n_used = m.sum(-1)
     WG = apply_W(W0, G0, diag)  # (..., N, 4)
+    Wd = W0 if diag else np.diagonal(W0, axis1=-2, axis2=-1)
+    return _geometry_core(G0, W0, diag, Wd, WG, m, nan_bad, max_cond, fast_inverse)
+
+
+def wls_geometry_blocks(G: ArrayLike, w_diag: ArrayLike, W_block: ArrayLike, mask: ArrayLike,
+                        max_cond: float = MAX_COND) -> WlsGeometry:
+    """:func:`wls_geometry` for block-diagonal weights, never forming the N×N matrix.
+
+    ``W = blockdiag(diag(w_diag), W_block)``: the first ``n1 = w_diag.shape[-1]`` rows
+    (e.g. pseudoranges) are uncorrelated, the last ``n2`` rows (e.g. the vision block)
+    have the dense weight ``W_block`` (..., n2, n2). Same masking/NaN rules, reasons and
+    numbers (to rounding) as ``wls_geometry(G, W_full, mask)``. The returned geometry
+    stores the diagonal of the masked weight in ``W`` with ``diag=True`` (enough for
+    :func:`slopes` and the PLs; :meth:`WlsGeometry.ws_matrix` is not valid for it).
+    """
+    G = np.asarray(G, float)
+    wd = np.asarray(w_diag, float)
+    Wb = np.asarray(W_block, float)
+    n1 = wd.shape[-1]
+    m = np.broadcast_to(np.asarray(mask, bool), G.shape[:-1])
+    m1, m2 = m[..., :n1], m[..., n1:]
+    mm2 = m2[..., :, None] & m2[..., None, :]
+    finG = np.isfinite(G)
+    finW = np.isfinite(Wb)
+    nan_row = ~finG.all(-1)
+    nan_row = nan_row | np.concatenate(
+        [~np.isfinite(wd), ~np.diagonal(finW, axis1=-2, axis2=-1) | (~finW & mm2).any(-1)], axis=-1)
+    nan_bad = (nan_row & m).any(-1)
+    G0 = np.where(m[..., None] & finG, G, 0.0)
+    wd0 = np.where(m1 & np.isfinite(wd), wd, 0.0)
+    Wb0 = np.where(mm2 & finW, Wb, 0.0)
+    WG = np.concatenate([wd0[..., None] * G0[..., :n1, :], Wb0 @ G0[..., n1:, :]], axis=-2)
+    Wd = np.concatenate([wd0, np.diagonal(Wb0, axis1=-2, axis2=-1)], axis=-1)
+    return _geometry_core(G0, Wd, True, Wd, WG, m, nan_bad, max_cond, True)
+
+
+def _geometry_core(G0: NDArray, W0: NDArray, diag: bool, Wd: NDArray, WG: NDArray, m: NDArray,
+                   nan_bad: NDArray, max_cond: float, fast_inverse: bool) -> WlsGeometry:
+    """The part of :func:`wls_geometry` after masking: J, A, (WS)_ii, cond, reasons."""
+    n_used = m.sum(-1)
     M = np.swapaxes(G0, -1, -2) @ WG  # GᵀWG (..., 4, 4)
     # A state no used row depends on (the clock when there are no pseudorange
     # rows) is dropped: it keeps its starting value, J/A rows are zero, and the
-    # test has one more degree of freedom.
-    live = (G0 != 0).any(-2)  # (..., 4): a used row depends on the state (G0 has no NaN)
-    live[..., :3] = True  # only the clock may be dropped; a dead position column is singular
+    # test has one more degree of freedom. live (..., 4): a used row depends on the
+    # state (G0 has no NaN); only the clock may be dropped (a dead position column is
+    # singular), so only its column is scanned.
+    live = np.ones(G0.shape[:-2] + (G0.shape[-1],), bool)
+    live[..., 3] = (G0[..., 3] != 0).any(-1)
+    all_live = bool(live.all())
     n_states = live.sum(-1)
     eye = np.eye(M.shape[-1])
-    M = np.where(live[..., :, None] & live[..., None, :], M, 0.0) + eye * ~live[..., None, :]
+    if not all_live:
+        M = np.where(live[..., :, None] & live[..., None, :], M, 0.0) + eye * ~live[..., None, :]
     # Jacobi scaling makes the condition number independent of the units of
     # each state and of an overall weight scale.
     d = np.sqrt(np.abs(np.diagonal(M, axis1=-2, axis2=-1)))
@@ -342,12 +397,39 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
 
     # invert only the good elements: a singular element must not raise for the batch
     M_safe = np.where(solvable[..., None, None], M, np.eye(n_states_full))
-    J = np.linalg.inv(M_safe)
-    J = np.where(live[..., :, None] & live[..., None, :], J, 0.0)  # dropped states: not estimated
-    J = np.where(solvable[..., None, None], J, np.nan)
-    A = J @ np.swapaxes(WG, -1, -2)  # (..., 4, N)
-    Wd = W0 if diag else np.diagonal(W0, axis1=-2, axis2=-1)
-    ws = Wd - np.einsum("...ni,...ij,...nj->...n", WG, J, WG)  # (W S)_ii
+    WGt = np.swapaxes(WG, -1, -2)
+    # Well-conditioned elements: explicit LDLᵀ inverse and (WS)_ii = W_ii − Σ_k (WG)_ik A_ki.
+    # The rest (ill-conditioned, dropped clock, and any with a near-zero (WS)_ii, whose value
+    # is rounding noise) take the LAPACK inverse and the 3-operand sum exactly as before.
+    fast = solvable & live.all(-1) & (cond <= _FAST_INV_COND) if fast_inverse else np.zeros(solvable.shape, bool)
+    if fast.any():
+        J, okJ = spd_solve_soa(M_safe, np.broadcast_to(eye, M_safe.shape))
+        fast = fast & okJ
+        J = np.where(solvable[..., None, None], J, np.nan)
+        A = J @ WGt  # (..., 4, N)
+        ws = Wd - np.einsum("...nk,...kn->...n", WG, A)
+        fast = fast & ~(m & ~(ws > _FAST_WS_RTOL * np.abs(Wd))).any(-1)
+    else:
+        J = np.empty(M.shape)
+        A = np.empty(WGt.shape)
+        ws = np.empty(Wd.shape)
+    slow = ~fast
+    if not fast.any():  # every element the LAPACK way, on the whole batch
+        J = np.linalg.inv(M_safe)
+        if not all_live:
+            J = np.where(live[..., :, None] & live[..., None, :], J, 0.0)  # dropped states: not estimated
+        J = np.where(solvable[..., None, None], J, np.nan)
+        A = J @ WGt  # (..., 4, N)
+        ws = Wd - np.einsum("...ni,...ij,...nj->...n", WG, J, WG)  # (W S)_ii
+    elif slow.any():
+        Js = np.linalg.inv(M_safe[slow])
+        ls = live[slow]
+        Js = np.where(ls[..., :, None] & ls[..., None, :], Js, 0.0)  # dropped states: not estimated
+        Js = np.where(solvable[slow][..., None, None], Js, np.nan)
+        WGs = WG[slow]
+        J[slow] = Js
+        A[slow] = Js @ np.swapaxes(WGs, -1, -2)
+        ws[slow] = Wd[slow] - np.einsum("...ni,...ij,...nj->...n", WGs, Js, WGs)  # (W S)_ii
     ws = np.where(m, ws, np.nan)
     return WlsGeometry(G=G0, W=W0, diag=diag, mask=m, n_used=n_used, n_states=n_states, WG=WG, J=J, A=A,
                        ws_diag=ws, cond=cond, reason=reason)
@@ -367,7 +449,7 @@ def weighted_sse(r: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None) -> N
         return np.sum(np.where(m, W, 0.0) * r0 * r0, axis=-1)
     mm = m[..., :, None] & m[..., None, :]
     W0 = np.where(mm & np.isfinite(W), W, 0.0)
-    return np.einsum("...i,...ij,...j->...", r0, W0, r0)
+    return np.sum((W0 @ r0[..., None])[..., 0] * r0, axis=-1)
 
 
 # ---------------------------------------------------------------------------
@@ -659,7 +741,9 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
     it = 0
     for it in range(1, n_iter + 1):
         h, G = model(x)
-        geom = wls_geometry(G, W, mask, max_cond)
+        # Iterates keep LAPACK's inverse: the converged state depends on the path of the
+        # iterations (stop at a 1 mm step), so rounding changes there would move the outputs.
+        geom = _wls_geometry(G, W, mask, max_cond, fast_inverse=False)
         dz = np.where(geom.mask, z - h, 0.0)
         dz = np.where(np.isfinite(dz), dz, 0.0)
         dx = np.einsum("...ij,...j->...i", geom.A, dz)  # x̂ = x + A (z − h(x))
@@ -708,16 +792,27 @@ def range_model(anchor_enu: ArrayLike, clock_col: ArrayLike,
     c = np.asarray(clock_col, float)
     o = None if offset_enu is None else np.asarray(offset_enu, float)
 
+    # per-axis contiguous components (the same arithmetic as on (..., N, 3), without strided reads)
+    ac = [np.ascontiguousarray(a[..., k]) for k in range(3)]
+    oc = None if o is None else [np.ascontiguousarray(o[..., k]) for k in range(3)]
+
     def model(x: NDArray) -> tuple[NDArray, NDArray]:
-        p = x[..., None, :3]
-        if o is not None:
-            p = p + o
-        d = a - p
-        dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
-        rng = np.sqrt(dx * dx + dy * dy + dz * dz)  # = norm(d, axis=-1), same summation order
+        d = []
+        for k in range(3):
+            p = x[..., None, k]
+            if oc is not None:
+                p = p + oc[k]
+            d.append(ac[k] - p)
+        dx, dy, dz = d
+        rng = dx * dx  # = norm(d, axis=-1): same operations and summation order, fewer temporaries
+        rng += dy * dy
+        rng += dz * dz
+        np.sqrt(rng, out=rng)
         G = np.empty(rng.shape + (4,))
+        nrng = -rng
         with np.errstate(divide="ignore", invalid="ignore"):
-            np.divide(d, -rng[..., None], out=G[..., :3])  # −u
+            for k in range(3):
+                np.divide(d[k], nrng, out=G[..., k])  # −u
         h = rng + c * x[..., None, 3]
         G[..., 3] = c
         return h, G
@@ -757,3 +852,85 @@ def dops(geom: WlsGeometry, sigma_uere: float = 1.0) -> dict[str, NDArray]:
     return {"gdop": np.sqrt(Jd.sum(-1)), "pdop": np.sqrt(Jd[..., :3].sum(-1)),
             "hdop": np.sqrt(Jd[..., :2].sum(-1)), "vdop": np.sqrt(Jd[..., 2]),
             "tdop": np.sqrt(Jd[..., 3])}
+
+
+# ---------------------------------------------------------------------------
+# small symmetric positive definite solves, element by element (vectorised)
+# ---------------------------------------------------------------------------
+
+#: Smallest accepted LDLᵀ pivot relative to its diagonal entry in :func:`spd_solve_soa`.
+#: Above it the explicit solve agrees with LAPACK to ~1e-11 relative; below it (ill-conditioned,
+#: singular, indefinite) callers fall back to their LAPACK path, so degenerate elements behave
+#: exactly as before.
+SPD_PIVOT_RTOL = 1e-5
+
+
+def spd_solve_soa(M: NDArray, R: NDArray, rtol: float = SPD_PIVOT_RTOL) -> tuple[NDArray, NDArray]:
+    """``solve(M, R)`` for stacked small symmetric positive definite ``M`` by explicit LDLᵀ.
+
+    M : (..., n, n); R : (..., n, k) (broadcast against M's batch shape). The factorisation
+    runs on the components (one array per matrix entry), so a batch of 3×3 or 4×4 systems
+    costs a few dozen vector operations instead of one LAPACK call per element.
+
+    Returns X (..., n, k) and ``ok`` (...) bool: M finite, symmetric to rounding and every
+    pivot ``d_j > rtol·M_jj``. X is only meaningful where ok.
+    """
+    n = M.shape[-1]
+    batch = np.broadcast_shapes(M.shape[:-2], R.shape[:-2])
+    k = R.shape[-1]
+    P = int(np.prod(batch, dtype=np.int64))
+    Mf = np.broadcast_to(M, batch + (n, n)).reshape(P, n * n)
+    Rf = np.broadcast_to(R, batch + (n, k)).reshape(P, n * k)
+    X = np.empty((P, n, k))
+    ok = np.empty(P, bool)
+    for c0 in range(0, P, _SOA_CHUNK):  # cache-sized chunks
+        c1 = min(P, c0 + _SOA_CHUNK)
+        X[c0:c1], ok[c0:c1] = _ldl_chunk(np.ascontiguousarray(Mf[c0:c1].T), np.ascontiguousarray(Rf[c0:c1].T),
+                                         n, k, rtol)
+    return X.reshape(batch + (n, k)), ok.reshape(batch)
+
+
+_SOA_CHUNK = 8192
+
+
+def _ldl_chunk(Mt: NDArray, Rt: NDArray, n: int, k: int, rtol: float) -> tuple[NDArray, NDArray]:
+    """LDLᵀ solve on components: Mt (n*n, P), Rt (n*k, P) -> X (P, n, k), ok (P,)."""
+    a = [[Mt[i * n + j] for j in range(n)] for i in range(n)]
+    P = Mt.shape[1]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ok = np.isfinite(Mt).all(0)
+        for i in range(n):
+            for j in range(i):
+                ok &= np.abs(a[i][j] - a[j][i]) <= 1e-12 * np.sqrt(np.abs(a[i][i] * a[j][j]))
+        d: list = [None] * n
+        Ld: list = [[None] * n for _ in range(n)]  # Ld[i][q] = L_iq d_q
+        Lm: list = [[None] * n for _ in range(n)]
+        for j in range(n):
+            s = a[j][j]
+            for q in range(j):
+                s = s - Lm[j][q] * Ld[j][q]
+            d[j] = s
+            ok &= s > rtol * a[j][j]
+            for i in range(j + 1, n):
+                s = a[i][j]
+                for q in range(j):
+                    s = s - Lm[i][q] * Ld[j][q]
+                Ld[i][j] = s
+                Lm[i][j] = s / d[j]
+        X = np.empty((n, k, P))
+        for c in range(k):
+            y: list = [None] * n
+            for i in range(n):
+                s = Rt[i * k + c]
+                for q in range(i):
+                    s = s - Lm[i][q] * y[q]
+                y[i] = s
+            x: list = [None] * n
+            for i in reversed(range(n)):
+                s = y[i] / d[i]
+                for q in range(i + 1, n):
+                    s = s - Lm[q][i] * x[q]
+                x[i] = s
+                X[i, c] = s
+        ok &= np.isfinite(X).all((0, 1))
+    return X.transpose(2, 0, 1), ok

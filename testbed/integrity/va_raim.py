@@ -94,13 +94,14 @@ def _take_t(a: NDArray, idx: NDArray) -> NDArray:
     return np.take_along_axis(a, ii, axis=idx.ndim - 1)
 
 
-def _gauss_newton(model, z: NDArray, W: NDArray, diag: bool, mask: NDArray, x0: NDArray, n_iter: int,
+def _gauss_newton(model, z: NDArray, W, diag: bool, mask: NDArray, x0: NDArray, n_iter: int,
                   tol_m: float) -> tuple[NDArray, NDArray]:
     """Cheap batched Gauss–Newton iterations (normal equations, no per-iteration condition checks).
 
     The core's :func:`lsq.wls_geometry` is then evaluated once, at the solution, for the
     reasons, SSE, slopes and PLs; iterating with it costs a 4×4 eigen-decomposition per
-    epoch and iteration. Returns the state (..., 4) and a converged flag (...).
+    epoch and iteration. W: (..., N) diagonal, (..., N, N) full, or a block pair as in
+    :func:`_finish`. Returns the state (..., 4) and a converged flag (...).
     """
     x = np.array(x0, float)
     conv = np.zeros(x.shape[:-1], bool)
@@ -109,7 +110,11 @@ def _gauss_newton(model, z: NDArray, W: NDArray, diag: bool, mask: NDArray, x0: 
         h, G = model(x)
         G = np.where(mask[..., None] & np.isfinite(G), G, 0.0)
         dz = np.where(mask & np.isfinite(h), z0 - h, 0.0)
-        WG = W[..., :, None] * G if diag else W @ G
+        if isinstance(W, tuple):  # block-diagonal: the same products as the full W @ G, without the zeros
+            n1 = W[0].shape[-1]
+            WG = np.concatenate([W[0][..., :, None] * G[..., :n1, :], W[1] @ G[..., n1:, :]], axis=-2)
+        else:
+            WG = W[..., :, None] * G if diag else W @ G
         Nm = np.swapaxes(G, -1, -2) @ WG
         rhs = np.einsum("...ni,...n->...i", WG, dz)
         dx, good = _safe_solve(Nm, rhs[..., None])
@@ -121,15 +126,30 @@ def _gauss_newton(model, z: NDArray, W: NDArray, diag: bool, mask: NDArray, x0: 
     return x, conv
 
 
-def _finish(model, z: NDArray, W: NDArray, mask: NDArray, x: NDArray, conv: NDArray, ist: IntegritySettings):
-    """Geometry, residuals, SSE, both PL variants and the reason code at the solution x."""
+def _finish(model, z: NDArray, W, mask: NDArray, x: NDArray, conv: NDArray, ist: IntegritySettings):
+    """Geometry, residuals, SSE, both PL variants and the reason code at the solution x.
+
+    W : (..., N) diagonal weights, or a pair ``(w_diag (..., n1), W_block (..., n2, n2))`` of
+    block-diagonal weights (GPS rows first, then the vision block; see
+    :func:`lsq.wls_geometry_blocks`).
+    """
     h, G = model(x)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        geom = lsq.wls_geometry(G, W, mask, ist.max_cond)
+        if isinstance(W, tuple):
+            geom = lsq.wls_geometry_blocks(G, W[0], W[1], mask, ist.max_cond)
+        else:
+            geom = lsq.wls_geometry(G, W, mask, ist.max_cond)
         r = np.where(geom.mask, z - h, 0.0)
         nan_z = (geom.mask & ~np.isfinite(r)).any(-1)
         r = np.where(np.isfinite(r), r, 0.0)
-        sse = lsq.weighted_sse(r, geom.W, geom.mask)
+        if isinstance(W, tuple):  # rᵀWr by blocks (geom.W is the masked diagonal)
+            n1 = W[0].shape[-1]
+            Wb0 = np.where(geom.mask[..., n1:, None] & geom.mask[..., n1:][..., None, :] & np.isfinite(W[1]),
+                           W[1], 0.0)
+            rg, rv = r[..., :n1], r[..., n1:]
+            sse = np.sum(geom.W[..., :n1] * rg * rg, axis=-1) + np.sum((Wb0 @ rv[..., None])[..., 0] * rv, axis=-1)
+        else:
+            sse = lsq.weighted_sse(r, geom.W, geom.mask)
         pls = {v: lsq.protection_levels(geom, ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
     reason = np.where(nan_z, lsq.Reason.NAN_INPUT, geom.reason)
     reason = np.where((reason == lsq.Reason.OK) & ~conv, lsq.Reason.NOT_CONVERGED, reason)
@@ -308,22 +328,25 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     N = NG + nc
     z_all = np.concatenate([zg, rows.z], axis=-1)
     mask_all = np.concatenate([mg, rows.mask], axis=-1)
-    W_all = np.zeros(bt + (N, N))
-    W_all.reshape(bt + (N * N,))[..., 0:NG * (N + 1):N + 1] = np.where(mg, wg, 0.0)  # GPS diagonal
-    W_all[..., NG:, NG:] = rows.W
+    W_blocks = (np.where(mg, wg, 0.0), rows.W)  # block-diagonal weight: GPS diagonal, vision block
     vis_model = lsq.range_model(p_enu, np.zeros(L), off_cam[..., None, :])
     Tm = rows.Tm
 
     def model(x: NDArray) -> tuple[NDArray, NDArray]:
         hg, Gg_ = gps_model(x)
         hv, Gv = vis_model(x)
-        return (np.concatenate([hg, np.einsum("...rl,...l->...r", Tm, hv)], axis=-1),
-                np.concatenate([Gg_, Tm @ Gv], axis=-2))
+        h = np.empty(hg.shape[:-1] + (N,))
+        G = np.empty(Gg_.shape[:-2] + (N, 4))
+        h[..., :NG] = hg
+        h[..., NG:] = np.einsum("...rl,...l->...r", Tm, hv)
+        G[..., :NG, :] = Gg_
+        np.matmul(Tm, Gv, out=G[..., NG:, :])
+        return h, G
 
     x0 = _take_t(x_g0, li)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        x_it, conv = _gauss_newton(model, z_all, W_all, False, mask_all, x0, ist.max_iter, ist.tol_m)
-    geom, pls, reason, ok, x, r, sse = _finish(model, z_all, W_all, mask_all, x_it, conv, ist)
+        x_it, conv = _gauss_newton(model, z_all, W_blocks, False, mask_all, x0, ist.max_iter, ist.tol_m)
+    geom, pls, reason, ok, x, r, sse = _finish(model, z_all, W_blocks, mask_all, x_it, conv, ist)
     extra = {
         "gps": gps,
         "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,
