@@ -226,7 +226,8 @@ def test_report_figures_and_region_counts(reference):
         for dim in "HV":
             n_hist = sum(c for c, mm, d in zip(h["count"], h["monitor"], h["dim"]) if mm == m and d == dim)
             sel = np.asarray(t["monitor"]) == m
-            assert n_hist + np.asarray(t[f"{dim.lower()}_no_solution"])[sel].sum() == epochs[sel].sum()
+            rest = sum(np.asarray(t[f"{dim.lower()}_{r}"])[sel].sum() for r in ("no_solution", "alerted"))
+            assert n_hist + rest == epochs[sel].sum()
 
 
 def test_binomial_intervals_and_mdb():

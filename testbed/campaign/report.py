@@ -209,7 +209,8 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
                 hs = (hc["monitor"] == m) & (hc["dim"] == dim)
                 np.add.at(H, (hc["err_bin"][hs], hc["pl_bin"][hs]), hc["count"][hs])
             if H.sum() > 0:
-                pcm = ax.pcolormesh(edges, edges, H, norm=LogNorm(vmin=1, vmax=max(H.max(), 2)), cmap="viridis",
+                # H is indexed [error bin, PL bin]; pcolormesh wants rows = y (PL)
+                pcm = ax.pcolormesh(edges, edges, H.T, norm=LogNorm(vmin=1, vmax=max(H.max(), 2)), cmap="viridis",
                                     shading="flat")
                 fig.colorbar(pcm, ax=ax, label="epochs")
                 cum = np.cumsum(H.sum(axis=1))
@@ -229,7 +230,8 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
             ax.set_ylabel(f"{dim}PL (m)")
             txt = (f"normal {counts['normal']}\nunavailable {counts['unavailable']}\n"
                    f"misleading {counts['misleading']}\nhazardous (HMI) {counts['hazardous']}\n"
-                   f"unavail.+misleading {counts['unavailable_misleading']}\nno solution {counts['no_solution']}\n"
+                   f"unavail.+misleading {counts['unavailable_misleading']}\n"
+                   f"alerted (not plotted) {counts['alerted']}\nno solution {counts['no_solution']}\n"
                    f"total {total} epochs")
             ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", fontsize=7,
                     bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})

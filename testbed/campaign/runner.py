@@ -211,14 +211,14 @@ def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndar
         hpl, vpl = np.asarray(out.hpl, float), np.asarray(out.vpl, float)
         alert = np.asarray(out.alert, bool)
         avail = np.asarray(out.available, bool)  # (n, T, K)
-        rh, rv = stanford_regions(he, hpl, ctx.hal), stanford_regions(ve, vpl, ctx.val)
+        rh, rv = stanford_regions(he, hpl, ctx.hal, alert), stanford_regions(ve, vpl, ctx.val, alert)
         after = t >= onset - 1e-9 if np.isfinite(onset) else np.ones(T, bool)
         det = alert & after
         detected = det.any(-1)
         first_any = np.where(alert.any(-1), t[alert.argmax(-1)], np.nan)
         tta = np.where(detected, t[det.argmax(-1)] - (onset if np.isfinite(onset) else 0.0), np.nan)
         mi = ((he > hpl) | (ve > vpl)) & ~alert & np.isfinite(hpl) & np.isfinite(vpl)
-        hmi = (rh["hazardous"] | rv["hazardous"]) & ~alert
+        hmi = rh["hazardous"] | rv["hazardous"]  # alerted epochs are in their own region
         with np.errstate(all="ignore"):
             col = {
                 "cell": np.full(n, ctx.cell.index, np.int32), "trial": trials.astype(np.int64),
@@ -247,9 +247,9 @@ def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndar
                     col[f"vre_{tag}_sum"] = e0.sum((-1, -2))
                     col[f"vre_{tag}_sumsq"] = (e0**2).sum((-1, -2))
         rows[m] = col
-        # Stanford histograms over all epochs of the block
+        # Stanford histograms over the epochs the regions place (alerted ones are counted apart)
         for dim, e, p in (("H", he, hpl), ("V", ve, vpl)):
-            ok = np.isfinite(e) & np.isfinite(p)
+            ok = np.isfinite(e) & np.isfinite(p) & ~alert
             le = np.clip(np.log10(np.maximum(e[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
             lp = np.clip(np.log10(np.maximum(p[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
             H, _, _ = np.histogram2d(le, lp, bins=[edges_log, edges_log])

@@ -8,10 +8,10 @@ position error ``e``, protection level ``PL`` and alert limit ``AL``:
 - ``misleading``: e > PL and e <= AL (the bound failed, no hazard yet)
 - ``hazardous``: e > AL and PL <= AL (hazardously misleading information)
 - ``unavailable_misleading``: PL > AL and e > PL and e > AL
+- ``alerted``: the monitor raised an alert (the position is flagged, not used);
+  when alerts are given, such epochs are counted here and in no other region,
+  so a detected fault is never counted as misleading information
 - ``no_solution``: no position or PL (fewer than 5 measurements, singular...)
-
-Epochs with an alert are counted in their region too (``alerted`` tells how
-many); misleading epochs that were alerted are not *undetected* misleading.
 """
 
 from __future__ import annotations
@@ -24,13 +24,18 @@ from numpy.typing import NDArray
 from testbed.integrity.levels import service_level
 from testbed.records import MonitorOutput
 
-REGIONS = ("normal", "unavailable", "misleading", "hazardous", "unavailable_misleading", "no_solution")
+REGIONS = ("normal", "unavailable", "misleading", "hazardous", "unavailable_misleading", "alerted", "no_solution")
 
 
-def stanford_regions(err: NDArray, pl: NDArray, al: float) -> dict[str, NDArray]:
-    """Boolean masks of the Stanford regions (any shape); exactly one is True per epoch."""
+def stanford_regions(err: NDArray, pl: NDArray, al: float, alert: NDArray | None = None) -> dict[str, NDArray]:
+    """Boolean masks of the Stanford regions (any shape); exactly one is True per epoch.
+
+    ``alert`` (same shape, optional): alerted epochs with a solution go to ``alerted``.
+    """
     err, pl = np.asarray(err, float), np.asarray(pl, float)
     ok = np.isfinite(err) & np.isfinite(pl)
+    alerted = ok & np.asarray(alert, bool) if alert is not None else np.zeros(ok.shape, bool)
+    ok = ok & ~alerted
     e = np.where(ok, err, 0.0)
     p = np.where(ok, pl, 0.0)
     bounded = e <= p
@@ -41,7 +46,8 @@ def stanford_regions(err: NDArray, pl: NDArray, al: float) -> dict[str, NDArray]
         "misleading": ok & ~bounded & (e <= al),
         "hazardous": ok & ~bounded & (e > al) & avail,
         "unavailable_misleading": ok & ~bounded & (e > al) & ~avail,
-        "no_solution": ~ok,
+        "alerted": alerted,
+        "no_solution": ~ok & ~alerted,
     }
 
 
@@ -88,9 +94,9 @@ def summarise_monitor(out: MonitorOutput, true_pos_enu: NDArray, *, reference: s
     levels = [service_level(n) for n in out.service_levels]
     hal = min(lv.hal for lv in levels)
     val = min(lv.val for lv in levels)
-    rh, rv = stanford_regions(he, hpl, hal), stanford_regions(ve, vpl, val)
+    rh, rv = stanford_regions(he, hpl, hal, alert), stanford_regions(ve, vpl, val, alert)
     mi = ((he > hpl) | (ve > vpl)) & ~alert & np.isfinite(hpl) & np.isfinite(vpl)
-    hmi = (rh["hazardous"] | rv["hazardous"]) & ~alert
+    hmi = rh["hazardous"] | rv["hazardous"]
     t = np.asarray(out.t, float)
     first_alert = float(t[alert][0]) if alert.any() else float("nan")
     tta = float("nan")
