@@ -189,7 +189,8 @@ class VisionEpochs:
     Attributes
     ----------
     t : (T,) s.  landmark_id : (L,) str.
-    landmark_pos_ecef : (L, 3) m, *surveyed* landmark positions (with survey error).
+    landmark_pos_ecef : (B..., L, 3) m, *surveyed* landmark positions (with survey error,
+        drawn per trial; a monitor call takes one set, i.e. (L, 3) broadcast over trials).
     pixel_uv : (B..., T, L, 2) px, detected pixel coordinates (NaN where not detected).
     detected : (B..., T, L) bool.  reason : (B..., T, L) int8 :class:`NotVisible` codes.
     sigma_px : (B..., T, L) px, detection sigma the monitor is told.
