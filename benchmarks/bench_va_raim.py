@@ -176,8 +176,9 @@ def va_raim_reference(gnss, vision, frame, st: VaRaimSettings, trials) -> dict[s
                 Wi = np.zeros((n_g + len(Wv),) * 2)
                 Wi[:n_g, :n_g] = Wg
                 Wi[n_g:, n_g:] = Wv
-                x = xg.copy()
-                for _ in range(ist.max_iter):
+
+                def linearise(x):
+                    """Integrated rows (GPS + modified vision) at x: G, residual, J, A."""
                     d = anchor - np.vstack([np.tile(x[:3] + off_a, (n_g, 1)), np.tile(x[:3] + off_c, (L, 1))])
                     rng = np.linalg.norm(d, axis=1)
                     Graw = np.column_stack([-d / rng[:, None], np.r_[ones, np.zeros(L)]])
@@ -186,18 +187,16 @@ def va_raim_reference(gnss, vision, frame, st: VaRaimSettings, trials) -> dict[s
                     resid = np.r_[zg - h[:n_g], Tm @ (zv - h[n_g:])]
                     J = np.linalg.inv(G.T @ Wi @ G)
                     Ai = J @ G.T @ Wi
+                    return G, resid, J, Ai
+
+                x = xg.copy()
+                for _ in range(ist.max_iter):
+                    G, resid, J, Ai = linearise(x)
                     dx = Ai @ resid
                     x = x + dx
                     if np.linalg.norm(dx[:3]) < ist.tol_m:
                         break
-                d = anchor - np.vstack([np.tile(x[:3] + off_a, (n_g, 1)), np.tile(x[:3] + off_c, (L, 1))])
-                rng = np.linalg.norm(d, axis=1)
-                Graw = np.column_stack([-d / rng[:, None], np.r_[ones, np.zeros(L)]])
-                h = rng + np.r_[ones, np.zeros(L)] * x[3]
-                G = np.vstack([Graw[:n_g], Tm @ Graw[n_g:]])
-                resid = np.r_[zg - h[:n_g], Tm @ (zv - h[n_g:])]
-                J = np.linalg.inv(G.T @ Wi @ G)
-                Ai = J @ G.T @ Wi
+                G, resid, J, Ai = linearise(x)
                 sse, T2, hs, vs, hp, vp = _pls(G, Wi, J, Ai, resid, ist.p_fa, ist.p_md)
                 hpl, vpl = (hs, vs) if ist.pl_variant == "seed" else (hp, vp)
             else:

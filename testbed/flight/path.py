@@ -144,10 +144,7 @@ class ApproachPath:
         """(east, north, track) of the point ``distance_to_go`` before the end."""
         if not (0 < distance_to_go <= self.total_length):
             raise ValueError(f"start distance {distance_to_go:.0f} m: expected within the path (0, {self.total_length:.0f}] m")
-        i = int(np.searchsorted(-(self._after + self.lengths), -distance_to_go, side="right")) - 1
-        i = max(i, 0)
-        while self._after[i] > distance_to_go:
-            i += 1
+        i = int(np.argmax(self._after < distance_to_go))  # first leg ending closer than d (the last ends at 0)
         leg = self.legs[i]
         along = leg.length - (distance_to_go - self._after[i])
         e, n = leg.point(np.array([along]))[0]

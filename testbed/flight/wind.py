@@ -52,8 +52,9 @@ class GustGenerator:
         self.w20 = gusts.w20() * KT
         self.enabled = self.w20 > 0
         self._noise = np.random.default_rng(gusts.seed).standard_normal((max_steps, 3)) if self.enabled else None
-        self._k = 0
-        self._x = np.zeros(3)  # normalised state, unit variance
+        # normalised state with unit variance from the start (stationary, not ramping up from calm)
+        self._x = self._noise[0].copy() if self.enabled else np.zeros(3)
+        self._k = 1
 
     def step(self, dt: float, airspeed: float, agl: float, heading: float) -> np.ndarray:
         if not self.enabled:

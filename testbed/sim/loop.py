@@ -277,7 +277,7 @@ class _Runner:
         self.events.extend(block.events)
 
 
-def run_loop(setup: RunSetup, *, seed: int = 0, sinks: list | None = None, block_s: float = 5.0,
+def run_loop(setup: RunSetup, *, seed: int = 0, sinks: list[Sink] | None = None, block_s: float = 5.0,
              gust_seed: int | None = None) -> LoopResult:
     """Fly ``setup``'s approach with sensors and monitors in the loop.
 
