@@ -42,7 +42,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from testbed.integrity.vision_ranges import VisionRanges, pair_indices, survey_covariance
+from testbed.integrity import kernels
+from testbed.integrity.vision_ranges import (
+    VisionRanges,
+    survey_covariance,
+)
 
 
 def landmark_set_key(used: NDArray, ok: NDArray) -> NDArray:
@@ -88,21 +92,6 @@ def calibration_epochs(candidate: ArrayLike, set_key: ArrayLike) -> NDArray:
     return out
 
 
-def _gather_t(a: NDArray, idx: NDArray) -> NDArray:
-    """``a[..., idx[...], tail...]`` along the epoch axis (axis ``idx.ndim − 1``)."""
-    ax = idx.ndim - 1
-    ii = idx.reshape(idx.shape + (1,) * (a.ndim - idx.ndim))
-    return np.take_along_axis(a, np.broadcast_to(ii, idx.shape + a.shape[idx.ndim:]) if a.ndim > idx.ndim
-                              else ii, axis=ax)
-
-
-def ranges_and_rows(pos_enu: NDArray, cam_offset_enu: NDArray, landmark_enu: NDArray) -> tuple[NDArray, NDArray]:
-    """Ranges r (..., L) from the camera at ``pos + offset`` and position rows H (..., L, 3) = ∂r/∂pos."""
-    d = landmark_enu - (pos_enu + cam_offset_enu)[..., None, :]
-    r = np.linalg.norm(d, axis=-1)
-    return r, -d / r[..., None]
-
-
 @dataclass(frozen=True)
 class CalibratedRanges:
     """Calibrated vision ranges for a batch (shape ``(..., T)``).
@@ -121,12 +110,6 @@ class CalibratedRanges:
     calibrated: NDArray
     cal_idx: NDArray
     Sigma_uncal: NDArray
-
-
-def uncalibrated_covariance(vr: VisionRanges, survey_cov: NDArray) -> NDArray:
-    """Σ_V + A⁺ B Σ_d B A⁺ᵀ (..., L, L): the snapshot covariance of *uncalibrated* ranges."""
-    AB = vr.A_pinv * vr.B[..., None, :]
-    return vr.Sigma_V + AB @ survey_cov @ np.swapaxes(AB, -1, -2)
 
 
 def calibrate(vr: VisionRanges, cal_idx: ArrayLike, x_gps_enu: ArrayLike, P_gps: ArrayLike,
@@ -153,37 +136,30 @@ def calibrate(vr: VisionRanges, cal_idx: ArrayLike, x_gps_enu: ArrayLike, P_gps:
     L = p.shape[0]
     Sd = survey_covariance(p, survey_sigma_m)
 
-    # epoch-0 quantities, gathered for every epoch k
-    z0 = _gather_t(vr.m, i0)
-    A0 = _gather_t(vr.A, i0)
-    B0 = _gather_t(vr.B, i0)
-    Ap0 = _gather_t(vr.A_pinv, i0)
-    Sc0 = _gather_t(vr.Sigma_c, i0)
-    x0 = _gather_t(np.asarray(x_gps_enu, float), i0)
-    P0g = _gather_t(np.asarray(P_gps, float), i0)
-    off0 = _gather_t(np.asarray(cam_offset_enu, float), i0)
-    used0 = _gather_t(vr.used, i0)
+    # per epoch k, with the quantities of its calibration epoch (compiled; the products are
+    # written out in the kernel's docstring)
+    bt = idx.shape
+    T = bt[-1]
+    Bt = int(np.prod(bt[:-1], dtype=np.int64))
+    nc = vr.B.shape[-1]
 
-    r0, H0 = ranges_and_rows(x0, off0, p)
-    with np.errstate(invalid="ignore"):
-        beta0 = np.where(used0, z0 - r0, 0.0)
-    beta0 = np.where(np.isfinite(beta0), beta0, 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(B0 != 0, vr.B / B0, 0.0)  # diag of B(k) B(0)⁻¹
-    ratio = np.where(np.isfinite(ratio), ratio, 0.0)
-    M = vr.A_pinv * ratio[..., None, :]  # (..., L, N_C)
-    MA0 = M @ A0  # (..., L, L)
-    beta = np.einsum("...ij,...j->...i", MA0, beta0)
-    P0 = A0 @ Ap0  # (..., N_C, N_C) = I on the valid pairs when N_V = 3
-    MP0 = M @ P0
-    MAH = MA0 @ (H0 * used0[..., None])  # (..., L, 3)
-    Ld = vr.A_pinv * vr.B[..., None, :] - MP0 * B0[..., None, :]
-    tr = lambda X: np.swapaxes(X, -1, -2)  # noqa: E731
-    Sigma_hat = (vr.Sigma_V + MP0 @ Sc0 @ tr(MP0) + MAH @ P0g @ tr(MAH) + Ld @ Sd @ tr(Ld))
+    def flat(a: ArrayLike, tail: tuple, dt: type = float) -> NDArray:
+        return np.ascontiguousarray(np.broadcast_to(a, bt + tail).reshape((Bt, T) + tail), dtype=dt)
+
+    beta, beta0 = np.empty((Bt, T, L)), np.empty((Bt, T, L))
+    Sigma_hat, Sigma_uncal = np.empty((Bt, T, L, L)), np.empty((Bt, T, L, L))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        kernels.calibrate_epochs(flat(i0, (), np.int64), flat(vr.m, (L,)), flat(vr.A, (nc, L)), flat(vr.B, (nc,)),
+                                 flat(vr.A_pinv, (L, nc)), flat(vr.Sigma_c, (nc, nc)), flat(vr.Sigma_V, (L, L)),
+                                 flat(vr.used, (L,), bool), flat(x_gps_enu, (3,)), flat(P_gps, (3, 3)),
+                                 flat(cam_offset_enu, (3,)), np.ascontiguousarray(p), Sd,
+                                 beta, beta0, Sigma_hat, Sigma_uncal)
+    beta, beta0 = beta.reshape(bt + (L,)), beta0.reshape(bt + (L,))
+    Sigma_hat, Sigma_uncal = Sigma_hat.reshape(bt + (L, L)), Sigma_uncal.reshape(bt + (L, L))
 
     calibrated = has & vr.ok
     z_hat = np.where(calibrated[..., None] & vr.used, vr.m - beta, np.nan)
     Sigma_hat = np.where(calibrated[..., None, None], Sigma_hat, np.nan)
     return CalibratedRanges(z_hat=z_hat, Sigma_hat=Sigma_hat, beta=np.where(calibrated[..., None], beta, np.nan),
                             beta0=np.where(calibrated[..., None], beta0, np.nan), calibrated=calibrated,
-                            cal_idx=np.where(calibrated, idx, -1), Sigma_uncal=uncalibrated_covariance(vr, Sd))
+                            cal_idx=np.where(calibrated, idx, -1), Sigma_uncal=Sigma_uncal)

@@ -23,15 +23,19 @@ of the batch is computed as usual.
 
 from __future__ import annotations
 
+import threading
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import IntEnum
 from functools import lru_cache
-from typing import Callable, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize, stats
+
+from testbed.integrity import kernels
 
 N_STATES = 4  # E, N, U, clock
 
@@ -362,11 +366,25 @@ def wls_geometry_blocks(G: ArrayLike, w_diag: ArrayLike, W_block: ArrayLike, mas
     return _geometry_core(G0, Wd, True, Wd, WG, m, nan_bad, max_cond, True)
 
 
+def _compiled_geometry(G0: NDArray, WG: NDArray, Wd: NDArray) -> tuple[NDArray, ...]:
+    """:func:`kernels.normal_geometry` on a batch: M, cond, J, A, (WS)_ii, J-ok."""
+    batch, (N, n) = G0.shape[:-2], G0.shape[-2:]
+    P = int(np.prod(batch, dtype=np.int64))
+
+    def flat(a: NDArray, tail: tuple) -> NDArray:
+        return np.ascontiguousarray(np.broadcast_to(a, batch + tail).reshape((P,) + tail), float)
+
+    M, cond = np.empty((P, n, n)), np.empty(P)
+    J, A, ws, ok = np.empty((P, n, n)), np.empty((P, n, N)), np.empty((P, N)), np.empty(P, bool)
+    kernels.normal_geometry(flat(G0, (N, n)), flat(WG, (N, n)), flat(Wd, (N,)), SPD_PIVOT_RTOL, M, cond, J, A, ws, ok)
+    return (M.reshape(batch + (n, n)), cond.reshape(batch), J.reshape(batch + (n, n)), A.reshape(batch + (n, N)),
+            ws.reshape(batch + (N,)), ok.reshape(batch))
+
+
 def _geometry_core(G0: NDArray, W0: NDArray, diag: bool, Wd: NDArray, WG: NDArray, m: NDArray,
                    nan_bad: NDArray, max_cond: float, fast_inverse: bool) -> WlsGeometry:
     """The part of :func:`wls_geometry` after masking: J, A, (WS)_ii, cond, reasons."""
     n_used = m.sum(-1)
-    M = np.swapaxes(G0, -1, -2) @ WG  # GᵀWG (..., 4, 4)
     # A state no used row depends on (the clock when there are no pseudorange
     # rows) is dropped: it keeps its starting value, J/A rows are zero, and the
     # test has one more degree of freedom. live (..., 4): a used row depends on the
@@ -376,16 +394,27 @@ def _geometry_core(G0: NDArray, W0: NDArray, diag: bool, Wd: NDArray, WG: NDArra
     live[..., 3] = (G0[..., 3] != 0).any(-1)
     all_live = bool(live.all())
     n_states = live.sum(-1)
-    eye = np.eye(M.shape[-1])
-    if not all_live:
-        M = np.where(live[..., :, None] & live[..., None, :], M, 0.0) + eye * ~live[..., None, :]
-    # Jacobi scaling makes the condition number independent of the units of
-    # each state and of an overall weight scale.
-    d = np.sqrt(np.abs(np.diagonal(M, axis1=-2, axis2=-1)))
-    d_safe = np.where(d > 0, d, 1.0)
-    Ms = M / (d_safe[..., :, None] * d_safe[..., None, :])
-    cond = _scaled_cond(np.where(np.isfinite(Ms), Ms, 0.0))
-    cond = np.where((d > 0).all(-1), cond, np.inf)
+    eye = np.eye(G0.shape[-1])
+    compiled = all_live and fast_inverse
+    if compiled:  # every state estimated: GᵀWG, its condition, J, A and (WS)_ii per epoch, compiled
+        M, cond, Jk, Ak, wsk, okJ = _compiled_geometry(G0, WG, Wd)
+        # uncertified or above the recheck level: the extreme eigenvalues from LAPACK, as in _scaled_cond
+        recheck = np.isnan(cond) | (np.isfinite(cond) & (cond > _COND_RECHECK))
+        if recheck.any():
+            d = np.sqrt(np.abs(np.diagonal(M[recheck], axis1=-2, axis2=-1)))
+            Ms = M[recheck] / (d[..., :, None] * d[..., None, :])
+            cond[recheck] = _eigvalsh_cond(np.where(np.isfinite(Ms), Ms, 0.0))
+    else:
+        M = np.swapaxes(G0, -1, -2) @ WG  # GᵀWG (..., 4, 4)
+        if not all_live:
+            M = np.where(live[..., :, None] & live[..., None, :], M, 0.0) + eye * ~live[..., None, :]
+        # Jacobi scaling makes the condition number independent of the units of
+        # each state and of an overall weight scale.
+        d = np.sqrt(np.abs(np.diagonal(M, axis1=-2, axis2=-1)))
+        d_safe = np.where(d > 0, d, 1.0)
+        Ms = M / (d_safe[..., :, None] * d_safe[..., None, :])
+        cond = _scaled_cond(np.where(np.isfinite(Ms), Ms, 0.0))
+        cond = np.where((d > 0).all(-1), cond, np.inf)
     n_states_full = M.shape[-1]
 
     reason = np.zeros(n_used.shape, np.int8)
@@ -402,7 +431,13 @@ def _geometry_core(G0: NDArray, W0: NDArray, diag: bool, Wd: NDArray, WG: NDArra
     # The rest (ill-conditioned, dropped clock, and any with a near-zero (WS)_ii, whose value
     # is rounding noise) take the LAPACK inverse and the 3-operand sum exactly as before.
     fast = solvable & live.all(-1) & (cond <= _FAST_INV_COND) if fast_inverse else np.zeros(solvable.shape, bool)
-    if fast.any():
+    if compiled:
+        fast = fast & okJ
+        J = np.where(solvable[..., None, None], Jk, np.nan)
+        A = np.where(solvable[..., None, None], Ak, np.nan)
+        ws = wsk
+        fast = fast & ~(m & ~(ws > _FAST_WS_RTOL * np.abs(Wd))).any(-1)
+    elif fast.any():
         J, okJ = spd_solve_soa(M_safe, np.broadcast_to(eye, M_safe.shape))
         fast = fast & okJ
         J = np.where(solvable[..., None, None], J, np.nan)
@@ -546,15 +581,25 @@ def slopes(geom: WlsGeometry) -> tuple[NDArray, NDArray]:
     return hs, vs
 
 
-_SLOPES_LAST: list = []  # [(weakref to a geometry, (hslope, vslope))]: both PL variants share them
+#: thread id -> (weakref to a geometry, its slopes and their maxima): both PL variants share them
+_SLOPES_LAST: dict[int, tuple] = {}
 
 
-def _slopes_once(geom: WlsGeometry) -> tuple[NDArray, NDArray]:
-    """:func:`slopes` of ``geom``, reused when called again for the same (immutable) geometry."""
-    if _SLOPES_LAST and _SLOPES_LAST[0][0]() is geom:
-        return _SLOPES_LAST[0][1]
-    out = slopes(geom)
-    _SLOPES_LAST[:] = [(weakref.ref(geom, lambda _r: _SLOPES_LAST.clear()), out)]
+def _slopes_once(geom: WlsGeometry) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """:func:`slopes` of ``geom`` and their maxima over the rows, reused when called again for
+    the same (immutable) geometry in the same thread; dropped with the geometry."""
+    key = threading.get_ident()
+    entry = _SLOPES_LAST.get(key)
+    if entry is not None and entry[0]() is geom:
+        return entry[1]
+    hs, vs = slopes(geom)
+    out = (hs, vs, _nanmax_last(hs), _nanmax_last(vs))
+
+    def drop(ref: weakref.ref) -> None:
+        if _SLOPES_LAST.get(key, (None,))[0] is ref:
+            _SLOPES_LAST.pop(key, None)
+
+    _SLOPES_LAST[key] = (weakref.ref(geom, drop), out)
     return out
 
 
@@ -661,11 +706,10 @@ def protection_levels(geom: WlsGeometry, p_fa: float, p_md: float,
     """
     if variant not in ("seed", "pbias"):
         raise ValueError(f"variant: expected 'seed' or 'pbias', got {variant!r}")
-    hs, vs = _slopes_once(geom)
+    hs, vs, hmax, vmax = _slopes_once(geom)
     dof = geom.dof
     T2 = chi2_threshold(dof, p_fa)
     lam = lambda_det(dof, p_fa, p_md)
-    hmax, vmax = _nanmax_last(hs), _nanmax_last(vs)
     if variant == "seed":
         kmd = k_md(p_md)
         J = geom.J

@@ -17,12 +17,14 @@ from testbed.integrity.settings import IntegritySettings
 from testbed.records import GnssEpochs, MonitorOutput
 
 
-def compact_rows(mask: NDArray) -> tuple[NDArray, NDArray, int]:
+def compact_rows(mask: NDArray, width: int | None = None) -> tuple[NDArray, NDArray, int]:
     """Order the used rows first so the stacked problem is only as wide as needed.
 
     Parameters
     ----------
     mask : (..., S) bool.
+    width : N to use (at least the most used rows of any element; chunks of one batch
+        pass the whole batch's width so their outputs stack). Default: that maximum.
 
     Returns
     -------
@@ -31,7 +33,7 @@ def compact_rows(mask: NDArray) -> tuple[NDArray, NDArray, int]:
     N : width = max number of used rows over the batch (at least 1).
     """
     m = np.asarray(mask, bool)
-    N = max(int(m.sum(-1).max(initial=0)), 1)
+    N = max(int(m.sum(-1).max(initial=0)), 1) if width is None else int(width)
     idx = np.argsort(~m, axis=-1, kind="stable")[..., :N]
     return idx, np.take_along_axis(m, idx, -1), N
 

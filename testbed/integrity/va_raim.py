@@ -25,6 +25,7 @@ term, so an epoch with no GPS rows is singular (the clock is unobservable).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -33,13 +34,24 @@ from numpy.typing import NDArray
 from pydantic import Field, field_validator
 
 from testbed.frames import LocalFrame, q_to_R
-from testbed.integrity import lsq
-from testbed.integrity.calibration import CalibratedRanges, calibrate, calibration_epochs, landmark_set_key
+from testbed.integrity import kernels, lsq
+from testbed.integrity.batching import map_trial_chunks
+from testbed.integrity.calibration import (
+    CalibratedRanges,
+    calibrate,
+    calibration_epochs,
+    landmark_set_key,
+)
 from testbed.integrity.levels import SERVICE_LEVELS, availability, service_level
 from testbed.integrity.raim import compact_rows
 from testbed.integrity.settings import IntegritySettings
-from testbed.integrity.vision_ranges import (VISION_REASONS, VisionRanges, VisionRangeSettings,
-                                             vision_pseudoranges, _safe_solve)
+from testbed.integrity.vision_ranges import (
+    VISION_REASONS,
+    VisionRanges,
+    VisionRangeSettings,
+    _safe_solve,
+    vision_pseudoranges,
+)
 from testbed.records import GnssEpochs, MonitorOutput, VisionEpochs
 from testbed.schema import StrictModel
 
@@ -94,46 +106,55 @@ def _take_t(a: NDArray, idx: NDArray) -> NDArray:
     return np.take_along_axis(a, ii, axis=idx.ndim - 1)
 
 
-def _gauss_newton(model, z: NDArray, W, diag: bool, mask: NDArray, x0: NDArray, n_iter: int,
-                  tol_m: float) -> tuple[NDArray, NDArray]:
-    """Cheap batched Gauss–Newton iterations (normal equations, no per-iteration condition checks).
+def _gauss_newton(x0: NDArray, ist: IntegritySettings, gps: tuple, vision: tuple | None = None
+                  ) -> tuple[NDArray, NDArray]:
+    """Iterated WLS of the stacked range rows, each epoch stopping on its own (:mod:`.kernels`).
 
-    The core's :func:`lsq.wls_geometry` is then evaluated once, at the solution, for the
-    reasons, SSE, slopes and PLs; iterating with it costs a 4×4 eigen-decomposition per
-    epoch and iteration. W: (..., N) diagonal, (..., N, N) full, or a block pair as in
-    :func:`_finish`. Returns the state (..., 4) and a converged flag (...).
+    gps = ``(anchor (..., NG, 3), antenna offset (..., 3), z, w, mask (..., NG))``;
+    vision = ``(landmarks (L, 3), camera offset (..., 3), Tm (..., R, L), z (..., R),
+    W (..., R, R), mask (..., R))`` or None. The core's :func:`lsq.wls_geometry` is then
+    evaluated once, at the solution, for the reasons, SSE, slopes and PLs.
+    Returns the state (..., 4), a converged flag (...) and the stacked predictions h (..., N)
+    and partials G (..., N, 4) at that state (N = NG + R; masked rows zero).
     """
-    x = np.array(x0, float)
-    conv = np.zeros(x.shape[:-1], bool)
-    z0 = np.where(mask & np.isfinite(z), z, 0.0)
-    for _ in range(n_iter):
-        h, G = model(x)
-        G = np.where(mask[..., None] & np.isfinite(G), G, 0.0)
-        dz = np.where(mask & np.isfinite(h), z0 - h, 0.0)
-        if isinstance(W, tuple):  # block-diagonal: the same products as the full W @ G, without the zeros
-            n1 = W[0].shape[-1]
-            WG = np.concatenate([W[0][..., :, None] * G[..., :n1, :], W[1] @ G[..., n1:, :]], axis=-2)
-        else:
-            WG = W[..., :, None] * G if diag else W @ G
-        Nm = np.swapaxes(G, -1, -2) @ WG
-        rhs = np.einsum("...ni,...n->...i", WG, dz)
-        dx, good = _safe_solve(Nm, rhs[..., None])
-        dx = np.where(good[..., None], dx[..., 0], 0.0)
-        x = x + dx
-        conv = np.linalg.norm(dx[..., :3], axis=-1) < tol_m
-        if np.all(conv | ~good):
-            break
-    return x, conv
+    batch = x0.shape[:-1]
+    P = int(np.prod(batch, dtype=np.int64))
+
+    def flat(a, tail, dtype=float):
+        return np.ascontiguousarray(np.broadcast_to(a, batch + tail).reshape((P,) + tail), dtype=dtype)
+
+    ag, og, zg, wg, mg = gps
+    NG = zg.shape[-1]
+    if vision is None:
+        av, ov = np.zeros((1, 3)), np.zeros((P, 3))
+        Tm, zv, Wv, mv = np.zeros((P, 0, 1)), np.zeros((P, 0)), np.zeros((P, 0, 0)), np.zeros((P, 0), bool)
+    else:
+        av, ov, Tm, zv, Wv, mv = vision
+        R, L = Tm.shape[-2:]
+        av = np.ascontiguousarray(av, float)
+        ov, Tm, zv, Wv = flat(ov, (3,)), flat(Tm, (R, L)), flat(zv, (R,)), flat(Wv, (R, R))
+        mv = flat(mv, (R,), bool)
+    Nr = NG + zv.shape[-1]
+    x = np.empty((P, 4))
+    conv = np.empty(P, bool)
+    iters = np.empty(P, np.int64)
+    h, G = np.empty((P, Nr)), np.empty((P, Nr, 4))
+    kernels.range_gauss_newton(flat(ag, (NG, 3)), flat(og, (3,)), flat(zg, (NG,)), flat(wg, (NG,)),
+                               flat(mg, (NG,), bool), av, ov, Tm, zv, Wv, mv, flat(x0, (4,)),
+                               ist.max_iter, ist.tol_m, x, conv, iters, h, G)
+    return x.reshape(batch + (4,)), conv.reshape(batch), h.reshape(batch + (Nr,)), G.reshape(batch + (Nr, 4))
 
 
-def _finish(model, z: NDArray, W, mask: NDArray, x: NDArray, conv: NDArray, ist: IntegritySettings):
+def _finish(h: NDArray, G: NDArray, z: NDArray, W, mask: NDArray, x: NDArray, conv: NDArray,
+            ist: IntegritySettings):
     """Geometry, residuals, SSE, both PL variants and the reason code at the solution x.
+
+    h (..., N), G (..., N, 4): the predictions and partials at x.
 
     W : (..., N) diagonal weights, or a pair ``(w_diag (..., n1), W_block (..., n2, n2))`` of
     block-diagonal weights (GPS rows first, then the vision block; see
     :func:`lsq.wls_geometry_blocks`).
     """
-    h, G = model(x)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         if isinstance(W, tuple):
             geom = lsq.wls_geometry_blocks(G, W[0], W[1], mask, ist.max_cond)
@@ -217,8 +238,60 @@ def _vision_rows(vr: VisionRanges, z: NDArray, Sigma: NDArray, use: NDArray, mod
     return _VisionRows(z=np.where(mask, zr, np.nan), Tm=Tm, W=W, mask=mask, modified=modified)
 
 
+@dataclass(frozen=True)
+class _Inputs:
+    """What VA-RAIM reads from the records: arrays broadcast to the batch ``bt = (B..., T)``."""
+
+    t: NDArray  # (T,)
+    pr: NDArray  # (bt, S)
+    vis: NDArray  # (bt, S) bool
+    sat_ecef: NDArray  # (bt, S, 3)
+    sigma: NDArray  # (bt, S)
+    q: NDArray  # (bt, 4) attitude reference
+    uv: NDArray  # (bt, L, 2)
+    det: NDArray  # (bt, L) bool
+    sig: NDArray  # (bt, L)
+    p_enu: NDArray  # (L, 3) surveyed landmarks in the world frame
+    K: NDArray  # (3, 3)
+    lever_ant: NDArray  # (3,) body
+    lever_cam: NDArray  # (3,) body
+    n_gps_rows: int  # compacted GPS row width over the whole batch
+    frame: LocalFrame
+
+    def trials(self, sl: slice) -> _Inputs:
+        """The same inputs for trials ``sl`` of the first batch axis (views)."""
+        per = {k: getattr(self, k)[sl] for k in ("pr", "vis", "sat_ecef", "sigma", "q", "uv", "det", "sig")}
+        return dataclasses.replace(self, **per)
+
+
+def _read_inputs(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame) -> _Inputs:
+    pr = np.asarray(gnss.pseudorange, float)
+    bt = pr.shape[:-1]  # (B..., T)
+    T = bt[-1]
+    t = np.asarray(gnss.t, float)
+    uv = np.asarray(vision.pixel_uv, float)
+    if uv.shape[:-2] != bt:
+        raise ValueError(f"vision.pixel_uv: expected batch/epoch shape {bt} (from gnss.pseudorange), "
+                         f"got {uv.shape[:-2]}")
+    if len(vision.t) != T or not np.allclose(np.asarray(vision.t, float), t):
+        raise ValueError("vision.t: expected the same epochs as gnss.t (resample one of them first)")
+    p_enu = frame.ecef_to_enu(np.asarray(vision.landmark_pos_ecef, float))  # (L, 3)
+    L = p_enu.shape[0]
+    vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
+    return _Inputs(
+        t=t, pr=pr, vis=vis, sat_ecef=np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,)),
+        sigma=np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape),
+        q=np.broadcast_to(np.asarray(vision.q_body_to_enu_ref, float), bt + (4,)), uv=uv,
+        det=np.broadcast_to(np.asarray(vision.detected, bool), bt + (L,)),
+        sig=np.broadcast_to(np.asarray(vision.sigma_px, float), bt + (L,)), p_enu=p_enu,
+        K=np.asarray(vision.K, float), lever_ant=np.asarray(gnss.antenna.lever_arm_body, float),
+        lever_cam=np.asarray(vision.camera.lever_arm_body, float),
+        n_gps_rows=max(int(vis.sum(-1).max(initial=0)), 1), frame=frame)
+
+
 def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
-            settings: VaRaimSettings | None = None, name: str = "va_raim") -> MonitorOutput:
+            settings: VaRaimSettings | None = None, name: str = "va_raim",
+            threads: int | None = None) -> MonitorOutput:
     """The vision-aided RAIM monitor for every epoch (and trial) of a run.
 
     Parameters
@@ -228,6 +301,9 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
         q_body_to_enu_ref (B..., T, 4), surveyed landmark_pos_ecef (L, 3), K, camera mount.
     frame : the world frame; the state is [E, N, U, clock] of the reference point in it.
     settings : :class:`VaRaimSettings`.
+    threads : run chunks of trials on this many threads (None: one per available core;
+        1: in the calling thread). Every epoch is computed on its own, so the result is
+        bit-identical whatever the number of threads or chunks.
 
     Returns
     -------
@@ -242,41 +318,31 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     ``hpl_pbias``/``vpl_pbias``, ``lam_det``, ``cond``, ``converged``.
     """
     st = settings or VaRaimSettings()
+    inp = _read_inputs(gnss, vision, frame)
+    return map_trial_chunks(lambda sl: _va_raim_chunk(inp.trials(sl), st, name), inp.pr.shape[:-1], threads)
+
+
+def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput:
+    """:func:`va_raim` on one chunk of trials."""
     ist = st.integrity
-    pr = np.asarray(gnss.pseudorange, float)
+    pr, t, p_enu, uv = inp.pr, inp.t, inp.p_enu, inp.uv
     bt = pr.shape[:-1]  # (B..., T)
-    S = pr.shape[-1]
     T = bt[-1]
-    t = np.asarray(gnss.t, float)
-    uv = np.asarray(vision.pixel_uv, float)
-    if uv.shape[:-2] != bt:
-        raise ValueError(f"vision.pixel_uv: expected batch/epoch shape {bt} (from gnss.pseudorange), "
-                         f"got {uv.shape[:-2]}")
-    if len(vision.t) != T or not np.allclose(np.asarray(vision.t, float), t):
-        raise ValueError("vision.t: expected the same epochs as gnss.t (resample one of them first)")
-    p_enu = frame.ecef_to_enu(np.asarray(vision.landmark_pos_ecef, float))  # (L, 3)
-    L = p_enu.shape[0]
 
     # --- lever arms through the attitude reference (local ENU at the aircraft ≈ world ENU:
     # the frames differ by ~0.16 mrad per km from the origin, < 5 mm on a 5 m lever arm at 6 km)
-    q = np.broadcast_to(np.asarray(vision.q_body_to_enu_ref, float), bt + (4,))
-    R = q_to_R(q)
-    off_ant = R @ np.asarray(gnss.antenna.lever_arm_body, float)
-    off_cam = R @ np.asarray(vision.camera.lever_arm_body, float)
+    R = q_to_R(inp.q)
+    off_ant = R @ inp.lever_ant
+    off_cam = R @ inp.lever_cam
 
     # --- 1. GPS-only RAIM (same math as raim.gps_raim, with the fix covariance J kept)
-    vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
-    idx, mg, NG = compact_rows(vis)
-    sat_enu = frame.ecef_to_enu(np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,)))
-    anchor_g = np.take_along_axis(sat_enu, idx[..., None], -2)
+    idx, mg, _ = compact_rows(inp.vis, inp.n_gps_rows)
+    anchor_g = inp.frame.ecef_to_enu(np.take_along_axis(inp.sat_ecef, idx[..., None], -2))  # used rows only
     zg = np.take_along_axis(pr, idx, -1)
-    wg = lsq.weights_from_sigma(np.take_along_axis(np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape),
-                                                   idx, -1))
+    wg = lsq.weights_from_sigma(np.take_along_axis(inp.sigma, idx, -1))
     wg = np.where(mg, wg, 0.0)
-    gps_model = lsq.range_model(anchor_g, np.ones(NG), off_ant[..., None, :])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        xg_it, conv_g = _gauss_newton(gps_model, zg, wg, True, mg, np.zeros(bt + (4,)), ist.max_iter, ist.tol_m)
-    geom_g, pls_g, reason_g, ok_g, x_g, r_g, sse_g = _finish(gps_model, zg, wg, mg, xg_it, conv_g, ist)
+    xg_it, conv_g, h_g, G_g = _gauss_newton(np.zeros(bt + (4,)), ist, (anchor_g, off_ant, zg, wg, mg))
+    geom_g, pls_g, reason_g, ok_g, x_g, r_g, sse_g = _finish(h_g, G_g, zg, wg, mg, xg_it, conv_g, ist)
     gps = _monitor_output("gps_raim", t, x_g, geom_g, pls_g, reason_g, ok_g, r_g, sse_g, ist,
                           {"converged": conv_g, "gps_slot": idx})
     has_fix = np.isfinite(x_g).all(-1)
@@ -298,9 +364,7 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     Sigma_pred = Hp @ P_pr @ np.swapaxes(Hp, -1, -2)
     m_pred = np.where(have_prior[..., None], m_pred, np.nan)
 
-    det = np.broadcast_to(np.asarray(vision.detected, bool), bt + (L,))
-    sig = np.broadcast_to(np.asarray(vision.sigma_px, float), bt + (L,))
-    vr = vision_pseudoranges(uv, det, vision.K, sig, p_enu, m_pred, Sigma_pred, st.vision)
+    vr = vision_pseudoranges(uv, inp.det, inp.K, inp.sig, p_enu, m_pred, Sigma_pred, st.vision)
 
     # --- 3. calibration
     lvl = service_level(st.calibration_level)
@@ -324,29 +388,13 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     use_v = use_v & rows.mask.any(-1)
 
     # --- 4. integrated iterated WLS
-    nc = rows.z.shape[-1]
-    N = NG + nc
     z_all = np.concatenate([zg, rows.z], axis=-1)
     mask_all = np.concatenate([mg, rows.mask], axis=-1)
     W_blocks = (np.where(mg, wg, 0.0), rows.W)  # block-diagonal weight: GPS diagonal, vision block
-    vis_model = lsq.range_model(p_enu, np.zeros(L), off_cam[..., None, :])
-    Tm = rows.Tm
-
-    def model(x: NDArray) -> tuple[NDArray, NDArray]:
-        hg, Gg_ = gps_model(x)
-        hv, Gv = vis_model(x)
-        h = np.empty(hg.shape[:-1] + (N,))
-        G = np.empty(Gg_.shape[:-2] + (N, 4))
-        h[..., :NG] = hg
-        h[..., NG:] = np.einsum("...rl,...l->...r", Tm, hv)
-        G[..., :NG, :] = Gg_
-        np.matmul(Tm, Gv, out=G[..., NG:, :])
-        return h, G
-
     x0 = _take_t(x_g0, li)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        x_it, conv = _gauss_newton(model, z_all, W_blocks, False, mask_all, x0, ist.max_iter, ist.tol_m)
-    geom, pls, reason, ok, x, r, sse = _finish(model, z_all, W_blocks, mask_all, x_it, conv, ist)
+    x_it, conv, h, G = _gauss_newton(x0, ist, (anchor_g, off_ant, zg, wg, mg),
+                                     (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask))
+    geom, pls, reason, ok, x, r, sse = _finish(h, G, z_all, W_blocks, mask_all, x_it, conv, ist)
     extra = {
         "gps": gps,
         "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,

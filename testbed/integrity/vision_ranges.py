@@ -45,6 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import Field
 from scipy.stats import chi2
 
+from testbed.integrity import kernels
 from testbed.schema import StrictModel
 
 
@@ -220,25 +221,18 @@ def survey_covariance(landmark_pos: ArrayLike, sigma_g: float) -> NDArray:
 def _safe_solve(M: NDArray, rhs: NDArray) -> tuple[NDArray, NDArray]:
     """Batched ``solve(M, rhs)`` that never raises: bad elements come back NaN.
 
-    Returns the solution and a (...,) bool mask of elements that were solvable.
+    M (..., n, n), rhs (..., n, k) broadcast against M's batch. Returns the solution and a
+    (...,) bool mask of elements that were finite and regular (:func:`kernels.solve_batch`).
     """
-    finite = np.isfinite(M).all(axis=(-2, -1))
-    if finite.all():
-        Ms = M
-    else:
-        eye = np.broadcast_to(np.eye(M.shape[-1]), M.shape)
-        Ms = np.where(finite[..., None, None], M, eye)
-    try:
-        x = np.linalg.solve(Ms, rhs)
-        good = finite & np.isfinite(x).all(axis=tuple(range(M.ndim - 2, x.ndim)))
-    except np.linalg.LinAlgError:
-        # An exactly singular element: fall back to the SVD pseudo-inverse for the batch
-        # and flag elements whose smallest singular value is zero.
-        s = np.linalg.svd(Ms, compute_uv=False)
-        good = finite & (s[..., -1] > s[..., 0] * 1e-15)
-        x = np.linalg.pinv(Ms) @ rhs
-    x = np.where(good.reshape(good.shape + (1,) * (x.ndim - good.ndim)), x, np.nan)
-    return x, good
+    n, k = M.shape[-1], rhs.shape[-1]
+    batch = np.broadcast_shapes(M.shape[:-2], rhs.shape[:-2])
+    P = int(np.prod(batch, dtype=np.int64))
+    Mf = np.ascontiguousarray(np.broadcast_to(M, batch + (n, n)).reshape(P, n, n), dtype=float)
+    Rf = np.ascontiguousarray(np.broadcast_to(rhs, batch + (n, k)).reshape(P, n, k), dtype=float)
+    X = np.empty((P, n, k))
+    good = np.empty(P, bool)
+    kernels.solve_batch(Mf, Rf, X, good)
+    return X.reshape(batch + (n, k)), good.reshape(batch)
 
 
 def _masked_pinv_weight(Sigma_c: NDArray, pair_mask: NDArray, n_v: NDArray) -> NDArray:
@@ -411,10 +405,17 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     pair_mask = used[..., I] & used[..., J] & active[..., None]
     colm = used & active[..., None]
 
-    uv0 = np.where(colm[..., None], uv, 0.0)  # harmless pixels for unused slots
-    b, db = bearings_from_pixels(uv0, K)
-    c, dci, dcj = cosines(b, db)
-    Sigma_c = cosine_covariance(dci, dcj, np.where(colm, sig, 0.0), L)
+    # cosines and Σ_c per epoch, compiled (the numpy functions above, fused; unused slots
+    # see harmless pixels (0, 0) and contribute nothing)
+    P = int(np.prod(batch, dtype=np.int64))
+
+    def flat(a: NDArray, tail: tuple, dt: type = float) -> NDArray:
+        return np.ascontiguousarray(np.reshape(a, (P,) + tail), dtype=dt)
+
+    c, Sigma_c = np.empty((P, nc)), np.empty((P, nc, nc))
+    kernels.cosines_and_covariance(flat(uv, (L, 2)), flat(colm, (L,), bool), flat(sig, (L,)),
+                                   np.linalg.inv(np.asarray(K, float)), c, Sigma_c)
+    c, Sigma_c = c.reshape(batch + (nc,)), Sigma_c.reshape(batch + (nc, nc))
     Sigma_c = np.where(pair_mask[..., :, None] & pair_mask[..., None, :], Sigma_c, 0.0)
     # N_V = 3: A is square, A⁺ = A⁻¹ whatever the (regular) weight, so the identity on the valid
     # pairs serves; the rank-aware pseudo-inverse (an eigen-decomposition) only where N_V > 3.
@@ -423,28 +424,16 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     if big.any():
         W[big] = _masked_pinv_weight(Sigma_c[big], pair_mask[big], n_v[big])
 
-    # --- batched Gauss-Newton on the weighted cosine residual (loop over iterations only)
-    m = np.where(colm, mp, 1.0)
-    converged = ~active
-    iters = np.zeros(batch, int)
-    step_ok = np.ones(batch, bool)
-    for _ in range(s.max_iter):
-        todo = ~converged
-        if not todo.any():
-            break
-        cm = cosine_model(m, d2)
-        A_it, _ = cosine_rule_jacobians(m, cm)  # exact ∂c_model/∂m
-        r = np.where(pair_mask, c - cm, 0.0)
-        Ap, good = weighted_pinv(A_it, W, colm)
-        dm = np.einsum("...ij,...j->...i", Ap, r)
-        dm = np.where(colm, dm, 0.0)
-        upd = todo & good
-        m = np.where(upd[..., None], m + dm, m)
-        iters = iters + upd
-        step_ok &= good | converged
-        small = np.all(np.abs(np.where(np.isfinite(dm), dm, np.inf)) < s.tol_m, axis=-1)
-        converged = converged | (upd & small) | ~good
-        m = np.where(np.isfinite(m), m, 1.0)
+    # --- Gauss-Newton on the weighted cosine residual, each epoch on its own (compiled)
+    m_f, it_f = np.empty((P, L)), np.empty(P, np.int64)
+    conv_f, good_f = np.empty(P, bool), np.empty(P, bool)
+    kernels.cosine_gauss_newton(flat(c, (nc,)), flat(W, (nc, nc)), np.ascontiguousarray(d2, float),
+                                flat(np.where(colm, mp, 1.0), (L,)), flat(colm, (L,), bool),
+                                flat(pair_mask, (nc,), bool), s.max_iter, s.tol_m, m_f, it_f, conv_f, good_f)
+    m = m_f.reshape(batch + (L,))
+    iters = it_f.reshape(batch)
+    converged = conv_f.reshape(batch) | ~active
+    step_ok = good_f.reshape(batch) | ~active
     pos = np.all((m > 0) | ~colm, axis=-1)
     notconv = active & (~converged | ~step_ok | ~pos)
     reason[notconv] = VisionReason.NOT_CONVERGED

@@ -1,0 +1,80 @@
+"""The compiled per-epoch kernels against numpy/LAPACK and the numpy formulas they replace."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from testbed.integrity import kernels, lsq
+from testbed.integrity.vision_ranges import bearings_from_pixels, cosine_covariance, cosines
+
+
+def test_solve_batch_matches_lapack_and_flags_singular_and_nan():
+    rng = np.random.default_rng(1)
+    M = rng.normal(size=(50, 5, 5))
+    R = rng.normal(size=(50, 5, 3))
+    M[3] = 0.0  # singular
+    M[7, 1] = M[7, 2]  # singular (equal rows)
+    M[9, 0, 0] = np.nan
+    X = np.empty_like(R)
+    good = np.empty(50, bool)
+    kernels.solve_batch(M, R, X, good)
+    bad = [3, 7, 9]
+    assert not good[bad].any() and good[np.setdiff1d(np.arange(50), bad)].all()
+    assert np.isnan(X[bad]).all()
+    ok = good
+    np.testing.assert_allclose(X[ok], np.linalg.solve(M[ok], R[ok]), rtol=1e-10, atol=1e-12)
+
+
+def test_normal_geometry_matches_lapack():
+    rng = np.random.default_rng(2)
+    P, N = 400, 9
+    G = rng.normal(size=(P, N, 4))
+    G[:, :, 3] = 1.0
+    G[:20, :, 2] *= 1e-3  # poorly conditioned (still certified or handed back as NaN)
+    w = rng.uniform(0.5, 2.0, (P, N))
+    WG = w[..., None] * G
+    M, cond, J, A, ws = (np.empty((P, 4, 4)), np.empty(P), np.empty((P, 4, 4)), np.empty((P, 4, N)),
+                         np.empty((P, N)))
+    ok = np.empty(P, bool)
+    kernels.normal_geometry(G, WG, w, lsq.SPD_PIVOT_RTOL, M, cond, J, A, ws, ok)
+    M_ref = np.swapaxes(G, -1, -2) @ WG
+    np.testing.assert_allclose(M, M_ref, rtol=1e-13, atol=1e-13 * np.abs(M_ref).max())
+    d = np.sqrt(np.diagonal(M_ref, axis1=-2, axis2=-1))
+    ev = np.linalg.eigvalsh(M_ref / (d[:, :, None] * d[:, None, :]))
+    certified = np.isfinite(cond)
+    assert certified.mean() > 0.95
+    np.testing.assert_allclose(cond[certified], (ev[:, -1] / ev[:, 0])[certified], rtol=1e-9)
+    assert ok.all()
+    J_ref = np.linalg.inv(M_ref)
+    np.testing.assert_allclose(J, J_ref, rtol=1e-9, atol=1e-12 * np.abs(J_ref).max())
+    A_ref = J_ref @ np.swapaxes(WG, -1, -2)
+    np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-12)
+    ws_ref = w - np.einsum("pni,pij,pnj->pn", WG, J_ref, WG)
+    np.testing.assert_allclose(ws, ws_ref, rtol=1e-8, atol=1e-12)
+
+
+def test_cond4_refuses_indefinite_and_singular():
+    S = np.diag([1.0, 2.0, 3.0, -1e-3])
+    assert np.isnan(kernels._cond4(S, np.empty((4, 4))))
+    S = np.diag([1.0, 2.0, 3.0, 0.0])
+    assert np.isnan(kernels._cond4(S, np.empty((4, 4))))
+    S = np.diag([1.0, 2.0, 3.0, 4.0])
+    assert abs(kernels._cond4(S, np.empty((4, 4))) - 4.0) < 1e-13
+
+
+def test_fused_cosines_and_covariance_match_the_numpy_formulas():
+    rng = np.random.default_rng(3)
+    P, L = 200, 5
+    K = np.array([[1200.0, 0.0, 640.0], [0.0, 1200.0, 360.0], [0.0, 0.0, 1.0]])
+    uv = rng.uniform([0, 0], [1280, 720], (P, L, 2))
+    used = rng.random((P, L)) > 0.2
+    sig = rng.uniform(0.5, 2.0, (P, L))
+    nc = L * (L - 1) // 2
+    c, Sc = np.empty((P, nc)), np.empty((P, nc, nc))
+    kernels.cosines_and_covariance(uv, used, sig, np.linalg.inv(K), c, Sc)
+    uv0 = np.where(used[..., None], uv, 0.0)
+    b, db = bearings_from_pixels(uv0, K)
+    c_ref, dci, dcj = cosines(b, db)
+    Sc_ref = cosine_covariance(dci, dcj, np.where(used, sig, 0.0), L)
+    np.testing.assert_allclose(c, c_ref, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(Sc, Sc_ref, rtol=1e-12, atol=1e-24)
