@@ -16,7 +16,7 @@ this machine's cores.
 from __future__ import annotations
 
 import argparse
-import os
+import dataclasses
 import tempfile
 import time
 from pathlib import Path
@@ -46,12 +46,16 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=2000, help="trials per cell (2 cells)")
     ap.add_argument("--block", type=int, default=100)
     ap.add_argument("--chunk", type=int, default=1000)
+    ap.add_argument("--per-experiment", type=int, default=1000,
+                    help="sorties timed per reproduction experiment (one chunk of its first setting)")
     args = ap.parse_args()
 
-    from testbed.campaign.reproduce import FULL_TRIALS, experiments
-    from testbed.campaign.runner import cell_context, run_campaign
+    from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments
+    from testbed.campaign.runner import cell_context, run_campaign, run_chunk
     from testbed.campaign.spec import expand_cells, load_spec
+    from testbed.integrity.batching import available_cores
 
+    cores = available_cores()
     with tempfile.TemporaryDirectory() as tmp:
         spec = Path(tmp) / "bench.toml"
         spec.write_text(SPEC.format(trials=args.trials, block=args.block, chunk=args.chunk))
@@ -64,24 +68,31 @@ def main() -> None:
     n_trials = res.trials
     eps = res.epochs_per_s
     print(f"flight + geometry (once): {setup_s:.2f} s")
-    print(f"{n_trials} sorties x 61 epochs (GPS RAIM + VA-RAIM) in {res.wall_s:.2f} s: "
-          f"{n_trials / res.wall_s:,.0f} sorties/s, {eps:,.0f} sortie-epochs/s (one process)")
-    per_setting = 6e6 / eps
-    cores = os.cpu_count() or 1
-    settings = sum(len(expand_cells_of(s)) for s in experiments(FULL_TRIALS).values())
-    print(f"projected --full: {per_setting / 60:.1f} min per setting (6e6 epochs) on one process, "
-          f"{per_setting / 60 / cores:.1f} min on {cores} cores;")
-    print(f"  all {settings} settings of the reproduction: {settings * per_setting / 3600:.1f} h on one process, "
-          f"{settings * per_setting / 3600 / cores:.1f} h on {cores} cores "
-          f"(VA-RAIM-only settings are faster; a Dask cluster divides it further)")
+    print(f"campaign end to end (store included), {n_trials} sorties x 61 epochs, GPS RAIM + VA-RAIM: "
+          f"{res.wall_s:.2f} s, {n_trials / res.wall_s:,.0f} sorties/s, {eps:,.0f} sortie-epochs/s "
+          f"(one process, {cores} cores: draw blocks on threads)")
 
-
-def expand_cells_of(spec):
-    from testbed.campaign.reproduce import loaded_experiments  # noqa: F401
-    from testbed.campaign.spec import expand_cells, resolve_spec
-    from testbed.config import approaches_dir
-
-    return expand_cells(resolve_spec(spec, approaches_dir() / "campaigns" / "x.toml"))
+    # the --full reproduction: time one chunk of each experiment, project its settings at 6e6 epochs
+    full_s = 0.0
+    n_settings = 0
+    print(f"--full reproduction ({FULL_TRIALS} sorties x 61 epochs per setting), measured per experiment:")
+    for name, le in loaded_experiments(args.per_experiment).items():
+        spec_n = le.spec.model_copy(update={"chunk_trials": args.per_experiment})
+        le = dataclasses.replace(le, spec=spec_n)
+        cells = expand_cells(le)
+        cell_context(cells[0])
+        run_chunk(le, 0, 0)  # warm: kernels, chi-square tables
+        t0 = time.perf_counter()
+        tables = run_chunk(le, 0, 0)
+        dt = time.perf_counter() - t0
+        epochs = args.per_experiment * int(tables["trials"].column("epochs")[0].as_py())
+        rate = epochs / dt
+        per_setting = FULL_TRIALS * 61 / rate
+        full_s += per_setting * len(cells)
+        n_settings += len(cells)
+        print(f"  {name:20s} monitors {'+'.join(le.spec.monitors):17s} {rate:9,.0f} sortie-epochs/s -> "
+              f"{per_setting / 60:5.1f} min per setting x {len(cells):2d} settings = {per_setting * len(cells) / 60:6.1f} min")
+    print(f"  all {n_settings} settings: {full_s / 3600:.2f} h on this machine ({cores} cores, one process)")
 
 
 if __name__ == "__main__":

@@ -272,3 +272,20 @@ def test_cli_parsers_register_three_subcommands(tmp_path, capsys):
     assert args.func(parser.parse_args(["campaign", str(bad), "--out", str(tmp_path / "o")])) == 2
     assert "approaches" in capsys.readouterr().out
     assert not (tmp_path / "o").exists()
+
+
+def test_gps_baseline_reused_from_va_raim_matches_a_gps_only_run(reference, tmp_path):
+    """With VA-RAIM in the campaign, GPS RAIM is VA-RAIM's step 1 (solved for the reference point
+    through the antenna lever arm) instead of a second solve: same detections and protection
+    levels as a GPS-only campaign, position errors equal to the lever-arm rotation error."""
+    spec = write_spec(tmp_path, monitors='["gps_raim"]')
+    run_campaign(spec, tmp_path / "out", progress=False)
+    alone = table(tmp_path / "out").to_pandas().set_index(["cell", "trial"])
+    both = table(reference).to_pandas()
+    both = both[both.monitor == "gps_raim"].set_index(["cell", "trial"]).loc[alone.index]
+    for col in ("detected", "alert_epochs", "h_unavailable", "v_unavailable"):
+        np.testing.assert_array_equal(alone[col].to_numpy(), both[col].to_numpy(), err_msg=col)
+    np.testing.assert_allclose(alone["max_hpl"], both["max_hpl"], rtol=1e-9)
+    np.testing.assert_allclose(alone["max_vpl"], both["max_vpl"], rtol=1e-9)
+    np.testing.assert_allclose(alone["max_he"], both["max_he"], atol=0.02)
+    np.testing.assert_allclose(alone["max_ve"], both["max_ve"], atol=0.02)

@@ -179,3 +179,23 @@ def test_pl_variant_selected(variant):
     # both bound the fault-free horizontal error of this small sample
     err_h = np.hypot(*(out.pos_enu[..., :2] - RX_ENU[:2]).transpose(2, 0, 1))
     assert np.all(err_h < out.hpl)
+
+
+def test_gps_raim_chunks_and_threads_are_bit_identical(monkeypatch):
+    """Chunks of trials on two threads give exactly the one-piece numbers (NaN epochs included)."""
+    from dataclasses import replace
+
+    from test_va_raim import _assert_outputs_identical
+    from test_va_raim_scenario import make_scenario
+
+    from testbed.integrity import batching
+    sc = make_scenario(np.random.default_rng(31), (7,), t0=40.0, t1=60.0)
+    pr = sc.gnss.pseudorange.copy()
+    pr[3, 4, :] = np.nan
+    pr[5, 9:, np.flatnonzero(sc.gnss.visible[5, 9])[1]] += 80.0
+    gnss = replace(sc.gnss, pseudorange=pr)
+    whole = gps_raim(gnss, sc.frame, threads=1)
+    monkeypatch.setattr(batching, "CHUNK_EPOCHS", 21)
+    pieces = gps_raim(gnss, sc.frame, threads=2)
+    _assert_outputs_identical(whole, pieces)
+    assert np.any(whole.alert) and np.any(whole.reason != 0)

@@ -742,7 +742,8 @@ class WlsSolution:
     sse : (...) ``rᵀWr``.
     geometry : :class:`WlsGeometry` at the solution.
     converged : (...) bool, last position update below the tolerance.
-    n_iter : int, iterations run.
+    n_iter : (...) int, iterations run by each element (all equal for :func:`iterate_wls`,
+        which iterates the batch together; per epoch for the compiled range solve).
     reason : (...) int8 (geometry reason, or NOT_CONVERGED).
     """
 
@@ -751,7 +752,7 @@ class WlsSolution:
     sse: NDArray
     geometry: WlsGeometry
     converged: NDArray
-    n_iter: int
+    n_iter: NDArray
     reason: NDArray
 
 
@@ -798,6 +799,13 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
         if np.all(converged | frozen):
             break
     h, G = model(x)
+    return _solution_at(x, h, G, z, W, mask, converged, frozen, nan_z, it, max_cond)
+
+
+def _solution_at(x: NDArray, h: NDArray, G: NDArray, z: NDArray, W: ArrayLike, mask: ArrayLike | None,
+                 converged: NDArray, frozen: NDArray, nan_z: NDArray, n_iter: ArrayLike,
+                 max_cond: float) -> WlsSolution:
+    """Geometry, residuals, SSE and reasons at the final state of an iterated solve."""
     geom = wls_geometry(G, W, mask, max_cond)
     r = np.where(geom.mask, z - h, 0.0)
     r = np.where(np.isfinite(r), r, 0.0)
@@ -809,7 +817,49 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
     # the geometry carries the solve's verdict, so PLs computed from it are NaN too
     geom = replace(geom, reason=reason)
     return WlsSolution(x=x, residual=np.where(bad[..., None], np.nan, r), sse=np.where(bad, np.nan, sse),
-                       geometry=geom, converged=converged & ~bad, n_iter=it, reason=reason)
+                       geometry=geom, converged=converged & ~bad,
+                       n_iter=np.broadcast_to(np.asarray(n_iter, np.int64), reason.shape).copy(), reason=reason)
+
+
+def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, vision: tuple | None = None
+                        ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """Iterated WLS of stacked range rows, each epoch stopping on its own (compiled, :mod:`.kernels`).
+
+    gps = ``(anchor (..., NG, 3), antenna offset (..., 3), z, w, mask (..., NG))``;
+    vision = ``(landmarks (L, 3), camera offset (..., 3), Tm (..., R, L), z (..., R),
+    W (..., R, R), mask (..., R))`` or None. The core's :func:`lsq.wls_geometry` is then
+    evaluated once, at the solution, for the reasons, SSE, slopes and PLs.
+    Returns the state (..., 4), a converged flag (...), the steps taken (...), and the
+    stacked predictions h (..., N) and partials G (..., N, 4) at that state (N = NG + R;
+    masked rows zero).
+    """
+    batch = x0.shape[:-1]
+    P = int(np.prod(batch, dtype=np.int64))
+
+    def flat(a, tail, dtype=float):
+        return np.ascontiguousarray(np.broadcast_to(a, batch + tail).reshape((P,) + tail), dtype=dtype)
+
+    ag, og, zg, wg, mg = gps
+    NG = zg.shape[-1]
+    if vision is None:
+        av, ov = np.zeros((1, 3)), np.zeros((P, 3))
+        Tm, zv, Wv, mv = np.zeros((P, 0, 1)), np.zeros((P, 0)), np.zeros((P, 0, 0)), np.zeros((P, 0), bool)
+    else:
+        av, ov, Tm, zv, Wv, mv = vision
+        R, L = Tm.shape[-2:]
+        av = np.ascontiguousarray(av, float)
+        ov, Tm, zv, Wv = flat(ov, (3,)), flat(Tm, (R, L)), flat(zv, (R,)), flat(Wv, (R, R))
+        mv = flat(mv, (R,), bool)
+    Nr = NG + zv.shape[-1]
+    x = np.empty((P, 4))
+    conv = np.empty(P, bool)
+    iters = np.empty(P, np.int64)
+    h, G = np.empty((P, Nr)), np.empty((P, Nr, 4))
+    kernels.range_gauss_newton(flat(ag, (NG, 3)), flat(og, (3,)), flat(zg, (NG,)), flat(wg, (NG,)),
+                               flat(mg, (NG,), bool), av, ov, Tm, zv, Wv, mv, flat(x0, (4,)),
+                               n_iter, tol_m, x, conv, iters, h, G)
+    return (x.reshape(batch + (4,)), conv.reshape(batch), iters.reshape(batch), h.reshape(batch + (Nr,)),
+            G.reshape(batch + (Nr, 4)))
 
 
 def range_model(anchor_enu: ArrayLike, clock_col: ArrayLike,
@@ -882,6 +932,23 @@ def solve_ranges(anchor_enu: ArrayLike, z: ArrayLike, W: ArrayLike, mask: ArrayL
     z = np.asarray(z, float)
     if x0 is None:
         x0 = np.zeros(z.shape[:-1] + (N_STATES,))
+    Wa = np.asarray(W, float)
+    c = np.asarray(clock_col, float)
+    off = None if offset_enu is None else np.asarray(offset_enu, float)
+    if Wa.ndim == z.ndim and np.all(c == 1.0) and (off is None or off.shape[-2] == 1):
+        # pseudorange rows with diagonal weights: each epoch iterates on its own, compiled
+        a = np.asarray(anchor_enu, float)
+        batch = np.broadcast_shapes(z.shape[:-1], a.shape[:-2], Wa.shape[:-1], np.shape(x0)[:-1])
+        N = z.shape[-1]
+        m = np.ones(batch + (N,), bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), batch + (N,))
+        o = np.zeros(batch + (3,)) if off is None else np.broadcast_to(off[..., 0, :], batch + (3,))
+        zb = np.broadcast_to(z, batch + (N,))
+        x0b = np.broadcast_to(np.asarray(x0, float), batch + (N_STATES,))
+        x, conv, iters, h, G = gauss_newton_ranges(
+            x0b, n_iter, tol_m, (np.broadcast_to(a, batch + (N, 3)), o, zb, np.broadcast_to(Wa, batch + (N,)), m))
+        nan_z = (m & ~np.isfinite(zb)).any(-1)
+        return _solution_at(x, h, G, zb, np.broadcast_to(Wa, batch + (N,)), m, conv, nan_z, nan_z,
+                            iters, max_cond)
     return iterate_wls(range_model(anchor_enu, clock_col, offset_enu), z, W, mask, x0,
                        n_iter=n_iter, tol_m=tol_m, max_cond=max_cond)
 

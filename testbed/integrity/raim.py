@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import LocalFrame
 from testbed.integrity import lsq
+from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import GnssEpochs, MonitorOutput
@@ -51,7 +52,7 @@ def scatter_rows(values: NDArray, idx: NDArray, mask_c: NDArray, S: int) -> NDAr
 
 def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | None = None,
              antenna_offset_enu: ArrayLike | None = None, x0: ArrayLike | None = None,
-             name: str = "gps_raim") -> MonitorOutput:
+             name: str = "gps_raim", threads: int | None = None) -> MonitorOutput:
     """Snapshot GPS-only RAIM for every epoch (and trial) of ``gnss``.
 
     Parameters
@@ -67,6 +68,8 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
     x0 : (B..., T, 4) start of the iteration; default the frame origin (the
         satellites are 2e7 m away, so 3-4 iterations reach 1e-3 m).
     name : the MonitorOutput name.
+    threads : chunks of trials on this many threads (None: one per core; see
+        :func:`testbed.integrity.batching.map_trial_chunks`; bit-identical whatever the count).
 
     Returns
     -------
@@ -79,21 +82,33 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
     """
     st = settings or IntegritySettings()
     pr = np.asarray(gnss.pseudorange, float)
-    S = pr.shape[-1]
+    bt = pr.shape[:-1]
     vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
-    sat_enu = frame.ecef_to_enu(np.broadcast_to(gnss.sat_pos_ecef, pr.shape + (3,)))
+    sat = np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,))
     sigma = np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape)
+    off = None if antenna_offset_enu is None else np.broadcast_to(np.asarray(antenna_offset_enu, float), bt + (3,))
+    x0b = None if x0 is None else np.broadcast_to(np.asarray(x0, float), bt + (4,))
+    width = max(int(vis.sum(-1).max(initial=0)), 1)  # one row width for every chunk
 
-    idx, m, N = compact_rows(vis)
+    def chunk(sl: slice) -> MonitorOutput:
+        return _gps_raim_chunk(pr[sl], vis[sl], sat[sl], sigma[sl], None if off is None else off[sl],
+                               None if x0b is None else x0b[sl], np.asarray(gnss.t), frame, st, name, width)
+
+    return map_trial_chunks(chunk, bt, threads)
+
+
+def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,
+                    x0: NDArray | None, t: NDArray, frame: LocalFrame, st: IntegritySettings, name: str,
+                    width: int) -> MonitorOutput:
+    """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
+    S = pr.shape[-1]
+    idx, m, N = compact_rows(vis, width)
     take = lambda a: np.take_along_axis(a, idx, -1)  # noqa: E731
     z = take(pr)
     w = lsq.weights_from_sigma(take(sigma))
-    anchor = np.take_along_axis(sat_enu, idx[..., None], -2)
-    off = None
-    if antenna_offset_enu is not None:
-        off = np.asarray(antenna_offset_enu, float)[..., None, :]
-    sol = lsq.solve_ranges(anchor, z, w, m, np.ones(N), offset_enu=off, x0=x0,
-                           n_iter=st.max_iter, tol_m=st.tol_m, max_cond=st.max_cond)
+    anchor = frame.ecef_to_enu(np.take_along_axis(sat_ecef, idx[..., None], -2))  # used rows only
+    sol = lsq.solve_ranges(anchor, z, w, m, np.ones(N), offset_enu=None if off is None else off[..., None, :],
+                           x0=x0, n_iter=st.max_iter, tol_m=st.tol_m, max_cond=st.max_cond)
     geom = sol.geometry
     with np.errstate(invalid="ignore", over="ignore"):
         pls = {v: lsq.protection_levels(geom, st.p_fa, st.p_md, v) for v in ("seed", "pbias")}
@@ -126,7 +141,7 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
     diag.update(dop)
     x = sol.x
     return MonitorOutput(
-        name=name, t=np.asarray(gnss.t), pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl,
+        name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl,
         test_stat=sse, threshold=T2, alert=alert, available=avail, service_levels=tuple(st.service_levels),
         n_used=geom.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
         reasons=lsq.REASONS, diagnostics=diag,

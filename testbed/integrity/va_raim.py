@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from pydantic import Field, field_validator
 
 from testbed.frames import LocalFrame, q_to_R
-from testbed.integrity import kernels, lsq
+from testbed.integrity import lsq
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.calibration import (
     CalibratedRanges,
@@ -104,45 +104,6 @@ def _forward_fill_index(valid: NDArray) -> NDArray:
 def _take_t(a: NDArray, idx: NDArray) -> NDArray:
     ii = idx.reshape(idx.shape + (1,) * (a.ndim - idx.ndim))
     return np.take_along_axis(a, ii, axis=idx.ndim - 1)
-
-
-def _gauss_newton(x0: NDArray, ist: IntegritySettings, gps: tuple, vision: tuple | None = None
-                  ) -> tuple[NDArray, NDArray]:
-    """Iterated WLS of the stacked range rows, each epoch stopping on its own (:mod:`.kernels`).
-
-    gps = ``(anchor (..., NG, 3), antenna offset (..., 3), z, w, mask (..., NG))``;
-    vision = ``(landmarks (L, 3), camera offset (..., 3), Tm (..., R, L), z (..., R),
-    W (..., R, R), mask (..., R))`` or None. The core's :func:`lsq.wls_geometry` is then
-    evaluated once, at the solution, for the reasons, SSE, slopes and PLs.
-    Returns the state (..., 4), a converged flag (...) and the stacked predictions h (..., N)
-    and partials G (..., N, 4) at that state (N = NG + R; masked rows zero).
-    """
-    batch = x0.shape[:-1]
-    P = int(np.prod(batch, dtype=np.int64))
-
-    def flat(a, tail, dtype=float):
-        return np.ascontiguousarray(np.broadcast_to(a, batch + tail).reshape((P,) + tail), dtype=dtype)
-
-    ag, og, zg, wg, mg = gps
-    NG = zg.shape[-1]
-    if vision is None:
-        av, ov = np.zeros((1, 3)), np.zeros((P, 3))
-        Tm, zv, Wv, mv = np.zeros((P, 0, 1)), np.zeros((P, 0)), np.zeros((P, 0, 0)), np.zeros((P, 0), bool)
-    else:
-        av, ov, Tm, zv, Wv, mv = vision
-        R, L = Tm.shape[-2:]
-        av = np.ascontiguousarray(av, float)
-        ov, Tm, zv, Wv = flat(ov, (3,)), flat(Tm, (R, L)), flat(zv, (R,)), flat(Wv, (R, R))
-        mv = flat(mv, (R,), bool)
-    Nr = NG + zv.shape[-1]
-    x = np.empty((P, 4))
-    conv = np.empty(P, bool)
-    iters = np.empty(P, np.int64)
-    h, G = np.empty((P, Nr)), np.empty((P, Nr, 4))
-    kernels.range_gauss_newton(flat(ag, (NG, 3)), flat(og, (3,)), flat(zg, (NG,)), flat(wg, (NG,)),
-                               flat(mg, (NG,), bool), av, ov, Tm, zv, Wv, mv, flat(x0, (4,)),
-                               ist.max_iter, ist.tol_m, x, conv, iters, h, G)
-    return x.reshape(batch + (4,)), conv.reshape(batch), h.reshape(batch + (Nr,)), G.reshape(batch + (Nr, 4))
 
 
 def _finish(h: NDArray, G: NDArray, z: NDArray, W, mask: NDArray, x: NDArray, conv: NDArray,
@@ -341,7 +302,8 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     zg = np.take_along_axis(pr, idx, -1)
     wg = lsq.weights_from_sigma(np.take_along_axis(inp.sigma, idx, -1))
     wg = np.where(mg, wg, 0.0)
-    xg_it, conv_g, h_g, G_g = _gauss_newton(np.zeros(bt + (4,)), ist, (anchor_g, off_ant, zg, wg, mg))
+    xg_it, conv_g, _, h_g, G_g = lsq.gauss_newton_ranges(np.zeros(bt + (4,)), ist.max_iter, ist.tol_m,
+                                                         (anchor_g, off_ant, zg, wg, mg))
     geom_g, pls_g, reason_g, ok_g, x_g, r_g, sse_g = _finish(h_g, G_g, zg, wg, mg, xg_it, conv_g, ist)
     gps = _monitor_output("gps_raim", t, x_g, geom_g, pls_g, reason_g, ok_g, r_g, sse_g, ist,
                           {"converged": conv_g, "gps_slot": idx})
@@ -392,8 +354,8 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     mask_all = np.concatenate([mg, rows.mask], axis=-1)
     W_blocks = (np.where(mg, wg, 0.0), rows.W)  # block-diagonal weight: GPS diagonal, vision block
     x0 = _take_t(x_g0, li)
-    x_it, conv, h, G = _gauss_newton(x0, ist, (anchor_g, off_ant, zg, wg, mg),
-                                     (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask))
+    x_it, conv, _, h, G = lsq.gauss_newton_ranges(x0, ist.max_iter, ist.tol_m, (anchor_g, off_ant, zg, wg, mg),
+                                                  (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask))
     geom, pls, reason, ok, x, r, sse = _finish(h, G, z_all, W_blocks, mask_all, x_it, conv, ist)
     extra = {
         "gps": gps,
