@@ -223,6 +223,21 @@ def range_gauss_newton(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z
 
 
 @njit(cache=True, nogil=True)
+def _pair_indices(L):
+    """Landmark indices (I, J) of the N_C = L(L−1)/2 pair slots, ``numpy.triu_indices(L, 1)`` order."""
+    nc = L * (L - 1) // 2
+    I = np.empty(nc, np.int64)
+    J = np.empty(nc, np.int64)
+    q = 0
+    for i in range(L):
+        for j in range(i + 1, L):
+            I[q] = i
+            J[q] = j
+            q += 1
+    return I, J
+
+
+@njit(cache=True, nogil=True)
 def cosine_gauss_newton(c, W, d2, m0, colm, pair_mask, n_iter, tol_m, m_out, iter_out, conv_out, good_out):
     """Gauss–Newton on the weighted cosine residual ``c − c_model(m)``, one epoch at a time.
 
@@ -237,14 +252,7 @@ def cosine_gauss_newton(c, W, d2, m0, colm, pair_mask, n_iter, tol_m, m_out, ite
     """
     P, nc = c.shape
     L = m0.shape[1]
-    I = np.empty(nc, np.int64)
-    J = np.empty(nc, np.int64)
-    q = 0
-    for i in range(L):
-        for j in range(i + 1, L):
-            I[q] = i
-            J[q] = j
-            q += 1
+    I, J = _pair_indices(L)
     A = np.zeros((nc, L))
     r = np.empty(nc)
     Wr = np.empty(nc)
@@ -509,14 +517,7 @@ def cosines_and_covariance(uv, used, sigma_px, Kinv, c_out, Sc_out):
     db = np.empty((L, 3, 2))  # ∂b/∂(u, v) = (I − b bᵀ)/‖n‖ K⁻¹[:, :2]
     dci = np.empty((nc, 2))
     dcj = np.empty((nc, 2))
-    I = np.empty(nc, np.int64)
-    J = np.empty(nc, np.int64)
-    q = 0
-    for i in range(L):
-        for j in range(i + 1, L):
-            I[q] = i
-            J[q] = j
-            q += 1
+    I, J = _pair_indices(L)
     for p in range(P):
         for l in range(L):
             u = uv[p, l, 0] if used[p, l] else 0.0
@@ -610,35 +611,18 @@ def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
                 for q in range(nc):
                     M[l, q] = Ap[b, t, l, q] * ratio[q]
                     AB[l, q] = Ap[b, t, l, q] * B[b, t, q]
-            for l in range(L):
-                for j in range(L):
-                    s = 0.0
-                    for q in range(nc):
-                        s += M[l, q] * A[b, k, q, j]
-                    MA0[l, j] = s
+            _matmul(M, A[b, k], MA0)
             for l in range(L):
                 s = 0.0
                 for j in range(L):
                     s += MA0[l, j] * beta0_out[b, t, j]
                 beta_out[b, t, l] = s
-            for q in range(nc):
-                for q2 in range(nc):
-                    s = 0.0
-                    for j in range(L):
-                        s += A[b, k, q, j] * Ap[b, k, j, q2]
-                    P0[q, q2] = s
+            _matmul(A[b, k], Ap[b, k], P0)
+            _matmul(M, P0, MP0)
+            _matmul(MA0, H0, MAH)
             for l in range(L):
-                for q2 in range(nc):
-                    s = 0.0
-                    for q in range(nc):
-                        s += M[l, q] * P0[q, q2]
-                    MP0[l, q2] = s
-                    Ld[l, q2] = AB[l, q2] - s * B[b, k, q2]
-                for c in range(3):
-                    s = 0.0
-                    for j in range(L):
-                        s += MA0[l, j] * H0[j, c]
-                    MAH[l, c] = s
+                for q in range(nc):
+                    Ld[l, q] = AB[l, q] - MP0[l, q] * B[b, k, q]
             # Σ̂_V = Σ_V + MP0 Σc0 MP0ᵀ + MAH Pg MAHᵀ + Ld Sd Ldᵀ;  Σ_unc = Σ_V + AB Sd ABᵀ
             for l in range(L):
                 for j in range(L):
@@ -647,33 +631,38 @@ def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
             _add_sandwich(MP0, Sc[b, k], Sh_out[b, t], tmp)
             _add_sandwich(Ld, Sd, Sh_out[b, t], tmp)
             _add_sandwich(AB, Sd, Su_out[b, t], tmp)
-            for l in range(L):
-                for c in range(3):
-                    s = 0.0
-                    for c2 in range(3):
-                        s += MAH[l, c2] * Pg[b, k, c2, c]
-                    tmp3[l, c] = s
-            for l in range(L):
-                for j in range(L):
-                    s = 0.0
-                    for c in range(3):
-                        s += tmp3[l, c] * MAH[j, c]
-                    Sh_out[b, t, l, j] += s
+            _add_sandwich(MAH, Pg[b, k], Sh_out[b, t], tmp3)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _add_sandwich(X, C, out, tmp):
     """out += X C Xᵀ (X (L, n), C (n, n); tmp (L, n) scratch)."""
     L, n = X.shape
-    for l in range(L):
-        for q in range(n):
-            s = 0.0
-            for q2 in range(n):
-                s += X[l, q2] * C[q2, q]
-            tmp[l, q] = s
+    _matmul(X, C, tmp)
     for l in range(L):
         for j in range(L):
             s = 0.0
             for q in range(n):
                 s += tmp[l, q] * X[j, q]
             out[l, j] += s
+
+
+@njit(cache=True, nogil=True)
+def cond4_batch(S, out):
+    """:func:`_cond4` of every symmetric 4×4 matrix S[p] (NaN: not certified, use LAPACK)."""
+    scratch = np.empty((4, 4))
+    for p in range(S.shape[0]):
+        out[p] = _cond4(S[p], scratch)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _matmul(X, Y, out):
+    """out = X @ Y for small matrices (no allocation)."""
+    n, k = X.shape
+    m = Y.shape[1]
+    for i in range(n):
+        for j in range(m):
+            s = 0.0
+            for q in range(k):
+                s += X[i, q] * Y[q, j]
+            out[i, j] = s

@@ -221,87 +221,19 @@ def _scaled_cond(Ms: NDArray) -> NDArray:
     """Condition number ``λ_max / λ_min`` of finite symmetric 4×4 matrices (inf if not PD).
 
     Equal (to rounding) to the ``eigvalsh`` ratio but much cheaper on large batches:
-    the extreme roots of the characteristic polynomial (coefficients from the principal
-    minors) by Laguerre's method, started at 0 and at the trace — outside the root
-    interval of a real-rooted polynomial it converges monotonically to the nearest root.
-    Elements that are not clearly positive definite and well conditioned (estimate above
-    ``_COND_RECHECK``, no convergence) are recomputed with ``eigvalsh``, so the SINGULAR
-    flag at ``max_cond`` is decided exactly as before.
+    the extreme roots of the characteristic polynomial by Laguerre's method, certified
+    by shifted LDLᵀ factorisations (:func:`kernels._cond4`). Elements that are not
+    clearly positive definite and well conditioned (estimate above ``_COND_RECHECK``,
+    not certified) are recomputed with ``eigvalsh``, so the SINGULAR flag at
+    ``max_cond`` is decided by LAPACK.
     """
     n = Ms.shape[-1]
     if n != 4 or Ms.size == 0:
         return _eigvalsh_cond(Ms)
-    X = Ms.reshape(-1, 4, 4)
-    a = [[X[:, i, j].copy() for j in range(4)] for i in range(4)]
-    a00, a01, a02, a03 = a[0]
-    a11, a12, a13 = a[1][1], a[1][2], a[1][3]
-    a22, a23 = a[2][2], a[2][3]
-    a33 = a[3][3]
-    # 2x2 minors of rows (0,1) and (2,3) for the determinant (Laplace expansion)
-    s0 = a00 * a11 - a01 * a01
-    s1 = a00 * a12 - a02 * a01
-    s2 = a00 * a13 - a03 * a01
-    s3 = a01 * a12 - a02 * a11
-    s4 = a01 * a13 - a03 * a11
-    s5 = a02 * a13 - a03 * a12
-    c5 = a22 * a33 - a23 * a23
-    c4 = a12 * a33 - a13 * a23
-    c3 = a12 * a23 - a13 * a22
-    c2 = a02 * a33 - a03 * a23
-    c1 = a02 * a23 - a03 * a22
-    c0 = a02 * a13 - a03 * a12
-    det = s0 * c5 - s1 * c4 + s2 * c3 + s3 * c2 - s4 * c1 + s5 * c0
-    k1 = a00 + a11 + a22 + a33
-    k2 = (s0 + a00 * a22 - a02 * a02 + a00 * a33 - a03 * a03 + a11 * a22 - a12 * a12
-          + a11 * a33 - a13 * a13 + c5)
-
-    def m3(p, q, r, s_, t, u):  # det of [[p, q, r], [q, s_, t], [r, t, u]]
-        return p * (s_ * u - t * t) - q * (q * u - t * r) + r * (q * t - s_ * r)
-
-    k3 = (m3(a00, a01, a02, a11, a12, a22) + m3(a00, a01, a03, a11, a13, a33)
-          + m3(a00, a02, a03, a22, a23, a33) + m3(a11, a12, a13, a22, a23, a33))
-
-    def laguerre(lam: NDArray) -> tuple[NDArray, NDArray]:
-        done = np.zeros(lam.shape, bool)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            for _ in range(10):
-                p = (((lam - k1) * lam + k2) * lam - k3) * lam + det
-                dp = ((4.0 * lam - 3.0 * k1) * lam + 2.0 * k2) * lam - k3
-                d2p = (12.0 * lam - 6.0 * k1) * lam + 2.0 * k2
-                G = dp / p
-                H = G * G - d2p / p
-                sq = np.sqrt(np.maximum(3.0 * (4.0 * H - G * G), 0.0))
-                den = np.where(G < 0, G - sq, G + sq)
-                step = np.where(p == 0, 0.0, 4.0 / den)
-                step = np.where(done, 0.0, step)
-                lam = lam - step
-                done = done | ~(np.abs(step) > 1e-13 * np.abs(lam))
-                if done.all():
-                    break
-        return lam, done
-
-    lo, ok_lo = laguerre(np.zeros_like(k1))
-    hi, ok_hi = laguerre(k1.copy())
-
-    def pos_def(sign: float, shift: NDArray) -> NDArray:
-        # LDLᵀ pivots of sign·(A − shift·I) all > 0: no eigenvalue of A on the wrong side of shift
-        b = [[sign * (a[i][j] - shift) if i == j else sign * a[i][j] for j in range(4)] for i in range(4)]
-        d0 = b[0][0]
-        l10, l20, l30 = b[0][1] / d0, b[0][2] / d0, b[0][3] / d0
-        d1 = b[1][1] - l10 * b[0][1]
-        t12 = b[1][2] - l20 * b[0][1]
-        t13 = b[1][3] - l30 * b[0][1]
-        l21, l31 = t12 / d1, t13 / d1
-        d2 = b[2][2] - l20 * b[0][2] - l21 * t12
-        t23 = b[2][3] - l30 * b[0][2] - l21 * t13
-        d3 = b[3][3] - l30 * b[0][3] - l31 * t13 - (t23 / d2) * t23
-        return (d0 > 0) & (d1 > 0) & (d2 > 0) & (d3 > 0)
-
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        cond = hi / lo
-        # the roots found are the extreme eigenvalues (guards against noisy coefficients)
-        bracket = pos_def(1.0, lo * (1.0 - 1e-6)) & pos_def(-1.0, hi * (1.0 + 1e-6))
-    recheck = ~(ok_lo & ok_hi & bracket & (lo > 0) & (det > 0) & np.isfinite(cond) & (cond <= _COND_RECHECK))
+    X = np.ascontiguousarray(Ms.reshape(-1, 4, 4), float)
+    cond = np.empty(X.shape[0])
+    kernels.cond4_batch(X, cond)
+    recheck = ~(cond <= _COND_RECHECK)
     if recheck.any():
         cond[recheck] = _eigvalsh_cond(X[recheck])
     return cond.reshape(Ms.shape[:-2])
