@@ -213,7 +213,8 @@ def print_run_summary(result: RunResult) -> None:
     loop_s = tm.flight + tm.sensors + tm.monitors + tm.logging
     con.print(f"loop: {sim_s:.0f} s simulated in {loop_s:.2f} s ({sim_s / loop_s:.0f}x real time): flight "
               f"{tm.flight:.2f} s, sensors {tm.sensors:.2f} s, monitors {tm.monitors:.2f} s, logging {tm.logging:.2f} s; "
-              f"set-up and evaluation {max(result.wall_s - loop_s, 0.0):.2f} s (terrain built once per process)")
+              f"set-up and evaluation {max(result.wall_s - loop_s, 0.0):.2f} s (terrain built once per process; the "
+              f"integrity kernels compiled on the first run after an install)")
     if result.rrd_path is not None:
         con.print(f"recording: {result.rrd_path}  (replay: rerun {result.rrd_path})")
 

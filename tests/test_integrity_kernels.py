@@ -78,3 +78,36 @@ def test_fused_cosines_and_covariance_match_the_numpy_formulas():
     Sc_ref = cosine_covariance(dci, dcj, np.where(used, sig, 0.0), L)
     np.testing.assert_allclose(c, c_ref, rtol=0, atol=1e-15)
     np.testing.assert_allclose(Sc, Sc_ref, rtol=1e-12, atol=1e-24)
+
+
+def test_compile_all_covers_the_monitors_so_nothing_compiles_mid_flight():
+    """After the set-up's compile_all, running the monitors adds no numba specialisation."""
+    import sys
+    from dataclasses import replace
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_va_raim_scenario import make_scenario
+
+    from testbed.integrity.raim import gps_raim
+    from testbed.integrity.va_raim import va_raim
+
+    kernels.compile_all()
+    names = ("solve_batch", "range_gauss_newton", "cosine_gauss_newton", "normal_geometry",
+             "cosines_and_covariance", "calibrate_epochs", "cond4_batch")
+    before = {n: len(getattr(kernels, n).signatures) for n in names}
+    sc = make_scenario(np.random.default_rng(4), (2,), t0=40.0, t1=60.0)
+    uv = sc.vision.pixel_uv.copy()
+    uv[0, 3, 0] = np.nan
+    va_raim(sc.gnss, replace(sc.vision, pixel_uv=uv), sc.frame)
+    gps_raim(sc.gnss, sc.frame)
+    assert {n: len(getattr(kernels, n).signatures) for n in names} == before
+
+
+def test_division_by_zero_gives_nan_not_an_exception():
+    """numpy's error model: a zero range (degenerate geometry) propagates inf/NaN."""
+    c = np.zeros((1, 3))
+    m = np.zeros((1, 3))  # zero start ranges
+    out_m, it, conv, good = np.empty((1, 3)), np.empty(1, np.int64), np.empty(1, bool), np.empty(1, bool)
+    kernels.cosine_gauss_newton(c, np.broadcast_to(np.eye(3), (1, 3, 3)).copy(), np.ones(3), m,
+                                np.ones((1, 3), bool), np.ones((1, 3), bool), 5, 1e-4, out_m, it, conv, good)
+    assert not (conv[0] and good[0])

@@ -8,6 +8,8 @@ the tolerance — so an epoch's answer no longer depends on what else is in the
 batch (the per-epoch reference implementations stop the same way).
 
 The kernels release the GIL, so callers may run chunks of a batch on threads.
+They use numpy's floating-point error model: a division by zero gives inf/NaN
+(and then an "unavailable" reason downstream), never an exception.
 Compiled code is cached beside this file (numba's ``cache=True``); the first
 call after an install compiles it (a few seconds).
 """
@@ -18,7 +20,22 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+def kernel_input(a, shape: tuple, out_shape: tuple | None = None, dtype=np.float64) -> np.ndarray:
+    """``a`` broadcast to ``shape`` (then reshaped to ``out_shape``), C-contiguous and read-only.
+
+    numba compiles one specialisation per argument layout *and* writability, so every
+    kernel input goes through here: one compiled version per kernel, whatever the caller's
+    arrays are (fresh, broadcast views, read-only slices). Copies only when it must.
+    """
+    x = np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype), shape))
+    if out_shape is not None:
+        x = x.reshape(out_shape)
+    v = x.view()
+    v.flags.writeable = False
+    return v
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _lu_solve(A, B) -> bool:
     """Solve ``A X = B`` in place (A (n, n) and B (n, k) overwritten, X left in B).
 
@@ -60,7 +77,7 @@ def _lu_solve(A, B) -> bool:
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def solve_batch(M, R, X, good):
     """``X[p] = solve(M[p], R[p])`` for every p; M (P, n, n), R (P, n, k).
 
@@ -86,7 +103,7 @@ def solve_batch(M, R, X, good):
         good[p] = ok
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, Gv, h, G):
     """Stacked predictions h (NG + R,) and partials G (NG + R, 4) of epoch p at state x.
 
@@ -134,7 +151,7 @@ def _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, 
                     G[q, c] += t * Gv[l, c]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def range_gauss_newton(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z_v, W_v, mask_v,
                        x0, n_iter, tol_m, x_out, conv_out, iter_out, h_out, G_out):
     """Iterated WLS of stacked range rows, one epoch at a time.
@@ -222,7 +239,7 @@ def range_gauss_newton(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z
         _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, Gv, h_out[p], G_out[p])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _pair_indices(L):
     """Landmark indices (I, J) of the N_C = L(L−1)/2 pair slots, ``numpy.triu_indices(L, 1)`` order."""
     nc = L * (L - 1) // 2
@@ -237,7 +254,7 @@ def _pair_indices(L):
     return I, J
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def cosine_gauss_newton(c, W, d2, m0, colm, pair_mask, n_iter, tol_m, m_out, iter_out, conv_out, good_out):
     """Gauss–Newton on the weighted cosine residual ``c − c_model(m)``, one epoch at a time.
 
@@ -327,7 +344,7 @@ def cosine_gauss_newton(c, W, d2, m0, colm, pair_mask, n_iter, tol_m, m_out, ite
         good_out[p] = good
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _laguerre4(lam, k1, k2, k3, det):
     """A root of ``λ⁴ − k1λ³ + k2λ² − k3λ + det`` by Laguerre's method from ``lam``
     (real-rooted: converges monotonically to the nearest root outside the root interval).
@@ -349,7 +366,7 @@ def _laguerre4(lam, k1, k2, k3, det):
     return lam, False
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _pos_def_shifted(S, sign, shift, b):
     """All LDLᵀ pivots of ``sign·(S − shift·I)`` (4×4) positive (b: 4×4 scratch)."""
     for i in range(4):
@@ -370,7 +387,7 @@ def _pos_def_shifted(S, sign, shift, b):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cond4(S, scratch):
     """``λ_max/λ_min`` of a symmetric 4×4 matrix, or NaN where not certified.
 
@@ -411,13 +428,13 @@ def _cond4(S, scratch):
     return hi / lo
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _m3(p, q, r, s_, t, u):
     """det of [[p, q, r], [q, s_, t], [r, t, u]]."""
     return p * (s_ * u - t * t) - q * (q * u - t * r) + r * (q * t - s_ * r)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def normal_geometry(G0, WG, Wd, pivot_rtol, M_out, cond_out, J_out, A_out, ws_out, ok_out):
     """The weighted-LS matrices of every epoch (n states, all estimated).
 
@@ -501,7 +518,7 @@ def normal_geometry(G0, WG, Wd, pivot_rtol, M_out, cond_out, J_out, A_out, ws_ou
             ws_out[p, k] = Wd[p, k] - s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def cosines_and_covariance(uv, used, sigma_px, Kinv, c_out, Sc_out):
     """Pair cosines of the lines of sight and their full covariance from pixel noise.
 
@@ -561,7 +578,7 @@ def cosines_and_covariance(uv, used, sigma_px, Kinv, c_out, Sc_out):
                 Sc_out[p, k, k2] = s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
                      beta_out, beta0_out, Sh_out, Su_out):
     """GPS calibration of the vision ranges (INTEGRITY_MATH.md §3), every epoch of every trial.
@@ -634,7 +651,7 @@ def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
             _add_sandwich(MAH, Pg[b, k], Sh_out[b, t], tmp3)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _add_sandwich(X, C, out, tmp):
     """out += X C Xᵀ (X (L, n), C (n, n); tmp (L, n) scratch)."""
     L, n = X.shape
@@ -647,7 +664,7 @@ def _add_sandwich(X, C, out, tmp):
             out[l, j] += s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def cond4_batch(S, out):
     """:func:`_cond4` of every symmetric 4×4 matrix S[p] (NaN: not certified, use LAPACK)."""
     scratch = np.empty((4, 4))
@@ -655,7 +672,7 @@ def cond4_batch(S, out):
         out[p] = _cond4(S[p], scratch)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _matmul(X, Y, out):
     """out = X @ Y for small matrices (no allocation)."""
     n, k = X.shape
@@ -666,3 +683,35 @@ def _matmul(X, Y, out):
             for q in range(k):
                 s += X[i, q] * Y[q, j]
             out[i, j] = s
+
+
+def compile_all() -> None:
+    """Compile (or load from numba's cache) every kernel for the argument types the monitors use.
+
+    Call it during set-up so the first epochs of a run are not charged with compilation
+    (~15 s after an install, well under a second once cached). Inputs are read-only
+    (:func:`kernel_input`), outputs fresh arrays, as in the monitors.
+    """
+    f, b, i = np.float64, np.bool_, np.int64
+
+    def r(*shape, dt=f):  # an input
+        return kernel_input(np.zeros(shape, dt), shape, dtype=dt)
+
+    def w(*shape, dt=f):  # an output
+        return np.zeros(shape, dt)
+
+    eye = kernel_input(np.eye(4), (1, 4, 4))
+    solve_batch(eye, r(1, 4, 1), w(1, 4, 1), w(1, dt=b))
+    range_gauss_newton(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
+                       r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
+                       w(1, 4), w(1, 4, 4))
+    cosine_gauss_newton(r(1, 3), r(1, 3, 3), r(3), r(1, 3), r(1, 3, dt=b), r(1, 3, dt=b), 1, 1e-4, w(1, 3),
+                        w(1, dt=i), w(1, dt=b), w(1, dt=b))
+    normal_geometry(r(1, 5, 4), r(1, 5, 4), r(1, 5), 1e-5, w(1, 4, 4), w(1), w(1, 4, 4), w(1, 4, 5), w(1, 5),
+                    w(1, dt=b))
+    cosines_and_covariance(r(1, 3, 2), r(1, 3, dt=b), r(1, 3), kernel_input(np.eye(3), (3, 3)), w(1, 3),
+                           w(1, 3, 3))
+    calibrate_epochs(r(1, 1, dt=i), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3, 3),
+                     r(1, 1, 3, 3), r(1, 1, 3, dt=b), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(3, 3), r(3, 3),
+                     w(1, 1, 3), w(1, 1, 3), w(1, 1, 3, 3), w(1, 1, 3, 3))
+    cond4_batch(eye, w(1))

@@ -230,7 +230,7 @@ def _scaled_cond(Ms: NDArray) -> NDArray:
     n = Ms.shape[-1]
     if n != 4 or Ms.size == 0:
         return _eigvalsh_cond(Ms)
-    X = np.ascontiguousarray(Ms.reshape(-1, 4, 4), float)
+    X = kernels.kernel_input(Ms, Ms.shape, (-1, 4, 4))
     cond = np.empty(X.shape[0])
     kernels.cond4_batch(X, cond)
     recheck = ~(cond <= _COND_RECHECK)
@@ -304,7 +304,7 @@ def _compiled_geometry(G0: NDArray, WG: NDArray, Wd: NDArray) -> tuple[NDArray, 
     P = int(np.prod(batch, dtype=np.int64))
 
     def flat(a: NDArray, tail: tuple) -> NDArray:
-        return np.ascontiguousarray(np.broadcast_to(a, batch + tail).reshape((P,) + tail), float)
+        return kernels.kernel_input(a, batch + tail, (P,) + tail)
 
     M, cond = np.empty((P, n, n)), np.empty(P)
     J, A, ws, ok = np.empty((P, n, n)), np.empty((P, n, N)), np.empty((P, N)), np.empty(P, bool)
@@ -768,27 +768,25 @@ def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, visi
     batch = x0.shape[:-1]
     P = int(np.prod(batch, dtype=np.int64))
 
-    def flat(a, tail, dtype=float):
-        return np.ascontiguousarray(np.broadcast_to(a, batch + tail).reshape((P,) + tail), dtype=dtype)
+    def flat(a, tail, dtype=np.float64):
+        return kernels.kernel_input(a, batch + tail, (P,) + tail, dtype)
 
     ag, og, zg, wg, mg = gps
     NG = zg.shape[-1]
-    if vision is None:
-        av, ov = np.zeros((1, 3)), np.zeros((P, 3))
-        Tm, zv, Wv, mv = np.zeros((P, 0, 1)), np.zeros((P, 0)), np.zeros((P, 0, 0)), np.zeros((P, 0), bool)
-    else:
-        av, ov, Tm, zv, Wv, mv = vision
-        R, L = Tm.shape[-2:]
-        av = np.ascontiguousarray(av, float)
-        ov, Tm, zv, Wv = flat(ov, (3,)), flat(Tm, (R, L)), flat(zv, (R,)), flat(Wv, (R, R))
-        mv = flat(mv, (R,), bool)
+    if vision is None:  # no vision block: empty rows
+        vision = (np.zeros((1, 3)), np.zeros(3), np.zeros((0, 1)), np.zeros(0), np.zeros((0, 0)), np.zeros(0, bool))
+    av, ov, Tm, zv, Wv, mv = vision
+    R, L = Tm.shape[-2:]
+    av = kernels.kernel_input(av, np.shape(av))
+    ov, Tm, zv, Wv = flat(ov, (3,)), flat(Tm, (R, L)), flat(zv, (R,)), flat(Wv, (R, R))
+    mv = flat(mv, (R,), np.bool_)
     Nr = NG + zv.shape[-1]
     x = np.empty((P, 4))
     conv = np.empty(P, bool)
     iters = np.empty(P, np.int64)
     h, G = np.empty((P, Nr)), np.empty((P, Nr, 4))
     kernels.range_gauss_newton(flat(ag, (NG, 3)), flat(og, (3,)), flat(zg, (NG,)), flat(wg, (NG,)),
-                               flat(mg, (NG,), bool), av, ov, Tm, zv, Wv, mv, flat(x0, (4,)),
+                               flat(mg, (NG,), np.bool_), av, ov, Tm, zv, Wv, mv, flat(x0, (4,)),
                                n_iter, tol_m, x, conv, iters, h, G)
     return (x.reshape(batch + (4,)), conv.reshape(batch), iters.reshape(batch), h.reshape(batch + (Nr,)),
             G.reshape(batch + (Nr, 4)))

@@ -227,8 +227,8 @@ def _safe_solve(M: NDArray, rhs: NDArray) -> tuple[NDArray, NDArray]:
     n, k = M.shape[-1], rhs.shape[-1]
     batch = np.broadcast_shapes(M.shape[:-2], rhs.shape[:-2])
     P = int(np.prod(batch, dtype=np.int64))
-    Mf = np.ascontiguousarray(np.broadcast_to(M, batch + (n, n)).reshape(P, n, n), dtype=float)
-    Rf = np.ascontiguousarray(np.broadcast_to(rhs, batch + (n, k)).reshape(P, n, k), dtype=float)
+    Mf = kernels.kernel_input(M, batch + (n, n), (P, n, n))
+    Rf = kernels.kernel_input(rhs, batch + (n, k), (P, n, k))
     X = np.empty((P, n, k))
     good = np.empty(P, bool)
     kernels.solve_batch(Mf, Rf, X, good)
@@ -409,12 +409,12 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     # see harmless pixels (0, 0) and contribute nothing)
     P = int(np.prod(batch, dtype=np.int64))
 
-    def flat(a: NDArray, tail: tuple, dt: type = float) -> NDArray:
-        return np.ascontiguousarray(np.reshape(a, (P,) + tail), dtype=dt)
+    def flat(a: NDArray, tail: tuple, dt: type = np.float64) -> NDArray:
+        return kernels.kernel_input(a, batch + tail, (P,) + tail, dt)
 
     c, Sigma_c = np.empty((P, nc)), np.empty((P, nc, nc))
-    kernels.cosines_and_covariance(flat(uv, (L, 2)), flat(colm, (L,), bool), flat(sig, (L,)),
-                                   np.linalg.inv(np.asarray(K, float)), c, Sigma_c)
+    kernels.cosines_and_covariance(flat(uv, (L, 2)), flat(colm, (L,), np.bool_), flat(sig, (L,)),
+                                   kernels.kernel_input(np.linalg.inv(np.asarray(K, float)), (3, 3)), c, Sigma_c)
     c, Sigma_c = c.reshape(batch + (nc,)), Sigma_c.reshape(batch + (nc, nc))
     Sigma_c = np.where(pair_mask[..., :, None] & pair_mask[..., None, :], Sigma_c, 0.0)
     # N_V = 3: A is square, A⁺ = A⁻¹ whatever the (regular) weight, so the identity on the valid
@@ -427,9 +427,9 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     # --- Gauss-Newton on the weighted cosine residual, each epoch on its own (compiled)
     m_f, it_f = np.empty((P, L)), np.empty(P, np.int64)
     conv_f, good_f = np.empty(P, bool), np.empty(P, bool)
-    kernels.cosine_gauss_newton(flat(c, (nc,)), flat(W, (nc, nc)), np.ascontiguousarray(d2, float),
-                                flat(np.where(colm, mp, 1.0), (L,)), flat(colm, (L,), bool),
-                                flat(pair_mask, (nc,), bool), s.max_iter, s.tol_m, m_f, it_f, conv_f, good_f)
+    kernels.cosine_gauss_newton(flat(c, (nc,)), flat(W, (nc, nc)), kernels.kernel_input(d2, d2.shape),
+                                flat(np.where(colm, mp, 1.0), (L,)), flat(colm, (L,), np.bool_),
+                                flat(pair_mask, (nc,), np.bool_), s.max_iter, s.tol_m, m_f, it_f, conv_f, good_f)
     m = m_f.reshape(batch + (L,))
     iters = it_f.reshape(batch)
     converged = conv_f.reshape(batch) | ~active

@@ -84,6 +84,9 @@ def build_setup(approach: Approach, terrain) -> RunSetup:
         if isinstance(exc, ValidationError):
             raise ConfigError(approach.source, ["va_raim." + p for p in format_validation_error(exc)]) from None
         raise
+    if c.monitors:  # compile the monitors' kernels now (set-up), not in the first epochs
+        from testbed.integrity.kernels import compile_all
+        compile_all()
     return RunSetup(approach=approach, frame=frame, path=path, terrain=terrain, gnss=gnss,
                     antenna=antenna_mount(approach), vision=vision, landmarks=build_landmarks(c.landmarks),
                     integrity=c.integrity, va_raim=va, monitors=tuple(dict.fromkeys(c.monitors)),
