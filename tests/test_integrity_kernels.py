@@ -111,3 +111,20 @@ def test_division_by_zero_gives_nan_not_an_exception():
     kernels.cosine_gauss_newton(c, np.broadcast_to(np.eye(3), (1, 3, 3)).copy(), np.ones(3), m,
                                 np.ones((1, 3), bool), np.ones((1, 3), bool), 5, 1e-4, out_m, it, conv, good)
     assert not (conv[0] and good[0])
+
+
+def test_geometry_of_an_element_does_not_depend_on_the_batch():
+    """A dropped-clock element (vision-only rows) in the batch leaves the others' numbers unchanged,
+    bit for bit: every path decision in wls_geometry is per element."""
+    rng = np.random.default_rng(6)
+    G = rng.normal(size=(3, 7, 4))
+    G[..., 3] = 1.0
+    G[1, :, 3] = 0.0  # no clock term in any row: the clock is dropped for element 1
+    G[2, :, 2] *= 1e-4  # ill-conditioned: the LAPACK path
+    w = rng.uniform(0.5, 2.0, (3, 7))
+    whole = lsq.wls_geometry(G, w)
+    assert whole.n_states[1] == 3
+    for k in (0, 2):
+        alone = lsq.wls_geometry(G[k:k + 1], w[k:k + 1])
+        for f in ("J", "A", "ws_diag", "cond", "reason"):
+            np.testing.assert_array_equal(getattr(whole, f)[k], getattr(alone, f)[0], err_msg=f)

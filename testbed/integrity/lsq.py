@@ -206,6 +206,11 @@ class WlsGeometry:
 _FAST_INV_COND = 1e3
 _FAST_WS_RTOL = 1e-3
 
+#: Smallest accepted LDLᵀ pivot relative to its diagonal entry in the compiled inverse
+#: (:func:`kernels.normal_geometry`). Above it the explicit solve agrees with LAPACK to ~1e-11
+#: relative; below it (ill-conditioned, singular, indefinite) the element takes LAPACK's inverse.
+SPD_PIVOT_RTOL = 1e-5
+
 #: Above this condition estimate the extreme eigenvalues are recomputed by LAPACK.
 _COND_RECHECK = 1e5
 
@@ -324,29 +329,36 @@ def _geometry_core(G0: NDArray, W0: NDArray, diag: bool, Wd: NDArray, WG: NDArra
     # singular), so only its column is scanned.
     live = np.ones(G0.shape[:-2] + (G0.shape[-1],), bool)
     live[..., 3] = (G0[..., 3] != 0).any(-1)
-    all_live = bool(live.all())
     n_states = live.sum(-1)
+    elem_live = live.all(-1)
     eye = np.eye(G0.shape[-1])
-    compiled = all_live and fast_inverse
-    if compiled:  # every state estimated: GᵀWG, its condition, J, A and (WS)_ii per epoch, compiled
-        M, cond, Jk, Ak, wsk, okJ = _compiled_geometry(G0, WG, Wd)
+    # Every decision below is per element, so an element's numbers never depend on the
+    # rest of the batch (chunks of a batch are bit-identical to the whole).
+    if fast_inverse:  # GᵀWG, its condition, J, A and (WS)_ii per epoch, compiled
+        M, cond, J, A, ws, okJ = _compiled_geometry(G0, WG, Wd)
         # uncertified or above the recheck level: the extreme eigenvalues from LAPACK, as in _scaled_cond
-        recheck = np.isnan(cond) | (np.isfinite(cond) & (cond > _COND_RECHECK))
+        recheck = elem_live & (np.isnan(cond) | (np.isfinite(cond) & (cond > _COND_RECHECK)))
         if recheck.any():
             d = np.sqrt(np.abs(np.diagonal(M[recheck], axis1=-2, axis2=-1)))
             Ms = M[recheck] / (d[..., :, None] * d[..., None, :])
             cond[recheck] = _eigvalsh_cond(np.where(np.isfinite(Ms), Ms, 0.0))
+        numpy_way = ~elem_live  # a dropped clock: the reduced normal matrix below
     else:
         M = np.swapaxes(G0, -1, -2) @ WG  # GᵀWG (..., 4, 4)
-        if not all_live:
-            M = np.where(live[..., :, None] & live[..., None, :], M, 0.0) + eye * ~live[..., None, :]
+        cond = np.empty(n_used.shape)
+        J, A, ws = np.empty(M.shape), np.empty(WG.shape[:-2] + (WG.shape[-1], WG.shape[-2])), np.empty(Wd.shape)
+        okJ = np.zeros(n_used.shape, bool)
+        numpy_way = np.ones(n_used.shape, bool)
+    if numpy_way.any():
+        ln = live[numpy_way]
+        Mn = np.where(ln[..., :, None] & ln[..., None, :], M[numpy_way], 0.0) + eye * ~ln[..., None, :]
         # Jacobi scaling makes the condition number independent of the units of
         # each state and of an overall weight scale.
-        d = np.sqrt(np.abs(np.diagonal(M, axis1=-2, axis2=-1)))
+        d = np.sqrt(np.abs(np.diagonal(Mn, axis1=-2, axis2=-1)))
         d_safe = np.where(d > 0, d, 1.0)
-        Ms = M / (d_safe[..., :, None] * d_safe[..., None, :])
-        cond = _scaled_cond(np.where(np.isfinite(Ms), Ms, 0.0))
-        cond = np.where((d > 0).all(-1), cond, np.inf)
+        Ms = Mn / (d_safe[..., :, None] * d_safe[..., None, :])
+        M[numpy_way] = Mn
+        cond[numpy_way] = np.where((d > 0).all(-1), _scaled_cond(np.where(np.isfinite(Ms), Ms, 0.0)), np.inf)
     n_states_full = M.shape[-1]
 
     reason = np.zeros(n_used.shape, np.int8)
@@ -358,37 +370,15 @@ def _geometry_core(G0: NDArray, W0: NDArray, diag: bool, Wd: NDArray, WG: NDArra
 
     # invert only the good elements: a singular element must not raise for the batch
     M_safe = np.where(solvable[..., None, None], M, np.eye(n_states_full))
-    WGt = np.swapaxes(WG, -1, -2)
-    # Well-conditioned elements: explicit LDLᵀ inverse and (WS)_ii = W_ii − Σ_k (WG)_ik A_ki.
+    # Well-conditioned elements keep the compiled LDLᵀ inverse and (WS)_ii = W_ii − Σ_k (WG)_ik A_ki.
     # The rest (ill-conditioned, dropped clock, and any with a near-zero (WS)_ii, whose value
-    # is rounding noise) take the LAPACK inverse and the 3-operand sum exactly as before.
-    fast = solvable & live.all(-1) & (cond <= _FAST_INV_COND) if fast_inverse else np.zeros(solvable.shape, bool)
-    if compiled:
-        fast = fast & okJ
-        J = np.where(solvable[..., None, None], Jk, np.nan)
-        A = np.where(solvable[..., None, None], Ak, np.nan)
-        ws = wsk
-        fast = fast & ~(m & ~(ws > _FAST_WS_RTOL * np.abs(Wd))).any(-1)
-    elif fast.any():
-        J, okJ = spd_solve_soa(M_safe, np.broadcast_to(eye, M_safe.shape))
-        fast = fast & okJ
-        J = np.where(solvable[..., None, None], J, np.nan)
-        A = J @ WGt  # (..., 4, N)
-        ws = Wd - np.einsum("...nk,...kn->...n", WG, A)
-        fast = fast & ~(m & ~(ws > _FAST_WS_RTOL * np.abs(Wd))).any(-1)
-    else:
-        J = np.empty(M.shape)
-        A = np.empty(WGt.shape)
-        ws = np.empty(Wd.shape)
+    # is rounding noise) take the LAPACK inverse and the 3-operand sum.
+    J = np.where(solvable[..., None, None], J, np.nan)
+    A = np.where(solvable[..., None, None], A, np.nan)
+    fast = solvable & elem_live & (cond <= _FAST_INV_COND) & okJ
+    fast = fast & ~(m & ~(ws > _FAST_WS_RTOL * np.abs(Wd))).any(-1)
     slow = ~fast
-    if not fast.any():  # every element the LAPACK way, on the whole batch
-        J = np.linalg.inv(M_safe)
-        if not all_live:
-            J = np.where(live[..., :, None] & live[..., None, :], J, 0.0)  # dropped states: not estimated
-        J = np.where(solvable[..., None, None], J, np.nan)
-        A = J @ WGt  # (..., 4, N)
-        ws = Wd - np.einsum("...ni,...ij,...nj->...n", WG, J, WG)  # (W S)_ii
-    elif slow.any():
+    if slow.any():
         Js = np.linalg.inv(M_safe[slow])
         ls = live[slow]
         Js = np.where(ls[..., :, None] & ls[..., None, :], Js, 0.0)  # dropped states: not estimated
@@ -893,85 +883,3 @@ def dops(geom: WlsGeometry, sigma_uere: float = 1.0) -> dict[str, NDArray]:
     return {"gdop": np.sqrt(Jd.sum(-1)), "pdop": np.sqrt(Jd[..., :3].sum(-1)),
             "hdop": np.sqrt(Jd[..., :2].sum(-1)), "vdop": np.sqrt(Jd[..., 2]),
             "tdop": np.sqrt(Jd[..., 3])}
-
-
-# ---------------------------------------------------------------------------
-# small symmetric positive definite solves, element by element (vectorised)
-# ---------------------------------------------------------------------------
-
-#: Smallest accepted LDLᵀ pivot relative to its diagonal entry in :func:`spd_solve_soa`.
-#: Above it the explicit solve agrees with LAPACK to ~1e-11 relative; below it (ill-conditioned,
-#: singular, indefinite) callers fall back to their LAPACK path, so degenerate elements behave
-#: exactly as before.
-SPD_PIVOT_RTOL = 1e-5
-
-
-def spd_solve_soa(M: NDArray, R: NDArray, rtol: float = SPD_PIVOT_RTOL) -> tuple[NDArray, NDArray]:
-    """``solve(M, R)`` for stacked small symmetric positive definite ``M`` by explicit LDLᵀ.
-
-    M : (..., n, n); R : (..., n, k) (broadcast against M's batch shape). The factorisation
-    runs on the components (one array per matrix entry), so a batch of 3×3 or 4×4 systems
-    costs a few dozen vector operations instead of one LAPACK call per element.
-
-    Returns X (..., n, k) and ``ok`` (...) bool: M finite, symmetric to rounding and every
-    pivot ``d_j > rtol·M_jj``. X is only meaningful where ok.
-    """
-    n = M.shape[-1]
-    batch = np.broadcast_shapes(M.shape[:-2], R.shape[:-2])
-    k = R.shape[-1]
-    P = int(np.prod(batch, dtype=np.int64))
-    Mf = np.broadcast_to(M, batch + (n, n)).reshape(P, n * n)
-    Rf = np.broadcast_to(R, batch + (n, k)).reshape(P, n * k)
-    X = np.empty((P, n, k))
-    ok = np.empty(P, bool)
-    for c0 in range(0, P, _SOA_CHUNK):  # cache-sized chunks
-        c1 = min(P, c0 + _SOA_CHUNK)
-        X[c0:c1], ok[c0:c1] = _ldl_chunk(np.ascontiguousarray(Mf[c0:c1].T), np.ascontiguousarray(Rf[c0:c1].T),
-                                         n, k, rtol)
-    return X.reshape(batch + (n, k)), ok.reshape(batch)
-
-
-_SOA_CHUNK = 8192
-
-
-def _ldl_chunk(Mt: NDArray, Rt: NDArray, n: int, k: int, rtol: float) -> tuple[NDArray, NDArray]:
-    """LDLᵀ solve on components: Mt (n*n, P), Rt (n*k, P) -> X (P, n, k), ok (P,)."""
-    a = [[Mt[i * n + j] for j in range(n)] for i in range(n)]
-    P = Mt.shape[1]
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        ok = np.isfinite(Mt).all(0)
-        for i in range(n):
-            for j in range(i):
-                ok &= np.abs(a[i][j] - a[j][i]) <= 1e-12 * np.sqrt(np.abs(a[i][i] * a[j][j]))
-        d: list = [None] * n
-        Ld: list = [[None] * n for _ in range(n)]  # Ld[i][q] = L_iq d_q
-        Lm: list = [[None] * n for _ in range(n)]
-        for j in range(n):
-            s = a[j][j]
-            for q in range(j):
-                s = s - Lm[j][q] * Ld[j][q]
-            d[j] = s
-            ok &= s > rtol * a[j][j]
-            for i in range(j + 1, n):
-                s = a[i][j]
-                for q in range(j):
-                    s = s - Lm[i][q] * Ld[j][q]
-                Ld[i][j] = s
-                Lm[i][j] = s / d[j]
-        X = np.empty((n, k, P))
-        for c in range(k):
-            y: list = [None] * n
-            for i in range(n):
-                s = Rt[i * k + c]
-                for q in range(i):
-                    s = s - Lm[i][q] * y[q]
-                y[i] = s
-            x: list = [None] * n
-            for i in reversed(range(n)):
-                s = y[i] / d[i]
-                for q in range(i + 1, n):
-                    s = s - Lm[q][i] * x[q]
-                x[i] = s
-                X[i, c] = s
-        ok &= np.isfinite(X).all((0, 1))
-    return X.transpose(2, 0, 1), ok
