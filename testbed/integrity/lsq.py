@@ -201,10 +201,10 @@ class WlsGeometry:
 
 
 #: wls_geometry: elements with a Jacobi-scaled condition number up to this get the explicit
-#: LDLᵀ inverse (agrees with LAPACK to ~1e-12 relative); a (WS)_ii at or below _FAST_WS_RTOL·W_ii
+#: LDLᵀ inverse (agrees with LAPACK to ~1e-12 relative); a (WS)_ii at or below FAST_WS_RTOL·W_ii
 #: (zero redundancy: the value is rounding noise) sends its element through the old operations.
-_FAST_INV_COND = 1e3
-_FAST_WS_RTOL = 1e-3
+FAST_INV_COND = 1e3
+FAST_WS_RTOL = 1e-3
 
 #: Smallest accepted LDLᵀ pivot relative to its diagonal entry in the compiled inverse
 #: (:func:`kernels.normal_geometry`). Above it the explicit solve agrees with LAPACK to ~1e-11
@@ -375,8 +375,8 @@ def _geometry_core(G0: NDArray, W0: NDArray, diag: bool, Wd: NDArray, WG: NDArra
     # is rounding noise) take the LAPACK inverse and the 3-operand sum.
     J = np.where(solvable[..., None, None], J, np.nan)
     A = np.where(solvable[..., None, None], A, np.nan)
-    fast = solvable & elem_live & (cond <= _FAST_INV_COND) & okJ
-    fast = fast & ~(m & ~(ws > _FAST_WS_RTOL * np.abs(Wd))).any(-1)
+    fast = solvable & elem_live & (cond <= FAST_INV_COND) & okJ
+    fast = fast & ~(m & ~(ws > FAST_WS_RTOL * np.abs(Wd))).any(-1)
     slow = ~fast
     if slow.any():
         Js = np.linalg.inv(M_safe[slow])
@@ -470,6 +470,7 @@ def lambda_det(dof: ArrayLike, p_fa: float, p_md: float) -> NDArray:
     return _lookup(_lambda_table(p_fa, p_md), dof, lambda k: _lambda_det_one(k, p_fa, p_md))
 
 
+@lru_cache(maxsize=64)
 def k_md(p_md: float) -> float:
     """Two-sided missed-detection multiplier ``Φ⁻¹(1 − P_MD/2)`` (seed eq. 22-23)."""
     return float(stats.norm.isf(_check_prob(p_md, "p_md") / 2))
@@ -515,7 +516,7 @@ def _slopes_once(geom: WlsGeometry) -> tuple[NDArray, NDArray, NDArray, NDArray]
     if entry is not None and entry[0]() is geom:
         return entry[1]
     hs, vs = slopes(geom)
-    out = (hs, vs, _nanmax_last(hs), _nanmax_last(vs))
+    out = (hs, vs, max_over_rows(hs), max_over_rows(vs))
 
     def drop(ref: weakref.ref) -> None:
         if _SLOPES_LAST.get(key, (None,))[0] is ref:
@@ -611,7 +612,8 @@ class ProtectionLevels:
     reason: NDArray
 
 
-def _nanmax_last(x: NDArray) -> NDArray:
+def max_over_rows(x: NDArray) -> NDArray:
+    """Largest value over the last axis, NaN (unused rows) ignored; −inf where every row is NaN."""
     return np.max(np.where(np.isnan(x), -np.inf, x), axis=-1)
 
 
@@ -626,22 +628,26 @@ def protection_levels(geom: WlsGeometry, p_fa: float, p_md: float,
     Epochs with reason ≠ OK get NaN; an epoch whose worst slope is infinite
     gets reason UNDETECTABLE and NaN.
     """
+    hs, vs, hmax, vmax = _slopes_once(geom)
+    return slope_protection_levels(hs, vs, hmax, vmax, geom.J, geom.dof, geom.reason, p_fa, p_md, variant)
+
+
+def slope_protection_levels(hs: NDArray, vs: NDArray, hmax: NDArray, vmax: NDArray, J: NDArray, dof: NDArray,
+                            reason: NDArray, p_fa: float, p_md: float, variant: PlVariant) -> ProtectionLevels:
+    """:func:`protection_levels` from the slopes (..., N), their maxima (...), J (..., 4, 4),
+    the degrees of freedom and the geometry's reason codes (...)."""
     if variant not in ("seed", "pbias"):
         raise ValueError(f"variant: expected 'seed' or 'pbias', got {variant!r}")
-    hs, vs, hmax, vmax = _slopes_once(geom)
-    dof = geom.dof
     T2 = chi2_threshold(dof, p_fa)
     lam = lambda_det(dof, p_fa, p_md)
     if variant == "seed":
         kmd = k_md(p_md)
-        J = geom.J
         T = np.sqrt(T2)
         hpl = hmax * T + kmd * np.sqrt(J[..., 0, 0] + J[..., 1, 1])
         vpl = vmax * T + kmd * np.sqrt(J[..., 2, 2])
     else:
         hpl = hmax * np.sqrt(lam)
         vpl = vmax * np.sqrt(lam)
-    reason = geom.reason.copy()
     reason = np.where((reason == Reason.OK) & (np.isinf(hmax) | np.isinf(vmax)),
                       Reason.UNDETECTABLE, reason).astype(np.int8)
     ok = reason == Reason.OK

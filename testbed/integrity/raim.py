@@ -84,7 +84,8 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
     pr = np.asarray(gnss.pseudorange, float)
     bt = pr.shape[:-1]
     vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
-    sat = np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,))
+    sat_enu = frame.ecef_to_enu(np.asarray(gnss.sat_pos_ecef, float))  # before the broadcast: once per satellite
+    sat = np.broadcast_to(sat_enu, pr.shape + (3,))
     sigma = np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape)
     off = None if antenna_offset_enu is None else np.broadcast_to(np.asarray(antenna_offset_enu, float), bt + (3,))
     x0b = None if x0 is None else np.broadcast_to(np.asarray(x0, float), bt + (4,))
@@ -92,13 +93,13 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
 
     def chunk(sl: slice) -> MonitorOutput:
         return _gps_raim_chunk(pr[sl], vis[sl], sat[sl], sigma[sl], None if off is None else off[sl],
-                               None if x0b is None else x0b[sl], np.asarray(gnss.t), frame, st, name, width)
+                               None if x0b is None else x0b[sl], np.asarray(gnss.t), st, name, width)
 
     return map_trial_chunks(chunk, bt, threads)
 
 
-def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,
-                    x0: NDArray | None, t: NDArray, frame: LocalFrame, st: IntegritySettings, name: str,
+def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_enu: NDArray, sigma: NDArray, off: NDArray | None,
+                    x0: NDArray | None, t: NDArray, st: IntegritySettings, name: str,
                     width: int) -> MonitorOutput:
     """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
     S = pr.shape[-1]
@@ -106,7 +107,7 @@ def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray
     take = lambda a: np.take_along_axis(a, idx, -1)  # noqa: E731
     z = take(pr)
     w = lsq.weights_from_sigma(take(sigma))
-    anchor = frame.ecef_to_enu(np.take_along_axis(sat_ecef, idx[..., None], -2))  # used rows only
+    anchor = np.take_along_axis(sat_enu, idx[..., None], -2)  # used rows only
     sol = lsq.solve_ranges(anchor, z, w, m, np.ones(N), offset_enu=None if off is None else off[..., None, :],
                            x0=x0, n_iter=st.max_iter, tol_m=st.tol_m, max_cond=st.max_cond)
     geom = sol.geometry

@@ -36,6 +36,7 @@ from pydantic import Field, field_validator
 from testbed.frames import LocalFrame, q_to_R
 from testbed.integrity import lsq
 from testbed.integrity.batching import map_trial_chunks
+from testbed.integrity.fit import WlsFit, wls_fit
 from testbed.integrity.calibration import (
     CalibratedRanges,
     calibrate,
@@ -106,54 +107,36 @@ def _take_t(a: NDArray, idx: NDArray) -> NDArray:
     return np.take_along_axis(a, ii, axis=idx.ndim - 1)
 
 
-def _finish(h: NDArray, G: NDArray, z: NDArray, W, mask: NDArray, x: NDArray, conv: NDArray,
+def _finish(h: NDArray, G: NDArray, z: NDArray, W: tuple, mask: NDArray, x: NDArray, conv: NDArray,
             ist: IntegritySettings):
     """Geometry, residuals, SSE, both PL variants and the reason code at the solution x.
 
-    h (..., N), G (..., N, 4): the predictions and partials at x.
-
-    W : (..., N) diagonal weights, or a pair ``(w_diag (..., n1), W_block (..., n2, n2))`` of
-    block-diagonal weights (GPS rows first, then the vision block; see
-    :func:`lsq.wls_geometry_blocks`).
+    h (..., N), G (..., N, 4): the predictions and partials at x. W = ``(w_diag, W_block)``:
+    the block-diagonal weight of :func:`fit.wls_fit` (GPS rows first, then the vision block;
+    W_block None for GPS rows only).
     """
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        if isinstance(W, tuple):
-            geom = lsq.wls_geometry_blocks(G, W[0], W[1], mask, ist.max_cond)
-        else:
-            geom = lsq.wls_geometry(G, W, mask, ist.max_cond)
-        r = np.where(geom.mask, z - h, 0.0)
-        nan_z = (geom.mask & ~np.isfinite(r)).any(-1)
-        r = np.where(np.isfinite(r), r, 0.0)
-        if isinstance(W, tuple):  # rᵀWr by blocks (geom.W is the masked diagonal)
-            n1 = W[0].shape[-1]
-            Wb0 = np.where(geom.mask[..., n1:, None] & geom.mask[..., n1:][..., None, :] & np.isfinite(W[1]),
-                           W[1], 0.0)
-            rg, rv = r[..., :n1], r[..., n1:]
-            sse = np.sum(geom.W[..., :n1] * rg * rg, axis=-1) + np.sum((Wb0 @ rv[..., None])[..., 0] * rv, axis=-1)
-        else:
-            sse = lsq.weighted_sse(r, geom.W, geom.mask)
-        pls = {v: lsq.protection_levels(geom, ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
-    reason = np.where(nan_z, lsq.Reason.NAN_INPUT, geom.reason)
-    reason = np.where((reason == lsq.Reason.OK) & ~conv, lsq.Reason.NOT_CONVERGED, reason)
+    ft = wls_fit(h, G, z, W[0], W[1], mask, ist.max_cond)
+    with np.errstate(invalid="ignore", over="ignore"):
+        pls = {v: ft.protection_levels(ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
+    reason = np.where((ft.reason == lsq.Reason.OK) & ~conv, lsq.Reason.NOT_CONVERGED, ft.reason)
     pl = pls[ist.pl_variant]
     reason = np.where(reason != lsq.Reason.OK, reason, pl.reason).astype(np.int8)
     ok = reason == lsq.Reason.OK
-    bad = ~geom.solvable | nan_z
-    x = np.where(bad[..., None], np.nan, x)
-    return geom, pls, reason, ok, x, np.where(bad[..., None], np.nan, r), np.where(bad, np.nan, sse)
+    x = np.where(ft.solvable[..., None], x, np.nan)
+    return ft, pls, reason, ok, x
 
 
-def _monitor_output(name, t, x, geom, pls, reason, ok, r, sse, ist, extra) -> MonitorOutput:
+def _monitor_output(name, t, x, ft: WlsFit, pls, reason, ok, ist, extra) -> MonitorOutput:
     pl = pls[ist.pl_variant]
     hpl = np.where(ok, pl.hpl, np.nan)
     vpl = np.where(ok, pl.vpl, np.nan)
-    sse = np.where(ok, sse, np.nan)
+    sse = np.where(ok, ft.sse, np.nan)
     T2 = np.where(ok, pl.T2, np.nan)
     with np.errstate(invalid="ignore"):
         alert = ok & (sse > T2)
     levels = tuple(service_level(s) for s in ist.service_levels)
-    diag = {"hslope": pl.hslope, "vslope": pl.vslope, "residual": r, "lam_det": np.where(ok, pl.lam_det, np.nan),
-            "cond": geom.cond, "ws_diag": geom.ws_diag}
+    diag = {"hslope": pl.hslope, "vslope": pl.vslope, "residual": ft.residual,
+            "lam_det": np.where(ok, pl.lam_det, np.nan), "cond": ft.cond, "ws_diag": ft.ws_diag}
     for v, p in pls.items():
         diag[f"hpl_{v}"] = np.where(ok, p.hpl, np.nan)
         diag[f"vpl_{v}"] = np.where(ok, p.vpl, np.nan)
@@ -161,7 +144,7 @@ def _monitor_output(name, t, x, geom, pls, reason, ok, r, sse, ist, extra) -> Mo
     return MonitorOutput(
         name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl, test_stat=sse, threshold=T2,
         alert=alert, available=availability(hpl, vpl, levels, ok), service_levels=tuple(ist.service_levels),
-        n_used=geom.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
+        n_used=ft.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
         reasons=lsq.REASONS, diagnostics=diag)
 
 
@@ -206,7 +189,7 @@ class _Inputs:
     t: NDArray  # (T,)
     pr: NDArray  # (bt, S)
     vis: NDArray  # (bt, S) bool
-    sat_ecef: NDArray  # (bt, S, 3)
+    sat_enu: NDArray  # (bt, S, 3) satellites in the world frame
     sigma: NDArray  # (bt, S)
     q: NDArray  # (bt, 4) attitude reference
     uv: NDArray  # (bt, L, 2)
@@ -217,11 +200,10 @@ class _Inputs:
     lever_ant: NDArray  # (3,) body
     lever_cam: NDArray  # (3,) body
     n_gps_rows: int  # compacted GPS row width over the whole batch
-    frame: LocalFrame
 
     def trials(self, sl: slice) -> _Inputs:
         """The same inputs for trials ``sl`` of the first batch axis (views)."""
-        per = {k: getattr(self, k)[sl] for k in ("pr", "vis", "sat_ecef", "sigma", "q", "uv", "det", "sig")}
+        per = {k: getattr(self, k)[sl] for k in ("pr", "vis", "sat_enu", "sigma", "q", "uv", "det", "sig")}
         return dataclasses.replace(self, **per)
 
 
@@ -239,15 +221,16 @@ def _read_inputs(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame) -> _
     p_enu = frame.ecef_to_enu(np.asarray(vision.landmark_pos_ecef, float))  # (L, 3)
     L = p_enu.shape[0]
     vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
+    sat_enu = frame.ecef_to_enu(np.asarray(gnss.sat_pos_ecef, float))  # before the broadcast: once per satellite
     return _Inputs(
-        t=t, pr=pr, vis=vis, sat_ecef=np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,)),
+        t=t, pr=pr, vis=vis, sat_enu=np.broadcast_to(sat_enu, pr.shape + (3,)),
         sigma=np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape),
         q=np.broadcast_to(np.asarray(vision.q_body_to_enu_ref, float), bt + (4,)), uv=uv,
         det=np.broadcast_to(np.asarray(vision.detected, bool), bt + (L,)),
         sig=np.broadcast_to(np.asarray(vision.sigma_px, float), bt + (L,)), p_enu=p_enu,
         K=np.asarray(vision.K, float), lever_ant=np.asarray(gnss.antenna.lever_arm_body, float),
         lever_cam=np.asarray(vision.camera.lever_arm_body, float),
-        n_gps_rows=max(int(vis.sum(-1).max(initial=0)), 1), frame=frame)
+        n_gps_rows=max(int(vis.sum(-1).max(initial=0)), 1))
 
 
 def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
@@ -298,18 +281,18 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
 
     # --- 1. GPS-only RAIM (same math as raim.gps_raim, with the fix covariance J kept)
     idx, mg, _ = compact_rows(inp.vis, inp.n_gps_rows)
-    anchor_g = inp.frame.ecef_to_enu(np.take_along_axis(inp.sat_ecef, idx[..., None], -2))  # used rows only
+    anchor_g = np.take_along_axis(inp.sat_enu, idx[..., None], -2)  # used rows only
     zg = np.take_along_axis(pr, idx, -1)
     wg = lsq.weights_from_sigma(np.take_along_axis(inp.sigma, idx, -1))
     wg = np.where(mg, wg, 0.0)
     xg_it, conv_g, _, h_g, G_g = lsq.gauss_newton_ranges(np.zeros(bt + (4,)), ist.max_iter, ist.tol_m,
                                                          (anchor_g, off_ant, zg, wg, mg))
-    geom_g, pls_g, reason_g, ok_g, x_g, r_g, sse_g = _finish(h_g, G_g, zg, wg, mg, xg_it, conv_g, ist)
-    gps = _monitor_output("gps_raim", t, x_g, geom_g, pls_g, reason_g, ok_g, r_g, sse_g, ist,
+    fit_g, pls_g, reason_g, ok_g, x_g = _finish(h_g, G_g, zg, (wg, None), mg, xg_it, conv_g, ist)
+    gps = _monitor_output("gps_raim", t, x_g, fit_g, pls_g, reason_g, ok_g, ist,
                           {"converged": conv_g, "gps_slot": idx})
     has_fix = np.isfinite(x_g).all(-1)
     x_g0 = np.where(has_fix[..., None], x_g, 0.0)
-    P_g = np.where(has_fix[..., None, None], geom_g.J[..., :3, :3], np.nan)
+    P_g = np.where(has_fix[..., None, None], fit_g.J[..., :3, :3], np.nan)
 
     # --- 2. prior for the vision solve: this epoch's fix, else the last one carried forward
     last = _forward_fill_index(has_fix & np.isfinite(P_g).all((-1, -2)))
@@ -356,7 +339,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     x0 = _take_t(x_g0, li)
     x_it, conv, _, h, G = lsq.gauss_newton_ranges(x0, ist.max_iter, ist.tol_m, (anchor_g, off_ant, zg, wg, mg),
                                                   (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask))
-    geom, pls, reason, ok, x, r, sse = _finish(h, G, z_all, W_blocks, mask_all, x_it, conv, ist)
+    ft, pls, reason, ok, x = _finish(h, G, z_all, W_blocks, mask_all, x_it, conv, ist)
     extra = {
         "gps": gps,
         "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,
@@ -367,4 +350,4 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
         "modified": rows.modified, "n_gps": mg.sum(-1), "n_vision_rows": rows.mask.sum(-1),
         "converged": conv, "gps_P": P_g, "gps_slot": idx,
     }
-    return _monitor_output(name, t, x, geom, pls, reason, ok, r, sse, ist, extra)
+    return _monitor_output(name, t, x, ft, pls, reason, ok, ist, extra)
