@@ -4,23 +4,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.integrity import kernels, lsq
-from testbed.integrity.vision_ranges import bearings_from_pixels, cosine_covariance, cosines
+from testbed.integrity import fit, kernels, lsq
+from testbed.integrity.vision_ranges import (
+    bearings_from_pixels,
+    cosine_covariance,
+    cosine_model,
+    cosine_rule_jacobians,
+    cosines,
+)
 
 
-def test_solve_batch_matches_lapack_and_flags_singular_and_nan():
+def test_lu_solve_matches_lapack_and_flags_singular_and_nan():
     rng = np.random.default_rng(1)
     M = rng.normal(size=(50, 5, 5))
     R = rng.normal(size=(50, 5, 3))
     M[3] = 0.0  # singular
     M[7, 1] = M[7, 2]  # singular (equal rows)
     M[9, 0, 0] = np.nan
-    X = np.empty_like(R)
-    good = np.empty(50, bool)
-    kernels.solve_batch(M, R, X, good)
+    X = R.copy()
+    good = np.array([kernels._lu_solve(M[p].copy(), X[p]) for p in range(50)])
     bad = [3, 7, 9]
     assert not good[bad].any() and good[np.setdiff1d(np.arange(50), bad)].all()
-    assert np.isnan(X[bad]).all()
     ok = good
     np.testing.assert_allclose(X[ok], np.linalg.solve(M[ok], R[ok]), rtol=1e-10, atol=1e-12)
 
@@ -92,8 +96,8 @@ def test_compile_all_covers_the_monitors_so_nothing_compiles_mid_flight():
     from testbed.integrity.va_raim import va_raim
 
     kernels.compile_all()
-    names = ("solve_batch", "range_gauss_newton", "cosine_gauss_newton", "normal_geometry",
-             "cosines_and_covariance", "calibrate_epochs", "cond4_batch")
+    names = ("range_gauss_newton", "cosine_gauss_newton", "normal_geometry", "fit_at_solution",
+             "cosine_rule_products", "vision_rows", "cosines_and_covariance", "calibrate_epochs", "cond4_batch")
     before = {n: len(getattr(kernels, n).signatures) for n in names}
     sc = make_scenario(np.random.default_rng(4), (2,), t0=40.0, t1=60.0)
     uv = sc.vision.pixel_uv.copy()
@@ -128,3 +132,173 @@ def test_geometry_of_an_element_does_not_depend_on_the_batch():
         alone = lsq.wls_geometry(G[k:k + 1], w[k:k + 1])
         for f in ("J", "A", "ws_diag", "cond", "reason"):
             np.testing.assert_array_equal(getattr(whole, f)[k], getattr(alone, f)[0], err_msg=f)
+
+
+# ----------------------------------------------------------------------------- fused solution-side kernels
+
+
+def _solve_or_nan(M, rhs):
+    """numpy.linalg.solve per element; NaN and False where M is non-finite or singular."""
+    X = np.full(np.broadcast_shapes(M.shape[:-2], rhs.shape[:-2]) + rhs.shape[-2:], np.nan)
+    good = np.zeros(X.shape[:-2], bool)
+    for p in range(len(X)):
+        if np.isfinite(M[p]).all():
+            try:
+                X[p] = np.linalg.solve(M[p], rhs[p])
+                good[p] = np.isfinite(X[p]).all()
+            except np.linalg.LinAlgError:
+                pass
+    return np.where(good[:, None, None], X, np.nan), good
+
+
+def test_cosine_rule_products_match_the_numpy_formulas():
+    """A, B (seed eq. 2), A⁺ = (AᵀWA)⁻¹AᵀW, Σ_V, the residual statistics and the branch gate."""
+    rng = np.random.default_rng(7)
+    P, L = 300, 4
+    I, J = np.triu_indices(L, 1)
+    nc = len(I)
+    p_lm = rng.uniform(-300, 300, (L, 3))
+    d2 = np.sum((p_lm[I] - p_lm[J]) ** 2, -1)
+    cam = rng.uniform(-3000, 3000, (P, 3)) + [0, 0, 2000]
+    m_true = np.linalg.norm(p_lm - cam[:, None], axis=-1)
+    m = m_true * (1 + 1e-4 * rng.normal(size=(P, L)))
+    c = cosine_model(m_true, d2) + 1e-6 * rng.normal(size=(P, nc))
+    colm = np.ones((P, L), bool)  # N_V = 3 or 4, as the monitor passes them (fewer is unavailable before)
+    colm[np.arange(P), rng.integers(0, L, P)] = rng.random(P) > 0.5
+    pair_mask = colm[:, I] & colm[:, J]
+    X = rng.normal(size=(P, nc, nc))
+    Sc = 1e-12 * X @ np.swapaxes(X, -1, -2) * (pair_mask[:, :, None] & pair_mask[:, None, :])
+    W = np.einsum("pi,ij->pij", pair_mask.astype(float), np.eye(nc))
+    m_pred = m_true + rng.normal(size=(P, L))
+    Y = rng.normal(size=(P, L, L))
+    S_pred = Y @ np.swapaxes(Y, -1, -2)
+    m[5, 0] = np.nan  # a non-finite solve: A⁺ not good
+    outs = (np.empty((P, nc, L)), np.empty((P, nc)), np.empty((P, L, nc)), np.empty(P, bool), np.empty(P),
+            np.empty((P, L, L)), np.empty(P), np.empty(P), np.empty(P), np.empty(P, bool))
+    kernels.cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred, *outs)
+    A, B, Ap, good, cond, SigV, r_norm, r_w, gate, gok = outs
+
+    ms = np.where(colm, m, 1.0)
+    A_ref, B_ref = cosine_rule_jacobians(ms, c)
+    A_ref = A_ref * pair_mask[..., :, None] * colm[..., None, :]
+    np.testing.assert_allclose(A, A_ref, rtol=1e-14)
+    np.testing.assert_allclose(B, np.where(pair_mask, B_ref, 0.0), rtol=1e-14)
+    AtW = np.swapaxes(A_ref, -1, -2) @ W
+    Nm = AtW @ A_ref + np.einsum("pi,ij->pij", (~colm).astype(float), np.eye(L))
+    Ap_ref, good_ref = _solve_or_nan(Nm, AtW)
+    assert np.array_equal(good, good_ref) and not good[5] and good.sum() > 250
+    np.testing.assert_allclose(Ap[good], Ap_ref[good], rtol=1e-9, atol=1e-9 * np.abs(Ap_ref[good]).max())
+    cond_ref = (np.sqrt(np.sum((A_ref * ms[:, None, :]) ** 2, axis=(-2, -1)))
+                * np.sqrt(np.sum((Ap_ref / ms[:, :, None]) ** 2, axis=(-2, -1))))
+    np.testing.assert_allclose(cond, np.where(np.isfinite(cond_ref), cond_ref, np.inf), rtol=1e-9)
+    SigV_ref = Ap_ref @ Sc @ np.swapaxes(Ap_ref, -1, -2)
+    np.testing.assert_allclose(SigV[good], SigV_ref[good], rtol=1e-8, atol=1e-8 * np.abs(SigV_ref[good]).max())
+    r = np.where(pair_mask, c - cosine_model(ms, d2), 0.0)
+    sc = np.sqrt(np.einsum("pii->pi", Sc))
+    np.testing.assert_allclose(r_norm, np.max(np.where(pair_mask, np.abs(r) / np.where(sc > 0, sc, 1.0), 0.0), -1),
+                               rtol=1e-8)
+    np.testing.assert_allclose(r_w, np.einsum("pi,pij,pj->p", r, W, r), rtol=1e-8, atol=1e-30)
+    dm = np.where(colm, m - m_pred, 0.0)
+    C = np.where(colm[:, :, None] & colm[:, None, :], SigV_ref + S_pred, 0.0)
+    C = C + np.einsum("pi,ij->pij", (~colm).astype(float), np.eye(L))
+    x, gok_ref = _solve_or_nan(C, dm[..., None])
+    assert np.array_equal(gok, gok_ref)
+    np.testing.assert_allclose(gate[gok], np.einsum("pi,pi->p", dm, x[..., 0])[gok], rtol=1e-8)
+    assert np.isnan(gate[~gok]).all()
+
+
+def test_vision_rows_match_the_numpy_formulas():
+    """Plain rows (the ranges) or the modified equation's rows (A z), and their weight (T Σ Tᵀ)⁻¹."""
+    rng = np.random.default_rng(8)
+    P, L = 200, 3
+    I, J = np.triu_indices(L, 1)
+    nc = len(I)
+    A = rng.normal(size=(P, nc, L))
+    z = rng.uniform(2000, 8000, (P, L))
+    X = rng.normal(size=(P, L, L))
+    Sigma = X @ np.swapaxes(X, -1, -2) + 0.1 * np.eye(L)
+    used = rng.random((P, L)) > 0.2
+    z[used & (rng.random((P, L)) > 0.9)] = np.nan  # a NaN range in a used row: that epoch's rows go
+    z[~used] = np.nan
+    pair_mask = used[:, I] & used[:, J]
+    modified = rng.random(P) > 0.5
+    Tm, zr, W, mask = np.empty((P, nc, L)), np.empty((P, nc)), np.empty((P, nc, nc)), np.empty((P, nc), bool)
+    kernels.vision_rows(A, z, Sigma, used, pair_mask, modified, Tm, zr, W, mask)
+
+    Tm_ref = np.where(modified[:, None, None], A, np.eye(nc, L))
+    mask_ref = np.where(modified[:, None], pair_mask, np.concatenate([used, np.zeros((P, nc - L), bool)], -1))
+    z0 = np.where(used & np.isfinite(z), z, 0.0)
+    zr_ref = np.einsum("prl,pl->pr", Tm_ref, z0)
+    S0 = np.where(used[:, :, None] & used[:, None, :], Sigma, 0.0)
+    mm = mask_ref[:, :, None] & mask_ref[:, None, :]
+    Sp = np.where(mm, Tm_ref @ S0 @ np.swapaxes(Tm_ref, -1, -2), 0.0) + np.einsum(
+        "pi,ij->pij", (~mask_ref).astype(float), np.eye(nc))
+    W_ref, good = _solve_or_nan(Sp, np.broadcast_to(np.eye(nc), Sp.shape))
+    mask_ref = mask_ref & good[:, None]
+    W_ref = np.where(mm & good[:, None, None], W_ref, 0.0)
+    np.testing.assert_array_equal(Tm, Tm_ref)
+    np.testing.assert_array_equal(mask, mask_ref)
+    assert mask.any(-1).mean() > 0.5
+    np.testing.assert_allclose(zr, np.where(mask_ref, zr_ref, np.nan), rtol=1e-14, atol=1e-9)
+    np.testing.assert_allclose(W, W_ref, rtol=1e-8, atol=1e-10 * np.abs(W_ref).max())
+
+
+def _fit_batch(rng, P=400, n1=8, R=3):
+    """Stacked GPS-like (diagonal) and vision-like (dense block) rows with every degenerate case."""
+    N = n1 + R
+    G = rng.normal(size=(P, N, 4))
+    G[:, :, :3] /= np.linalg.norm(G[:, :, :3], axis=-1, keepdims=True)
+    G[:, :n1, 3] = 1.0
+    G[:, n1:, 3] = 0.0
+    h = rng.uniform(2e7, 2.6e7, (P, N))
+    z = h + rng.normal(size=(P, N))
+    wd = rng.uniform(0.2, 1.0, (P, n1))
+    X = rng.normal(size=(P, R, R))
+    Wb = np.linalg.inv(X @ np.swapaxes(X, -1, -2) + 0.5 * np.eye(R))
+    mask = rng.random((P, N)) > 0.1
+    mask[:20] = True
+    G[0, 2, 1] = np.nan  # NaN partial in a used row
+    z[1, 3] = np.nan  # NaN measurement in a used row
+    mask[2, :n1] = False  # vision rows only: the clock is dropped
+    G[3, :, 2] = 0.5 * G[3, :, 3] + 1e-5 * rng.normal(size=N)  # nearly the clock column: ill-conditioned
+    mask[4] = False
+    mask[4, :4] = True  # exactly determined: no redundancy
+    mask[5] = False
+    mask[5, :3] = True  # not enough rows
+    mask[6] = False  # no rows
+    Wb[7, 0, 1] = Wb[7, 1, 0] = np.nan  # NaN weight between used rows
+    G[8, 10] = np.nan  # NaN on an unused row: harmless
+    mask[8, 10] = False
+    return h, G, z, wd, Wb, mask
+
+
+def test_wls_fit_matches_the_numpy_geometry_and_its_reasons():
+    """The compiled pass (clean epochs) and the numpy path (the rest) against the numpy path for all."""
+    h, G, z, wd, Wb, mask = _fit_batch(np.random.default_rng(9))
+    P, N = mask.shape
+    outs = (np.empty((P, 4, 4)), np.empty((P, N)), np.empty(P), np.empty((P, N)), np.empty(P), np.empty((P, N)),
+            np.empty((P, N)), np.empty(P), np.empty(P), np.empty(P, np.int64), np.empty(P, bool))
+    kernels.fit_at_solution(G, h, z, wd, Wb, mask, lsq.SPD_PIVOT_RTOL, lsq.FAST_INV_COND, lsq.FAST_WS_RTOL, *outs)
+    fast = outs[-1]
+    assert fast.sum() > 350 and not fast[:8].any()  # the compiled pass decides most; the numpy path the rest
+    for W_block, n1 in ((Wb, wd.shape[-1]), (None, G.shape[-2])):
+        wdiag = wd if W_block is not None else np.concatenate([wd, np.full(Wb.shape[:-1], 2.0)], -1)
+        got = fit.wls_fit(h, G, z, wdiag, W_block, mask)
+        ref = fit.numpy_fit(h, G, z, wdiag, W_block, mask)
+        np.testing.assert_array_equal(got.reason, ref.reason)
+        assert (ref.reason == 0).sum() > 350
+        assert {int(r) for r in ref.reason[:9]} >= {lsq.Reason.NAN_INPUT, lsq.Reason.NO_REDUNDANCY,
+                                                    lsq.Reason.NO_POSITION}
+        for f in ("n_used", "n_states", "mask"):
+            np.testing.assert_array_equal(getattr(got, f), getattr(ref, f), err_msg=f)
+        for f in ("J", "ws_diag", "cond", "residual", "sse", "hslope", "vslope", "hmax", "vmax"):
+            a, b = getattr(got, f), getattr(ref, f)
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12, err_msg=f)
+        for v in ("seed", "pbias"):
+            pg, pr = got.protection_levels(1e-2, 1e-3, v), ref.protection_levels(1e-2, 1e-3, v)
+            np.testing.assert_allclose(pg.hpl, pr.hpl, rtol=1e-9)
+            np.testing.assert_array_equal(pg.reason, pr.reason)
+        # every element on its own path: a chunk gives the whole batch's numbers bit for bit
+        part = fit.wls_fit(h[:9], G[:9], z[:9], wdiag[:9], None if W_block is None else Wb[:9], mask[:9])
+        for f in ("J", "sse", "hslope", "reason"):
+            np.testing.assert_array_equal(getattr(part, f), getattr(got, f)[:9], err_msg=f)

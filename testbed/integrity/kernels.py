@@ -78,32 +78,6 @@ def _lu_solve(A, B) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def solve_batch(M, R, X, good):
-    """``X[p] = solve(M[p], R[p])`` for every p; M (P, n, n), R (P, n, k).
-
-    ``good[p]`` False (X[p] NaN) where M[p] is non-finite or singular (see :func:`_lu_solve`).
-    """
-    P, n, _ = M.shape
-    k = R.shape[2]
-    A = np.empty((n, n))
-    B = np.empty((n, k))
-    for p in range(P):
-        ok = True
-        for i in range(n):
-            for j in range(n):
-                A[i, j] = M[p, i, j]
-                if not np.isfinite(A[i, j]):
-                    ok = False
-            for c in range(k):
-                B[i, c] = R[p, i, c]
-        ok = ok and _lu_solve(A, B)
-        for i in range(n):
-            for c in range(k):
-                X[p, i, c] = B[i, c] if ok else np.nan
-        good[p] = ok
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, Gv, h, G):
     """Stacked predictions h (NG + R,) and partials G (NG + R, 4) of epoch p at state x.
 
@@ -701,6 +675,184 @@ def cosines_and_covariance(uv, used, sigma_px, Kinv, c_out, Sc_out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
+                         A_out, B_out, Ap_out, good_out, cond_out, SigV_out, r_norm_out, r_w_out, gate_out,
+                         gok_out):
+    """What follows the cosine-rule solve, every epoch (INTEGRITY_MATH.md §2).
+
+    m (P, L) solved ranges, c (P, N_C) measured cosines, d2 (N_C,) surveyed squared
+    distances, colm (P, L) landmarks in the solve, pair_mask (P, N_C) pairs in it,
+    W (P, N_C, N_C) the cosine weight, Sc (P, N_C, N_C) Σ_c, m_pred (P, L) prior ranges,
+    S_pred (P, L, L) their covariance (P = 0 rows: no branch gate). Writes, with
+    ``m̄ = m`` on used landmarks and 1 elsewhere:
+
+    * A (N_C, L) of :func:`vision_ranges.cosine_rule_jacobians` at m̄ (zero outside the
+      used pairs × landmarks) and the diagonal B (N_C) (zero on unused pairs);
+    * ``A⁺ = (AᵀWA + pad)⁻¹AᵀW`` (L, N_C) with ``good`` False where that matrix is
+      non-finite or singular; the condition ``‖A diag(m̄)‖_F ‖diag(m̄)⁻¹A⁺‖_F`` (inf if not finite);
+    * ``Σ_V = A⁺ Σ_c A⁺ᵀ``;
+    * the cosine residual statistics: max |r|/σ_c over the used pairs and ``rᵀWr``;
+    * the branch gate ``dmᵀ(Σ_V + S_pred)⁻¹dm`` over the used landmarks (``gok`` False
+      where that matrix is non-finite or singular).
+    """
+    P, L = m.shape
+    nc = c.shape[1]
+    gate = S_pred.shape[0] > 0
+    I, J = _pair_indices(L)
+    ms = np.empty(L)
+    AtW = np.empty((L, nc))
+    Nm = np.empty((L, L))
+    X = np.empty((L, nc))
+    tmp = np.empty((L, nc))
+    r = np.empty(nc)
+    C = np.empty((L, L))
+    dm = np.empty((L, 1))
+    dmv = np.empty(L)
+    for p in range(P):
+        for l in range(L):
+            ms[l] = m[p, l] if colm[p, l] else 1.0
+        A = A_out[p]
+        A[:] = 0.0
+        for k in range(nc):
+            i, j = I[k], J[k]
+            pm = 1.0 if pair_mask[p, k] else 0.0
+            A[k, i] = (1.0 / ms[j] - c[p, k] / ms[i]) * pm * (1.0 if colm[p, i] else 0.0)
+            A[k, j] = (1.0 / ms[i] - c[p, k] / ms[j]) * pm * (1.0 if colm[p, j] else 0.0)
+            B_out[p, k] = 1.0 / (2.0 * ms[i] * ms[j]) if pair_mask[p, k] else 0.0
+        # A⁺ by the normal equations, an identity pad on unused landmarks
+        for l in range(L):
+            for k in range(nc):
+                s = 0.0
+                for q in range(nc):
+                    s += A[q, l] * W[p, q, k]
+                AtW[l, k] = s
+        finite = True
+        for l in range(L):
+            for j in range(L):
+                s = 0.0
+                for k in range(nc):
+                    s += AtW[l, k] * A[k, j]
+                if l == j and not colm[p, l]:
+                    s += 1.0
+                Nm[l, j] = s
+                finite = finite and np.isfinite(s)
+        X[:] = AtW
+        ok = finite and _lu_solve(Nm, X)
+        good_out[p] = ok
+        for l in range(L):
+            for k in range(nc):
+                Ap_out[p, l, k] = X[l, k] if ok else np.nan
+        sa = 0.0
+        sp = 0.0
+        for k in range(nc):
+            for l in range(L):
+                sa += (A[k, l] * ms[l]) ** 2
+                sp += (Ap_out[p, l, k] / ms[l]) ** 2
+        cond = np.sqrt(sa) * np.sqrt(sp)
+        cond_out[p] = cond if np.isfinite(cond) else np.inf
+        _matmul(Ap_out[p], Sc[p], tmp)
+        for l in range(L):
+            for j in range(L):
+                s = 0.0
+                for k in range(nc):
+                    s += tmp[l, k] * Ap_out[p, j, k]
+                SigV_out[p, l, j] = s
+        # cosine residuals at the solution
+        rn = 0.0
+        for k in range(nc):
+            i, j = I[k], J[k]
+            cm = (ms[i] * ms[i] + ms[j] * ms[j] - d2[k]) / (2.0 * ms[i] * ms[j])
+            r[k] = c[p, k] - cm if pair_mask[p, k] else 0.0
+            if pair_mask[p, k]:
+                sc = np.sqrt(Sc[p, k, k])
+                v = abs(r[k]) / (sc if sc > 0.0 else 1.0)
+                if np.isnan(v) or v > rn:  # NaN propagates, as numpy's max
+                    rn = v
+        r_norm_out[p] = rn
+        rw = 0.0
+        for k in range(nc):
+            s = 0.0
+            for q in range(nc):
+                s += W[p, k, q] * r[q]
+            rw += r[k] * s
+        r_w_out[p] = rw
+        if not gate:
+            continue
+        finite = True
+        for l in range(L):
+            dmv[l] = m[p, l] - m_pred[p, l] if colm[p, l] else 0.0
+            dm[l, 0] = dmv[l]
+            for j in range(L):
+                v = SigV_out[p, l, j] + S_pred[p, l, j] if colm[p, l] and colm[p, j] else 0.0
+                C[l, j] = v + (1.0 if l == j and not colm[p, l] else 0.0)
+                finite = finite and np.isfinite(C[l, j])
+        ok = finite and _lu_solve(C, dm)
+        gok_out[p] = ok
+        g = 0.0
+        for l in range(L):
+            g += dmv[l] * dm[l, 0]
+        gate_out[p] = g if ok else np.nan
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def vision_rows(A, z, Sigma, used, pair_mask, modified, Tm_out, zr_out, W_out, mask_out):
+    """The vision block of the integrated solve, every epoch (va_raim module doc).
+
+    A (P, N_C, L) cosine-rule matrix, z (P, L) vision ranges with covariance Sigma (P, L, L),
+    used (P, L) landmarks whose ranges enter, pair_mask (P, N_C) pairs of used landmarks,
+    modified (P,) epochs that take the modified single-fault equation (rows ``A z``, one per
+    pair) instead of the ranges themselves (rows ``z``, the first L of the N_C slots).
+    Non-finite ranges/covariances of unused landmarks count as zero. Writes the transform
+    Tm (N_C, L), the rows ``Tm z``, their weight ``(Tm Σ Tmᵀ)⁻¹`` on the used rows (zero
+    elsewhere) and the row mask (all False where that covariance is non-finite or singular).
+    """
+    P, nc, L = A.shape
+    z0 = np.empty(L)
+    S0 = np.empty((L, L))
+    tmp = np.empty((nc, L))
+    Sp = np.empty((nc, nc))
+    X = np.empty((nc, nc))
+    for p in range(P):
+        Tm = Tm_out[p]
+        mask = mask_out[p]
+        for k in range(nc):
+            for l in range(L):
+                Tm[k, l] = A[p, k, l] if modified[p] else (1.0 if k == l else 0.0)
+            if modified[p]:
+                mask[k] = pair_mask[p, k]
+            else:
+                mask[k] = k < L and used[p, k]
+        for l in range(L):
+            v = z[p, l] if used[p, l] else 0.0
+            z0[l] = v if np.isfinite(v) else 0.0
+            for j in range(L):
+                v = Sigma[p, l, j] if used[p, l] and used[p, j] else 0.0
+                S0[l, j] = v if np.isfinite(v) else 0.0
+        for k in range(nc):
+            s = 0.0
+            for l in range(L):
+                s += Tm[k, l] * z0[l]
+            zr_out[p, k] = s
+        _matmul(Tm, S0, tmp)
+        finite = True
+        for k in range(nc):
+            for q in range(nc):
+                s = 0.0
+                for l in range(L):
+                    s += tmp[k, l] * Tm[q, l]
+                Sp[k, q] = s if mask[k] and mask[q] else (1.0 if k == q and not mask[k] else 0.0)
+                finite = finite and np.isfinite(Sp[k, q])
+                X[k, q] = 1.0 if k == q else 0.0
+        good = finite and _lu_solve(Sp, X)
+        for k in range(nc):
+            mask[k] = mask[k] and good
+            for q in range(nc):
+                W_out[p, k, q] = X[k, q] if good and mask[k] and mask[q] else 0.0
+            if not mask[k]:
+                zr_out[p, k] = np.nan
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
                      beta_out, beta0_out, Sh_out, Su_out):
     """GPS calibration of the vision ranges (INTEGRITY_MATH.md §3), every epoch of every trial.
@@ -823,7 +975,6 @@ def compile_all() -> None:
         return np.zeros(shape, dt)
 
     eye = kernel_input(np.eye(4), (1, 4, 4))
-    solve_batch(eye, r(1, 4, 1), w(1, 4, 1), w(1, dt=b))
     range_gauss_newton(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
                        r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
                        w(1, 4), w(1, 4, 4))
@@ -831,6 +982,13 @@ def compile_all() -> None:
                         w(1, dt=i), w(1, dt=b), w(1, dt=b))
     normal_geometry(r(1, 5, 4), r(1, 5, 4), r(1, 5), 1e-5, w(1, 4, 4), w(1), w(1, 4, 4), w(1, 4, 5), w(1, 5),
                     w(1, dt=b))
+    fit_at_solution(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e-5, 1e3, 1e-3, w(1, 4, 4),
+                    w(1, 5), w(1), w(1, 5), w(1), w(1, 5), w(1, 5), w(1), w(1), w(1, dt=i), w(1, dt=b))
+    cosine_rule_products(r(1, 3), r(1, 3), r(3), r(1, 3, dt=b), r(1, 3, dt=b), r(1, 3, 3), r(1, 3, 3), r(1, 3),
+                         r(1, 3, 3), w(1, 3, 3), w(1, 3), w(1, 3, 3), w(1, dt=b), w(1), w(1, 3, 3), w(1), w(1), w(1),
+                         w(1, dt=b))
+    vision_rows(r(1, 3, 3), r(1, 3), r(1, 3, 3), r(1, 3, dt=b), r(1, 3, dt=b), r(1, dt=b), w(1, 3, 3), w(1, 3),
+                w(1, 3, 3), w(1, 3, dt=b))
     cosines_and_covariance(r(1, 3, 2), r(1, 3, dt=b), r(1, 3), kernel_input(np.eye(3), (3, 3)), w(1, 3),
                            w(1, 3, 3))
     calibrate_epochs(r(1, 1, dt=i), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3, 3),

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from pydantic import Field, field_validator
 
 from testbed.frames import LocalFrame, q_to_R
-from testbed.integrity import lsq
+from testbed.integrity import kernels, lsq
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.fit import WlsFit, wls_fit
 from testbed.integrity.calibration import (
@@ -50,7 +50,6 @@ from testbed.integrity.vision_ranges import (
     VISION_REASONS,
     VisionRanges,
     VisionRangeSettings,
-    _safe_solve,
     vision_pseudoranges,
 )
 from testbed.records import GnssEpochs, MonitorOutput, VisionEpochs
@@ -159,27 +158,20 @@ class _VisionRows:
 
 def _vision_rows(vr: VisionRanges, z: NDArray, Sigma: NDArray, use: NDArray, modified_ok: bool) -> _VisionRows:
     """Rows, transform and weights of the vision block (R = N_C rows; see module doc)."""
-    L = vr.m.shape[-1]
-    nc = vr.A.shape[-2]
+    batch, (nc, L) = vr.A.shape[:-2], vr.A.shape[-2:]
+    P = int(np.prod(batch, dtype=np.int64))
     modified = use & (vr.n_v == 3) & modified_ok
-    eye = np.eye(nc, L)
-    Tm = np.where(modified[..., None, None], vr.A, eye)
-    used = vr.used & use[..., None]
-    mask_plain = np.concatenate([used, np.zeros(used.shape[:-1] + (nc - L,), bool)], axis=-1)
-    mask = np.where(modified[..., None], vr.pair_mask & use[..., None], mask_plain)
-    z0 = np.where(used, z, 0.0)
-    z0 = np.where(np.isfinite(z0), z0, 0.0)
-    zr = np.einsum("...rl,...l->...r", Tm, z0)
-    S0 = np.where(used[..., :, None] & used[..., None, :], Sigma, 0.0)
-    S0 = np.where(np.isfinite(S0), S0, 0.0)
-    Sp = Tm @ S0 @ np.swapaxes(Tm, -1, -2)
-    mm = mask[..., :, None] & mask[..., None, :]
-    Sp = np.where(mm, Sp, 0.0) + np.einsum("...i,ij->...ij", (~mask).astype(float), np.eye(nc))
-    W, good = _safe_solve(Sp, np.broadcast_to(np.eye(nc), Sp.shape))
-    W = np.where(mm, W, 0.0)
-    mask = mask & good[..., None]
-    W = np.where(good[..., None, None], W, 0.0)
-    return _VisionRows(z=np.where(mask, zr, np.nan), Tm=Tm, W=W, mask=mask, modified=modified)
+
+    def flat(a: NDArray, tail: tuple, dt: type = np.float64) -> NDArray:
+        return kernels.kernel_input(a, batch + tail, (P,) + tail, dt)
+
+    Tm, zr, W, mask = np.empty((P, nc, L)), np.empty((P, nc)), np.empty((P, nc, nc)), np.empty((P, nc), bool)
+    kernels.vision_rows(flat(vr.A, (nc, L)), flat(z, (L,)), flat(Sigma, (L, L)),
+                        flat(vr.used & use[..., None], (L,), np.bool_),
+                        flat(vr.pair_mask & use[..., None], (nc,), np.bool_), flat(modified, (), np.bool_),
+                        Tm, zr, W, mask)
+    return _VisionRows(z=zr.reshape(batch + (nc,)), Tm=Tm.reshape(batch + (nc, L)), W=W.reshape(batch + (nc, nc)),
+                       mask=mask.reshape(batch + (nc,)), modified=modified)
 
 
 @dataclass(frozen=True)

@@ -218,23 +218,6 @@ def survey_covariance(landmark_pos: ArrayLike, sigma_g: float) -> NDArray:
 # ----------------------------------------------------------------------------- linear algebra
 
 
-def _safe_solve(M: NDArray, rhs: NDArray) -> tuple[NDArray, NDArray]:
-    """Batched ``solve(M, rhs)`` that never raises: bad elements come back NaN.
-
-    M (..., n, n), rhs (..., n, k) broadcast against M's batch. Returns the solution and a
-    (...,) bool mask of elements that were finite and regular (:func:`kernels.solve_batch`).
-    """
-    n, k = M.shape[-1], rhs.shape[-1]
-    batch = np.broadcast_shapes(M.shape[:-2], rhs.shape[:-2])
-    P = int(np.prod(batch, dtype=np.int64))
-    Mf = kernels.kernel_input(M, batch + (n, n), (P, n, n))
-    Rf = kernels.kernel_input(rhs, batch + (n, k), (P, n, k))
-    X = np.empty((P, n, k))
-    good = np.empty(P, bool)
-    kernels.solve_batch(Mf, Rf, X, good)
-    return X.reshape(batch + (n, k)), good.reshape(batch)
-
-
 def _masked_pinv_weight(Sigma_c: NDArray, pair_mask: NDArray, n_v: NDArray) -> NDArray:
     """Rank-aware pseudo-inverse ``W = Σ_c⁺`` on the valid pairs, zero elsewhere.
 
@@ -261,21 +244,6 @@ def _masked_pinv_weight(Sigma_c: NDArray, pair_mask: NDArray, n_v: NDArray) -> N
     w = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
     W = np.einsum("...ik,...k,...jk->...ij", V, w, V) / scale[..., None, None]
     return W * (pm[..., :, None] * pm[..., None, :])
-
-
-def weighted_pinv(A: NDArray, W: NDArray, col_mask: NDArray) -> tuple[NDArray, NDArray]:
-    """``A⁺ = (AᵀWA)⁻¹AᵀW`` (..., L, N_C) with masked columns; plus a solvable mask.
-
-    Masked columns (undetected landmarks) get an identity pad in the normal
-    matrix so the stacked solve stays regular; their rows of A⁺ are zero.
-    """
-    Am = A * col_mask[..., None, :]
-    AtW = np.swapaxes(Am, -1, -2) @ W
-    N = AtW @ Am
-    L = A.shape[-1]
-    N = N + np.einsum("...i,ij->...ij", (~col_mask).astype(float), np.eye(L))
-    Ap, good = _safe_solve(N, AtW)
-    return Ap, good
 
 
 # ----------------------------------------------------------------------------- the solve
@@ -439,31 +407,30 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     reason[notconv] = VisionReason.NOT_CONVERGED
     active = reason == 0
 
-    # --- final linearisation at the solution with the measured cosines (seed eq. 2)
-    A, Bd = cosine_rule_jacobians(np.where(colm, m, 1.0), c)
-    A = A * pair_mask[..., :, None] * colm[..., None, :]
-    Bd = np.where(pair_mask, Bd, 0.0)
-    Ap, good = weighted_pinv(A, W, colm)
-    # Degenerate A (e.g. the danger cylinder): column-scaled condition number.
-    # Condition of the column-scaled A (ranges as units): Frobenius estimate
-    # ‖A diag(m)‖_F ‖diag(1/m) A⁺‖_F, an upper bound of the 2-norm one, cheap from A⁺.
-    msafe = np.where(colm, m, 1.0)
-    with np.errstate(invalid="ignore", over="ignore"):
-        cond = (np.sqrt(np.sum((A * msafe[..., None, :]) ** 2, axis=(-2, -1)))
-                * np.sqrt(np.sum((Ap / msafe[..., :, None]) ** 2, axis=(-2, -1))))
-    cond = np.where(np.isfinite(cond), cond, np.inf)
+    # --- at the solution, compiled per epoch: the linearisation with the measured cosines
+    # (seed eq. 2), A⁺, Σ_V, the cosine residuals and the branch gate
+    gate = Sigma_pred is not None
+    Sp = np.broadcast_to(np.asarray(Sigma_pred, float), batch + (L, L)) if gate else np.zeros((0, L, L))
+    A, Bd, Ap = np.empty((P, nc, L)), np.empty((P, nc)), np.empty((P, L, nc))
+    Sigma_V, good, cond = np.empty((P, L, L)), np.empty(P, bool), np.empty(P)
+    r_norm, r_w, gate_stat, gok = np.empty(P), np.empty(P), np.full(P, np.nan), np.zeros(P, bool)
+    kernels.cosine_rule_products(flat(m, (L,)), flat(c, (nc,)), kernels.kernel_input(d2, d2.shape),
+                                 flat(colm, (L,), np.bool_), flat(pair_mask, (nc,), np.bool_), flat(W, (nc, nc)),
+                                 flat(Sigma_c, (nc, nc)), flat(mp, (L,)),
+                                 flat(Sp, (L, L)) if gate else kernels.kernel_input(Sp, Sp.shape),
+                                 A, Bd, Ap, good, cond, Sigma_V, r_norm, r_w, gate_stat, gok)
+    A, Bd, Ap = A.reshape(batch + (nc, L)), Bd.reshape(batch + (nc,)), Ap.reshape(batch + (L, nc))
+    Sigma_V, good, cond = Sigma_V.reshape(batch + (L, L)), good.reshape(batch), cond.reshape(batch)
+    r_norm, r_w, gate_stat, gok = (a.reshape(batch) for a in (r_norm, r_w, gate_stat, gok))
+
+    # Degenerate A (e.g. the danger cylinder): the condition of the column-scaled A (ranges
+    # as units), Frobenius estimate ‖A diag(m)‖_F ‖diag(1/m) A⁺‖_F, an upper bound of the
+    # 2-norm one, cheap from A⁺.
     bad_A = active & (~good | (cond > s.cond_max))
     reason[bad_A] = VisionReason.DEGENERATE_GEOMETRY
     active = reason == 0
 
-    Sigma_V = Ap @ Sigma_c @ np.swapaxes(Ap, -1, -2)
-
     # --- residual check
-    cm = cosine_model(np.where(colm, m, 1.0), d2)
-    r = np.where(pair_mask, c - cm, 0.0)
-    sc = np.sqrt(np.einsum("...ii->...i", Sigma_c))
-    r_norm = np.max(np.where(pair_mask, np.abs(r) / np.where(sc > 0, sc, 1.0), 0.0), axis=-1)
-    r_w = np.einsum("...i,...ij,...j->...", r, W, r)
     dof = np.maximum(n_v - 3, 1)
     res_bad3 = (n_v == 3) & (r_norm > s.residual_sigma_max)
     res_badn = (n_v > 3) & (r_w > _chi2_isf(s.residual_p, dof))
@@ -472,18 +439,9 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     active = reason == 0
 
     # --- branch gate against the prediction
-    if Sigma_pred is not None:
-        Sp = np.broadcast_to(np.asarray(Sigma_pred, float), batch + (L, L))
-        dm = np.where(colm, m - mp, 0.0)
-        C = np.where(colm[..., :, None] & colm[..., None, :], Sigma_V + Sp, 0.0)
-        C = C + np.einsum("...i,ij->...ij", (~colm).astype(float), np.eye(L))
-        x, gok = _safe_solve(C, dm[..., None])
-        gate = np.einsum("...i,...i->...", dm, x[..., 0])
-        gate_bad = active & (~gok | (gate > _chi2_isf(s.gate_p, np.maximum(n_v, 1))))
+    if gate:
+        gate_bad = active & (~gok | (gate_stat > _chi2_isf(s.gate_p, np.maximum(n_v, 1))))
         reason[gate_bad] = VisionReason.BRANCH_JUMP
-        gate_stat = np.where(gok, gate, np.nan)
-    else:
-        gate_stat = np.full(batch, np.nan)
     ok = reason == 0
 
     nanify = ~ok
