@@ -96,7 +96,7 @@ def test_compile_all_covers_the_monitors_so_nothing_compiles_mid_flight():
     from testbed.integrity.va_raim import va_raim
 
     kernels.compile_all()
-    names = ("range_gauss_newton", "cosine_gauss_newton", "normal_geometry", "fit_at_solution",
+    names = ("gather_used_rows", "range_gauss_newton", "cosine_gauss_newton", "normal_geometry", "fit_at_solution",
              "cosine_rule_products", "vision_rows", "cosines_and_covariance", "calibrate_epochs", "cond4_batch")
     before = {n: len(getattr(kernels, n).signatures) for n in names}
     sc = make_scenario(np.random.default_rng(4), (2,), t0=40.0, t1=60.0)
@@ -302,3 +302,23 @@ def test_wls_fit_matches_the_numpy_geometry_and_its_reasons():
         part = fit.wls_fit(h[:9], G[:9], z[:9], wdiag[:9], None if W_block is None else Wb[:9], mask[:9])
         for f in ("J", "sse", "hslope", "reason"):
             np.testing.assert_array_equal(getattr(part, f), getattr(got, f)[:9], err_msg=f)
+
+
+def test_used_gps_rows_match_compact_rows_and_take():
+    from testbed.integrity.raim import compact_rows, used_gps_rows
+
+    rng = np.random.default_rng(10)
+    P, S = 300, 12
+    vis = rng.random((P, S)) > 0.4
+    pr = rng.uniform(2e7, 2.6e7, (P, S))
+    sigma = rng.uniform(1, 5, (P, S))
+    sigma[~vis & (rng.random((P, S)) > 0.5)] = np.nan  # unused slots may hold anything
+    sat = np.broadcast_to(rng.normal(size=(S, 3)) * 2e7, (P, S, 3))  # a broadcast view, as the monitors pass
+    width = int(vis.sum(-1).max())
+    idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat, width)
+    idx_ref, m_ref, _ = compact_rows(vis, width)
+    np.testing.assert_array_equal(idx, idx_ref)
+    np.testing.assert_array_equal(m, m_ref)
+    np.testing.assert_array_equal(z, np.take_along_axis(pr, idx_ref, -1))
+    np.testing.assert_array_equal(w, np.where(m_ref, 1.0 / np.take_along_axis(sigma, idx_ref, -1) ** 2, 0.0))
+    np.testing.assert_array_equal(anchor, np.take_along_axis(sat, idx_ref[..., None], -2))

@@ -16,6 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from testbed.heap import keep_freed_memory
 from testbed.records import MonitorOutput
 
 #: Epochs per chunk: large enough that numpy's per-call overhead is noise, small
@@ -55,6 +56,7 @@ def map_trial_chunks(fn: Callable[[slice], MonitorOutput], batch_shape: tuple[in
     n_threads = available_cores() if threads is None else int(threads)
     if n_threads < 1:
         raise ValueError(f"threads: expected >= 1 or None, got {threads}")
+    keep_freed_memory()  # chunks allocate and free large arrays: keep them in the heap (testbed.heap)
     chunks = trial_chunks(batch_shape, chunk_epochs, n_threads)
     if len(chunks) == 1:
         return fn(chunks[0])

@@ -78,6 +78,37 @@ def _lu_solve(A, B) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def gather_used_rows(vis, pr, sigma, sat, idx_out, mask_out, z_out, w_out, anchor_out):
+    """The used rows of every epoch first, as ``raim.compact_rows``, with their data.
+
+    vis, pr, sigma (P, S), sat (P, S, 3). Row order: the slots with ``vis`` in ascending
+    order, then the others in ascending order (a stable sort of ``~vis``), the first
+    N = idx_out.shape[1]. Writes the slot index, the row mask, the pseudorange, the weight
+    1/σ² (0 on unused rows) and the satellite position of each row.
+    """
+    P, S = vis.shape
+    N = idx_out.shape[1]
+    for p in range(P):
+        n = 0
+        for s in range(S):
+            if vis[p, s] and n < N:
+                idx_out[p, n] = s
+                n += 1
+        for s in range(S):
+            if not vis[p, s] and n < N:
+                idx_out[p, n] = s
+                n += 1
+        for n in range(N):
+            s = idx_out[p, n]
+            used = vis[p, s]
+            mask_out[p, n] = used
+            z_out[p, n] = pr[p, s]
+            w_out[p, n] = 1.0 / (sigma[p, s] * sigma[p, s]) if used else 0.0
+            for c in range(3):
+                anchor_out[p, n, c] = sat[p, s, c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, Gv, h, G):
     """Stacked predictions h (NG + R,) and partials G (NG + R, 4) of epoch p at state x.
 
@@ -853,6 +884,51 @@ def vision_rows(A, z, Sigma, used, pair_mask, modified, Tm_out, zr_out, W_out, m
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def vision_prior(x_g, P_g, fix, t, p, off, speed, floor, li_out, m_out, S_out):
+    """The prior of the vision solve: this epoch's GPS fix, else the latest one carried forward.
+
+    Per trial (Bt, T): x_g (.., 4) GPS solution, P_g (.., 3, 3) its position covariance,
+    fix (..) both finite; t (T,) s; p (L, 3) landmarks; off (.., 3) this epoch's camera
+    offset. Writes
+    the epoch the prior comes from (``li``, −1 if none yet), the predicted ranges m_pred
+    (L) from it (NaN without a prior) and their covariance ``H (P_g + q I) Hᵀ`` with the
+    growth ``q = (speed·Δt)² + floor²`` for the prior's age Δt.
+    """
+    Bt, T = fix.shape
+    L = p.shape[0]
+    H = np.empty((L, 3))
+    HP = np.empty((L, 3))
+    Pp = np.empty((3, 3))
+    for b in range(Bt):
+        last = -1
+        for k in range(T):
+            if fix[b, k]:
+                last = k
+            li_out[b, k] = last
+            i = last if last >= 0 else 0
+            q = (speed * (t[k] - t[i])) ** 2 + floor * floor
+            for r in range(3):
+                for c in range(3):
+                    Pp[r, c] = (P_g[b, i, r, c] if last >= 0 else 0.0) + (q if r == c else 0.0)
+            for l in range(L):
+                x0 = x_g[b, i, 0] if last >= 0 else 0.0
+                x1 = x_g[b, i, 1] if last >= 0 else 0.0
+                x2 = x_g[b, i, 2] if last >= 0 else 0.0
+                d0 = p[l, 0] - (x0 + off[b, k, 0])
+                d1 = p[l, 1] - (x1 + off[b, k, 1])
+                d2 = p[l, 2] - (x2 + off[b, k, 2])
+                rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                m_out[b, k, l] = rng if last >= 0 else np.nan
+                H[l, 0] = -d0 / rng
+                H[l, 1] = -d1 / rng
+                H[l, 2] = -d2 / rng
+            _matmul(H, Pp, HP)
+            for l in range(L):
+                for j in range(L):
+                    S_out[b, k, l, j] = HP[l, 0] * H[j, 0] + HP[l, 1] * H[j, 1] + HP[l, 2] * H[j, 2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
                      beta_out, beta0_out, Sh_out, Su_out):
     """GPS calibration of the vision ranges (INTEGRITY_MATH.md §3), every epoch of every trial.
@@ -975,6 +1051,8 @@ def compile_all() -> None:
         return np.zeros(shape, dt)
 
     eye = kernel_input(np.eye(4), (1, 4, 4))
+    gather_used_rows(r(1, 4, dt=b), r(1, 4), r(1, 4), r(1, 4, 3), w(1, 3, dt=i), w(1, 3, dt=b), w(1, 3), w(1, 3),
+                     w(1, 3, 3))
     range_gauss_newton(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
                        r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
                        w(1, 4), w(1, 4, 4))
@@ -989,6 +1067,8 @@ def compile_all() -> None:
                          w(1, dt=b))
     vision_rows(r(1, 3, 3), r(1, 3), r(1, 3, 3), r(1, 3, dt=b), r(1, 3, dt=b), r(1, dt=b), w(1, 3, 3), w(1, 3),
                 w(1, 3, 3), w(1, 3, dt=b))
+    vision_prior(r(1, 1, 4), r(1, 1, 3, 3), r(1, 1, dt=b), r(1), r(3, 3), r(1, 1, 3), 1.0, 1.0, w(1, 1, dt=i),
+                 w(1, 1, 3), w(1, 1, 3, 3))
     cosines_and_covariance(r(1, 3, 2), r(1, 3, dt=b), r(1, 3), kernel_input(np.eye(3), (3, 3)), w(1, 3),
                            w(1, 3, 3))
     calibrate_epochs(r(1, 1, dt=i), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3, 3),

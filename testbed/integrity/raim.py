@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import LocalFrame
-from testbed.integrity import lsq
+from testbed.integrity import kernels, lsq
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.settings import IntegritySettings
@@ -37,6 +37,27 @@ def compact_rows(mask: NDArray, width: int | None = None) -> tuple[NDArray, NDAr
     N = max(int(m.sum(-1).max(initial=0)), 1) if width is None else int(width)
     idx = np.argsort(~m, axis=-1, kind="stable")[..., :N]
     return idx, np.take_along_axis(m, idx, -1), N
+
+
+def used_gps_rows(vis: NDArray, pr: NDArray, sigma: NDArray, sat_enu: NDArray, width: int
+                  ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """:func:`compact_rows` of ``vis`` (..., S) and the compacted rows' data, in one compiled pass.
+
+    Returns idx, mask (..., N), the pseudoranges ``pr`` (..., N), the weights ``1/sigma²``
+    (0 on unused rows) and the satellite positions ``sat_enu`` (..., N, 3); N = width.
+    """
+    batch, S = vis.shape[:-1], vis.shape[-1]
+    P = int(np.prod(batch, dtype=np.int64))
+
+    def flat(a: NDArray, tail: tuple, dt: type = np.float64) -> NDArray:
+        return kernels.kernel_input(a, batch + tail, (P,) + tail, dt)
+
+    idx, m = np.empty((P, width), np.int64), np.empty((P, width), bool)
+    z, w, anchor = np.empty((P, width)), np.empty((P, width)), np.empty((P, width, 3))
+    kernels.gather_used_rows(flat(vis, (S,), np.bool_), flat(pr, (S,)), flat(sigma, (S,)), flat(sat_enu, (S, 3)),
+                             idx, m, z, w, anchor)
+    return (idx.reshape(batch + (width,)), m.reshape(batch + (width,)), z.reshape(batch + (width,)),
+            w.reshape(batch + (width,)), anchor.reshape(batch + (width, 3)))
 
 
 def scatter_rows(values: NDArray, idx: NDArray, mask_c: NDArray, S: int) -> NDArray:
@@ -103,11 +124,8 @@ def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_enu: NDArray, sigma: NDArray,
                     width: int) -> MonitorOutput:
     """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
     S = pr.shape[-1]
-    idx, m, N = compact_rows(vis, width)
-    take = lambda a: np.take_along_axis(a, idx, -1)  # noqa: E731
-    z = take(pr)
-    w = lsq.weights_from_sigma(take(sigma))
-    anchor = np.take_along_axis(sat_enu, idx[..., None], -2)  # used rows only
+    idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat_enu, width)
+    N = width
     sol = lsq.solve_ranges(anchor, z, w, m, np.ones(N), offset_enu=None if off is None else off[..., None, :],
                            x0=x0, n_iter=st.max_iter, tol_m=st.tol_m, max_cond=st.max_cond)
     geom = sol.geometry

@@ -44,7 +44,7 @@ from testbed.integrity.calibration import (
     landmark_set_key,
 )
 from testbed.integrity.levels import SERVICE_LEVELS, availability, service_level
-from testbed.integrity.raim import compact_rows
+from testbed.integrity.raim import used_gps_rows
 from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.vision_ranges import (
     VISION_REASONS,
@@ -94,11 +94,22 @@ class VaRaimSettings(StrictModel):
         return v
 
 
-def _forward_fill_index(valid: NDArray) -> NDArray:
-    """(..., T) index of the latest valid epoch at or before each epoch (-1 if none)."""
-    T = valid.shape[-1]
-    i = np.where(valid, np.arange(T), -1)
-    return np.maximum.accumulate(i, axis=-1)
+def _vision_prior(x_g: NDArray, P_g: NDArray, fix: NDArray, t: NDArray, p_enu: NDArray, off_cam: NDArray,
+                  st: VaRaimSettings) -> tuple[NDArray, NDArray, NDArray]:
+    """(..., T) epoch the prior comes from (-1: none yet), predicted ranges (..., T, L) and their
+    covariance (..., T, L, L) (:func:`kernels.vision_prior`)."""
+    bt, L = fix.shape, p_enu.shape[0]
+    T = bt[-1]
+    Bt = int(np.prod(bt[:-1], dtype=np.int64))
+
+    def flat(a: NDArray, tail: tuple, dt: type = np.float64) -> NDArray:
+        return kernels.kernel_input(a, bt + tail, (Bt, T) + tail, dt)
+
+    last, m, S = np.empty((Bt, T), np.int64), np.empty((Bt, T, L)), np.empty((Bt, T, L, L))
+    kernels.vision_prior(flat(x_g, (4,)), flat(P_g, (3, 3)), flat(fix, (), np.bool_), kernels.kernel_input(t, (T,)),
+                         kernels.kernel_input(p_enu, (L, 3)), flat(off_cam, (3,)), st.prior_speed_m_s,
+                         st.prior_floor_m, last, m, S)
+    return last.reshape(bt), m.reshape(bt + (L,)), S.reshape(bt + (L, L))
 
 
 def _take_t(a: NDArray, idx: NDArray) -> NDArray:
@@ -272,11 +283,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     off_cam = R @ inp.lever_cam
 
     # --- 1. GPS-only RAIM (same math as raim.gps_raim, with the fix covariance J kept)
-    idx, mg, _ = compact_rows(inp.vis, inp.n_gps_rows)
-    anchor_g = np.take_along_axis(inp.sat_enu, idx[..., None], -2)  # used rows only
-    zg = np.take_along_axis(pr, idx, -1)
-    wg = lsq.weights_from_sigma(np.take_along_axis(inp.sigma, idx, -1))
-    wg = np.where(mg, wg, 0.0)
+    idx, mg, zg, wg, anchor_g = used_gps_rows(inp.vis, pr, inp.sigma, inp.sat_enu, inp.n_gps_rows)
     xg_it, conv_g, _, h_g, G_g = lsq.gauss_newton_ranges(np.zeros(bt + (4,)), ist.max_iter, ist.tol_m,
                                                          (anchor_g, off_ant, zg, wg, mg))
     fit_g, pls_g, reason_g, ok_g, x_g = _finish(h_g, G_g, zg, (wg, None), mg, xg_it, conv_g, ist)
@@ -287,19 +294,9 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     P_g = np.where(has_fix[..., None, None], fit_g.J[..., :3, :3], np.nan)
 
     # --- 2. prior for the vision solve: this epoch's fix, else the last one carried forward
-    last = _forward_fill_index(has_fix & np.isfinite(P_g).all((-1, -2)))
-    have_prior = last >= 0
-    li = np.where(have_prior, last, 0)
-    x_pr = _take_t(x_g0, li)
-    P_pr = _take_t(np.where(np.isfinite(P_g), P_g, 0.0), li)
-    dt = t - t[li]
-    grow = (st.prior_speed_m_s * dt) ** 2 + st.prior_floor_m**2
-    P_pr = P_pr + grow[..., None, None] * np.eye(3)
-    d = p_enu - (x_pr[..., :3] + off_cam)[..., None, :]
-    m_pred = np.linalg.norm(d, axis=-1)
-    Hp = -d / m_pred[..., None]
-    Sigma_pred = Hp @ P_pr @ np.swapaxes(Hp, -1, -2)
-    m_pred = np.where(have_prior[..., None], m_pred, np.nan)
+    last, m_pred, Sigma_pred = _vision_prior(x_g, P_g, has_fix & np.isfinite(P_g).all((-1, -2)), t, p_enu,
+                                             off_cam, st)
+    li = np.maximum(last, 0)
 
     vr = vision_pseudoranges(uv, inp.det, inp.K, inp.sig, p_enu, m_pred, Sigma_pred, st.vision)
 
@@ -327,7 +324,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     # --- 4. integrated iterated WLS
     z_all = np.concatenate([zg, rows.z], axis=-1)
     mask_all = np.concatenate([mg, rows.mask], axis=-1)
-    W_blocks = (np.where(mg, wg, 0.0), rows.W)  # block-diagonal weight: GPS diagonal, vision block
+    W_blocks = (wg, rows.W)  # block-diagonal weight: GPS diagonal, vision block
     x0 = _take_t(x_g0, li)
     x_it, conv, _, h, G = lsq.gauss_newton_ranges(x0, ist.max_iter, ist.tol_m, (anchor_g, off_ant, zg, wg, mg),
                                                   (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask))
