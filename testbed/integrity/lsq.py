@@ -879,8 +879,9 @@ def solve_ranges(anchor_enu: ArrayLike, z: ArrayLike, W: ArrayLike, mask: ArrayL
                        n_iter=n_iter, tol_m=tol_m, max_cond=max_cond)
 
 
-def dops(geom: WlsGeometry, sigma_uere: float = 1.0) -> dict[str, NDArray]:
-    """Weighted DOPs from J (equal to classic DOPs when W = I/σ²·sigma_uere²).
+def dops(geom, sigma_uere: float = 1.0) -> dict[str, NDArray]:
+    """Weighted DOPs from ``geom.J`` (a WlsGeometry or fit.WlsFit; equal to classic DOPs when
+    W = I/σ²·sigma_uere²).
 
     Returns dict with ``gdop, pdop, hdop, vdop, tdop`` (...), computed as
     sqrt of the J diagonal divided by ``sigma_uere``.

@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import LocalFrame
 from testbed.integrity import kernels, lsq
+from testbed.integrity.fit import wls_fit
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.settings import IntegritySettings
@@ -119,49 +120,65 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
     return map_trial_chunks(chunk, bt, threads)
 
 
+def fix_at_solution(h: NDArray, G: NDArray, z: NDArray, W: tuple, mask: NDArray, x: NDArray, conv: NDArray,
+            ist: IntegritySettings):
+    """Geometry, residuals, SSE, both PL variants and the reason code at the solution x of an
+    iterated solve (GPS RAIM, and VA-RAIM's GPS and integrated solves).
+
+    h (..., N), G (..., N, 4): the predictions and partials at x. W = ``(w_diag, W_block)``:
+    the block-diagonal weight of :func:`fit.wls_fit` (GPS rows first, then the vision block;
+    W_block None for GPS rows only).
+    """
+    ft = wls_fit(h, G, z, W[0], W[1], mask, ist.max_cond)
+    with np.errstate(invalid="ignore", over="ignore"):
+        pls = {v: ft.protection_levels(ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
+    reason = np.where((ft.reason == lsq.Reason.OK) & ~conv, lsq.Reason.NOT_CONVERGED, ft.reason)
+    pl = pls[ist.pl_variant]
+    reason = np.where(reason != lsq.Reason.OK, reason, pl.reason).astype(np.int8)
+    ok = reason == lsq.Reason.OK
+    x = np.where(ft.solvable[..., None], x, np.nan)
+    return ft, pls, reason, ok, x
+
+
 def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_enu: NDArray, sigma: NDArray, off: NDArray | None,
                     x0: NDArray | None, t: NDArray, st: IntegritySettings, name: str,
                     width: int) -> MonitorOutput:
     """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
     S = pr.shape[-1]
     idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat_enu, width)
-    N = width
-    sol = lsq.solve_ranges(anchor, z, w, m, np.ones(N), offset_enu=None if off is None else off[..., None, :],
-                           x0=x0, n_iter=st.max_iter, tol_m=st.tol_m, max_cond=st.max_cond)
-    geom = sol.geometry
-    with np.errstate(invalid="ignore", over="ignore"):
-        pls = {v: lsq.protection_levels(geom, st.p_fa, st.p_md, v) for v in ("seed", "pbias")}
+    bt = pr.shape[:-1]
+    x0 = np.zeros(bt + (4,)) if x0 is None else x0
+    off = np.zeros(bt + (3,)) if off is None else off
+    x_it, conv, iters, h, G = lsq.gauss_newton_ranges(x0, st.max_iter, st.tol_m, (anchor, off, z, w, m))
+    ft, pls, reason, ok, x = fix_at_solution(h, G, z, (w, None), m, x_it, conv, st)
     pl = pls[st.pl_variant]
-    # a solve that did not converge (or had NaN input) keeps its own reason
-    reason = np.where(sol.reason != lsq.Reason.OK, sol.reason, pl.reason).astype(np.int8)
-    ok = reason == lsq.Reason.OK
     hpl = np.where(ok, pl.hpl, np.nan)
     vpl = np.where(ok, pl.vpl, np.nan)
-    sse = np.where(ok, sol.sse, np.nan)
+    sse = np.where(ok, ft.sse, np.nan)
     T2 = np.where(ok, pl.T2, np.nan)
-    alert = ok & (sse > T2)
+    with np.errstate(invalid="ignore"):
+        alert = ok & (sse > T2)
     levels = tuple(service_level(s) for s in st.service_levels)
     avail = availability(hpl, vpl, levels, ok)
 
     with np.errstate(invalid="ignore"):
-        dop = lsq.dops(geom)
+        dop = lsq.dops(ft)
     diag = {
         "hslope": scatter_rows(pl.hslope, idx, m, S),
         "vslope": scatter_rows(pl.vslope, idx, m, S),
-        "residual": scatter_rows(sol.residual, idx, m, S),
+        "residual": scatter_rows(ft.residual, idx, m, S),
         "lam_det": np.where(ok, pl.lam_det, np.nan),
-        "cond": geom.cond,
-        "converged": sol.converged,
-        "n_iter": sol.n_iter,
+        "cond": ft.cond,
+        "converged": conv & ft.solvable,
+        "n_iter": iters,
     }
     for v, p in pls.items():
         diag[f"hpl_{v}"] = np.where(ok, p.hpl, np.nan)
         diag[f"vpl_{v}"] = np.where(ok, p.vpl, np.nan)
     diag.update(dop)
-    x = sol.x
     return MonitorOutput(
         name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl,
         test_stat=sse, threshold=T2, alert=alert, available=avail, service_levels=tuple(st.service_levels),
-        n_used=geom.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
+        n_used=ft.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
         reasons=lsq.REASONS, diagnostics=diag,
     )

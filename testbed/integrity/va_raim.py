@@ -36,7 +36,7 @@ from pydantic import Field, field_validator
 from testbed.frames import LocalFrame, q_to_R
 from testbed.integrity import kernels, lsq
 from testbed.integrity.batching import map_trial_chunks
-from testbed.integrity.fit import WlsFit, wls_fit
+from testbed.integrity.fit import WlsFit
 from testbed.integrity.calibration import (
     CalibratedRanges,
     calibrate,
@@ -44,7 +44,7 @@ from testbed.integrity.calibration import (
     landmark_set_key,
 )
 from testbed.integrity.levels import SERVICE_LEVELS, availability, service_level
-from testbed.integrity.raim import used_gps_rows
+from testbed.integrity.raim import fix_at_solution, used_gps_rows
 from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.vision_ranges import (
     VISION_REASONS,
@@ -115,25 +115,6 @@ def _vision_prior(x_g: NDArray, P_g: NDArray, fix: NDArray, t: NDArray, p_enu: N
 def _take_t(a: NDArray, idx: NDArray) -> NDArray:
     ii = idx.reshape(idx.shape + (1,) * (a.ndim - idx.ndim))
     return np.take_along_axis(a, ii, axis=idx.ndim - 1)
-
-
-def _finish(h: NDArray, G: NDArray, z: NDArray, W: tuple, mask: NDArray, x: NDArray, conv: NDArray,
-            ist: IntegritySettings):
-    """Geometry, residuals, SSE, both PL variants and the reason code at the solution x.
-
-    h (..., N), G (..., N, 4): the predictions and partials at x. W = ``(w_diag, W_block)``:
-    the block-diagonal weight of :func:`fit.wls_fit` (GPS rows first, then the vision block;
-    W_block None for GPS rows only).
-    """
-    ft = wls_fit(h, G, z, W[0], W[1], mask, ist.max_cond)
-    with np.errstate(invalid="ignore", over="ignore"):
-        pls = {v: ft.protection_levels(ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
-    reason = np.where((ft.reason == lsq.Reason.OK) & ~conv, lsq.Reason.NOT_CONVERGED, ft.reason)
-    pl = pls[ist.pl_variant]
-    reason = np.where(reason != lsq.Reason.OK, reason, pl.reason).astype(np.int8)
-    ok = reason == lsq.Reason.OK
-    x = np.where(ft.solvable[..., None], x, np.nan)
-    return ft, pls, reason, ok, x
 
 
 def _monitor_output(name, t, x, ft: WlsFit, pls, reason, ok, ist, extra) -> MonitorOutput:
@@ -286,7 +267,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     idx, mg, zg, wg, anchor_g = used_gps_rows(inp.vis, pr, inp.sigma, inp.sat_enu, inp.n_gps_rows)
     xg_it, conv_g, _, h_g, G_g = lsq.gauss_newton_ranges(np.zeros(bt + (4,)), ist.max_iter, ist.tol_m,
                                                          (anchor_g, off_ant, zg, wg, mg))
-    fit_g, pls_g, reason_g, ok_g, x_g = _finish(h_g, G_g, zg, (wg, None), mg, xg_it, conv_g, ist)
+    fit_g, pls_g, reason_g, ok_g, x_g = fix_at_solution(h_g, G_g, zg, (wg, None), mg, xg_it, conv_g, ist)
     gps = _monitor_output("gps_raim", t, x_g, fit_g, pls_g, reason_g, ok_g, ist,
                           {"converged": conv_g, "gps_slot": idx})
     has_fix = np.isfinite(x_g).all(-1)
@@ -328,7 +309,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     x0 = _take_t(x_g0, li)
     x_it, conv, _, h, G = lsq.gauss_newton_ranges(x0, ist.max_iter, ist.tol_m, (anchor_g, off_ant, zg, wg, mg),
                                                   (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask))
-    ft, pls, reason, ok, x = _finish(h, G, z_all, W_blocks, mask_all, x_it, conv, ist)
+    ft, pls, reason, ok, x = fix_at_solution(h, G, z_all, W_blocks, mask_all, x_it, conv, ist)
     extra = {
         "gps": gps,
         "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,
