@@ -305,6 +305,7 @@ def test_wls_fit_matches_the_numpy_geometry_and_its_reasons():
 
 
 def test_used_gps_rows_match_compact_rows_and_take():
+    from testbed.frames import LocalFrame
     from testbed.integrity.raim import compact_rows, used_gps_rows
 
     rng = np.random.default_rng(10)
@@ -314,11 +315,13 @@ def test_used_gps_rows_match_compact_rows_and_take():
     sigma = rng.uniform(1, 5, (P, S))
     sigma[~vis & (rng.random((P, S)) > 0.5)] = np.nan  # unused slots may hold anything
     sat = np.broadcast_to(rng.normal(size=(S, 3)) * 2e7, (P, S, 3))  # a broadcast view, as the monitors pass
+    frame = LocalFrame(29.3, 94.3, 2950.0)
     width = int(vis.sum(-1).max())
-    idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat, width)
+    idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat, frame, width)
     idx_ref, m_ref, _ = compact_rows(vis, width)
     np.testing.assert_array_equal(idx, idx_ref)
     np.testing.assert_array_equal(m, m_ref)
     np.testing.assert_array_equal(z, np.take_along_axis(pr, idx_ref, -1))
     np.testing.assert_array_equal(w, np.where(m_ref, 1.0 / np.take_along_axis(sigma, idx_ref, -1) ** 2, 0.0))
-    np.testing.assert_array_equal(anchor, np.take_along_axis(sat, idx_ref[..., None], -2))
+    np.testing.assert_allclose(anchor, frame.ecef_to_enu(np.take_along_axis(sat, idx_ref[..., None], -2)),
+                               rtol=0, atol=1e-7)

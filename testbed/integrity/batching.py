@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -52,7 +53,12 @@ def trial_chunks(batch_shape: tuple[int, ...], chunk_epochs: int | None = None, 
 
 def map_trial_chunks(fn: Callable[[slice], MonitorOutput], batch_shape: tuple[int, ...],
                      threads: int | None = None, chunk_epochs: int | None = None) -> MonitorOutput:
-    """``fn(slice)`` for every chunk of trials (on ``threads`` threads; None = every core), stacked."""
+    """``fn(slice)`` for every chunk of trials (on ``threads`` threads; None = every core), stacked.
+
+    Each worker copies its chunk into the stacked output as soon as it is done (copies
+    release the GIL), so the stacking runs in parallel and only one chunk's arrays are
+    alive per thread.
+    """
     n_threads = available_cores() if threads is None else int(threads)
     if n_threads < 1:
         raise ValueError(f"threads: expected >= 1 or None, got {threads}")
@@ -60,34 +66,52 @@ def map_trial_chunks(fn: Callable[[slice], MonitorOutput], batch_shape: tuple[in
     chunks = trial_chunks(batch_shape, chunk_epochs, n_threads)
     if len(chunks) == 1:
         return fn(chunks[0])
+    n_trials = batch_shape[0]
+    lock = threading.Lock()
+    stacked: list[MonitorOutput] = []
+
+    def run(sl: slice) -> None:
+        part = fn(sl)
+        with lock:
+            if not stacked:
+                stacked.append(_allocate_stacked(part, n_trials))
+        _write_chunk(stacked[0], part, sl)
+
     if n_threads == 1:
-        parts = [fn(c) for c in chunks]
+        for c in chunks:
+            run(c)
     else:
         with ThreadPoolExecutor(min(n_threads, len(chunks))) as pool:
-            parts = list(pool.map(fn, chunks))
-    return stack_outputs(parts)
+            list(pool.map(run, chunks))
+    return stacked[0]
 
 
-def stack_outputs(parts: list[MonitorOutput]) -> MonitorOutput:
-    """Concatenate MonitorOutputs of consecutive trial chunks along the trial axis.
+_PER_EPOCH_FIELDS = ("pos_enu", "clock", "hpl", "vpl", "test_stat", "threshold", "alert", "available", "n_used",
+                     "excluded", "reason")
 
-    Per-epoch arrays (and diagnostics arrays, which all lead with the batch axes) are
-    concatenated; names, times, level and reason tables come from the first part and
-    must agree; a nested MonitorOutput diagnostic is stacked the same way.
-    """
-    first = parts[0]
-    out = {}
-    for f in ("pos_enu", "clock", "hpl", "vpl", "test_stat", "threshold", "alert", "available", "n_used",
-              "excluded", "reason"):
-        out[f] = np.concatenate([getattr(p, f) for p in parts], axis=0)
-    diag = {}
-    for k, v in first.diagnostics.items():
-        vs = [p.diagnostics[k] for p in parts]
+
+def _allocate_stacked(part: MonitorOutput, n_trials: int) -> MonitorOutput:
+    """An output shaped like ``part`` with ``n_trials`` trials (arrays uninitialised)."""
+    def like(a):
+        if isinstance(a, MonitorOutput):
+            return _allocate_stacked(a, n_trials)
+        if isinstance(a, np.ndarray) and a.ndim > 0:
+            return np.empty((n_trials,) + a.shape[1:], a.dtype)
+        return a
+
+    return MonitorOutput(name=part.name, t=part.t, service_levels=part.service_levels, reasons=part.reasons,
+                         diagnostics={k: like(v) for k, v in part.diagnostics.items()},
+                         **{f: like(getattr(part, f)) for f in _PER_EPOCH_FIELDS})
+
+
+def _write_chunk(out: MonitorOutput, part: MonitorOutput, sl: slice) -> None:
+    """Copy the chunk ``part`` into trials ``sl`` of ``out`` (same layout as :func:`_allocate_stacked`)."""
+    if part.name != out.name or part.diagnostics.keys() != out.diagnostics.keys():
+        raise ValueError(f"chunk outputs disagree: {part.name!r} vs {out.name!r}")
+    for f in _PER_EPOCH_FIELDS:
+        getattr(out, f)[sl] = getattr(part, f)
+    for k, v in part.diagnostics.items():
         if isinstance(v, MonitorOutput):
-            diag[k] = stack_outputs(vs)
+            _write_chunk(out.diagnostics[k], v, sl)
         elif isinstance(v, np.ndarray) and v.ndim > 0:
-            diag[k] = np.concatenate(vs, axis=0)
-        else:
-            diag[k] = v
-    return MonitorOutput(name=first.name, t=first.t, service_levels=first.service_levels, reasons=first.reasons,
-                         diagnostics=diag, **out)
+            out.diagnostics[k][sl] = v

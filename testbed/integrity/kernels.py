@@ -78,13 +78,14 @@ def _lu_solve(A, B) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def gather_used_rows(vis, pr, sigma, sat, idx_out, mask_out, z_out, w_out, anchor_out):
+def gather_used_rows(vis, pr, sigma, sat_ecef, R, origin, idx_out, mask_out, z_out, w_out, anchor_out):
     """The used rows of every epoch first, as ``raim.compact_rows``, with their data.
 
-    vis, pr, sigma (P, S), sat (P, S, 3). Row order: the slots with ``vis`` in ascending
-    order, then the others in ascending order (a stable sort of ``~vis``), the first
-    N = idx_out.shape[1]. Writes the slot index, the row mask, the pseudorange, the weight
-    1/σ² (0 on unused rows) and the satellite position of each row.
+    vis, pr, sigma (P, S), sat_ecef (P, S, 3). Row order: the slots with ``vis`` in
+    ascending order, then the others in ascending order (a stable sort of ``~vis``), the
+    first N = idx_out.shape[1]. Writes the slot index, the row mask, the pseudorange, the
+    weight 1/σ² (0 on unused rows) and the satellite position in the world frame,
+    ``R (sat − origin)`` (R (3, 3) ECEF→ENU, origin (3,) ECEF; only rows that are written).
     """
     P, S = vis.shape
     N = idx_out.shape[1]
@@ -104,8 +105,11 @@ def gather_used_rows(vis, pr, sigma, sat, idx_out, mask_out, z_out, w_out, ancho
             mask_out[p, n] = used
             z_out[p, n] = pr[p, s]
             w_out[p, n] = 1.0 / (sigma[p, s] * sigma[p, s]) if used else 0.0
+            d0 = sat_ecef[p, s, 0] - origin[0]
+            d1 = sat_ecef[p, s, 1] - origin[1]
+            d2 = sat_ecef[p, s, 2] - origin[2]
             for c in range(3):
-                anchor_out[p, n, c] = sat[p, s, c]
+                anchor_out[p, n, c] = R[c, 0] * d0 + R[c, 1] * d1 + R[c, 2] * d2
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -1051,7 +1055,7 @@ def compile_all() -> None:
         return np.zeros(shape, dt)
 
     eye = kernel_input(np.eye(4), (1, 4, 4))
-    gather_used_rows(r(1, 4, dt=b), r(1, 4), r(1, 4), r(1, 4, 3), w(1, 3, dt=i), w(1, 3, dt=b), w(1, 3), w(1, 3),
+    gather_used_rows(r(1, 4, dt=b), r(1, 4), r(1, 4), r(1, 4, 3), r(3, 3), r(3), w(1, 3, dt=i), w(1, 3, dt=b), w(1, 3), w(1, 3),
                      w(1, 3, 3))
     range_gauss_newton(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
                        r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),

@@ -40,12 +40,13 @@ def compact_rows(mask: NDArray, width: int | None = None) -> tuple[NDArray, NDAr
     return idx, np.take_along_axis(m, idx, -1), N
 
 
-def used_gps_rows(vis: NDArray, pr: NDArray, sigma: NDArray, sat_enu: NDArray, width: int
+def used_gps_rows(vis: NDArray, pr: NDArray, sigma: NDArray, sat_ecef: NDArray, frame: LocalFrame, width: int
                   ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
     """:func:`compact_rows` of ``vis`` (..., S) and the compacted rows' data, in one compiled pass.
 
     Returns idx, mask (..., N), the pseudoranges ``pr`` (..., N), the weights ``1/sigma²``
-    (0 on unused rows) and the satellite positions ``sat_enu`` (..., N, 3); N = width.
+    (0 on unused rows) and the satellite positions ``sat_ecef`` in ``frame`` (..., N, 3);
+    N = width.
     """
     batch, S = vis.shape[:-1], vis.shape[-1]
     P = int(np.prod(batch, dtype=np.int64))
@@ -55,7 +56,8 @@ def used_gps_rows(vis: NDArray, pr: NDArray, sigma: NDArray, sat_enu: NDArray, w
 
     idx, m = np.empty((P, width), np.int64), np.empty((P, width), bool)
     z, w, anchor = np.empty((P, width)), np.empty((P, width)), np.empty((P, width, 3))
-    kernels.gather_used_rows(flat(vis, (S,), np.bool_), flat(pr, (S,)), flat(sigma, (S,)), flat(sat_enu, (S, 3)),
+    kernels.gather_used_rows(flat(vis, (S,), np.bool_), flat(pr, (S,)), flat(sigma, (S,)), flat(sat_ecef, (S, 3)),
+                             kernels.kernel_input(frame.R, (3, 3)), kernels.kernel_input(frame.origin_ecef, (3,)),
                              idx, m, z, w, anchor)
     return (idx.reshape(batch + (width,)), m.reshape(batch + (width,)), z.reshape(batch + (width,)),
             w.reshape(batch + (width,)), anchor.reshape(batch + (width, 3)))
@@ -106,8 +108,7 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
     pr = np.asarray(gnss.pseudorange, float)
     bt = pr.shape[:-1]
     vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
-    sat_enu = frame.ecef_to_enu(np.asarray(gnss.sat_pos_ecef, float))  # before the broadcast: once per satellite
-    sat = np.broadcast_to(sat_enu, pr.shape + (3,))
+    sat = np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,))
     sigma = np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape)
     off = None if antenna_offset_enu is None else np.broadcast_to(np.asarray(antenna_offset_enu, float), bt + (3,))
     x0b = None if x0 is None else np.broadcast_to(np.asarray(x0, float), bt + (4,))
@@ -115,7 +116,7 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
 
     def chunk(sl: slice) -> MonitorOutput:
         return _gps_raim_chunk(pr[sl], vis[sl], sat[sl], sigma[sl], None if off is None else off[sl],
-                               None if x0b is None else x0b[sl], np.asarray(gnss.t), st, name, width)
+                               None if x0b is None else x0b[sl], np.asarray(gnss.t), frame, st, name, width)
 
     return map_trial_chunks(chunk, bt, threads)
 
@@ -140,12 +141,12 @@ def fix_at_solution(h: NDArray, G: NDArray, z: NDArray, W: tuple, mask: NDArray,
     return ft, pls, reason, ok, x
 
 
-def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_enu: NDArray, sigma: NDArray, off: NDArray | None,
-                    x0: NDArray | None, t: NDArray, st: IntegritySettings, name: str,
+def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,
+                    x0: NDArray | None, t: NDArray, frame: LocalFrame, st: IntegritySettings, name: str,
                     width: int) -> MonitorOutput:
     """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
     S = pr.shape[-1]
-    idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat_enu, width)
+    idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat_ecef, frame, width)
     bt = pr.shape[:-1]
     x0 = np.zeros(bt + (4,)) if x0 is None else x0
     off = np.zeros(bt + (3,)) if off is None else off

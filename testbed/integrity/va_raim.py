@@ -173,7 +173,7 @@ class _Inputs:
     t: NDArray  # (T,)
     pr: NDArray  # (bt, S)
     vis: NDArray  # (bt, S) bool
-    sat_enu: NDArray  # (bt, S, 3) satellites in the world frame
+    sat_ecef: NDArray  # (bt, S, 3)
     sigma: NDArray  # (bt, S)
     q: NDArray  # (bt, 4) attitude reference
     uv: NDArray  # (bt, L, 2)
@@ -184,10 +184,11 @@ class _Inputs:
     lever_ant: NDArray  # (3,) body
     lever_cam: NDArray  # (3,) body
     n_gps_rows: int  # compacted GPS row width over the whole batch
+    frame: LocalFrame
 
     def trials(self, sl: slice) -> _Inputs:
         """The same inputs for trials ``sl`` of the first batch axis (views)."""
-        per = {k: getattr(self, k)[sl] for k in ("pr", "vis", "sat_enu", "sigma", "q", "uv", "det", "sig")}
+        per = {k: getattr(self, k)[sl] for k in ("pr", "vis", "sat_ecef", "sigma", "q", "uv", "det", "sig")}
         return dataclasses.replace(self, **per)
 
 
@@ -205,16 +206,15 @@ def _read_inputs(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame) -> _
     p_enu = frame.ecef_to_enu(np.asarray(vision.landmark_pos_ecef, float))  # (L, 3)
     L = p_enu.shape[0]
     vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
-    sat_enu = frame.ecef_to_enu(np.asarray(gnss.sat_pos_ecef, float))  # before the broadcast: once per satellite
     return _Inputs(
-        t=t, pr=pr, vis=vis, sat_enu=np.broadcast_to(sat_enu, pr.shape + (3,)),
+        t=t, pr=pr, vis=vis, sat_ecef=np.broadcast_to(np.asarray(gnss.sat_pos_ecef, float), pr.shape + (3,)),
         sigma=np.broadcast_to(np.asarray(gnss.sigma, float), pr.shape),
         q=np.broadcast_to(np.asarray(vision.q_body_to_enu_ref, float), bt + (4,)), uv=uv,
         det=np.broadcast_to(np.asarray(vision.detected, bool), bt + (L,)),
         sig=np.broadcast_to(np.asarray(vision.sigma_px, float), bt + (L,)), p_enu=p_enu,
         K=np.asarray(vision.K, float), lever_ant=np.asarray(gnss.antenna.lever_arm_body, float),
         lever_cam=np.asarray(vision.camera.lever_arm_body, float),
-        n_gps_rows=max(int(vis.sum(-1).max(initial=0)), 1))
+        n_gps_rows=max(int(vis.sum(-1).max(initial=0)), 1), frame=frame)
 
 
 def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
@@ -264,7 +264,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     off_cam = R @ inp.lever_cam
 
     # --- 1. GPS-only RAIM (same math as raim.gps_raim, with the fix covariance J kept)
-    idx, mg, zg, wg, anchor_g = used_gps_rows(inp.vis, pr, inp.sigma, inp.sat_enu, inp.n_gps_rows)
+    idx, mg, zg, wg, anchor_g = used_gps_rows(inp.vis, pr, inp.sigma, inp.sat_ecef, inp.frame, inp.n_gps_rows)
     xg_it, conv_g, _, h_g, G_g = lsq.gauss_newton_ranges(np.zeros(bt + (4,)), ist.max_iter, ist.tol_m,
                                                          (anchor_g, off_ant, zg, wg, mg))
     fit_g, pls_g, reason_g, ok_g, x_g = fix_at_solution(h_g, G_g, zg, (wg, None), mg, xg_it, conv_g, ist)

@@ -38,6 +38,7 @@ exception.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from enum import IntEnum
 
 import numpy as np
@@ -288,9 +289,15 @@ class VisionRanges:
 
 
 def _chi2_isf(p: float, dof: NDArray) -> NDArray:
-    """chi2.isf(p, dof) evaluated once per distinct dof."""
-    u, inv = np.unique(dof, return_inverse=True)
-    return chi2.isf(p, u)[inv.reshape(np.shape(dof))]
+    """chi2.isf(p, dof) for integer dof ≥ 1, from a cached table."""
+    dof = np.asarray(dof)
+    n = 64 if dof.size == 0 else max(64, 1 << int(dof.max()).bit_length())
+    return _chi2_isf_table(float(p), n)[np.clip(dof, 1, n) - 1]
+
+
+@lru_cache(maxsize=32)
+def _chi2_isf_table(p: float, n: int) -> NDArray:
+    return chi2.isf(p, np.arange(1, n + 1))
 
 
 def _geometry_degenerate(p: NDArray, used: NDArray, s: VisionRangeSettings) -> NDArray:
