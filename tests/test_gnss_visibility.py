@@ -3,7 +3,6 @@
 from dataclasses import replace
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
 from testbed.flight.kinematic import straight_truth

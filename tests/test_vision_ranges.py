@@ -218,7 +218,6 @@ def test_p3p_branch_jump_is_flagged():
     other = sol.ok & (np.abs(sol.m - m_true).max(-1) > 1.0)
     assert other.any(), "this geometry has a second P3P branch"
     k = int(np.argmax(other))
-    m_other = sol.m[k]
     # both branches fit the cosines exactly: the residual cannot tell them apart
     assert sol.residual_stat[k] < 1e-3
     Sp = np.eye(3) * 10.0**2

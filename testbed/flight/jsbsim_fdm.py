@@ -12,7 +12,6 @@ Safety rules from FACTS.md, enforced here:
 
 from __future__ import annotations
 
-import math
 import shutil
 import tempfile
 from dataclasses import dataclass

@@ -23,7 +23,7 @@ from testbed.integrity.lsq import Reason
 
 
 @dataclass(frozen=True)
-class WlsFit:
+class WlsFit(lsq.SolvedEpochs):
     """Per-epoch results at the solution (batch shape ``(...)``, N rows).
 
     mask : (..., N) rows used.  n_used, n_states : (...) rows used and states estimated.
@@ -48,15 +48,6 @@ class WlsFit:
     vslope: NDArray
     hmax: NDArray
     vmax: NDArray
-
-    @property
-    def dof(self) -> NDArray:
-        return self.n_used - self.n_states
-
-    @property
-    def solvable(self) -> NDArray:
-        """(...) bool: a position solution exists (reason OK or NO_REDUNDANCY)."""
-        return (self.reason == Reason.OK) | (self.reason == Reason.NO_REDUNDANCY)
 
     def protection_levels(self, p_fa: float, p_md: float, variant: lsq.PlVariant = "pbias") -> lsq.ProtectionLevels:
         """:func:`lsq.protection_levels` of this solution."""

@@ -144,8 +144,26 @@ def masked_inputs(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None,
 # ---------------------------------------------------------------------------
 
 
+class SolvedEpochs:
+    """``dof`` and ``solvable`` of per-epoch results with ``n_used``, ``n_states`` and ``reason``."""
+
+    n_used: NDArray
+    n_states: NDArray
+    reason: NDArray
+
+    @property
+    def dof(self) -> NDArray:
+        """Degrees of freedom of the test, ``n_used − n_states`` (may be ≤ 0)."""
+        return self.n_used - self.n_states
+
+    @property
+    def solvable(self) -> NDArray:
+        """(...) bool: a position solution exists (reason OK or NO_REDUNDANCY)."""
+        return (self.reason == Reason.OK) | (self.reason == Reason.NO_REDUNDANCY)
+
+
 @dataclass(frozen=True)
-class WlsGeometry:
+class WlsGeometry(SolvedEpochs):
     """The weighted-LS matrices of a batch of epochs (seed 000 eq. 19-21).
 
     Attributes
@@ -178,16 +196,6 @@ class WlsGeometry:
     ws_diag: NDArray
     cond: NDArray
     reason: NDArray
-
-    @property
-    def dof(self) -> NDArray:
-        """Degrees of freedom of the test, ``n_used − n_states`` (may be ≤ 0)."""
-        return self.n_used - self.n_states
-
-    @property
-    def solvable(self) -> NDArray:
-        """(...) bool: a position solution exists (reason OK or NO_REDUNDANCY)."""
-        return (self.reason == Reason.OK) | (self.reason == Reason.NO_REDUNDANCY)
 
     def ws_matrix(self) -> NDArray:
         """Full ``W S = W − WG J (WG)ᵀ`` ``(..., N, N)`` (symmetric; for small problems/tests)."""

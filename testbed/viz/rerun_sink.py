@@ -24,7 +24,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import rerun as rr
 
-from testbed.frames import q_to_R
 from testbed.records import NotVisible
 from testbed.viz.blueprint import approach_eye, default_blueprint
 

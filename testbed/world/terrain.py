@@ -42,7 +42,7 @@ import pymap3d.vincenty
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from testbed.frames import WGS84, LocalFrame, ecef_to_geodetic, geodetic_to_ecef
+from testbed.frames import WGS84, LocalFrame
 from testbed.world import airport
 from testbed.world.dem import check_regular, fill_voids_nearest, read_hgt_mosaic, read_npz
 
