@@ -3,7 +3,7 @@
 Run: python benchmarks/bench_loop.py [--runs 3] [--approach zunz-rwy05-final]
 Prints, per run and as medians: the real-time factor of the loop (simulated
 seconds / wall seconds of run_loop), the split between flight, sensors,
-monitors and logging, the set-up time (terrain, scene, recording start) kept
+monitors (and per monitor) and logging, the set-up time (terrain, scene, recording start) kept
 apart, and the recording size. Measured side by side with a flight-only run.
 """
 
@@ -17,13 +17,28 @@ import time
 from pathlib import Path
 
 from testbed.api import fly_approach, load_approach, load_terrain_for
-from testbed.sensors.vision.settings import VisionSettings  # noqa: F401  (import cost outside timing)
+import testbed.sim.loop as loop_mod
 from testbed.sim.loop import run_loop
 from testbed.sim.setup import build_scene, build_setup
 from testbed.viz.rerun_sink import RerunSink
 
 
+#: wall seconds per monitor, accumulated by the wrappers installed in main()
+MONITOR_S: dict[str, float] = {}
+
+
+def _timed(name: str, fn):
+    def wrapped(*a, **kw):
+        t0 = time.perf_counter()
+        try:
+            return fn(*a, **kw)
+        finally:
+            MONITOR_S[name] = MONITOR_S.get(name, 0.0) + time.perf_counter() - t0
+    return wrapped
+
+
 def one_run(approach, tmp: Path, k: int, block_s: float) -> dict:
+    MONITOR_S.clear()
     t0 = time.perf_counter()
     setup = build_setup(approach, load_terrain_for(approach))
     sink = RerunSink(tmp / f"bench{k}.rrd", recording_id=f"bench{k}")
@@ -37,6 +52,7 @@ def one_run(approach, tmp: Path, k: int, block_s: float) -> dict:
     tm = res.timings.as_dict()
     tm["logging"] += t3 - t2  # flushing the file belongs to logging
     return {"setup_s": t1 - t0, "loop_s": t3 - t1, "rtf": sim / (t3 - t1), "sim_s": sim, **tm,
+            **{f"monitor:{m}": v for m, v in MONITOR_S.items()},
             "rrd_mb": os.path.getsize(tmp / f"bench{k}.rrd") / 2**20}
 
 
@@ -47,6 +63,10 @@ def main() -> None:
     ap.add_argument("--block", type=float, default=5.0, help="simulated seconds per live block")
     args = ap.parse_args()
     approach = load_approach(args.approach)
+    # per-monitor wall time: wrap the loop's monitor entry points
+    loop_mod.gps_raim = _timed("gps_raim", loop_mod.gps_raim)
+    loop_mod.pixel_monitor = _timed("pixel", loop_mod.pixel_monitor)
+    loop_mod.va_raim = _timed("va_raim", loop_mod.va_raim)
     load_terrain_for(approach)  # build the terrain once (cached per process), as a campaign would
     with tempfile.TemporaryDirectory() as d:
         runs = [one_run(approach, Path(d), k, args.block) for k in range(args.runs)]
@@ -59,6 +79,8 @@ def main() -> None:
     tot = med["flight"] + med["sensors"] + med["monitors"] + med["logging"]
     for k in ("flight", "sensors", "monitors", "logging"):
         print(f"    {k:9s} {med[k]:.2f} s ({100 * med[k] / tot:.0f} %)")
+    for k in sorted(k for k in med if k.startswith("monitor:")):
+        print(f"      {k[8:]:9s} {med[k]:.2f} s")
     print(f"  set-up (terrain cached, scene mesh, recording start): {med['setup_s']:.2f} s")
     print(f"  recording size: {med['rrd_mb']:.1f} MiB")
 
