@@ -1,0 +1,81 @@
+"""The GPS calibration of the vision ranges (INTEGRITY_MATH.md §3), every epoch."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from testbed.integrity.kernels.small import _add_sandwich, _matmul
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
+                     beta_out, beta0_out, Sh_out, Su_out):
+    """GPS calibration of the vision ranges (INTEGRITY_MATH.md §3), every epoch of every trial.
+
+    Shapes (trial, epoch, ...): i0 (Bt, T) calibration epoch of each epoch (any valid index
+    where uncalibrated; the caller masks); vision solve m (L), A (N_C, L), B (N_C), A⁺ (L, N_C),
+    Σ_c (N_C, N_C), Σ_V (L, L), used (L); GPS fix x (3), its covariance Pg (3, 3), camera
+    offset off (3); p (L, 3) surveyed landmarks; Sd (N_C, N_C) survey covariance of d².
+
+    Writes β(k) = M A0 β(0) with M = A⁺(k) B(k) B(0)⁻¹, β(0) = m(0) − r(x̃(0)),
+    Σ̂_V = Σ_V + M P0 Σc0 P0ᵀMᵀ + (M A0 H0) P_G (M A0 H0)ᵀ + Ld Sd Ldᵀ (P0 = A0 A0⁺,
+    Ld = A⁺B − M P0 B0), and the uncalibrated Σ_V + A⁺B Sd BA⁺ᵀ — the products of
+    ``calibration.calibrate`` per epoch.
+    """
+    Bt, T, L = m.shape
+    nc = B.shape[2]
+    r0 = np.empty(L)
+    H0 = np.empty((L, 3))
+    ratio = np.empty(nc)
+    M = np.empty((L, nc))
+    MA0 = np.empty((L, L))
+    P0 = np.empty((nc, nc))
+    MP0 = np.empty((L, nc))
+    MAH = np.empty((L, 3))
+    Ld = np.empty((L, nc))
+    AB = np.empty((L, nc))
+    tmp = np.empty((L, nc))
+    tmp3 = np.empty((L, 3))
+    for b in range(Bt):
+        for t in range(T):
+            k = i0[b, t]
+            for l in range(L):
+                d0 = p[l, 0] - (x[b, k, 0] + off[b, k, 0])
+                d1 = p[l, 1] - (x[b, k, 1] + off[b, k, 1])
+                d2 = p[l, 2] - (x[b, k, 2] + off[b, k, 2])
+                r0[l] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                u = 1.0 if used[b, k, l] else 0.0
+                H0[l, 0] = -d0 / r0[l] * u
+                H0[l, 1] = -d1 / r0[l] * u
+                H0[l, 2] = -d2 / r0[l] * u
+                be = m[b, k, l] - r0[l] if used[b, k, l] else 0.0
+                beta0_out[b, t, l] = be if np.isfinite(be) else 0.0
+            for q in range(nc):
+                v = B[b, t, q] / B[b, k, q] if B[b, k, q] != 0.0 else 0.0
+                ratio[q] = v if np.isfinite(v) else 0.0
+            for l in range(L):
+                for q in range(nc):
+                    M[l, q] = Ap[b, t, l, q] * ratio[q]
+                    AB[l, q] = Ap[b, t, l, q] * B[b, t, q]
+            _matmul(M, A[b, k], MA0)
+            for l in range(L):
+                s = 0.0
+                for j in range(L):
+                    s += MA0[l, j] * beta0_out[b, t, j]
+                beta_out[b, t, l] = s
+            _matmul(A[b, k], Ap[b, k], P0)
+            _matmul(M, P0, MP0)
+            _matmul(MA0, H0, MAH)
+            for l in range(L):
+                for q in range(nc):
+                    Ld[l, q] = AB[l, q] - MP0[l, q] * B[b, k, q]
+            # Σ̂_V = Σ_V + MP0 Σc0 MP0ᵀ + MAH Pg MAHᵀ + Ld Sd Ldᵀ;  Σ_unc = Σ_V + AB Sd ABᵀ
+            for l in range(L):
+                for j in range(L):
+                    Sh_out[b, t, l, j] = SigV[b, t, l, j]
+                    Su_out[b, t, l, j] = SigV[b, t, l, j]
+            _add_sandwich(MP0, Sc[b, k], Sh_out[b, t], tmp)
+            _add_sandwich(Ld, Sd, Sh_out[b, t], tmp)
+            _add_sandwich(AB, Sd, Su_out[b, t], tmp)
+            _add_sandwich(MAH, Pg[b, k], Sh_out[b, t], tmp3)
