@@ -23,8 +23,6 @@ of the batch is computed as usual.
 
 from __future__ import annotations
 
-import threading
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import IntEnum
@@ -512,28 +510,6 @@ def slopes(geom: WlsGeometry) -> tuple[NDArray, NDArray]:
     return hs, vs
 
 
-#: thread id -> (weakref to a geometry, its slopes and their maxima): both PL variants share them
-_SLOPES_LAST: dict[int, tuple] = {}
-
-
-def _slopes_once(geom: WlsGeometry) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """:func:`slopes` of ``geom`` and their maxima over the rows, reused when called again for
-    the same (immutable) geometry in the same thread; dropped with the geometry."""
-    key = threading.get_ident()
-    entry = _SLOPES_LAST.get(key)
-    if entry is not None and entry[0]() is geom:
-        return entry[1]
-    hs, vs = slopes(geom)
-    out = (hs, vs, max_over_rows(hs), max_over_rows(vs))
-
-    def drop(ref: weakref.ref) -> None:
-        if _SLOPES_LAST.get(key, (None,))[0] is ref:
-            _SLOPES_LAST.pop(key, None)
-
-    _SLOPES_LAST[key] = (weakref.ref(geom, drop), out)
-    return out
-
-
 def max_generalized_eig(P: NDArray, Q: NDArray, rtol: float = 1e-9) -> NDArray:
     """Largest μ of ``P v = μ Q v`` = ``max_b (bᵀPb)/(bᵀQb)`` for stacked symmetric k×k pairs.
 
@@ -636,7 +612,8 @@ def protection_levels(geom: WlsGeometry, p_fa: float, p_md: float,
     Epochs with reason ≠ OK get NaN; an epoch whose worst slope is infinite
     gets reason UNDETECTABLE and NaN.
     """
-    hs, vs, hmax, vmax = _slopes_once(geom)
+    hs, vs = slopes(geom)
+    hmax, vmax = max_over_rows(hs), max_over_rows(vs)
     return slope_protection_levels(hs, vs, hmax, vmax, geom.J, geom.dof, geom.reason, p_fa, p_md, variant)
 
 
@@ -763,8 +740,8 @@ def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, visi
 
     gps = ``(anchor (..., NG, 3), antenna offset (..., 3), z, w, mask (..., NG))``;
     vision = ``(landmarks (L, 3), camera offset (..., 3), Tm (..., R, L), z (..., R),
-    W (..., R, R), mask (..., R))`` or None. The core's :func:`lsq.wls_geometry` is then
-    evaluated once, at the solution, for the reasons, SSE, slopes and PLs.
+    W (..., R, R), mask (..., R))`` or None. The monitors then evaluate the geometry once,
+    at the solution, for the reasons, SSE, slopes and PLs (:func:`fit.wls_fit`).
     Returns the state (..., 4), a converged flag (...), the steps taken (...), and the
     stacked predictions h (..., N) and partials G (..., N, 4) at that state (N = NG + R;
     masked rows zero).

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _add_sandwich, _matmul
+from testbed.integrity.kernels.small import _matmul, _sandwich
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -75,7 +75,7 @@ def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
                 for j in range(L):
                     Sh_out[b, t, l, j] = SigV[b, t, l, j]
                     Su_out[b, t, l, j] = SigV[b, t, l, j]
-            _add_sandwich(MP0, Sc[b, k], Sh_out[b, t], tmp)
-            _add_sandwich(Ld, Sd, Sh_out[b, t], tmp)
-            _add_sandwich(AB, Sd, Su_out[b, t], tmp)
-            _add_sandwich(MAH, Pg[b, k], Sh_out[b, t], tmp3)
+            _sandwich(MP0, Sc[b, k], Sh_out[b, t], tmp, True)
+            _sandwich(Ld, Sd, Sh_out[b, t], tmp, True)
+            _sandwich(AB, Sd, Su_out[b, t], tmp, True)
+            _sandwich(MAH, Pg[b, k], Sh_out[b, t], tmp3, True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _cond4
+from testbed.integrity.kernels.small import _cond4, _matmul
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -35,12 +35,7 @@ def _normal_element(G0, WG, Wd, pivot_rtol, M, S, scratch, Lm, d, y, J, A, ws):
     ws (N,) out (J, A, ws NaN where J is not trusted); S, scratch, Lm (n, n), d, y (n,) scratch.
     Returns (cond, J trusted)."""
     N, n = G0.shape
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(N):
-                s += G0[k, i] * WG[k, j]
-            M[i, j] = s
+    _matmul(G0.T, WG, M)
     # condition of the Jacobi-scaled (symmetrised) matrix
     zero_diag = False
     for i in range(n):
@@ -82,12 +77,7 @@ def _normal_element(G0, WG, Wd, pivot_rtol, M, S, scratch, Lm, d, y, J, A, ws):
             for q in range(i + 1, n):
                 s -= Lm[q, i] * J[q, c]
             J[i, c] = s
-    for i in range(n):
-        for k in range(N):
-            s = 0.0
-            for j in range(n):
-                s += J[i, j] * WG[k, j]
-            A[i, k] = s
+    _matmul(J, WG.T, A)
     for k in range(N):
         s = 0.0
         for i in range(n):

@@ -62,8 +62,8 @@ def _matmul(X, Y, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _add_sandwich(X, C, out, tmp):
-    """out += X C Xᵀ (X (L, n), C (n, n); tmp (L, n) scratch)."""
+def _sandwich(X, C, out, tmp, accumulate):
+    """out = X C Xᵀ, or out += X C Xᵀ with ``accumulate`` (X (L, n), C (n, n); tmp (L, n) scratch)."""
     L, n = X.shape
     _matmul(X, C, tmp)
     for l in range(L):
@@ -71,7 +71,7 @@ def _add_sandwich(X, C, out, tmp):
             s = 0.0
             for q in range(n):
                 s += tmp[l, q] * X[j, q]
-            out[l, j] += s
+            out[l, j] = out[l, j] + s if accumulate else s
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

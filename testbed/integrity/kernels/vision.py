@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _lu_solve, _matmul
+from testbed.integrity.kernels.small import _lu_solve, _matmul, _sandwich
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -78,21 +78,13 @@ def cosine_gauss_newton(c, W, d2, m0, colm, pair_mask, n_iter, tol_m, m_out, ite
                 for k2 in range(nc):
                     s += W[p, k, k2] * r[k2]
                 Wr[k] = s
-                for l in range(L):
-                    s = 0.0
-                    for k2 in range(nc):
-                        s += W[p, k, k2] * A[k2, l]
-                    WA[k, l] = s
+            _matmul(W[p], A, WA)
+            _matmul(A.T, WA, N)  # AᵀWA
             for a in range(L):
                 s = 0.0
                 for k in range(nc):
                     s += A[k, a] * Wr[k]
                 g[a, 0] = s
-                for b in range(L):
-                    s = 0.0
-                    for k in range(nc):
-                        s += A[k, a] * WA[k, b]
-                    N[a, b] = s
                 if not colm[p, a]:
                     N[a, a] += 1.0
             if not _lu_solve(N, g):
@@ -220,22 +212,14 @@ def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
             A[k, j] = (1.0 / ms[i] - c[p, k] / ms[j]) * pm * (1.0 if colm[p, j] else 0.0)
             B_out[p, k] = 1.0 / (2.0 * ms[i] * ms[j]) if pair_mask[p, k] else 0.0
         # A⁺ by the normal equations, an identity pad on unused landmarks
-        for l in range(L):
-            for k in range(nc):
-                s = 0.0
-                for q in range(nc):
-                    s += A[q, l] * W[p, q, k]
-                AtW[l, k] = s
+        _matmul(A.T, W[p], AtW)
+        _matmul(AtW, A, Nm)
         finite = True
         for l in range(L):
+            if not colm[p, l]:
+                Nm[l, l] += 1.0
             for j in range(L):
-                s = 0.0
-                for k in range(nc):
-                    s += AtW[l, k] * A[k, j]
-                if l == j and not colm[p, l]:
-                    s += 1.0
-                Nm[l, j] = s
-                finite = finite and np.isfinite(s)
+                finite = finite and np.isfinite(Nm[l, j])
         X[:] = AtW
         ok = finite and _lu_solve(Nm, X)
         good_out[p] = ok
@@ -250,13 +234,7 @@ def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
                 sp += (Ap_out[p, l, k] / ms[l]) ** 2
         cond = np.sqrt(sa) * np.sqrt(sp)
         cond_out[p] = cond if np.isfinite(cond) else np.inf
-        _matmul(Ap_out[p], Sc[p], tmp)
-        for l in range(L):
-            for j in range(L):
-                s = 0.0
-                for k in range(nc):
-                    s += tmp[l, k] * Ap_out[p, j, k]
-                SigV_out[p, l, j] = s
+        _sandwich(Ap_out[p], Sc[p], SigV_out[p], tmp, False)
         # cosine residuals at the solution
         rn = 0.0
         for k in range(nc):
@@ -333,14 +311,11 @@ def vision_rows(A, z, Sigma, used, pair_mask, modified, Tm_out, zr_out, W_out, m
             for l in range(L):
                 s += Tm[k, l] * z0[l]
             zr_out[p, k] = s
-        _matmul(Tm, S0, tmp)
+        _sandwich(Tm, S0, Sp, tmp, False)
         finite = True
         for k in range(nc):
             for q in range(nc):
-                s = 0.0
-                for l in range(L):
-                    s += tmp[k, l] * Tm[q, l]
-                Sp[k, q] = s if mask[k] and mask[q] else (1.0 if k == q and not mask[k] else 0.0)
+                Sp[k, q] = Sp[k, q] if mask[k] and mask[q] else (1.0 if k == q and not mask[k] else 0.0)
                 finite = finite and np.isfinite(Sp[k, q])
                 X[k, q] = 1.0 if k == q else 0.0
         good = finite and _lu_solve(Sp, X)
@@ -391,7 +366,4 @@ def vision_prior(x_g, P_g, fix, t, p, off, speed, floor, li_out, m_out, S_out):
                 H[l, 0] = -d0 / rng
                 H[l, 1] = -d1 / rng
                 H[l, 2] = -d2 / rng
-            _matmul(H, Pp, HP)
-            for l in range(L):
-                for j in range(L):
-                    S_out[b, k, l, j] = HP[l, 0] * H[j, 0] + HP[l, 1] * H[j, 1] + HP[l, 2] * H[j, 2]
+            _sandwich(H, Pp, S_out[b, k], HP, False)

@@ -529,13 +529,11 @@ def synthesize_vision(truth: Truth, settings: VisionSettings, *, landmarks: Land
     faults : a fault schedule; only the vision kinds (pixel_bias, landmark_moved,
         misassociation) are used.
     rng : the only source of randomness (child streams as in :func:`sample_vision`).
-    n_trials : when given, a leading trial axis B = (n_trials,) on every random output.
+    n_trials : as in :func:`sample_vision`.
 
     Returns
     -------
-    (VisionEpochs, VisionTruth); shapes as documented there, with B = () when
-    ``n_trials`` is None. ``VisionEpochs.landmark_pos_ecef`` is ``(B..., L, 3)``:
-    the survey error is drawn per trial.
+    (VisionEpochs, VisionTruth) as :func:`sample_vision`.
     """
     _check_rng_trials(rng, n_trials)
     lm = _as_landmarks(landmarks)
