@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -10,10 +11,17 @@ from testbed.schema import ConfigError
 
 
 def _cmd_approaches(args: argparse.Namespace) -> int:
-    from testbed.config import list_approaches
+    from testbed.config import list_approaches, list_campaigns
+    from testbed.resources import approaches_dir, campaigns_dir, shipped_from
 
+    print(f"shipped approaches in {approaches_dir()} ({shipped_from()}):")
     for name, desc in list_approaches():
-        print(f"{name:22s} {desc}")
+        print(f"  {name:22s} {desc}  [{name}.toml]")
+    print("fly one with `testbed fly NAME`, or any approach file with `testbed fly PATH.toml`")
+    print(f"shipped campaign specs in {campaigns_dir()}:")
+    for name, desc in list_campaigns():
+        print(f"  {name:22s} {desc}  [campaigns/{name}.toml]")
+    print("run one with `testbed campaign NAME --out DIR` (`--trials N` for a quick look)")
     return 0
 
 
@@ -100,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--flight-only", action="store_true", help="fly without sensors, monitors or recording")
     f.set_defaults(func=_cmd_fly)
 
-    a = sub.add_parser("approaches", help="list the shipped approaches")
+    a = sub.add_parser("approaches", help="list the shipped approaches and campaign specs, and where they are read from")
     a.set_defaults(func=_cmd_approaches)
 
     r = sub.add_parser("export-rinex", help="fly an approach and write RINEX 3.04 observation + navigation files")
@@ -127,6 +135,9 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into `head` and the like: stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit-time flush goes nowhere
+        return 0
 
 
 if __name__ == "__main__":

@@ -9,7 +9,6 @@ what was expected. Paths inside a file are relative to that file.
 from __future__ import annotations
 
 import datetime as dt
-import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from pydantic import Field, ValidationError, field_validator
 
 from testbed.flight.settings import AircraftSettings, Gusts, PathSettings, VerticalSettings, Wind
 from testbed.integrity.settings import IntegritySettings
+from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir
 from testbed.schema import ConfigError, StrictModel, format_validation_error
 from testbed.sensors.faults import Fault
 from testbed.sensors.gnss.settings import GnssSettings
@@ -26,24 +26,6 @@ from testbed.sensors.vision.settings import LandmarkSettings, VisionSettings
 from testbed.world.settings import TerrainSettings
 
 MONITORS = ("gps_raim", "va_raim", "pixel")
-
-
-def project_root() -> Path:
-    """Where the shipped ``aircraft/`` and ``approaches/`` folders live.
-
-    ``TESTBED_HOME`` overrides; otherwise the checkout the package was installed
-    from (the README installs it editable).
-    """
-    env = os.environ.get("TESTBED_HOME")
-    return Path(env) if env else Path(__file__).resolve().parent.parent
-
-
-def approaches_dir() -> Path:
-    return project_root() / "approaches"
-
-
-def aircraft_dir() -> Path:
-    return project_root() / "aircraft"
 
 
 class FrameSettings(StrictModel):
@@ -169,11 +151,20 @@ def load_approach(name_or_path: str | Path) -> Approach:
 
 def list_approaches() -> list[tuple[str, str]]:
     """(name, one-line description) of every shipped approach."""
+    return _list_descriptions(approaches_dir())
+
+
+def list_campaigns() -> list[tuple[str, str]]:
+    """(name, one-line description) of every shipped campaign spec."""
+    return _list_descriptions(campaigns_dir())
+
+
+def _list_descriptions(folder: Path) -> list[tuple[str, str]]:
     out = []
-    for p in sorted(approaches_dir().glob("*.toml")):
+    for p in sorted(folder.glob("*.toml")):
         try:
             d = read_toml(p)
-            out.append((p.stem, str(d.get("description", "")).strip().splitlines()[0]))
+            out.append((p.stem, (str(d.get("description", "")).strip().splitlines() or [""])[0]))
         except ConfigError as exc:
             out.append((p.stem, f"(invalid: {exc.problems[0]})"))
     return out

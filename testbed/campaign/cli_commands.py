@@ -15,13 +15,23 @@ from pathlib import Path
 from testbed.schema import ConfigError
 
 
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive whole number, got {text!r}")
+    return n
+
+
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from testbed.campaign.report import write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
 
     try:
-        loaded = load_spec(args.spec)  # every spec problem is reported before any work starts
+        loaded = load_spec(args.spec, trials=args.trials)  # every spec problem is reported before any work starts
     except ConfigError as exc:
         print(exc)
         return 2
@@ -68,7 +78,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 def add_campaign_parsers(subparsers) -> None:
     """Register ``campaign``, ``report`` and ``reproduce`` on an argparse subparsers object."""
     p = subparsers.add_parser("campaign", help="run a fault-injection Monte Carlo campaign from a spec")
-    p.add_argument("spec", help="campaign spec (approaches/campaigns/<name>.toml)")
+    p.add_argument("spec", help="campaign spec: a shipped name (see `testbed approaches`) or a TOML file")
+    p.add_argument("--trials", type=_positive_int, help="override the spec's trials per cell (a quick look)")
     p.add_argument("--out", help="result folder (default: campaigns/<spec name>)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: batched in-process)")
     p.add_argument("--resume", action="store_true", help="complete an interrupted run in --out")

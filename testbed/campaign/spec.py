@@ -183,10 +183,35 @@ def spec_hash(spec: CampaignSpec) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def load_spec(path: str | Path) -> LoadedSpec:
-    """Read and validate a spec and every approach it names; errors name file and key path."""
-    src = Path(path)
-    spec = validate(CampaignSpec, read_toml(src), src)
+def resolve_spec_path(name_or_path: str | Path) -> Path:
+    """A shipped campaign name (``gps-step-sweep``) or a path to a spec file."""
+    from testbed.resources import campaigns_dir
+
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    cand = campaigns_dir() / f"{name_or_path}.toml"
+    if cand.is_file():
+        return cand
+    known = ", ".join(sorted(q.stem for q in campaigns_dir().glob("*.toml")))
+    raise ConfigError(p, [f"no such campaign spec file or shipped campaign name (shipped: {known})"])
+
+
+def load_spec(path: str | Path, *, trials: int | None = None) -> LoadedSpec:
+    """Read and validate a spec and every approach it names; errors name file and key path.
+
+    path : a spec file or a shipped campaign name.  trials : override the spec's trials per
+    cell (a quick look; the block and chunk sizes shrink to fit).
+    """
+    src = resolve_spec_path(path)
+    data = read_toml(src)
+    if trials is not None:
+        data = {**data, "trials": trials}
+        block, chunk = data.get("block_trials", 100), data.get("chunk_trials", 1000)
+        if isinstance(block, int) and isinstance(chunk, int) and trials >= 1 and block >= 1:
+            block = min(block, trials)
+            data["block_trials"], data["chunk_trials"] = block, min(chunk, -(-trials // block) * block)
+    spec = validate(CampaignSpec, data, src)
     return resolve_spec(spec, src)
 
 
