@@ -17,30 +17,18 @@ import time
 from pathlib import Path
 
 from testbed.api import fly_approach, load_approach, load_terrain_for
-import testbed.sim.loop as loop_mod
+from testbed.heap import keep_freed_memory
 from testbed.sim.loop import run_loop
-from testbed.sim.setup import build_scene, build_setup
+from testbed.sim.setup import build_scene, build_setup, prepare_monitors
 from testbed.viz.rerun_sink import RerunSink
 
-
-#: wall seconds per monitor, accumulated by the wrappers installed in main()
-MONITOR_S: dict[str, float] = {}
-
-
-def _timed(name: str, fn):
-    def wrapped(*a, **kw):
-        t0 = time.perf_counter()
-        try:
-            return fn(*a, **kw)
-        finally:
-            MONITOR_S[name] = MONITOR_S.get(name, 0.0) + time.perf_counter() - t0
-    return wrapped
+keep_freed_memory()  # as the CLI and campaigns do (off with TESTBED_SYSTEM_MALLOC=1)
 
 
 def one_run(approach, tmp: Path, k: int, block_s: float) -> dict:
-    MONITOR_S.clear()
     t0 = time.perf_counter()
     setup = build_setup(approach, load_terrain_for(approach))
+    prepare_monitors(setup)
     sink = RerunSink(tmp / f"bench{k}.rrd", recording_id=f"bench{k}")
     sink.start(build_scene(setup, setup.vision.camera.build()))
     t1 = time.perf_counter()
@@ -52,7 +40,7 @@ def one_run(approach, tmp: Path, k: int, block_s: float) -> dict:
     tm = res.timings.as_dict()
     tm["logging"] += t3 - t2  # flushing the file belongs to logging
     return {"setup_s": t1 - t0, "loop_s": t3 - t1, "rtf": sim / (t3 - t1), "sim_s": sim, **tm,
-            **{f"monitor:{m}": v for m, v in MONITOR_S.items()},
+            **{f"monitor:{m}": v for m, v in res.timings.per_monitor.items()},
             "rrd_mb": os.path.getsize(tmp / f"bench{k}.rrd") / 2**20}
 
 
@@ -63,10 +51,6 @@ def main() -> None:
     ap.add_argument("--block", type=float, default=5.0, help="simulated seconds per live block")
     args = ap.parse_args()
     approach = load_approach(args.approach)
-    # per-monitor wall time: wrap the loop's monitor entry points
-    loop_mod.gps_raim = _timed("gps_raim", loop_mod.gps_raim)
-    loop_mod.pixel_monitor = _timed("pixel", loop_mod.pixel_monitor)
-    loop_mod.va_raim = _timed("va_raim", loop_mod.va_raim)
     load_terrain_for(approach)  # build the terrain once (cached per process), as a campaign would
     with tempfile.TemporaryDirectory() as d:
         runs = [one_run(approach, Path(d), k, args.block) for k in range(args.runs)]

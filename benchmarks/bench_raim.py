@@ -24,6 +24,9 @@ from test_integrity_core_helpers import make_gnss  # noqa: E402  (almanac geomet
 
 from testbed.integrity.raim import gps_raim  # noqa: E402
 from testbed.integrity.settings import IntegritySettings  # noqa: E402
+from testbed.heap import keep_freed_memory  # noqa: E402
+
+keep_freed_memory()  # as the CLI and campaigns do (off with TESTBED_SYSTEM_MALLOC=1)
 from testbed.world.airport import runway_frame  # noqa: E402
 
 FRAME = runway_frame()

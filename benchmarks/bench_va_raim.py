@@ -32,6 +32,9 @@ from test_va_raim_scenario import make_scenario  # noqa: E402
 from va_raim_reference import check_same_numbers, va_raim_reference  # noqa: E402
 
 from testbed.integrity.batching import available_cores  # noqa: E402
+from testbed.heap import keep_freed_memory  # noqa: E402
+
+keep_freed_memory()  # as the CLI and campaigns do (off with TESTBED_SYSTEM_MALLOC=1)
 from testbed.integrity.va_raim import VaRaimSettings, va_raim  # noqa: E402
 
 

@@ -38,9 +38,9 @@ def linearity(trials: int) -> None:
     for sigma_px, lpe in ((1.0, 0.05), (6.0, 0.05), (6.0, 0.0), (24.0, 0.0)):
         sc = make_scenario(np.random.default_rng(5), (trials,), sigma_px=sigma_px, survey_sigma_m=lpe, rate_hz=0.2)
         out = va_raim(sc.gnss, sc.vision, sc.frame)
-        used = out.diagnostics["vision_rows_used"] & (out.reason == 0)
+        used = out.diagnostics.vision_rows_used & (out.reason == 0)
         u = stats.chi2.cdf(out.test_stat[used], (out.n_used - 4)[used])
-        err = (out.diagnostics["vision_m"] - sc.m_true).ravel()
+        err = (out.diagnostics.vision_m - sc.m_true).ravel()
         err = err[np.isfinite(err)]
         print(f"  sigma {sigma_px:4.1f} px, LPE {lpe:.2f} m: range error sd {err.std():6.0f} m, excess kurtosis "
               f"{stats.kurtosis(err):6.2f}; SSE vs chi2: KS p {stats.kstest(u, 'uniform').pvalue:.3g} on {used.sum()} "
@@ -55,7 +55,7 @@ def pixel_bias(trials: int) -> None:
         uv = sc.vision.pixel_uv.copy()
         uv[:, 20:, 0, 0] += bias * scale
         out = va_raim(sc.gnss, replace(sc.vision, pixel_uv=uv), sc.frame)
-        gate = out.diagnostics["vision_reason"][:, 20:] == VisionReason.BRANCH_JUMP
+        gate = out.diagnostics.vision_reason[:, 20:] == VisionReason.BRANCH_JUMP
         print(f"  {bias:4.0f} px: alerts at {out.alert[:, 20:].mean():.3f} of faulted epochs, vision dropped by "
               f"the branch gate at {gate.mean():.3f}")
 

@@ -133,7 +133,8 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
 
     from testbed.sim.evaluate import summarise_monitor
     from testbed.sim.loop import gnss_fault_onset, run_loop
-    from testbed.sim.setup import build_scene, build_setup
+    from testbed.integrity.monitor import ANTENNA
+    from testbed.sim.setup import build_scene, build_setup, prepare_monitors
 
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
     if monitors is not None:
@@ -144,6 +145,7 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
         ap = replace(ap, config=cfg)
     wall0 = time.perf_counter()
     setup = build_setup(ap, load_terrain_for(ap))
+    prepare_monitors(setup)
     if rrd_path == "default":
         rrd_path = default_rrd_path(ap, seed)
     sinks, sink = [], None
@@ -167,9 +169,10 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     truth_cg = setup.frame.ecef_to_enu(loop.truth_at_gnss.pos_ecef)
     truth_ant = setup.frame.ecef_to_enu(loop.gnss_truth.antenna_pos_ecef)
     summaries = {}
-    for name, out in loop.outputs.items():
-        ref, pos = ("antenna", truth_ant) if name == "gps_raim" else ("reference point (CG)", truth_cg)
-        summaries[name] = summarise_monitor(out, pos, reference=ref, fault_onset_s=onset)
+    for mon in setup.monitors:
+        pos = truth_ant if mon.reference == ANTENNA else truth_cg
+        summaries[mon.name] = summarise_monitor(loop.outputs[mon.name], pos, reference=mon.reference,
+                                                fault_onset_s=onset)
     if truth_path is not None:
         write_truth(loop.flight.truth, truth_path)
     return RunResult(loop, summaries, Path(rrd_path) if rrd_path is not None else None,

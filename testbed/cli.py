@@ -7,6 +7,7 @@ import os
 import sys
 from pathlib import Path
 
+from testbed.integrity.registry import monitor_names
 from testbed.schema import ConfigError
 
 
@@ -103,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--linger", type=float, default=60.0, help="with --live: seconds to keep serving after landing")
     f.add_argument("--block", type=float, default=5.0,
                    help="simulated seconds between live updates (default 5: ~0.1 s of wall time)")
-    f.add_argument("--monitors", nargs="+", choices=["gps_raim", "va_raim", "pixel"],
+    f.add_argument("--monitors", nargs="+", choices=monitor_names(),
                    help="override the approach's monitors")
     f.add_argument("--flight-only", action="store_true", help="fly without sensors, monitors or recording")
     f.set_defaults(func=_cmd_fly)
@@ -130,6 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from testbed.heap import keep_freed_memory
+
+    keep_freed_memory()  # a process setting: the command applies it, library calls never do (testbed.heap)
     try:
         return args.func(args)
     except ConfigError as exc:

@@ -12,11 +12,12 @@ import datetime as dt
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import Field, ValidationError, field_validator
 
 from testbed.flight.settings import AircraftSettings, Gusts, PathSettings, VerticalSettings, Wind
+from testbed.integrity.registry import MonitorName
 from testbed.integrity.settings import IntegritySettings
 from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir
 from testbed.schema import ConfigError, StrictModel, format_validation_error
@@ -68,8 +69,8 @@ class ApproachConfig(StrictModel):
     landmarks: LandmarkSettings = LandmarkSettings()
     integrity: IntegritySettings = IntegritySettings()
     va_raim: dict[str, Any] = Field(default_factory=dict, description="VA-RAIM options (VaRaimSettings without integrity)")
-    monitors: list[Literal["gps_raim", "va_raim", "pixel"]] = Field(
-        default_factory=lambda: list(MONITORS), min_length=1)
+    monitors: list[MonitorName] = Field(default_factory=lambda: list(MONITORS), min_length=1,
+                                description="monitor names (testbed.integrity.registry)")
     faults: list[Fault] = Field(default_factory=list, description="fault schedule ([[faults]] tables)")
 
     @field_validator("start_time_utc")

@@ -35,6 +35,120 @@ def _take_epochs(rec, idx):
     return replace(rec, **out)
 
 
+def epoch_array(tail: int = 0, *, ragged: bool = False, batched: bool = True):
+    """A record field holding a per-epoch array: ``(B..., T, *tail axes)``.
+
+    tail : how many component axes follow the epoch axis (0 for ``(B..., T)``).
+    ragged : the last axis's width may differ between blocks (a stacked problem's
+        rows): joining blocks pads it (NaN, -1 or False) instead of dropping it.
+    batched : False for arrays that never carry trial axes (the epoch times ``t``).
+    """
+    return field(metadata={"tail": tail, "ragged": ragged, "batched": batched})
+
+
+@dataclass(frozen=True)
+class Diagnostics:
+    """Base of a monitor's typed diagnostics record (plot and test data, never state).
+
+    Every array field is declared with :func:`epoch_array`, so slicing, joining and
+    stacking handle any monitor's record without knowing it; other fields
+    (reason texts, constants) are carried as they are.
+    """
+
+
+def _record_fields(rec):
+    """(name, value, metadata) of a MonitorOutput or Diagnostics record's fields."""
+    for f in fields(rec):
+        yield f.name, getattr(rec, f.name), f.metadata
+
+
+def _is_nested(v) -> bool:
+    return isinstance(v, (MonitorOutput, Diagnostics))
+
+
+def _is_epoch_array(rec, name: str, v, meta) -> bool:
+    """Whether field ``name`` holds a per-epoch array (declared with :func:`epoch_array`).
+
+    Observation records keep per-run constants (PRNs, surveyed landmarks, K) as
+    undeclared arrays; a Diagnostics record must declare every array it has.
+    """
+    if not isinstance(v, np.ndarray):
+        return False
+    if "tail" in meta:
+        return True
+    if isinstance(rec, Diagnostics):
+        raise TypeError(f"{type(rec).__name__}.{name}: an array field must be declared with epoch_array()")
+    return False
+
+
+def map_epoch_arrays(rec, fn):
+    """``rec`` (an observation record, a MonitorOutput or a Diagnostics) with ``fn(array,
+    metadata)`` applied to every per-epoch array, nested records included; constants kept."""
+    kw = {}
+    for name, v, meta in _record_fields(rec):
+        if _is_nested(v):
+            kw[name] = map_epoch_arrays(v, fn)
+        elif _is_epoch_array(rec, name, v, meta):
+            kw[name] = fn(v, meta)
+    return replace(rec, **kw)
+
+
+def epoch_array_pairs(a, b):
+    """``(array_a, array_b, metadata)`` of matching per-epoch arrays of two records of one layout."""
+    if type(a) is not type(b):
+        raise ValueError(f"records of different types: {type(a).__name__} vs {type(b).__name__}")
+    for (name, va, meta), (_, vb, _) in zip(_record_fields(a), _record_fields(b)):
+        if _is_nested(va):
+            yield from epoch_array_pairs(va, vb)
+        elif _is_epoch_array(a, name, va, meta):
+            yield va, vb, meta
+
+
+def epoch_axis(a: NDArray, meta) -> int:
+    return a.ndim - 1 - meta["tail"]
+
+
+def take_epochs(rec, idx):
+    """``rec`` restricted to epochs ``idx`` (a slice or index array), whatever its trial axes."""
+    def take(a, meta):
+        ax = epoch_axis(a, meta)
+        return a[(slice(None),) * ax + (idx,)]
+
+    return map_epoch_arrays(rec, take)
+
+
+def concat_epochs(recs: list):
+    """Records of one layout joined along the epoch axis (constants from the first).
+
+    Ragged fields are padded to the widest block (NaN for floats, -1 for integers,
+    False for booleans), so no block's values are lost.
+    """
+    first = recs[0]
+    if len(recs) == 1:
+        return first
+    leaves = [list(epoch_array_pairs(first, r)) for r in recs]
+    it = iter(range(len(leaves[0])))
+
+    def join(a, meta):
+        k = next(it)
+        parts = [lv[k][1] for lv in leaves]
+        if meta["ragged"]:
+            width = max(p.shape[-1] for p in parts)
+            parts = [_pad_last(p, width) for p in parts]
+        return np.concatenate(parts, axis=epoch_axis(a, meta))
+
+    return map_epoch_arrays(first, join)
+
+
+def _pad_last(a: NDArray, width: int) -> NDArray:
+    if a.shape[-1] == width:
+        return a
+    fill = False if a.dtype == bool else (-1 if np.issubdtype(a.dtype, np.integer) else np.nan)
+    out = np.full(a.shape[:-1] + (width,), fill, a.dtype)
+    out[..., : a.shape[-1]] = a
+    return out
+
+
 @dataclass(frozen=True)
 class Truth:
     """True aircraft state over time (the flight's output).
@@ -149,17 +263,17 @@ class GnssEpochs:
     antenna : the GNSS antenna mount (lever arm from the CG).
     """
 
-    t: NDArray
-    t_gps: NDArray
-    prn: NDArray
-    sat_pos_ecef: NDArray
-    sat_vel_ecef: NDArray
-    pseudorange: NDArray
-    range_rate: NDArray
-    sigma: NDArray
-    visible: NDArray
-    reason: NDArray
-    antenna: Mount
+    t: NDArray = epoch_array(batched=False)
+    t_gps: NDArray = epoch_array(batched=False)
+    prn: NDArray = field()
+    sat_pos_ecef: NDArray = epoch_array(2)
+    sat_vel_ecef: NDArray = epoch_array(2)
+    pseudorange: NDArray = epoch_array(1)
+    range_rate: NDArray = epoch_array(1)
+    sigma: NDArray = epoch_array(1)
+    visible: NDArray = epoch_array(1)
+    reason: NDArray = epoch_array(1)
+    antenna: Mount = field()
 
 
 @dataclass(frozen=True)
@@ -200,17 +314,17 @@ class VisionEpochs:
     attitude_sigma : (3,) rad, 1-sigma of the attitude reference per axis (roll, pitch, yaw).
     """
 
-    t: NDArray
-    landmark_id: NDArray
-    landmark_pos_ecef: NDArray
-    pixel_uv: NDArray
-    detected: NDArray
-    reason: NDArray
-    sigma_px: NDArray
-    K: NDArray
-    camera: Mount
-    q_body_to_enu_ref: NDArray
-    attitude_sigma: NDArray
+    t: NDArray = epoch_array(batched=False)
+    landmark_id: NDArray = field()
+    landmark_pos_ecef: NDArray = field()
+    pixel_uv: NDArray = epoch_array(2)
+    detected: NDArray = epoch_array(1)
+    reason: NDArray = epoch_array(1)
+    sigma_px: NDArray = epoch_array(1)
+    K: NDArray = field()
+    camera: Mount = field()
+    q_body_to_enu_ref: NDArray = epoch_array(1)
+    attitude_sigma: NDArray = field()
 
 
 @dataclass(frozen=True)
@@ -232,22 +346,23 @@ class MonitorOutput:
     excluded : (B..., T) int, index of an excluded measurement, -1 if none.
     reason : (B..., T) int8 code; 0 = ok, else an index into ``reasons``.
     reasons : tuple of the reason texts (index 0 is "ok").
-    diagnostics : extra arrays (slopes, residuals, DOP...) for plots and tests.
+    diagnostics : the monitor's typed :class:`Diagnostics` record (slopes, residuals,
+        DOP...) for plots and tests; never state.
     """
 
     name: str
-    t: NDArray
-    pos_enu: NDArray
-    clock: NDArray
-    hpl: NDArray
-    vpl: NDArray
-    test_stat: NDArray
-    threshold: NDArray
-    alert: NDArray
-    available: NDArray
+    t: NDArray = epoch_array(batched=False)
+    pos_enu: NDArray = epoch_array(1)
+    clock: NDArray = epoch_array()
+    hpl: NDArray = epoch_array()
+    vpl: NDArray = epoch_array()
+    test_stat: NDArray = epoch_array()
+    threshold: NDArray = epoch_array()
+    alert: NDArray = epoch_array()
+    available: NDArray = epoch_array(1)
     service_levels: tuple[str, ...]
-    n_used: NDArray
-    excluded: NDArray
-    reason: NDArray
+    n_used: NDArray = epoch_array()
+    excluded: NDArray = epoch_array()
+    reason: NDArray = epoch_array()
     reasons: tuple[str, ...]
-    diagnostics: dict = field(default_factory=dict)
+    diagnostics: Diagnostics | None = None

@@ -8,6 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from record_checks import assert_records_equal
 
 from testbed.api import load_approach, load_terrain_for
 from testbed.integrity.raim import gps_raim
@@ -94,12 +95,14 @@ def test_live_vision_monitors_equal_batch(vision_setup):
                              faults=list(s.faults), rng=np.random.default_rng(seed_vision))
     np.testing.assert_array_equal(live.vision.pixel_uv, v.pixel_uv)
     assert np.allclose(v.t, g.t)  # 1 Hz both in this preset
-    refs = {"va_raim": va_raim(g, v, s.frame, s.va_raim), "pixel": pixel_monitor(g, v, s.frame, s.integrity)}
+    refs = {"va_raim": va_raim(g, v, s.frame, s.monitor("va_raim").settings),
+            "pixel": pixel_monitor(g, v, s.frame, s.integrity), "gps_raim": gps_raim(g, s.frame, s.integrity)}
     for name, ref in refs.items():
         out = live.outputs[name]
         assert np.isfinite(ref.hpl).mean() > 0.9, name
-        for f in ("hpl", "vpl", "test_stat", "pos_enu"):
-            np.testing.assert_allclose(getattr(out, f), getattr(ref, f), rtol=1e-9, atol=1e-6, err_msg=f"{name}.{f}")
+        # every field of the output and of its typed diagnostics (nested GPS output included)
+        n = assert_records_equal(out, ref, f"{name}.", rtol=1e-9, atol=1e-6)
+        assert n >= 14, name
     # VA-RAIM calibrated once, at an early epoch, and used calibrated vision rows afterwards
-    cal = live.outputs["va_raim"].diagnostics["calibrated"]
+    cal = live.outputs["va_raim"].diagnostics.calibrated
     assert np.asarray(cal).any()

@@ -117,20 +117,20 @@ def test_noise_free_solution_is_exact_and_statistic_zero():
     assert (out.reason == 0).all()
     np.testing.assert_allclose(out.pos_enu, pos, atol=1e-3)
     assert np.all(out.test_stat < 1e-6)
-    np.testing.assert_array_equal(out.diagnostics["n_landmarks"], len(LANDMARKS))
+    np.testing.assert_array_equal(out.diagnostics.n_landmarks, len(LANDMARKS))
 
 
 def test_pl_composition_follows_the_patent():
     g, v, pos, out = _monitor_geometry(T=2, rng=np.random.default_rng(3))
     d = out.diagnostics
-    np.testing.assert_allclose(out.hpl, np.sqrt(np.maximum(d["hpl1"], d["hpl2"]) ** 2 + d["hpl3"] ** 2))
-    np.testing.assert_allclose(out.vpl, np.sqrt(np.maximum(d["vpl1"], d["vpl2"]) ** 2 + d["vpl3"] ** 2))
+    np.testing.assert_allclose(out.hpl, np.sqrt(np.maximum(d.hpl1, d.hpl2) ** 2 + d.hpl3 ** 2))
+    np.testing.assert_allclose(out.vpl, np.sqrt(np.maximum(d.vpl1, d.vpl2) ** 2 + d.vpl3 ** 2))
     k_ff = stats.norm.isf(IntegritySettings().p_ff / 2)
-    np.testing.assert_allclose(d["hpl1"], k_ff * d["sigma_x"])
+    np.testing.assert_allclose(d.hpl1, k_ff * d.sigma_x)
     # the worst pair contains the worst single fault, so H3 ≥ H2
-    assert np.all(d["hpl3"] >= d["hpl2"] * (1 - 1e-12))
+    assert np.all(d.hpl3 >= d.hpl2 * (1 - 1e-12))
     one = pixel_monitor(g, v, FRAME, IntegritySettings(pixel_two_faults=False))
-    np.testing.assert_allclose(one.hpl, np.maximum(d["hpl1"], d["hpl2"]))
+    np.testing.assert_allclose(one.hpl, np.maximum(d.hpl1, d.hpl2))
 
 
 def _worst_by_sweep(A_rows, WS, cols, dirs):
@@ -224,8 +224,8 @@ def test_landmark_bias_injection_matches_slope():
     ratio_h = np.hypot(err[:, 0], err[:, 1]) / np.sqrt(out.test_stat[:, 0])
     ratio_v = np.abs(err[:, 2]) / np.sqrt(out.test_stat[:, 0])
     # sweep step (π/720)² ≈ 2e-5 plus linearisation ~1e-4
-    np.testing.assert_allclose(ratio_h.max(), out.diagnostics["hslope_lm"][0, 0, lm], rtol=5e-4)
-    np.testing.assert_allclose(ratio_v.max(), out.diagnostics["vslope_lm"][0, 0, lm], rtol=5e-4)
+    np.testing.assert_allclose(ratio_h.max(), out.diagnostics.hslope_lm[0, 0, lm], rtol=5e-4)
+    np.testing.assert_allclose(ratio_v.max(), out.diagnostics.vslope_lm[0, 0, lm], rtol=5e-4)
 
 
 @pytest.mark.slow

@@ -94,12 +94,12 @@ def test_missed_detection_rate_at_pbias_bias():
     st = IntegritySettings(p_fa=1e-3, p_md=p_md, pl_variant="pbias")
     n_epochs, n_trials = 96, 60
     clean, gnss = day_epochs(n_epochs, 1, seed=0, settings=st)
-    hs = clean.diagnostics["hslope"][0]
+    hs = clean.diagnostics.hslope[0]
     worst = np.nanargmax(np.where(np.isnan(hs), -np.inf, hs), axis=-1)
     # (WS)_ii of the worst satellite from its slope definition: λ = b² (WS)_ii
     geom_ws = _ws_diag(gnss, clean)
     ws_i = geom_ws[np.arange(n_epochs), worst]
-    lam = clean.diagnostics["lam_det"][0]
+    lam = clean.diagnostics.lam_det[0]
     b_mag = np.sqrt(lam / ws_i)
     bias = np.zeros((n_trials, n_epochs, hs.shape[-1]))
     bias[:, np.arange(n_epochs), worst] = b_mag
@@ -137,7 +137,7 @@ def test_availability_matches_alert_limits_and_shapes():
         lvl = SERVICE_LEVELS[name]
         np.testing.assert_array_equal(out.available[..., k], (out.hpl <= lvl.hal) & (out.vpl <= lvl.val))
     assert out.pos_enu.shape == (3, 24, 3) and out.hpl.shape == (3, 24)
-    assert out.diagnostics["hslope"].shape == (3, 24, 24)
+    assert out.diagnostics.hslope.shape == (3, 24, 24)
     assert out.reasons[0] == "ok"
 
 
@@ -169,13 +169,13 @@ def test_antenna_offset_moves_the_reported_point():
     gnss, _, _ = make_gnss(FRAME, np.broadcast_to(RX_ENU + off, (2, 3)), tow, None)
     out = gps_raim(gnss, FRAME, antenna_offset_enu=off)
     np.testing.assert_allclose(out.pos_enu, np.broadcast_to(RX_ENU, (2, 3)), atol=1e-6)
-    assert out.diagnostics["converged"].all()
+    assert out.diagnostics.converged.all()
 
 
 @pytest.mark.parametrize("variant", ["seed", "pbias"])
 def test_pl_variant_selected(variant):
     out, _ = day_epochs(8, 1, seed=17, settings=IntegritySettings(pl_variant=variant))
-    np.testing.assert_array_equal(out.hpl, out.diagnostics[f"hpl_{variant}"])
+    np.testing.assert_array_equal(out.hpl, getattr(out.diagnostics, f"hpl_{variant}"))
     # both bound the fault-free horizontal error of this small sample
     err_h = np.hypot(*(out.pos_enu[..., :2] - RX_ENU[:2]).transpose(2, 0, 1))
     assert np.all(err_h < out.hpl)

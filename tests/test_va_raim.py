@@ -9,6 +9,7 @@ brute-force calibration epoch choice.
 from __future__ import annotations
 
 import numpy as np
+from record_checks import assert_records_equal
 import pytest
 from scipy import stats
 from test_va_raim_scenario import (K_CAM, make_scenario, project, seed_frame, seed_landmarks_enu, seed_truth,
@@ -129,9 +130,9 @@ def test_calibration_removes_landmark_survey_bias(record_property):
     sc = make_scenario(rng, (n,), t0=40.0, t1=60.0, rate_hz=0.1, survey_error=outward_survey_error())
     out = va_raim(sc.gnss, sc.vision, sc.frame, VaRaimSettings())
     d = out.diagnostics
-    assert np.all(d["cal_idx"][:, -1] == 0)
-    raw = d["vision_m"][:, -1] - sc.m_true[-1]
-    cal = d["z_hat"][:, -1] - sc.m_true[-1]
+    assert np.all(d.cal_t[:, -1] == sc.gnss.t[0])
+    raw = d.vision_m[:, -1] - sc.m_true[-1]
+    cal = d.z_hat[:, -1] - sc.m_true[-1]
     se_raw = raw.std(0, ddof=1) / np.sqrt(n)
     se_cal = cal.std(0, ddof=1) / np.sqrt(n)
     record_property("raw_mean_m", raw.mean(0).round(3).tolist())
@@ -162,12 +163,12 @@ def test_false_alarm_rate_within_binomial_interval(record_property):
     sc, out = _fa_run(8, n)
     d = out.diagnostics
     k = -1
-    assert d["vision_rows_used"][:, k].mean() > 0.99
+    assert d.vision_rows_used[:, k].mean() > 0.99
     assert np.all(out.reason[:, k] == 0)
     alerts = int(out.alert[:, k].sum())
     lo, hi = stats.binom.interval(0.99, n, P_FA_TEST)
     record_property("va_raim_alerts", alerts)
-    record_property("gps_alerts", int(d["gps"].alert[:, k].sum()))
+    record_property("gps_alerts", int(d.gps.alert[:, k].sum()))
     record_property("binomial_99", (lo, hi))
     assert lo <= alerts <= hi, (alerts, lo, hi)
     # the SSE has the chi-square law with N - 4 dof (KS test at the 1% level)
@@ -184,13 +185,13 @@ def test_gps_bias_detection_power_matches_noncentral_chi_square(record_property)
     k = -1
     vis = sc0.gnss.visible[0, k]
     slot = int(np.nonzero(vis)[0][2])
-    row = int(np.nonzero(out0.diagnostics["gps_slot"][0, k] == slot)[0][0])
-    b = float(np.sqrt(12.0 / out0.diagnostics["ws_diag"][0, k, row]))
+    row = slot  # stacked-row diagnostics keep the satellite slots
+    b = float(np.sqrt(12.0 / out0.diagnostics.ws_diag[0, k, row]))
     bias = np.zeros((n, 3, vis.size))
     bias[:, k, slot] = b
     sc, out = _fa_run(10, n, gps_bias=bias)
     d = out.diagnostics
-    lam = b**2 * d["ws_diag"][:, k, row]
+    lam = b**2 * d.ws_diag[:, k, row]
     assert np.std(lam) < 0.05 * lam.mean()  # geometry and weights barely vary across trials
     dof = out.n_used[0, k] - 4
     p_det = 1 - stats.ncx2.cdf(out.threshold[0, k], dof, lam.mean())
@@ -199,7 +200,7 @@ def test_gps_bias_detection_power_matches_noncentral_chi_square(record_property)
     record_property("bias_m", round(b, 2))
     record_property("va_raim_detections", det)
     record_property("predicted_p_det", round(float(p_det), 4))
-    record_property("gps_only_detections", int(d["gps"].alert[:, k].sum()))
+    record_property("gps_only_detections", int(d.gps.alert[:, k].sum()))
     assert 0.2 < p_det < 0.95
     assert lo <= det <= hi, (det, lo, hi, p_det)
 
@@ -218,10 +219,10 @@ def test_vision_unavailable_epochs_fall_back_to_gps_rows_without_spoiling_the_ba
     vis = replace(sc.vision, pixel_uv=uv, detected=det)
     out = va_raim(sc.gnss, vis, sc.frame)
     d = out.diagnostics
-    assert d["vision_reason"][1, 5] == VisionReason.TOO_FEW_LANDMARKS
-    assert d["vision_reason"][2, 6] == VisionReason.NAN_PIXELS
-    assert not d["vision_rows_used"][1, 5] and not d["vision_rows_used"][2, 6]
-    assert out.reason[1, 5] == 0 and out.n_used[1, 5] == d["n_gps"][1, 5]
+    assert d.vision_reason[1, 5] == VisionReason.TOO_FEW_LANDMARKS
+    assert d.vision_reason[2, 6] == VisionReason.NAN_PIXELS
+    assert not d.vision_rows_used[1, 5] and not d.vision_rows_used[2, 6]
+    assert out.reason[1, 5] == 0 and out.n_used[1, 5] == d.n_gps[1, 5]
     # the other trials are untouched: same numbers as the unmodified run
     ref = va_raim(sc.gnss, sc.vision, sc.frame)
     np.testing.assert_array_equal(out.test_stat[[0, 3]], ref.test_stat[[0, 3]])
@@ -232,12 +233,12 @@ def test_vision_adds_rows_and_lowers_protection_levels():
     rng = np.random.default_rng(13)
     sc = make_scenario(rng, (50,), t0=40.0, t1=60.0, rate_hz=0.1)
     out = va_raim(sc.gnss, sc.vision, sc.frame)
-    gps = out.diagnostics["gps"]
+    gps = out.diagnostics.gps
     k = -1
     assert np.all(out.n_used[:, k] == gps.n_used[:, k] + 3)
-    assert np.all(out.diagnostics["modified"][:, k])
+    assert np.all(out.diagnostics.modified[:, k])
     # more rows never loosen the (pbias) slope bound on the GPS rows' fault-free part; check the fix sigma
-    assert np.all(out.diagnostics["lam_det"][:, k] > 0)
+    assert np.all(out.diagnostics.lam_det[:, k] > 0)
 
 
 def test_modified_equation_changes_slopes_not_fix_or_sse():
@@ -247,7 +248,7 @@ def test_modified_equation_changes_slopes_not_fix_or_sse():
     b = va_raim(sc.gnss, sc.vision, sc.frame, VaRaimSettings(modified_equation=False))
     np.testing.assert_allclose(a.pos_enu, b.pos_enu, atol=1e-6)
     np.testing.assert_allclose(a.test_stat, b.test_stat, rtol=1e-6, atol=1e-9)
-    assert not np.allclose(a.diagnostics["hslope"][:, -1], b.diagnostics["hslope"][:, -1], equal_nan=True)
+    assert not np.allclose(a.diagnostics.hslope[:, -1], b.diagnostics.hslope[:, -1], equal_nan=True)
 
 
 def test_rerun_is_bit_identical():
@@ -268,37 +269,27 @@ def test_settings_reject_impossible_values():
 
 
 def test_gps_baseline_equals_the_gps_raim_module():
-    """VA-RAIM's internal GPS-only solution (kept for J) is the same as raim.gps_raim."""
+    """VA-RAIM's step 1 *is* the GPS RAIM monitor: bit-identical output, diagnostics included
+    (so a campaign may reuse it), and its fix moved through the lever arm is the reference point."""
     from testbed.frames import q_to_R
     from testbed.integrity.raim import gps_raim
     sc = make_scenario(np.random.default_rng(16), (5,), t0=40.0, t1=60.0, rate_hz=0.5)
     out = va_raim(sc.gnss, sc.vision, sc.frame)
+    ref = gps_raim(sc.gnss, sc.frame, IntegritySettings())
+    assert_records_equal(out.diagnostics.gps, ref)
     off = q_to_R(sc.vision.q_body_to_enu_ref) @ sc.gnss.antenna.lever_arm_body
-    ref = gps_raim(sc.gnss, sc.frame, IntegritySettings(), antenna_offset_enu=off)
-    g = out.diagnostics["gps"]
-    np.testing.assert_allclose(g.pos_enu, ref.pos_enu, atol=1e-3)
+    at_cg = gps_raim(sc.gnss, sc.frame, IntegritySettings(), antenna_offset_enu=off)
+    np.testing.assert_allclose(ref.pos_enu - off, at_cg.pos_enu, atol=1e-6)  # the same fix, 1e-6 m
     for f in ("hpl", "vpl", "test_stat", "threshold"):
-        np.testing.assert_allclose(getattr(g, f), getattr(ref, f), rtol=1e-6, atol=1e-9, err_msg=f)
-    np.testing.assert_array_equal(g.reason, ref.reason)
-    np.testing.assert_array_equal(g.alert, ref.alert)
+        np.testing.assert_allclose(getattr(ref, f), getattr(at_cg, f), rtol=1e-6, atol=1e-9, err_msg=f)
 
 
 # --------------------------------------------------------------------------- batching
 
 
-def _assert_outputs_identical(a, b, path="") -> None:
+def _assert_outputs_identical(a, b) -> None:
     """Every array of two MonitorOutputs (diagnostics included, recursively) bit-identical (NaN == NaN)."""
-    for f in ("pos_enu", "clock", "hpl", "vpl", "test_stat", "threshold", "alert", "available", "n_used",
-              "excluded", "reason"):
-        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f"{path}{f}")
-    assert a.diagnostics.keys() == b.diagnostics.keys()
-    for k, v in a.diagnostics.items():
-        if isinstance(v, np.ndarray):
-            np.testing.assert_array_equal(v, b.diagnostics[k], err_msg=f"{path}diagnostics[{k!r}]")
-        elif hasattr(v, "diagnostics"):
-            _assert_outputs_identical(v, b.diagnostics[k], f"{path}{k}.")
-        else:
-            assert v == b.diagnostics[k]
+    assert assert_records_equal(a, b) > 25  # every field of the output and its diagnostics
 
 
 def test_chunks_and_threads_give_bit_identical_output(monkeypatch):

@@ -198,10 +198,10 @@ def check_same_numbers(sc, out, st, trials) -> None:
     x = np.concatenate([out.pos_enu, out.clock[..., None]], -1)[trials]
     d = out.diagnostics
     np.testing.assert_allclose(ref["x"], x, atol=1e-3, err_msg="position/clock")
-    np.testing.assert_allclose(ref["m"], d["vision_m"][trials], rtol=1e-9, atol=1e-4, err_msg="vision ranges")
+    np.testing.assert_allclose(ref["m"], d.vision_m[trials], rtol=1e-9, atol=1e-4, err_msg="vision ranges")
     used = np.isfinite(ref["z_hat"])  # the reference leaves the calibration epoch itself unused
-    assert np.array_equal(used.all(-1), d["vision_rows_used"][trials]), "epochs with vision rows"
-    np.testing.assert_allclose(ref["z_hat"][used], d["z_hat"][trials][used], rtol=1e-9, atol=1e-4,
+    assert np.array_equal(used.all(-1), d.vision_rows_used[trials]), "epochs with vision rows"
+    np.testing.assert_allclose(ref["z_hat"][used], d.z_hat[trials][used], rtol=1e-9, atol=1e-4,
                                err_msg="calibrated")
     np.testing.assert_allclose(ref["sse"], out.test_stat[trials], rtol=1e-5, atol=1e-6, err_msg="SSE")
     np.testing.assert_allclose(ref["T2"], out.threshold[trials], rtol=1e-9, err_msg="threshold")

@@ -35,7 +35,9 @@ import pyarrow as pa
 
 from testbed.campaign.spec import Cell, LoadedSpec, expand_cells, resolve_spec
 from testbed.integrity.batching import available_cores
+from testbed.integrity.monitor import ANTENNA, Observations, provided_output
 from testbed.integrity.levels import service_level
+from testbed.records import MonitorOutput
 from testbed.sim.evaluate import REGIONS, position_errors, stanford_regions
 
 TABLES = ("trials", "epochs", "hist")
@@ -117,7 +119,7 @@ def cell_context(cell: Cell, duration_s: float | None = None) -> CellContext:
 
     c = cell.config
     terrain = _terrain(cell)
-    setup = build_setup(cell.approach, terrain)
+    setup = build_setup(cell.approach, terrain, monitor_threads=1)  # blocks run side by side instead
     fkey = _flight_key(cell)
 
     def truth_g():
@@ -163,11 +165,19 @@ def block_seed(base_seed: int, cell_index: int, block: int, common: bool) -> np.
     return np.random.SeedSequence(base_seed, spawn_key=key)
 
 
-def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndarray]]:
-    """Draw and monitor the trials of one block; per-trial, per-epoch and histogram columns."""
-    from testbed.integrity.pixel import pixel_monitor
-    from testbed.integrity.raim import gps_raim
-    from testbed.integrity.va_raim import va_raim
+@dataclass(frozen=True)
+class BlockDraw:
+    """The observations and truth of one draw block (n trials)."""
+
+    trials: np.ndarray  # (n,) trial indices
+    obs: Observations
+    gnss_truth: object
+    vision_truth: object | None
+    fault_target: np.ndarray  # (n,) PRN of the faulty satellite / index of the faulty landmark, -1 none
+
+
+def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
+    """Noise, faults and (per block) the landmark survey of one block's trials."""
     from testbed.sensors.gnss.synth import sample_gnss
     from testbed.sensors.vision import detect as vdetect
 
@@ -185,11 +195,6 @@ def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndar
         lpe = s.landmarks.lpe_sigma_m
         e = np.random.default_rng(ss_s).standard_normal(ctx.landmarks.pos_ecef.shape) * lpe
         vis = replace(vis, landmark_pos_ecef=ctx.landmarks.pos_ecef + e)
-    trials = np.arange(i0, i0 + n)
-    t = ctx.t
-    T = t.size
-    onset = ctx.onset_s
-    # what was faulted (truth side): PRN of the faulty satellite / index of the faulty landmark
     target = np.full(n, -1, np.int64)
     if gtruth.faulty.any():
         hit = gtruth.faulty.any(axis=-2)  # (n, S)
@@ -197,88 +202,110 @@ def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndar
     elif vtruth is not None and np.asarray(vtruth.faulty).any():
         hit = np.asarray(vtruth.faulty).any(axis=-2)
         target = np.where(hit.any(-1), hit.argmax(-1), -1)
-    rows: dict[str, list] = {}
-    ep: dict[str, list] = {}
-    hist: dict[str, list] = {}
-    keep_ep = trials < spec.per_epoch_trials
-    edges_log = np.linspace(HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS + 1)
-    outs: dict[str, tuple] = {}
-    if "va_raim" in s.monitors:  # first: its step 1 is the GPS-only baseline
-        outs["va_raim"] = va_raim(gnss, vis, s.frame, s.va_raim, threads=1), ctx.truth_cg_enu
-    for m in s.monitors:
-        if m in outs:
-            continue
-        if m == "gps_raim" and "va_raim" in outs and s.va_raim.integrity == s.integrity:
-            # VA-RAIM's step 1 is this monitor (same rows, weights and settings; see
-            # tests/test_va_raim.py::test_gps_baseline_equals_the_gps_raim_module), solved for
-            # the reference point through the antenna lever arm: reuse it, compare with the CG truth
-            outs[m] = outs["va_raim"][0].diagnostics["gps"], ctx.truth_cg_enu
-        elif m == "gps_raim":
-            outs[m] = gps_raim(gnss, s.frame, s.integrity, threads=1), ctx.truth_ant_enu
+    return BlockDraw(np.arange(i0, i0 + n), Observations(gnss, vis), gtruth, vtruth, target)
+
+
+def monitor_block(monitors, obs: Observations) -> dict[str, MonitorOutput]:
+    """Every monitor on one block (whole sorties: each from its initial state).
+
+    A monitor that computes another on the way (VA-RAIM's step 1 is GPS RAIM) provides
+    its output instead of a second solve (:func:`testbed.integrity.monitor.provided_output`);
+    providers run first.
+    """
+    order = sorted(monitors, key=lambda m: getattr(m, "provides", None) is None)
+    outs: dict[str, MonitorOutput] = {}
+    for mon in order:
+        for prov in order:
+            if prov.name in outs:
+                got = provided_output(prov, outs[prov.name], mon)
+                if got is not None:
+                    outs[mon.name] = got
+                    break
         else:
-            outs[m] = pixel_monitor(gnss, vis, s.frame, s.integrity), ctx.truth_cg_enu
-    for m in s.monitors:
-        out, ref = outs[m]
+            outs[mon.name], _ = mon.step(obs, mon.initial_state())
+    return {m.name: outs[m.name] for m in monitors}
+
+
+def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndarray]]:
+    """Draw and monitor the trials of one block; per-trial, per-epoch and histogram columns."""
+    d = draw_block(ctx, spec, block)
+    outs = monitor_block(ctx.setup.monitors, d.obs)
+    keep_ep = d.trials < spec.per_epoch_trials
+    rows, ep, hist = {}, {}, {}
+    for mon in ctx.setup.monitors:
+        out = outs[mon.name]
+        ref = ctx.truth_ant_enu if mon.reference == ANTENNA else ctx.truth_cg_enu
         he, ve = position_errors(out, ref)  # (n, T)
-        hpl, vpl = np.asarray(out.hpl, float), np.asarray(out.vpl, float)
-        alert = np.asarray(out.alert, bool)
-        avail = np.asarray(out.available, bool)  # (n, T, K)
-        rh, rv = stanford_regions(he, hpl, ctx.hal, alert), stanford_regions(ve, vpl, ctx.val, alert)
-        after = t >= onset - 1e-9 if np.isfinite(onset) else np.ones(T, bool)
-        det = alert & after
-        detected = det.any(-1)
+        rows[mon.name] = _trial_columns(ctx, d, out, he, ve)
+        hist.update(_stanford_counts(mon.name, out, he, ve))
+        if keep_ep.any():
+            ep[mon.name] = _epoch_columns(ctx, d.trials, np.flatnonzero(keep_ep), out, he, ve)
+    return {"trials": rows, "epochs": ep, "hist": hist}
+
+
+def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.ndarray, ve: np.ndarray) -> dict:
+    """One row per trial: detection, time to alert, PL and error maxima, MI/HMI, availability, regions."""
+    t, onset, n = ctx.t, ctx.onset_s, d.trials.size
+    hpl, vpl = np.asarray(out.hpl, float), np.asarray(out.vpl, float)
+    alert = np.asarray(out.alert, bool)
+    avail = np.asarray(out.available, bool)  # (n, T, K)
+    rh, rv = stanford_regions(he, hpl, ctx.hal, alert), stanford_regions(ve, vpl, ctx.val, alert)
+    after = t >= onset - 1e-9 if np.isfinite(onset) else np.ones(t.size, bool)
+    det = alert & after
+    detected = det.any(-1)
+    with np.errstate(all="ignore"):
         first_any = np.where(alert.any(-1), t[alert.argmax(-1)], np.nan)
         tta = np.where(detected, t[det.argmax(-1)] - (onset if np.isfinite(onset) else 0.0), np.nan)
         mi = ((he > hpl) | (ve > vpl)) & ~alert & np.isfinite(hpl) & np.isfinite(vpl)
         hmi = rh["hazardous"] | rv["hazardous"]  # alerted epochs are in their own region
-        with np.errstate(all="ignore"):
-            col = {
-                "cell": np.full(n, ctx.cell.index, np.int32), "trial": trials.astype(np.int64),
-                "monitor": np.full(n, m, object), "epochs": np.full(n, T, np.int32),
-                "fault_target": target, "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
-                "first_alert_s": first_any, "time_to_alert_s": tta,
-                "max_he": _nanmax(he), "max_ve": _nanmax(ve), "max_hpl": _nanmax(hpl), "max_vpl": _nanmax(vpl),
-                "mi_epochs": mi.sum(-1).astype(np.int32), "hmi_epochs": hmi.sum(-1).astype(np.int32),
-            }
-            for k, lv in enumerate(ctx.levels):
-                col[f"avail_{lv}"] = avail[..., k].mean(-1)
-            for r in REGIONS:
-                col[f"h_{r}"] = rh[r].sum(-1).astype(np.int32)
-                col[f"v_{r}"] = rv[r].sum(-1).astype(np.int32)
-            if m == "va_raim":
-                d = out.diagnostics
-                m_true = np.asarray(vtruth.range_m, float)
-                for tag, est, ok in (("raw", d["vision_m"], None), ("cal", d["z_hat"], d["calibrated"])):
-                    err = np.asarray(est, float) - m_true
-                    good = np.isfinite(err)
-                    if ok is not None:
-                        good &= np.asarray(ok, bool)[..., None] if np.ndim(ok) == err.ndim - 1 else np.asarray(ok, bool)
-                    e0 = np.where(good, err, 0.0)
-                    cnt = good.sum((-1, -2))
-                    col[f"vre_{tag}_n"] = cnt.astype(np.int64)
-                    col[f"vre_{tag}_sum"] = e0.sum((-1, -2))
-                    col[f"vre_{tag}_sumsq"] = (e0**2).sum((-1, -2))
-        rows[m] = col
-        # Stanford histograms over the epochs the regions place (alerted ones are counted apart)
-        for dim, e, p in (("H", he, hpl), ("V", ve, vpl)):
-            ok = np.isfinite(e) & np.isfinite(p) & ~alert
-            le = np.clip(np.log10(np.maximum(e[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
-            lp = np.clip(np.log10(np.maximum(p[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
-            H, _, _ = np.histogram2d(le, lp, bins=[edges_log, edges_log])
-            ei, pi = np.nonzero(H)
-            hist[f"{m}/{dim}"] = [ei, pi, H[ei, pi].astype(np.int64)]
-        if keep_ep.any():
-            k_idx = np.flatnonzero(keep_ep)
-            nk = k_idx.size
-            e = {"cell": np.full(nk * T, ctx.cell.index, np.int32), "trial": np.repeat(trials[k_idx], T),
-                 "monitor": np.full(nk * T, m, object), "t": np.tile(t, nk),
-                 "he": he[k_idx].ravel(), "ve": ve[k_idx].ravel(), "hpl": hpl[k_idx].ravel(),
-                 "vpl": vpl[k_idx].ravel(), "test_stat": np.asarray(out.test_stat, float)[k_idx].ravel(),
-                 "threshold": np.asarray(out.threshold, float)[k_idx].ravel(), "alert": alert[k_idx].ravel()}
-            for k, lv in enumerate(ctx.levels):
-                e[f"avail_{lv}"] = avail[k_idx, :, k].ravel()
-            ep[m] = e
-    return {"trials": rows, "epochs": ep, "hist": hist}
+        col = {
+            "cell": np.full(n, ctx.cell.index, np.int32), "trial": d.trials.astype(np.int64),
+            "monitor": np.full(n, out.name, object), "epochs": np.full(n, t.size, np.int32),
+            "fault_target": d.fault_target, "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
+            "first_alert_s": first_any, "time_to_alert_s": tta,
+            "max_he": _nanmax(he), "max_ve": _nanmax(ve), "max_hpl": _nanmax(hpl), "max_vpl": _nanmax(vpl),
+            "mi_epochs": mi.sum(-1).astype(np.int32), "hmi_epochs": hmi.sum(-1).astype(np.int32),
+        }
+        for k, lv in enumerate(ctx.levels):
+            col[f"avail_{lv}"] = avail[..., k].mean(-1)
+        for r in REGIONS:
+            col[f"h_{r}"] = rh[r].sum(-1).astype(np.int32)
+            col[f"v_{r}"] = rv[r].sum(-1).astype(np.int32)
+        extra = getattr(out.diagnostics, "trial_columns", None)  # a monitor's own table columns
+        if extra is not None:
+            col.update(extra(d.vision_truth))
+    return col
+
+
+def _stanford_counts(name: str, out: MonitorOutput, he: np.ndarray, ve: np.ndarray) -> dict[str, list]:
+    """Sparse Stanford histograms over the epochs the regions place (alerted ones are counted apart)."""
+    edges_log = np.linspace(HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS + 1)
+    alert = np.asarray(out.alert, bool)
+    hist = {}
+    for dim, e, p in (("H", he, np.asarray(out.hpl, float)), ("V", ve, np.asarray(out.vpl, float))):
+        ok = np.isfinite(e) & np.isfinite(p) & ~alert
+        le = np.clip(np.log10(np.maximum(e[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
+        lp = np.clip(np.log10(np.maximum(p[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
+        H, _, _ = np.histogram2d(le, lp, bins=[edges_log, edges_log])
+        ei, pi = np.nonzero(H)
+        hist[f"{name}/{dim}"] = [ei, pi, H[ei, pi].astype(np.int64)]
+    return hist
+
+
+def _epoch_columns(ctx: CellContext, trials: np.ndarray, k_idx: np.ndarray, out: MonitorOutput, he: np.ndarray,
+                   ve: np.ndarray) -> dict:
+    """Per-epoch records of the kept trials ``k_idx`` (block positions)."""
+    t, T, nk = ctx.t, ctx.t.size, k_idx.size
+    avail = np.asarray(out.available, bool)
+    e = {"cell": np.full(nk * T, ctx.cell.index, np.int32), "trial": np.repeat(trials[k_idx], T),
+         "monitor": np.full(nk * T, out.name, object), "t": np.tile(t, nk),
+         "he": he[k_idx].ravel(), "ve": ve[k_idx].ravel(), "hpl": np.asarray(out.hpl, float)[k_idx].ravel(),
+         "vpl": np.asarray(out.vpl, float)[k_idx].ravel(), "test_stat": np.asarray(out.test_stat, float)[k_idx].ravel(),
+         "threshold": np.asarray(out.threshold, float)[k_idx].ravel(),
+         "alert": np.asarray(out.alert, bool)[k_idx].ravel()}
+    for k, lv in enumerate(ctx.levels):
+        e[f"avail_{lv}"] = avail[k_idx, :, k].ravel()
+    return e
 
 
 def _nanmax(x: np.ndarray) -> np.ndarray:
@@ -318,7 +345,7 @@ def run_chunk(loaded: LoadedSpec, cell_index: int, chunk: int, threads: int | No
             res = list(pool.map(lambda b: run_block(ctx, spec, b), blocks))
     else:
         res = [run_block(ctx, spec, b) for b in blocks]
-    monitors = list(ctx.setup.monitors)
+    monitors = list(ctx.setup.monitor_names)
     trials = _concat([_cat_cols([r["trials"][m] for r in res]) for m in monitors])
     epochs = _concat([_cat_cols([r["epochs"][m] for r in res if m in r["epochs"]]) for m in monitors])
     # histogram: sum the blocks' sparse counts
@@ -367,7 +394,9 @@ def chunk_plan(loaded: LoadedSpec) -> list[tuple[int, int, int]]:
 def _dask_chunk(spec_json: str, source: str, cell_index: int, chunk: int) -> dict:
     """Entry point on a Dask worker: rebuild the spec from its JSON (cheap, cached per process)."""
     from testbed.campaign.spec import CampaignSpec
+    from testbed.heap import keep_freed_memory
 
+    keep_freed_memory()  # a worker process runs nothing but campaign chunks
     key = ("loaded", spec_json, source)
     loaded = _cached(key, lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
     return run_chunk(loaded, cell_index, chunk, threads=1)  # the cluster's workers are the parallelism
@@ -405,9 +434,11 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     progress : show a rich progress bar (trials/s, ETA).
     max_chunks : stop after this many new chunks (tests; the run stays resumable).
     """
-    from testbed.campaign.store import ResultStore
-
     from testbed.campaign.spec import load_spec
+    from testbed.campaign.store import ResultStore
+    from testbed.heap import keep_freed_memory
+
+    keep_freed_memory()  # the driver owns its process: keep the blocks' freed arrays in the heap
 
     loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)
     store = ResultStore(out_dir)

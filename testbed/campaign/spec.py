@@ -36,11 +36,13 @@ from typing import Any, Literal
 from pydantic import Field, field_validator, model_validator
 
 from testbed.config import Approach, ApproachConfig, load_approach, read_toml, validate
+from testbed.flight.fly import approach_geometry
 from testbed.integrity.levels import service_level
+from testbed.integrity.registry import MonitorName, reads_vision
+from testbed.sim.setup import build_monitors
 from testbed.schema import ConfigError, StrictModel
 from testbed.sensors.vision.settings import LandmarkSet
 
-MonitorName = Literal["gps_raim", "va_raim", "pixel"]
 FaultKindName = Literal["none", "gps_step", "gps_ramp", "pixel_bias", "landmark_moved"]
 
 #: what the magnitude of each fault family means (units go into tables and figure labels)
@@ -129,7 +131,7 @@ class CampaignSpec(StrictModel):
     name: str = Field(..., min_length=1)
     description: str = ""
     approaches: list[str] = Field(..., min_length=1, description="approach names or paths (relative to the spec)")
-    monitors: list[MonitorName] = Field(..., min_length=1)
+    monitors: list[MonitorName] = Field(..., min_length=1, description="monitor names (testbed.integrity.registry)")
     trials: int = Field(..., ge=1, le=10_000_000, description="trials (sorties) per cell")
     base_seed: int = Field(0, ge=0)
     block_trials: int = Field(100, ge=1, le=100_000, description="trials per draw block (share a landmark survey)")
@@ -146,10 +148,10 @@ class CampaignSpec(StrictModel):
         if self.chunk_trials % self.block_trials:
             raise ValueError(f"chunk_trials ({self.chunk_trials}) must be a multiple of block_trials "
                              f"({self.block_trials})")
-        if ("va_raim" in self.monitors or "pixel" in self.monitors) is False:
+        if not reads_vision(self.monitors):
             vis = [f.kind for f in self.faults if f.kind in ("pixel_bias", "landmark_moved")]
             if vis:
-                raise ValueError(f"vision faults {vis} need a vision monitor (va_raim or pixel) in monitors")
+                raise ValueError(f"vision faults {vis} need a monitor that reads vision in monitors")
         return self
 
 
@@ -282,19 +284,15 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 _set(d, "landmarks.sets", [s.model_dump(mode="json") for s in sw.landmark_sets[c["landmark_set"][0]]])
             if c["calibration"] is not None:
                 d.setdefault("va_raim", {})["calibration"] = c["calibration"]
-            if any(m in ("va_raim", "pixel") for m in spec.monitors):
+            if reads_vision(spec.monitors):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
             idx = len(cells)
             try:
                 cfg = validate(ApproachConfig, d, ap.source)
-                from testbed.integrity.va_raim import VaRaimSettings
-                VaRaimSettings.model_validate({**cfg.va_raim, "integrity": cfg.integrity})
+                build_monitors(replace(ap, config=cfg), approach_geometry(ap)[0])  # each monitor's option table
             except ConfigError as exc:
                 problems.append(f"cell {idx} ({_describe(ap.name, c)}): " + "; ".join(exc.problems))
-                continue
-            except Exception as exc:  # pydantic error of the va_raim table
-                problems.append(f"cell {idx} ({_describe(ap.name, c)}): va_raim: {exc}")
                 continue
             vis = cfg.vision
             params = {

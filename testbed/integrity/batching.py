@@ -17,8 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from testbed.heap import keep_freed_memory
-from testbed.records import MonitorOutput
+from testbed.records import MonitorOutput, epoch_array_pairs, map_epoch_arrays
 
 #: Epochs per chunk: large enough that numpy's per-call overhead is noise, small
 #: enough for the per-epoch temporaries to stay in cache.
@@ -62,7 +61,6 @@ def map_trial_chunks(fn: Callable[[slice], MonitorOutput], batch_shape: tuple[in
     n_threads = available_cores() if threads is None else int(threads)
     if n_threads < 1:
         raise ValueError(f"threads: expected >= 1 or None, got {threads}")
-    keep_freed_memory()  # chunks allocate and free large arrays: keep them in the heap (testbed.heap)
     chunks = trial_chunks(batch_shape, chunk_epochs, n_threads)
     if len(chunks) == 1:
         return fn(chunks[0])
@@ -86,32 +84,18 @@ def map_trial_chunks(fn: Callable[[slice], MonitorOutput], batch_shape: tuple[in
     return stacked[0]
 
 
-_PER_EPOCH_FIELDS = ("pos_enu", "clock", "hpl", "vpl", "test_stat", "threshold", "alert", "available", "n_used",
-                     "excluded", "reason")
-
-
 def _allocate_stacked(part: MonitorOutput, n_trials: int) -> MonitorOutput:
-    """An output shaped like ``part`` with ``n_trials`` trials (arrays uninitialised)."""
-    def like(a):
-        if isinstance(a, MonitorOutput):
-            return _allocate_stacked(a, n_trials)
-        if isinstance(a, np.ndarray) and a.ndim > 0:
-            return np.empty((n_trials,) + a.shape[1:], a.dtype)
-        return a
+    """An output shaped like ``part`` with ``n_trials`` trials (per-trial arrays uninitialised)."""
+    def like(a: np.ndarray, meta) -> np.ndarray:
+        return np.empty((n_trials,) + a.shape[1:], a.dtype) if meta["batched"] else a
 
-    return MonitorOutput(name=part.name, t=part.t, service_levels=part.service_levels, reasons=part.reasons,
-                         diagnostics={k: like(v) for k, v in part.diagnostics.items()},
-                         **{f: like(getattr(part, f)) for f in _PER_EPOCH_FIELDS})
+    return map_epoch_arrays(part, like)
 
 
 def _write_chunk(out: MonitorOutput, part: MonitorOutput, sl: slice) -> None:
     """Copy the chunk ``part`` into trials ``sl`` of ``out`` (same layout as :func:`_allocate_stacked`)."""
-    if part.name != out.name or part.diagnostics.keys() != out.diagnostics.keys():
+    if part.name != out.name:
         raise ValueError(f"chunk outputs disagree: {part.name!r} vs {out.name!r}")
-    for f in _PER_EPOCH_FIELDS:
-        getattr(out, f)[sl] = getattr(part, f)
-    for k, v in part.diagnostics.items():
-        if isinstance(v, MonitorOutput):
-            _write_chunk(out.diagnostics[k], v, sl)
-        elif isinstance(v, np.ndarray) and v.ndim > 0:
-            out.diagnostics[k][sl] = v
+    for o, p, meta in epoch_array_pairs(out, part):
+        if meta["batched"]:
+            o[sl] = p

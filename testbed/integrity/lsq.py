@@ -655,8 +655,7 @@ class WlsSolution:
     sse : (...) ``rᵀWr``.
     geometry : :class:`WlsGeometry` at the solution.
     converged : (...) bool, last position update below the tolerance.
-    n_iter : (...) int, iterations run by each element (all equal for :func:`iterate_wls`,
-        which iterates the batch together; per epoch for the compiled range solve).
+    n_iter : (...) int, iterations run by each element (it stops at its own convergence).
     reason : (...) int8 (geometry reason, or NOT_CONVERGED).
     """
 
@@ -678,9 +677,10 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
                 max_cond: float = MAX_COND) -> WlsSolution:
     """Gauss–Newton WLS for a generic model, vectorised over the batch.
 
-    A fixed, small number of iterations over the whole batch; the loop stops
-    early once every element has converged (position step < ``tol_m``).
-    Elements that cannot be solved are frozen and get NaN and a reason.
+    At most ``n_iter`` iterations over the batch; each element stops at the
+    iteration whose position step is below ``tol_m`` (and is not stepped
+    again), so its answer never depends on what else is in the batch. Elements
+    that cannot be solved are frozen and get NaN and a reason.
 
     Parameters
     ----------
@@ -696,7 +696,7 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
     nan_z = (m & ~np.isfinite(z)).any(-1)
     frozen = nan_z.copy()
     converged = np.zeros(z.shape[:-1], bool)
-    it = 0
+    iters = np.zeros(z.shape[:-1], np.int64)
     for it in range(1, n_iter + 1):
         h, G = model(x)
         # Iterates keep LAPACK's inverse: the converged state depends on the path of the
@@ -705,14 +705,17 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
         dz = np.where(geom.mask, z - h, 0.0)
         dz = np.where(np.isfinite(dz), dz, 0.0)
         dx = np.einsum("...ij,...j->...i", geom.A, dz)  # x̂ = x + A (z − h(x))
-        frozen = frozen | ~geom.solvable
-        dx = np.where(frozen[..., None] | ~np.isfinite(dx), 0.0, dx)
+        stepping = ~(frozen | converged)  # a converged element stops where it converged
+        frozen = frozen | (stepping & ~geom.solvable)
+        stepping &= geom.solvable
+        dx = np.where(~stepping[..., None] | ~np.isfinite(dx), 0.0, dx)
         x = x + dx
-        converged = np.linalg.norm(dx[..., :3], axis=-1) < tol_m
+        iters = np.where(stepping, it, iters)
+        converged = converged | (stepping & (np.linalg.norm(dx[..., :3], axis=-1) < tol_m))
         if np.all(converged | frozen):
             break
     h, G = model(x)
-    return _solution_at(x, h, G, z, W, mask, converged, frozen, nan_z, it, max_cond)
+    return _solution_at(x, h, G, z, W, mask, converged, frozen, nan_z, iters, max_cond)
 
 
 def _solution_at(x: NDArray, h: NDArray, G: NDArray, z: NDArray, W: ArrayLike, mask: ArrayLike | None,

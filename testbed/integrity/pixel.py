@@ -37,7 +37,9 @@ Protection levels (patent step 6), with slopes in weighted form
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from itertools import combinations
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -48,7 +50,8 @@ from testbed.integrity import lsq
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.raim import compact_rows, scatter_rows
 from testbed.integrity.settings import IntegritySettings
-from testbed.records import GnssEpochs, Mount, MonitorOutput, VisionEpochs
+from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
+from testbed.records import Diagnostics, GnssEpochs, Mount, MonitorOutput, VisionEpochs, epoch_array
 
 
 def _skew(v: NDArray) -> NDArray:
@@ -185,6 +188,40 @@ def _ffill_epochs(x: NDArray, carry: NDArray | None = None) -> NDArray:
     return np.where(seen[..., None], out, np.nan)
 
 
+@dataclass(frozen=True)
+class PixelDiagnostics(Diagnostics):
+    """The pixel-domain monitor's diagnostics (B..., T[, ...]).
+
+    x_start : the iteration's start state per epoch (GPS fix carried forward).
+    hpl1/2/3, vpl1/2/3 : the three hypotheses' levels (m); ``sigma_x`` the error-ellipse
+    semi-major axis; slopes per satellite slot (NaN unused), per landmark pixel row, and
+    the worst pair; residuals in m (pseudoranges) and px (landmarks).
+    """
+
+    x_start: NDArray = epoch_array(1)
+    hpl1: NDArray = epoch_array()
+    hpl2: NDArray = epoch_array()
+    hpl3: NDArray = epoch_array()
+    vpl1: NDArray = epoch_array()
+    vpl2: NDArray = epoch_array()
+    vpl3: NDArray = epoch_array()
+    sigma_x: NDArray = epoch_array()
+    lam_det: NDArray = epoch_array()
+    hslope_sat: NDArray = epoch_array(1)
+    vslope_sat: NDArray = epoch_array(1)
+    hslope_lm: NDArray = epoch_array(1)
+    vslope_lm: NDArray = epoch_array(1)
+    hslope_pair_max: NDArray = epoch_array()
+    vslope_pair_max: NDArray = epoch_array()
+    residual_pr: NDArray = epoch_array(1)
+    residual_px: NDArray = epoch_array(2)
+    n_landmarks: NDArray = epoch_array()
+    n_sat: NDArray = epoch_array()
+    converged: NDArray = epoch_array()
+    n_iter: NDArray = epoch_array()
+    k_ff: float = 0.0
+
+
 def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
                   settings: IntegritySettings | None = None, x0: ArrayLike | None = None,
                   name: str = "pixel", x_carry: ArrayLike | None = None) -> MonitorOutput:
@@ -202,7 +239,7 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     x0 : (B..., T, 4) start of the iteration (e.g. the navigation prediction).
         Default: the GPS-only fix, forward-filled over epochs without one.
     x_carry : (B..., 4) the start state in force before the first epoch (a live
-        run passes the previous block's ``diagnostics["x_start"][..., -1, :]``
+        run passes the previous block's last ``diagnostics.x_start`` (:class:`PixelState`)
         so that block-by-block equals one call over the whole flight).
         Default: the GPS-only WLS fix, carried forward over epochs without one.
 
@@ -316,21 +353,56 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     levels = tuple(service_level(s) for s in st.service_levels)
 
     r = sol.residual
-    diag = {
-        "x_start": x_start,
-        "hpl1": hpl1, "hpl2": hpl2, "hpl3": hpl3, "vpl1": vpl1, "vpl2": vpl2, "vpl3": vpl3,
-        "sigma_x": sigma_x, "lam_det": lam, "k_ff": k_ff,
-        "hslope_sat": scatter_rows(hs1[..., :Ng], idx, mg, S),
-        "vslope_sat": scatter_rows(vs1[..., :Ng], idx, mg, S),
-        "hslope_lm": hs1[..., Ng:], "vslope_lm": vs1[..., Ng:],
-        "hslope_pair_max": nanmax(hs2), "vslope_pair_max": nanmax(vs2),
-        "residual_pr": scatter_rows(r[..., :Ng], idx, mg, S),
-        "residual_px": np.where(det[..., None], r[..., Ng:].reshape(lead + (L, 2)), np.nan),
-        "n_landmarks": det.sum(-1), "n_sat": mg.sum(-1), "converged": sol.converged, "n_iter": sol.n_iter,
-    }
+    diag = PixelDiagnostics(
+        x_start=x_start, hpl1=hpl1, hpl2=hpl2, hpl3=hpl3, vpl1=vpl1, vpl2=vpl2, vpl3=vpl3,
+        sigma_x=sigma_x, lam_det=lam, k_ff=k_ff,
+        hslope_sat=scatter_rows(hs1[..., :Ng], idx, mg, S), vslope_sat=scatter_rows(vs1[..., :Ng], idx, mg, S),
+        hslope_lm=hs1[..., Ng:], vslope_lm=vs1[..., Ng:],
+        hslope_pair_max=nanmax(hs2), vslope_pair_max=nanmax(vs2),
+        residual_pr=scatter_rows(r[..., :Ng], idx, mg, S),
+        residual_px=np.where(det[..., None], r[..., Ng:].reshape(lead + (L, 2)), np.nan),
+        n_landmarks=det.sum(-1), n_sat=mg.sum(-1), converged=sol.converged, n_iter=sol.n_iter)
     return MonitorOutput(
         name=name, t=np.asarray(gnss.t), pos_enu=sol.x[..., :3], clock=sol.x[..., 3], hpl=hpl, vpl=vpl,
         test_stat=sse, threshold=T2, alert=ok & (sse > T2), available=availability(hpl, vpl, levels, ok),
         service_levels=tuple(st.service_levels), n_used=geom.n_used.astype(np.int16),
         excluded=np.full(reason.shape, -1, np.int16), reason=reason, reasons=lsq.REASONS, diagnostics=diag,
     )
+
+
+@dataclass(frozen=True)
+class PixelState:
+    """The pixel monitor's start point in force before the next epoch, (B..., 4) or None."""
+
+    x_start: NDArray | None = None
+
+
+@dataclass(frozen=True)
+class PixelMonitor:
+    """The patent's pixel-domain monitor (seed 003) in the loop: state = :class:`PixelState`."""
+
+    name: str
+    context: MonitorContext
+    inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision"})
+    reference: ClassVar[str] = REFERENCE_POINT
+
+    def prepare(self) -> None:
+        """Compile the kernels (numba caches them beside the package) before the first epoch."""
+        from testbed.integrity.kernels import compile_all
+
+        compile_all()
+
+    def initial_state(self) -> PixelState:
+        return PixelState()
+
+    def step(self, obs: Observations, state: PixelState) -> tuple[MonitorOutput, PixelState]:
+        out = pixel_monitor(obs.gnss, obs.vision, self.context.frame, self.context.integrity, name=self.name,
+                            x_carry=state.x_start)
+        x = out.diagnostics.x_start
+        return out, PixelState(x[..., -1, :] if x.shape[-2] else state.x_start)
+
+
+def build_monitor(context: MonitorContext, options) -> PixelMonitor:
+    if options:
+        raise ValueError(f"pixel takes no options (its settings are [integrity]); got {sorted(options)}")
+    return PixelMonitor("pixel", context)

@@ -7,6 +7,9 @@ bad epoch gets NaN and a reason code, never an exception.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -16,7 +19,8 @@ from testbed.integrity.fit import wls_fit
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.settings import IntegritySettings
-from testbed.records import GnssEpochs, MonitorOutput
+from testbed.integrity.monitor import ANTENNA, MonitorContext, Observations
+from testbed.records import Diagnostics, GnssEpochs, MonitorOutput, epoch_array
 
 
 def compact_rows(mask: NDArray, width: int | None = None) -> tuple[NDArray, NDArray, int]:
@@ -141,17 +145,67 @@ def fix_at_solution(h: NDArray, G: NDArray, z: NDArray, W: tuple, mask: NDArray,
     return ft, pls, reason, ok, x
 
 
-def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,
-                    x0: NDArray | None, t: NDArray, frame: LocalFrame, st: IntegritySettings, name: str,
-                    width: int) -> MonitorOutput:
-    """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
-    S = pr.shape[-1]
+@dataclass(frozen=True)
+class GpsRaimDiagnostics(Diagnostics):
+    """GPS RAIM's diagnostics (B..., T[, S]): per-satellite slot quantities are NaN on unused slots."""
+
+    hslope: NDArray = epoch_array(1)
+    vslope: NDArray = epoch_array(1)
+    residual: NDArray = epoch_array(1)
+    lam_det: NDArray = epoch_array()
+    cond: NDArray = epoch_array()
+    converged: NDArray = epoch_array()
+    n_iter: NDArray = epoch_array()
+    hpl_seed: NDArray = epoch_array()
+    vpl_seed: NDArray = epoch_array()
+    hpl_pbias: NDArray = epoch_array()
+    vpl_pbias: NDArray = epoch_array()
+    gdop: NDArray = epoch_array()
+    pdop: NDArray = epoch_array()
+    hdop: NDArray = epoch_array()
+    vdop: NDArray = epoch_array()
+    tdop: NDArray = epoch_array()
+
+
+@dataclass(frozen=True)
+class GpsFix:
+    """GPS RAIM at one chunk's solution, before it becomes a MonitorOutput (VA-RAIM's step 1 reads it).
+
+    idx, mask, z, w, anchor : the compacted used rows (:func:`used_gps_rows`); x : (..., 4)
+    the fix (NaN where unsolvable); fit, pls, reason, ok, converged, n_iter: as
+    :func:`fix_at_solution` returns them.
+    """
+
+    idx: NDArray
+    mask: NDArray
+    z: NDArray
+    w: NDArray
+    anchor: NDArray
+    x: NDArray
+    fit: object
+    pls: dict
+    reason: NDArray
+    ok: NDArray
+    converged: NDArray
+    n_iter: NDArray
+
+
+def gps_fix(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,
+            x0: NDArray | None, frame: LocalFrame, st: IntegritySettings, width: int) -> GpsFix:
+    """The iterated GPS-only WLS fix and its fit (arrays broadcast to one batch)."""
     idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat_ecef, frame, width)
     bt = pr.shape[:-1]
     x0 = np.zeros(bt + (4,)) if x0 is None else x0
     off = np.zeros(bt + (3,)) if off is None else off
     x_it, conv, iters, h, G = lsq.gauss_newton_ranges(x0, st.max_iter, st.tol_m, (anchor, off, z, w, m))
     ft, pls, reason, ok, x = fix_at_solution(h, G, z, (w, None), m, x_it, conv, st)
+    return GpsFix(idx, m, z, w, anchor, x, ft, pls, reason, ok, conv, iters)
+
+
+def gps_output(fix: GpsFix, t: NDArray, S: int, st: IntegritySettings, name: str) -> MonitorOutput:
+    """GPS RAIM's MonitorOutput at a fix (one function for the module and VA-RAIM's step 1)."""
+    ft, pls, ok, reason = fix.fit, fix.pls, fix.ok, fix.reason
+    idx, m = fix.idx, fix.mask
     pl = pls[st.pl_variant]
     hpl = np.where(ok, pl.hpl, np.nan)
     vpl = np.where(ok, pl.vpl, np.nan)
@@ -159,27 +213,57 @@ def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray
     T2 = np.where(ok, pl.T2, np.nan)
     with np.errstate(invalid="ignore"):
         alert = ok & (sse > T2)
+        dop = lsq.dops(ft)
     levels = tuple(service_level(s) for s in st.service_levels)
     avail = availability(hpl, vpl, levels, ok)
-
-    with np.errstate(invalid="ignore"):
-        dop = lsq.dops(ft)
-    diag = {
-        "hslope": scatter_rows(pl.hslope, idx, m, S),
-        "vslope": scatter_rows(pl.vslope, idx, m, S),
-        "residual": scatter_rows(ft.residual, idx, m, S),
-        "lam_det": np.where(ok, pl.lam_det, np.nan),
-        "cond": ft.cond,
-        "converged": conv & ft.solvable,
-        "n_iter": iters,
-    }
-    for v, p in pls.items():
-        diag[f"hpl_{v}"] = np.where(ok, p.hpl, np.nan)
-        diag[f"vpl_{v}"] = np.where(ok, p.vpl, np.nan)
-    diag.update(dop)
+    per_variant = {f"{d}pl_{v}": np.where(ok, getattr(p, f"{d}pl"), np.nan) for v, p in pls.items() for d in "hv"}
+    diag = GpsRaimDiagnostics(
+        hslope=scatter_rows(pl.hslope, idx, m, S), vslope=scatter_rows(pl.vslope, idx, m, S),
+        residual=scatter_rows(ft.residual, idx, m, S), lam_det=np.where(ok, pl.lam_det, np.nan), cond=ft.cond,
+        converged=fix.converged & ft.solvable, n_iter=fix.n_iter, **per_variant, **dop)
     return MonitorOutput(
-        name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl,
+        name=name, t=t, pos_enu=fix.x[..., :3], clock=fix.x[..., 3], hpl=hpl, vpl=vpl,
         test_stat=sse, threshold=T2, alert=alert, available=avail, service_levels=tuple(st.service_levels),
         n_used=ft.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
         reasons=lsq.REASONS, diagnostics=diag,
     )
+
+
+def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,
+                    x0: NDArray | None, t: NDArray, frame: LocalFrame, st: IntegritySettings, name: str,
+                    width: int) -> MonitorOutput:
+    """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
+    fix = gps_fix(pr, vis, sat_ecef, sigma, off, x0, frame, st, width)
+    return gps_output(fix, t, pr.shape[-1], st, name)
+
+
+@dataclass(frozen=True)
+class GpsRaimMonitor:
+    """GPS-only snapshot RAIM as a loop monitor: the receiver's own estimator, at the antenna.
+
+    No state: every epoch stands alone.
+    """
+
+    name: str
+    context: MonitorContext
+    inputs: ClassVar[frozenset[str]] = frozenset({"gnss"})
+    reference: ClassVar[str] = ANTENNA
+
+    def prepare(self) -> None:
+        """Compile the kernels (numba caches them beside the package) before the first epoch."""
+        from testbed.integrity.kernels import compile_all
+
+        compile_all()
+
+    def initial_state(self) -> None:
+        return None
+
+    def step(self, obs: Observations, state: None) -> tuple[MonitorOutput, None]:
+        c = self.context
+        return gps_raim(obs.gnss, c.frame, c.integrity, name=self.name, threads=c.threads), None
+
+
+def build_monitor(context: MonitorContext, options) -> GpsRaimMonitor:
+    if options:
+        raise ValueError(f"gps_raim takes no options (its settings are [integrity]); got {sorted(options)}")
+    return GpsRaimMonitor("gps_raim", context)

@@ -26,8 +26,8 @@ term, so an epoch with no GPS rows is singular (the clock is unobservable).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,7 +44,8 @@ from testbed.integrity.calibration import (
     landmark_set_key,
 )
 from testbed.integrity.levels import SERVICE_LEVELS, availability, service_level
-from testbed.integrity.raim import fix_at_solution, used_gps_rows
+from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
+from testbed.integrity.raim import GpsRaimMonitor, fix_at_solution, gps_fix, gps_output, scatter_rows
 from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.vision_ranges import (
     VISION_REASONS,
@@ -52,7 +53,15 @@ from testbed.integrity.vision_ranges import (
     VisionRangeSettings,
     vision_pseudoranges,
 )
-from testbed.records import GnssEpochs, MonitorOutput, VisionEpochs
+from testbed.records import (
+    Diagnostics,
+    GnssEpochs,
+    MonitorOutput,
+    VisionEpochs,
+    concat_epochs,
+    epoch_array,
+    take_epochs,
+)
 from testbed.schema import StrictModel
 
 
@@ -117,8 +126,76 @@ def _take_t(a: NDArray, idx: NDArray) -> NDArray:
     return np.take_along_axis(a, ii, axis=idx.ndim - 1)
 
 
-def _monitor_output(name, t, x, ft: WlsFit, pls, reason, ok, ist, extra) -> MonitorOutput:
+@dataclass(frozen=True)
+class VaRaimDiagnostics(Diagnostics):
+    """VA-RAIM's diagnostics, (B..., T[, ...]).
+
+    Stacked-row quantities (``hslope``, ``vslope``, ``residual``, ``ws_diag``) are
+    (B..., T, S + N_C): one column per satellite slot (NaN where unused), then the vision
+    block's N_C rows, so their layout does not depend on the batch.
+    ``gps`` is GPS RAIM's own output (step 1, at the antenna). ``cal_t`` : time of the
+    calibration epoch in use (NaN: uncalibrated).
+    """
+
+    hslope: NDArray = epoch_array(1)
+    vslope: NDArray = epoch_array(1)
+    residual: NDArray = epoch_array(1)
+    ws_diag: NDArray = epoch_array(1)
+    lam_det: NDArray = epoch_array()
+    cond: NDArray = epoch_array()
+    hpl_seed: NDArray = epoch_array()
+    vpl_seed: NDArray = epoch_array()
+    hpl_pbias: NDArray = epoch_array()
+    vpl_pbias: NDArray = epoch_array()
+    converged: NDArray = epoch_array()
+    gps: MonitorOutput = field()
+    gps_P: NDArray = epoch_array(2)
+    vision_m: NDArray = epoch_array(1)
+    vision_Sigma_V: NDArray = epoch_array(2)
+    vision_reason: NDArray = epoch_array()
+    vision_n_v: NDArray = epoch_array()
+    vision_iterations: NDArray = epoch_array()
+    vision_residual_stat: NDArray = epoch_array()
+    vision_gate_stat: NDArray = epoch_array()
+    vision_m_pred: NDArray = epoch_array(1)
+    z_hat: NDArray = epoch_array(1)
+    Sigma_hat: NDArray = epoch_array(2)
+    beta: NDArray = epoch_array(1)
+    calibrated: NDArray = epoch_array()
+    at_calibration_epoch: NDArray = epoch_array()
+    cal_t: NDArray = epoch_array()
+    vision_rows_used: NDArray = epoch_array()
+    modified: NDArray = epoch_array()
+    n_gps: NDArray = epoch_array()
+    n_vision_rows: NDArray = epoch_array()
+    vision_reasons: tuple[str, ...] = VISION_REASONS
+
+    def trial_columns(self, vision_truth) -> dict[str, NDArray]:
+        """Per-trial sums of the raw and calibrated vision-range errors against the true ranges
+        (evaluation, for the campaign tables: count, sum and sum of squares over epochs and landmarks)."""
+        m_true = np.asarray(vision_truth.range_m, float)
+        col = {}
+        for tag, est, ok in (("raw", self.vision_m, None), ("cal", self.z_hat, self.calibrated)):
+            err = np.asarray(est, float) - m_true
+            good = np.isfinite(err)
+            if ok is not None:
+                good &= np.asarray(ok, bool)[..., None]
+            e0 = np.where(good, err, 0.0)
+            col[f"vre_{tag}_n"] = good.sum((-1, -2)).astype(np.int64)
+            col[f"vre_{tag}_sum"] = e0.sum((-1, -2))
+            col[f"vre_{tag}_sumsq"] = (e0**2).sum((-1, -2))
+        return col
+
+
+def _monitor_output(name, t, x, ft: WlsFit, pls, reason, ok, ist, extra: dict, gps_rows: tuple) -> MonitorOutput:
+    """gps_rows : (idx, mask, S) of the compacted GPS rows, to put the stacked rows back in satellite slots."""
     pl = pls[ist.pl_variant]
+    idx, mg, S = gps_rows
+    Ng = idx.shape[-1]
+
+    def slots(v: NDArray) -> NDArray:  # (..., Ng + N_C) -> (..., S + N_C)
+        return np.concatenate([scatter_rows(v[..., :Ng], idx, mg, S), v[..., Ng:]], axis=-1)
+
     hpl = np.where(ok, pl.hpl, np.nan)
     vpl = np.where(ok, pl.vpl, np.nan)
     sse = np.where(ok, ft.sse, np.nan)
@@ -126,12 +203,10 @@ def _monitor_output(name, t, x, ft: WlsFit, pls, reason, ok, ist, extra) -> Moni
     with np.errstate(invalid="ignore"):
         alert = ok & (sse > T2)
     levels = tuple(service_level(s) for s in ist.service_levels)
-    diag = {"hslope": pl.hslope, "vslope": pl.vslope, "residual": ft.residual,
-            "lam_det": np.where(ok, pl.lam_det, np.nan), "cond": ft.cond, "ws_diag": ft.ws_diag}
-    for v, p in pls.items():
-        diag[f"hpl_{v}"] = np.where(ok, p.hpl, np.nan)
-        diag[f"vpl_{v}"] = np.where(ok, p.vpl, np.nan)
-    diag.update(extra)
+    per_variant = {f"{d}pl_{v}": np.where(ok, getattr(p, f"{d}pl"), np.nan) for v, p in pls.items() for d in "hv"}
+    diag = VaRaimDiagnostics(hslope=slots(pl.hslope), vslope=slots(pl.vslope), residual=slots(ft.residual),
+                             lam_det=np.where(ok, pl.lam_det, np.nan), cond=ft.cond, ws_diag=slots(ft.ws_diag),
+                             **per_variant, **extra)
     return MonitorOutput(
         name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl, test_stat=sse, threshold=T2,
         alert=alert, available=availability(hpl, vpl, levels, ok), service_levels=tuple(ist.service_levels),
@@ -263,13 +338,13 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     off_ant = R @ inp.lever_ant
     off_cam = R @ inp.lever_cam
 
-    # --- 1. GPS-only RAIM (same math as raim.gps_raim, with the fix covariance J kept)
-    idx, mg, zg, wg, anchor_g = used_gps_rows(inp.vis, pr, inp.sigma, inp.sat_ecef, inp.frame, inp.n_gps_rows)
-    xg_it, conv_g, _, h_g, G_g = lsq.gauss_newton_ranges(np.zeros(bt + (4,)), ist.max_iter, ist.tol_m,
-                                                         (anchor_g, off_ant, zg, wg, mg))
-    fit_g, pls_g, reason_g, ok_g, x_g = fix_at_solution(h_g, G_g, zg, (wg, None), mg, xg_it, conv_g, ist)
-    gps = _monitor_output("gps_raim", t, x_g, fit_g, pls_g, reason_g, ok_g, ist,
-                          {"converged": conv_g, "gps_slot": idx})
+    # --- 1. GPS-only RAIM: the GPS RAIM monitor itself (at the antenna, as a receiver solves),
+    # then moved to the reference point through the lever arm (the pseudoranges see x + R·l_ant
+    # only, so this is the fix a solve for the reference point reaches, to rounding)
+    fix_g = gps_fix(pr, inp.vis, inp.sat_ecef, inp.sigma, None, None, inp.frame, ist, inp.n_gps_rows)
+    gps = gps_output(fix_g, t, pr.shape[-1], ist, "gps_raim")
+    idx, mg, zg, wg, anchor_g, fit_g = fix_g.idx, fix_g.mask, fix_g.z, fix_g.w, fix_g.anchor, fix_g.fit
+    x_g = fix_g.x - np.concatenate([off_ant, np.zeros(bt + (1,))], axis=-1)
     has_fix = np.isfinite(x_g).all(-1)
     x_g0 = np.where(has_fix[..., None], x_g, 0.0)
     P_g = np.where(has_fix[..., None, None], fit_g.J[..., :3, :3], np.nan)
@@ -313,11 +388,80 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     extra = {
         "gps": gps,
         "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,
-        "vision_reasons": VISION_REASONS, "vision_n_v": vr.n_v, "vision_iterations": vr.iterations,
+        "vision_n_v": vr.n_v, "vision_iterations": vr.iterations,
         "vision_residual_stat": vr.residual_stat, "vision_gate_stat": vr.gate_stat, "vision_m_pred": vr.m_pred,
         "z_hat": cr.z_hat, "Sigma_hat": cr.Sigma_hat, "beta": cr.beta, "calibrated": cr.calibrated,
-        "at_calibration_epoch": at_cal, "cal_idx": cr.cal_idx, "vision_rows_used": use_v,
-        "modified": rows.modified, "n_gps": mg.sum(-1), "n_vision_rows": rows.mask.sum(-1),
-        "converged": conv, "gps_P": P_g, "gps_slot": idx,
+        "at_calibration_epoch": at_cal, "cal_t": np.where(cr.cal_idx >= 0, t[np.maximum(cr.cal_idx, 0)], np.nan),
+        "vision_rows_used": use_v, "modified": rows.modified, "n_gps": mg.sum(-1),
+        "n_vision_rows": rows.mask.sum(-1), "converged": conv, "gps_P": P_g,
     }
-    return _monitor_output(name, t, x, ft, pls, reason, ok, ist, extra)
+    return _monitor_output(name, t, x, ft, pls, reason, ok, ist, extra, (idx, mg, pr.shape[-1]))
+
+
+@dataclass(frozen=True)
+class VaRaimState:
+    """What VA-RAIM needs of the past: the observations at the epochs later epochs depend on.
+
+    Those are the calibration epoch of each landmark set in use (the calibration is
+    re-derived from them) and the last epoch with a GPS fix (the prior of the vision
+    solve), for every trial: at most a few epochs, however long the flight.
+    context : Observations at those epochs (None before the first epoch).
+    """
+
+    context: Observations | None = None
+
+
+@dataclass(frozen=True)
+class VaRaimMonitor:
+    """VA-RAIM as a loop monitor (seed 000): state = :class:`VaRaimState`."""
+
+    name: str
+    context: MonitorContext
+    settings: VaRaimSettings
+    inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision"})
+    reference: ClassVar[str] = REFERENCE_POINT
+
+    def prepare(self) -> None:
+        """Compile the kernels (numba caches them beside the package) before the first epoch."""
+        from testbed.integrity.kernels import compile_all
+
+        compile_all()
+
+    def initial_state(self) -> VaRaimState:
+        return VaRaimState()
+
+    def step(self, obs: Observations, state: VaRaimState) -> tuple[MonitorOutput, VaRaimState]:
+        ctx = state.context
+        full_obs = obs if ctx is None else Observations(concat_epochs([ctx.gnss, obs.gnss]),
+                                                         concat_epochs([ctx.vision, obs.vision]))
+        n_ctx = 0 if ctx is None else len(ctx.t)
+        full = va_raim(full_obs.gnss, full_obs.vision, self.context.frame, self.settings, name=self.name,
+                       threads=self.context.threads)
+        keep = _context_epochs(full)
+        new_ctx = Observations(take_epochs(full_obs.gnss, keep), take_epochs(full_obs.vision, keep))
+        return take_epochs(full, slice(n_ctx, None)), VaRaimState(new_ctx)
+
+    def provides(self, other, out: MonitorOutput) -> MonitorOutput | None:
+        """GPS RAIM's output: step 1 is that monitor (same rows, weights, settings and solve)."""
+        if isinstance(other, GpsRaimMonitor) and other.context.integrity == self.settings.integrity:
+            return dataclasses.replace(out.diagnostics.gps, name=other.name)
+        return None
+
+
+def _context_epochs(out: MonitorOutput) -> NDArray:
+    """Epoch indices of ``out`` that later epochs depend on, over all trials (sorted)."""
+    d: VaRaimDiagnostics = out.diagnostics
+    t = np.asarray(out.t)
+    cal = np.isin(t, np.asarray(d.cal_t)[np.isfinite(d.cal_t)])
+    fix = np.isfinite(d.gps.pos_enu).all(-1)  # (B..., T)
+    last = np.zeros(t.shape, bool)
+    has = fix.any(-1)
+    last_idx = t.size - 1 - np.argmax(fix[..., ::-1], axis=-1)
+    last[np.unique(last_idx[has])] = True
+    return np.flatnonzero(cal | last)
+
+
+def build_monitor(context: MonitorContext, options) -> VaRaimMonitor:
+    """VA-RAIM from the approach's ``[va_raim]`` table (the shared ``[integrity]`` added)."""
+    settings = VaRaimSettings.model_validate({**options, "integrity": context.integrity})
+    return VaRaimMonitor("va_raim", context, settings)

@@ -9,9 +9,9 @@ Why the result does not depend on the block size: sensor geometry is computed
 per epoch (no cross-epoch state) and accumulated; sensor noise is drawn
 prefix-stably (one child generator per random component, causal filters), so
 sampling the first T epochs again after every block reproduces the earlier
-epochs bit for bit and adds the new ones; the monitors are snapshot monitors
-whose only cross-epoch state (the pixel monitor's start point, VA-RAIM's
-calibration) is carried across blocks. ``tests/test_loop.py`` checks that a
+epochs bit for bit and adds the new ones; every monitor carries its own typed
+state from block to block (:mod:`testbed.integrity.monitor`), and the loop
+keeps no history for any of them. ``tests/test_loop.py`` checks that a
 live run equals the batch functions applied to the whole flight.
 """
 
@@ -24,9 +24,7 @@ from typing import Protocol
 import numpy as np
 
 from testbed.flight.fly import FlightResult, fly, truth_from_rows
-from testbed.integrity.pixel import pixel_monitor
-from testbed.integrity.raim import gps_raim
-from testbed.integrity.va_raim import va_raim
+from testbed.integrity.monitor import Observations
 from testbed.records import GnssEpochs, GnssTruth, MonitorOutput, Truth
 from testbed.sensors.faults import GNSS_KINDS
 from testbed.sensors.gnss.almanac import load_constellation
@@ -70,6 +68,7 @@ class Timings:
     sensors: float = 0.0
     monitors: float = 0.0
     logging: float = 0.0
+    per_monitor: dict[str, float] = field(default_factory=dict)  # wall time of each monitor's steps
 
     def as_dict(self) -> dict[str, float]:
         return {"flight": self.flight, "sensors": self.sensors, "monitors": self.monitors, "logging": self.logging}
@@ -123,14 +122,11 @@ class _Runner:
         self.n_g = 0  # GNSS epochs processed
         self.n_v = 0
         self.parts: dict[str, list] = {"gnss": [], "gnss_truth": [], "vision": [], "vision_truth": [], "truth": []}
-        self.outputs: dict[str, list[MonitorOutput]] = {m: [] for m in setup.monitors}
-        self.pixel_carry = None
-        self.va_ctx: list[int] = []
-        self.va_cal: set[int] = set()
-        self.va_last_fix: int | None = None
-        self.va_hist_g = self.va_hist_v = None
-        self.prev_alert = {m: False for m in setup.monitors}
-        self.prev_avail = {m: True for m in setup.monitors}
+        names = setup.monitor_names
+        self.outputs: dict[str, list[MonitorOutput]] = {m: [] for m in names}
+        self.states = {m.name: m.initial_state() for m in setup.monitors}  # each monitor's typed state
+        self.prev_alert = {m: False for m in names}
+        self.prev_avail = {m: True for m in names}
         self.onsets = sorted({(f.onset_s, f.kind) for f in setup.faults})
         self.onset_logged: set = set()
         self.events: list[tuple[float, str, str]] = []
@@ -207,48 +203,14 @@ class _Runner:
 
     # -- monitors --------------------------------------------------------------
     def _monitors(self, block: LoopBlock, v_at_g) -> None:
-        s = self.setup
-        for m in s.monitors:
-            if m == "gps_raim":
-                out = gps_raim(block.gnss, s.frame, s.integrity)
-            elif m == "pixel":
-                out = pixel_monitor(block.gnss, v_at_g, s.frame, s.integrity, x_carry=self.pixel_carry)
-                self.pixel_carry = out.diagnostics["x_start"][-1]
-            else:
-                out = self._va_raim(block, v_at_g)
-            block.outputs[m] = out
-            self.outputs[m].append(out)
-
-    def _va_raim(self, block: LoopBlock, v_at_g) -> MonitorOutput:
-        """VA-RAIM on the new epochs, preceded by its context epochs.
-
-        Its only cross-epoch state is (a) the calibration epoch of each landmark
-        set and (b) the last epoch with a GPS fix (the prior of the vision
-        solve). Prepending exactly those epochs reproduces the whole-flight
-        result for the new epochs without re-running the past.
-        """
-        s = self.setup
-        n_new = len(block.t)
-        first_new = self.n_g - n_new
-        if self.va_ctx:
-            ctx = np.asarray(self.va_ctx)
-            g_in = slicing.concat([slicing.take(self.va_hist_g, ctx), block.gnss])
-            v_in = slicing.concat([slicing.take(self.va_hist_v, ctx), v_at_g])
-        else:
-            ctx = np.zeros(0, int)
-            g_in, v_in = block.gnss, v_at_g
-        full = va_raim(g_in, v_in, s.frame, s.va_raim)
-        gidx = np.concatenate([ctx, np.arange(first_new, self.n_g)])
-        cal = np.asarray(full.diagnostics["cal_idx"])
-        self.va_cal.update(int(i) for i in gidx[cal[cal >= 0]])
-        fix = np.isfinite(full.diagnostics["gps"].pos_enu).all(-1)
-        if fix.any():
-            self.va_last_fix = int(gidx[np.flatnonzero(fix)[-1]])
-        # keep the history the context may point into (the GNSS epochs so far, vision at them)
-        self.va_hist_g = block.gnss if self.va_hist_g is None else slicing.concat([self.va_hist_g, block.gnss])
-        self.va_hist_v = v_at_g if self.va_hist_v is None else slicing.concat([self.va_hist_v, v_at_g])
-        self.va_ctx = sorted(self.va_cal | ({self.va_last_fix} if self.va_last_fix is not None else set()))
-        return slicing.take(full, slice(len(ctx), None))
+        obs = Observations(block.gnss, v_at_g)
+        for mon in self.setup.monitors:
+            t0 = time.perf_counter()
+            out, self.states[mon.name] = mon.step(obs, self.states[mon.name])
+            pm = self.timings.per_monitor
+            pm[mon.name] = pm.get(mon.name, 0.0) + time.perf_counter() - t0
+            block.outputs[mon.name] = out
+            self.outputs[mon.name].append(out)
 
     # -- events ----------------------------------------------------------------
     def _events(self, block: LoopBlock) -> None:

@@ -8,16 +8,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from pydantic import ValidationError
 
 from testbed.config import Approach
 from testbed.flight.fly import approach_geometry
 from testbed.flight.path import ApproachPath
 from testbed.frames import LocalFrame, euler_to_R_body_to_ned
-from testbed.integrity.settings import IntegritySettings
-from testbed.integrity.va_raim import VaRaimSettings
 from testbed.integrity.levels import service_level
+from testbed.integrity.monitor import Monitor, MonitorContext
+from testbed.integrity.registry import build_monitor, reads_vision
+from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount
-from testbed.schema import ConfigError
+from testbed.schema import ConfigError, format_validation_error
 from testbed.sensors.gnss.settings import GnssSettings
 from testbed.sensors.vision.landmarks import Landmarks, build_landmarks
 from testbed.sensors.vision.settings import MountSettings, VisionSettings
@@ -35,13 +37,19 @@ class RunSetup:
     vision: VisionSettings
     landmarks: Landmarks
     integrity: IntegritySettings
-    va_raim: VaRaimSettings
-    monitors: tuple[str, ...]
+    monitors: tuple[Monitor, ...]
     faults: tuple
 
     @property
+    def monitor_names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.monitors)
+
+    def monitor(self, name: str) -> Monitor:
+        return next(m for m in self.monitors if m.name == name)
+
+    @property
     def uses_vision(self) -> bool:
-        return any(m in ("va_raim", "pixel") for m in self.monitors)
+        return any("vision" in m.inputs for m in self.monitors)
 
     @property
     def alert_limits(self) -> tuple[float, float]:
@@ -65,32 +73,50 @@ def vision_settings(approach: Approach) -> VisionSettings:
     return v.model_copy(update={"mount": mount})
 
 
-def build_setup(approach: Approach, terrain) -> RunSetup:
+def build_setup(approach: Approach, terrain, monitor_threads: int | None = None) -> RunSetup:
+    """The run's frame, path, sensor settings and monitors (built, not compiled: see prepare_monitors).
+
+    monitor_threads : threads each monitor may use on a batch (None: one per core; campaigns,
+    which run draw blocks side by side, pass 1).
+    """
     c = approach.config
     frame, path = approach_geometry(approach)
     vision = vision_settings(approach)
     gnss = c.gnss
     ratio = vision.rate_hz / gnss.rate_hz
-    if any(m in ("va_raim", "pixel") for m in c.monitors) and abs(ratio - round(ratio)) > 1e-9:
+    if reads_vision(c.monitors) and abs(ratio - round(ratio)) > 1e-9:
         raise ConfigError(approach.source, [
             f"vision.rate_hz ({vision.rate_hz}) must be an integer multiple of gnss.rate_hz ({gnss.rate_hz}): "
             "the vision monitors combine both at the GNSS epochs"])
-    try:
-        va = VaRaimSettings.model_validate({**c.va_raim, "integrity": c.integrity})
-    except Exception as exc:  # pydantic ValidationError -> file/key message
-        from pydantic import ValidationError
-
-        from testbed.schema import format_validation_error
-        if isinstance(exc, ValidationError):
-            raise ConfigError(approach.source, ["va_raim." + p for p in format_validation_error(exc)]) from None
-        raise
-    if c.monitors:  # compile the monitors' kernels now (set-up), not in the first epochs
-        from testbed.integrity.kernels import compile_all
-        compile_all()
+    monitors = build_monitors(approach, frame, monitor_threads)
     return RunSetup(approach=approach, frame=frame, path=path, terrain=terrain, gnss=gnss,
                     antenna=antenna_mount(approach), vision=vision, landmarks=build_landmarks(c.landmarks),
-                    integrity=c.integrity, va_raim=va, monitors=tuple(dict.fromkeys(c.monitors)),
-                    faults=tuple(c.faults))
+                    integrity=c.integrity, monitors=monitors, faults=tuple(c.faults))
+
+
+def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = None) -> tuple[Monitor, ...]:
+    """The approach's monitors, from the registry; a bad option table is a ConfigError naming its key."""
+    c = approach.config
+    names = tuple(dict.fromkeys(c.monitors))
+    options = {n: getattr(c, n) for n in names if isinstance(getattr(c, n, None), dict)}
+    ctx = MonitorContext(frame=frame, integrity=c.integrity, options=options, threads=threads)
+    out = []
+    for name in names:
+        try:
+            out.append(build_monitor(name, ctx))
+        except ValidationError as exc:
+            raise ConfigError(approach.source, [f"{name}." + p for p in format_validation_error(exc)]) from None
+        except ValueError as exc:
+            raise ConfigError(approach.source, [f"{name}: {exc}"]) from None
+    return tuple(out)
+
+
+def prepare_monitors(setup: RunSetup) -> None:
+    """Compile what the monitors compile (numba kernels) before the flight, not in its first epochs."""
+    for m in setup.monitors:
+        prepare = getattr(m, "prepare", None)
+        if prepare is not None:
+            prepare()
 
 
 @dataclass(frozen=True)
@@ -129,7 +155,7 @@ def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
     if camera is not None and setup.uses_vision:
         K, res = camera.K, (camera.width_px, camera.height_px)
     ap = setup.approach
-    return Scene(title=f"{ap.name} ({ap.aircraft.name})", monitors=setup.monitors, planned_enu=planned,
+    return Scene(title=f"{ap.name} ({ap.aircraft.name})", monitors=setup.monitor_names, planned_enu=planned,
                  terrain_mesh=mesh, runway_enu=runway, landmarks_enu=lm_enu,
                  landmark_ids=tuple(str(i) for i in setup.landmarks.id), camera_K=K, camera_resolution=res)
 
