@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from testbed.config import Approach, list_approaches, load_approach, read_toml
 from testbed.flight.fly import FlightResult, check_start_clearance, fly
 from testbed.schema import ConfigError
+from testbed.sim.setup import load_terrain_for
 from testbed.sim.truth_io import write_truth
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -23,21 +24,11 @@ __all__ = ["Approach", "FlightResult", "RunResult", "check_file", "fly_approach"
            "load_approach", "load_terrain_for", "print_flight_summary", "print_run_summary", "run_approach"]
 
 
-def load_terrain_for(approach: Approach):
-    """The terrain model an approach names (its ``[terrain]`` table)."""
-    from testbed.world.settings import load_terrain
-
-    try:
-        return load_terrain(approach.config.terrain, approach.source.parent)
-    except (ValueError, OSError) as exc:
-        raise ConfigError(approach.source, [f"terrain: {exc}"]) from None
-
-
 def fly_approach(approach: str | Path | Approach, *, gust_seed: int | None = None,
                  truth_path: str | Path | None = None) -> FlightResult:
     """Load (if needed) and fly an approach; optionally write its truth trajectory."""
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
-    result = fly(ap, load_terrain_for(ap), gust_seed=gust_seed)
+    result = fly(ap.flight_plan, load_terrain_for(ap), gust_seed=gust_seed)
     if truth_path is not None:
         write_truth(result.truth, truth_path)
     return result
@@ -61,7 +52,7 @@ def check_file(path: str | Path) -> list[str]:
             expand_cells(load_spec(path))  # validates every cell's approach too
             return []
         ap = load_approach(path)
-        check_start_clearance(ap, load_terrain_for(ap))
+        check_start_clearance(ap.flight_plan, load_terrain_for(ap))
         from testbed.sim.setup import build_setup
 
         build_setup(ap, None)  # cross-section rules (rates, VA-RAIM options)
@@ -242,7 +233,7 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
 
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
     setup = build_setup(ap, load_terrain_for(ap))
-    flight = fly(ap, setup.terrain, gust_seed=gust_seed)
+    flight = fly(ap.flight_plan, setup.terrain, gust_seed=gust_seed)
     start = ap.config.start_time_utc
     eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path, utc_to_gps_seconds(start),
                              setup.gnss.almanac_week)

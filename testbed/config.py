@@ -16,7 +16,16 @@ from typing import Any
 
 from pydantic import Field, ValidationError, field_validator
 
-from testbed.flight.settings import AircraftSettings, Gusts, PathSettings, VerticalSettings, Wind
+from testbed.flight.settings import (
+    AircraftSettings,
+    FlightPlan,
+    FlightSettings,
+    FrameSettings,
+    Gusts,
+    PathSettings,
+    VerticalSettings,
+    Wind,
+)
 from testbed.integrity.registry import MonitorName
 from testbed.integrity.settings import IntegritySettings
 from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir
@@ -27,25 +36,6 @@ from testbed.sensors.vision.settings import LandmarkSettings, VisionSettings
 from testbed.world.settings import TerrainSettings
 
 MONITORS = ("gps_raim", "va_raim", "pixel")
-
-
-class FrameSettings(StrictModel):
-    """Origin of the approach's world frame (local ENU)."""
-
-    lat_deg: float = Field(..., ge=-90, le=90)
-    lon_deg: float = Field(..., ge=-180, le=180)
-    h: float = Field(..., ge=-500, le=9000, description="WGS84 ellipsoidal height, m")
-
-
-class FlightSettings(StrictModel):
-    dt_s: float = Field(1.0 / 120.0, gt=0, le=0.05, description="JSBSim integration step")
-    start_distance_m: float | None = Field(None, gt=0, description="distance to go at the start (default: whole path)")
-    max_duration_s: float = Field(1800.0, gt=0, le=7200)
-    truth_rate_hz: float = Field(10.0, gt=0, le=120, description="rate of the decimated truth for sensors")
-    terrain_update_hz: float = Field(10.0, gt=0, le=120, description="how often JSBSim's terrain height is refreshed")
-    speed_kt: float | None = Field(None, gt=30, lt=300, description="overrides the aircraft's approach speed (CAS)")
-    flaps: float | None = Field(None, ge=0, le=1, description="overrides the aircraft's approach flaps")
-    speed_brake: float | None = Field(None, ge=0, le=1, description="overrides the aircraft's speed brake")
 
 
 class ApproachConfig(StrictModel):
@@ -93,6 +83,13 @@ class Approach:
     @property
     def name(self) -> str:
         return self.config.name
+
+    @property
+    def flight_plan(self) -> FlightPlan:
+        """What the flight room needs of this approach (it never sees the rest)."""
+        c = self.config
+        return FlightPlan(name=c.name, source=self.source, frame=c.frame, path=c.path, vertical=c.vertical,
+                          flight=c.flight, wind=c.wind, gusts=c.gusts, aircraft=self.aircraft)
 
 
 def read_toml(path: Path) -> dict:

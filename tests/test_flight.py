@@ -28,7 +28,7 @@ def final():
 
 @pytest.fixture(scope="module")
 def calm(final):
-    return fly(final)
+    return fly(final.flight_plan)
 
 
 def variant(ap, **cfg_updates):
@@ -69,7 +69,7 @@ def test_truth_record_is_consistent(calm):
 
 def test_crosswind_and_moderate_gusts_stay_on_path(final):
     ap = variant(final, wind=Wind(from_deg=144.65, speed_kt=15.0), gusts=Gusts(intensity="moderate", seed=7))
-    s = fly(ap).summary
+    s = fly(ap.flight_plan).summary
     assert s.reached_end
     assert s.xtk_max_m < 20.0 and s.vert_max_m < 25.0  # "within tens of metres"
     assert s.max_bank_deg < 15.0 and -5 < s.pitch_range_deg[0] and s.pitch_range_deg[1] < 12
@@ -81,14 +81,14 @@ def test_c172x_flies_the_final(final):
 
     ap = dataclasses.replace(final, aircraft=load_aircraft(aircraft_dir() / "c172x" / "aircraft.toml"))
     ap = variant(ap, flight={"start_distance_m": 6000.0})
-    s = fly(ap).summary
+    s = fly(ap.flight_plan).summary
     assert s.reached_end and abs(s.end_height_above_m - 15.0) < 5.0 and s.xtk_max_m < 5.0
 
 
 def test_same_seed_bit_identical_other_seed_differs(final):
     ap = variant(final, gusts=Gusts(intensity="moderate", seed=11), flight={"start_distance_m": 3000.0})
-    a, b = fly(ap), fly(ap)
-    c = fly(ap, gust_seed=12)
+    a, b = fly(ap.flight_plan), fly(ap.flight_plan)
+    c = fly(ap.flight_plan, gust_seed=12)
     for f in ("pos_ecef", "q_body_to_enu", "omega_body", "specific_force_body"):
         assert np.array_equal(getattr(a.truth, f), getattr(b.truth, f)), f
     n = min(len(a.truth.t), len(c.truth.t))

@@ -17,6 +17,7 @@ Statistics:
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -117,14 +118,33 @@ def _label(row: dict, axes: list[str]) -> str:
     return ", ".join(parts)
 
 
+@dataclass(frozen=True)
+class _ReportInputs:
+    """What every report section reads (the stored tables and the report settings)."""
+
+    out_dir: Path
+    man: dict
+    cells: list[dict]
+    trials: object
+    epochs: object
+    hist: object
+    tc: dict
+    varying: list[str]
+    det_rows: list[dict]
+    power: float
+    conf: float
+    method: str
+    hal: float
+    val: float
+    figdir: Path
+
+
 def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
-    """Draw every figure of a finished campaign and write ``report.md``; returns its path."""
-    import matplotlib
+    """Draw every figure of a finished campaign and write ``report.md``; returns its path.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LogNorm
-
+    Figures are drawn on :class:`matplotlib.figure.Figure` objects (no pyplot, no backend
+    switch): the caller's matplotlib state is left as it was.
+    """
     out_dir = Path(out_dir)
     man, cells, trials, epochs, hist = _load(out_dir)
     rep = man["spec"].get("report", {})
@@ -132,23 +152,56 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
     conf, method = rep.get("confidence", 0.95), rep.get("interval", "clopper-pearson")
     figdir = out_dir / "figures"
     figdir.mkdir(exist_ok=True)
+    varying = _varying(cells)
+    inp = _ReportInputs(out_dir=out_dir, man=man, cells=cells, trials=trials, epochs=epochs, hist=hist,
+                      tc=_cols(trials), varying=varying, det_rows=detection_table(cells, trials, conf, method),
+                      power=power, conf=conf, method=method, hal=min(c["hal"] for c in cells),
+                      val=min(c["val"] for c in cells), figdir=figdir)
     md = [f"# Campaign `{man['name']}`", "",
           f"{man['spec'].get('description', '')}".strip(), "",
           f"- spec hash `{man['spec_hash']}`, {len(cells)} cells x {man['spec']['trials']} trials, "
           f"monitors {', '.join(man['spec']['monitors'])}, base seed {man['spec']['base_seed']}",
           f"- tables: `cells.parquet`, `trials.parquet` (per trial and monitor), `epochs.parquet` "
           f"(first {man['spec']['per_epoch_trials']} trials per cell), `stanford_hist.parquet`", ""]
-    varying = _varying(cells)
-    det_rows = detection_table(cells, trials, conf, method)
     figures: list[tuple[str, str]] = []
+    for section in (_detection_section, _stanford_section, _availability_section, _pl_time_section,
+                    _vision_range_section):
+        lines, figs = section(inp)
+        md += lines
+        figures += figs
+    md += _index_lines(inp, figures)
+    idx = out_dir / "report.md"
+    idx.write_text("\n".join(md) + "\n")
+    return idx
 
+
+def _figure(nrows: int = 1, ncols: int = 1, **kw):
+    """A figure and its axes without pyplot (no global state)."""
+    from matplotlib.figure import Figure
+
+    figsize = kw.pop("figsize", None)
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kw)
+
+
+def _save(fig, path: Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def _detection_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section: detection rate vs fault size per fault family, and the minimal detectable bias."""
+    md: list[str] = []
+    figures: list[tuple[str, str]] = []
+    cells, varying, figdir = inp.cells, inp.varying, inp.figdir
+    det_rows, power, conf, method = inp.det_rows, inp.power, inp.conf, inp.method
     # ---- detection rate vs fault size, per fault family
     fams = sorted({(c["fault_family"], c["fault_sweep_kind"], c["fault_unit"]) for c in cells})
     mdb_rows = []
     for fam, kind, unit in fams:
         if kind == "none":
             continue
-        fig, ax = plt.subplots(figsize=(7.5, 4.8))
+        fig, ax = _figure(figsize=(7.5, 4.8))
         rows = [r for r in det_rows if r["fault_family"] == fam]
         groups: dict[str, list[dict]] = {}
         for r in rows:
@@ -173,9 +226,7 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
         ax.legend(fontsize=7, loc="lower right")
         ax.grid(alpha=0.3)
         name = f"detection_{fam}_{kind}.png"
-        fig.tight_layout()
-        fig.savefig(figdir / name, dpi=110)
-        plt.close(fig)
+        _save(fig, figdir / name)
         figures.append((f"Detection rate vs {kind} size", name))
     if mdb_rows:
         md += [f"## Minimal detectable bias at {100 * power:g} % power", "",
@@ -185,20 +236,28 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
             md.append(f"| {r['fault']} | {r['group']} | {r['n']} | {_f(r['fa'], '{:.4f}')} | "
                       f"{_f(r['mdb'], '{:.1f}')} {r['unit']} | {_f(r['mdb_lo'], '{:.1f}')} {r['unit']} |")
         md.append("")
+    return md, figures
 
+
+def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section: Stanford diagrams, region counts and pooled 95 % accuracy per monitor."""
+    md: list[str] = []
+    figures: list[tuple[str, str]] = []
+    figdir = inp.figdir
+    tc, hist, hal, val = inp.tc, inp.hist, inp.hal, inp.val
     # ---- Stanford diagrams and region counts
-    tc = _cols(trials)
-    monitors = sorted(set(tc["monitor"].tolist()))
-    hal = min(c["hal"] for c in cells)
-    val = min(c["val"] for c in cells)
+    from matplotlib.colors import LogNorm
+
     from testbed.campaign.runner import hist_edges
+
+    monitors = sorted(set(tc["monitor"].tolist()))
 
     edges = hist_edges()
     region_rows = []
     acc_rows = []
     for m in monitors:
         sel = tc["monitor"] == m
-        fig, axs = plt.subplots(1, 2, figsize=(11, 4.8))
+        fig, axs = _figure(1, 2, figsize=(11, 4.8))
         for ax, dim, al in ((axs[0], "H", hal), (axs[1], "V", val)):
             counts = {r: int(tc[f"{dim.lower()}_{r}"][sel].sum()) for r in REGIONS}
             total = int(tc["epochs"][sel].sum())
@@ -237,9 +296,7 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
                     bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
             ax.set_title(f"{m}: {dim} Stanford diagram ({dim}AL {al:g} m)")
         name = f"stanford_{m}.png"
-        fig.tight_layout()
-        fig.savefig(figdir / name, dpi=110)
-        plt.close(fig)
+        _save(fig, figdir / name)
         figures.append((f"Stanford diagrams, {m}", name))
     md += ["## Integrity regions (all cells, all epochs; most demanding service level)", "",
            "| monitor | dim | " + " | ".join(REGIONS) + " | epochs |", "|---|---|" + "---|" * (len(REGIONS) + 1)]
@@ -252,10 +309,18 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
         v = [a["e95"] for a in acc_rows if a["monitor"] == m and a["dim"] == "V"][0]
         md.append(f"| {m} | {_f(h, '{:.2f}')} | {_f(v, '{:.2f}')} |")
     md.append("")
+    return md, figures
 
+
+def _availability_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section: availability per service level."""
+    md: list[str] = []
+    figures: list[tuple[str, str]] = []
+    cells, varying, figdir = inp.cells, inp.varying, inp.figdir
+    tc = inp.tc
     # ---- availability per service level
     levels = [c[len("avail_"):] for c in tc if c.startswith("avail_")]
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = _figure(figsize=(8, 4.5))
     groups = sorted({_label({**cells[i], "monitor": m}, [a for a in varying if a in ("dpi", "sigma_px", "start_time_utc",
                                                                                        "lpe_sigma_m", "landmark_set",
                                                                                        "approach", "calibration")])
@@ -273,14 +338,20 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
     ax.set_ylim(0, 1.05)
     ax.legend(fontsize=8)
     ax.set_title("availability per service level")
-    fig.tight_layout()
-    fig.savefig(figdir / "availability.png", dpi=110)
-    plt.close(fig)
+    _save(fig, figdir / "availability.png")
     figures.append(("Availability per service level", "availability.png"))
     md += ["## Availability per service level", "", "| group | level | availability |", "|---|---|---|"]
     md += [f"| {g} | {lv} | {100 * v:.2f} % |" for g, lv, v in av_rows]
     md.append("")
+    return md, figures
 
+
+def _pl_time_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section: HPL/VPL over time (median and 5-95 % across trials)."""
+    md: list[str] = []
+    figures: list[tuple[str, str]] = []
+    cells, varying, figdir = inp.cells, inp.varying, inp.figdir
+    epochs, hal, val = inp.epochs, inp.hal, inp.val
     # ---- HPL/VPL over time
     if epochs is not None and epochs.num_rows:
         ec = _cols(epochs)
@@ -290,7 +361,7 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
                             for i, m in zip(ec["cell"][use], ec["monitor"][use])})
         ep_lab = np.array([_label({**cells[i], "monitor": m}, [a for a in varying if a != "start_time_utc"])
                            for i, m in zip(ec["cell"], ec["monitor"])])
-        fig, axs = plt.subplots(1, 2, figsize=(12, 4.5), sharex=True)
+        fig, axs = _figure(1, 2, figsize=(12, 4.5), sharex=True)
         for ax, key, al in ((axs[0], "hpl", hal), (axs[1], "vpl", val)):
             for g in ep_groups:
                 s = use & (ep_lab == g)
@@ -309,17 +380,23 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
             ax.set_title(f"{key.upper()}: median and 5-95 % across trials" + (" (fault-free cells)" if nofault else ""))
             ax.grid(alpha=0.3)
         axs[0].legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(figdir / "pl_time.png", dpi=110)
-        plt.close(fig)
+        _save(fig, figdir / "pl_time.png")
         figures.append(("HPL/VPL over time", "pl_time.png"))
+    return md, figures
 
+
+def _vision_range_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section: vision-range error, raw and calibrated."""
+    md: list[str] = []
+    figures: list[tuple[str, str]] = []
+    cells, figdir = inp.cells, inp.figdir
+    tc, trials = inp.tc, inp.trials
     # ---- vision-range error
     if "vre_raw_n" in tc:
         vr = vision_range_error_table(cells, trials)
         if vr:
             vaxes = [a for a in ("lpe_sigma_m", "dpi", "sigma_px") if len({r[a] for r in vr}) > 1] or ["lpe_sigma_m"]
-            fig, axs = plt.subplots(1, len(vaxes), figsize=(5.2 * len(vaxes), 4.2), squeeze=False)
+            fig, axs = _figure(1, len(vaxes), figsize=(5.2 * len(vaxes), 4.2), squeeze=False)
             for ax, a in zip(axs[0], vaxes):
                 others = [b for b in ("lpe_sigma_m", "dpi", "sigma_px", "calibration") if b != a and len({r[b] for r in vr}) > 1]
                 grp: dict[str, list] = {}
@@ -339,9 +416,7 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
                 ax.grid(alpha=0.3)
                 ax.legend(fontsize=6)
             fig.suptitle("vision-range error (VA-RAIM) vs " + ", ".join(AXIS_LABEL[a] for a in vaxes))
-            fig.tight_layout()
-            fig.savefig(figdir / "vision_range_error.png", dpi=110)
-            plt.close(fig)
+            _save(fig, figdir / "vision_range_error.png")
             figures.append(("Vision-range error", "vision_range_error.png"))
             md += ["## Vision-range error (VA-RAIM; error = estimated - true camera-landmark range)", "",
                    "| cell | dpi | DE px | LPE m | cal mode | raw mean | raw sd | calibrated mean | calibrated sd |",
@@ -351,7 +426,13 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
                           f"{_f(r['raw_mean'], '{:.3f}')} | {_f(r['raw_std'], '{:.3f}')} | {_f(r['cal_mean'], '{:.3f}')} | "
                           f"{_f(r['cal_std'], '{:.3f}')} |")
             md.append("")
+    return md, figures
 
+
+def _index_lines(inp: _ReportInputs, figures: list[tuple[str, str]]) -> list[str]:
+    """The figure index and the per-cell detection table."""
+    varying, det_rows = inp.varying, inp.det_rows
+    md: list[str] = []
     md += ["## Figures", ""]
     for title, name in figures:
         md += [f"### {title}", "", f"![{title}](figures/{name})", ""]
@@ -362,15 +443,15 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
         md.append(f"| {r['cell']} | {r['monitor']} | {r['fault_sweep_kind']} | {r['fault_size']:g} {r['fault_unit']} | "
                   + " | ".join(str(r[a]) for a in varying) + ("" if not varying else "") +
                   f" | {r['n']} | {r['k']} | {r['rate']:.4f} | [{r['lo']:.4f}, {r['hi']:.4f}] |")
-    idx = out_dir / "report.md"
-    idx.write_text("\n".join(md) + "\n")
-    return idx
+    return md
+
+
 
 
 def vision_range_error_table(cells: list[dict], trials) -> list[dict]:
-    """Pooled vision-range error per cell (VA-RAIM rows): mean and sd, raw and calibrated."""
+    """Pooled vision-range error per cell (rows of monitors that report it): mean and sd, raw and calibrated."""
     tc = _cols(trials)
-    sel = tc["monitor"] == "va_raim"
+    sel = np.isfinite(np.asarray(tc["vre_raw_n"], float))
     out = []
     for c in cells:
         s = sel & (tc["cell"] == c["cell"])

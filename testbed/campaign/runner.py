@@ -77,7 +77,7 @@ def _flight_key(cell: Cell) -> tuple:
 
 
 def _terrain(cell: Cell):
-    from testbed.api import load_terrain_for
+    from testbed.sim.setup import load_terrain_for
 
     c = cell.config
     key = ("terrain", str(cell.approach.source), json.dumps(c.terrain.model_dump(mode="json"), sort_keys=True))
@@ -88,7 +88,7 @@ def flown_truth(cell: Cell):
     """The cell's trajectory flown by JSBSim (cached: one flight per distinct trajectory)."""
     from testbed.flight.fly import fly
 
-    return _cached(_flight_key(cell), lambda: fly(cell.approach, _terrain(cell)).truth)
+    return _cached(_flight_key(cell), lambda: fly(cell.approach.flight_plan, _terrain(cell)).truth)
 
 
 @dataclass(frozen=True)
@@ -370,14 +370,8 @@ def run_chunk(loaded: LoadedSpec, cell_index: int, chunk: int, threads: int | No
     return {"trials": trials, "epochs": epochs, "hist": hist}
 
 
-_CELLS: dict[str, list[Cell]] = {}
-
-
 def _cells(loaded: LoadedSpec) -> list[Cell]:
-    key = loaded.hash + str(loaded.source)
-    if key not in _CELLS:
-        _CELLS[key] = expand_cells(loaded)
-    return _CELLS[key]
+    return _cached(("cells", loaded.hash, str(loaded.source)), lambda: expand_cells(loaded))
 
 
 def chunk_plan(loaded: LoadedSpec) -> list[tuple[int, int, int]]:

@@ -290,7 +290,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
             idx = len(cells)
             try:
                 cfg = validate(ApproachConfig, d, ap.source)
-                build_monitors(replace(ap, config=cfg), approach_geometry(ap)[0])  # each monitor's option table
+                build_monitors(replace(ap, config=cfg), approach_geometry(ap.flight_plan)[0])  # each monitor's option table
             except ConfigError as exc:
                 problems.append(f"cell {idx} ({_describe(ap.name, c)}): " + "; ".join(exc.problems))
                 continue

@@ -15,10 +15,10 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from testbed.config import Approach
 from testbed.flight.guidance import Autopilot
 from testbed.flight.jsbsim_fdm import InitialCondition, JSBSimAircraft
 from testbed.flight.path import ApproachPath
+from testbed.flight.settings import FlightPlan
 from testbed.flight.wind import GustGenerator, wind_ned
 from testbed.frames import LocalFrame, euler_to_q_body_to_enu
 from testbed.records import Truth
@@ -73,26 +73,25 @@ class FlightResult:
     distance_to_go: np.ndarray  # (T,)
 
 
-def approach_geometry(approach: Approach) -> tuple[LocalFrame, ApproachPath]:
+def approach_geometry(plan: FlightPlan) -> tuple[LocalFrame, ApproachPath]:
     """The world frame and planned path of an approach (no flying)."""
-    c = approach.config
-    frame = LocalFrame(c.frame.lat_deg, c.frame.lon_deg, c.frame.h)
-    return frame, ApproachPath(c.path, c.vertical, frame)
+    frame = LocalFrame(plan.frame.lat_deg, plan.frame.lon_deg, plan.frame.h)
+    return frame, ApproachPath(plan.path, plan.vertical, frame)
 
 
-def check_start_clearance(approach: Approach, terrain: TerrainLike | None) -> float:
+def check_start_clearance(plan: FlightPlan, terrain: TerrainLike | None) -> float:
     """Height of the start point above the terrain (m); a ConfigError if inside it."""
-    frame, path = approach_geometry(approach)
-    d0 = approach.config.flight.start_distance_m or path.total_length
+    frame, path = approach_geometry(plan)
+    d0 = plan.flight.start_distance_m or path.total_length
     try:
         e, n, _ = path.start_point(d0)
     except ValueError as exc:
-        raise ConfigError(approach.source, [f"flight.start_distance_m: {exc}"]) from None
+        raise ConfigError(plan.source, [f"flight.start_distance_m: {exc}"]) from None
     lat, lon, _ = frame.enu_to_geodetic(np.array([e, n, 0.0]))
     ground = float(terrain.height(lat, lon)) if terrain is not None else frame.h
     clearance = path.height(d0) - ground
     if clearance < MIN_START_CLEARANCE_M:
-        raise ConfigError(approach.source, [
+        raise ConfigError(plan.source, [
             f"flight.start_distance_m / path: the start point ({float(lat):.5f} N, {float(lon):.5f} E, "
             f"{path.height(d0):.0f} m) is {clearance:.0f} m above the terrain ({ground:.0f} m): "
             f"expected at least {MIN_START_CLEARANCE_M:.0f} m (start inside the terrain)"])
@@ -114,22 +113,22 @@ def truth_from_rows(rows, frame: LocalFrame, t0: float = 0.0) -> Truth:
         airspeed=a[:, 23], frame_origin=np.array([frame.lat_deg, frame.lon_deg, frame.h]))
 
 
-def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: int | None = None,
+def fly(plan: FlightPlan, terrain: TerrainLike | None = None, *, gust_seed: int | None = None,
         on_step: Callable[[int, tuple], None] | None = None) -> FlightResult:
-    """Fly ``approach`` in JSBSim with our guidance until the end of the path.
+    """Fly ``plan`` in JSBSim with our guidance until the end of the path.
 
     Parameters
     ----------
-    approach : a loaded approach (:func:`testbed.config.load_approach`).
+    plan : what the flight needs of an approach (``load_approach(...).flight_plan``).
     terrain : terrain model feeding JSBSim's ground height (None: flat at the frame origin).
     gust_seed : overrides the approach's gust seed (campaigns vary it per trajectory).
     on_step : observer called at each integration step with (step index, flight row);
         :func:`truth_from_rows` turns rows into a Truth record. The row at step 0 is
         the trimmed initial state.
     """
-    cfg, ac_cfg = approach.config, approach.aircraft
-    frame, path = approach_geometry(approach)
-    check_start_clearance(approach, terrain)
+    cfg, ac_cfg = plan, plan.aircraft
+    frame, path = approach_geometry(plan)
+    check_start_clearance(plan, terrain)
     d0 = cfg.flight.start_distance_m or path.total_length
     e0, n0, track0 = path.start_point(d0)
     lat0, lon0, _ = frame.enu_to_geodetic(np.array([e0, n0, 0.0]))
@@ -187,11 +186,11 @@ def fly(approach: Approach, terrain: TerrainLike | None = None, *, gust_seed: in
     a = np.asarray(rows)
     truth = truth_from_rows(a, frame, t0=a[0, 0])
     xtk_a, vert_a, dtg_a = np.asarray(xtk), np.asarray(vert), np.asarray(dtg)
-    summary = _summarise(approach, truth, a[:, 24], xtk_a, vert_a, dtg_a, path, reached, wall)
+    summary = _summarise(plan, truth, a[:, 24], xtk_a, vert_a, dtg_a, path, reached, wall)
     return FlightResult(truth, path, frame, summary, xtk_a, vert_a, dtg_a)
 
 
-def _summarise(approach: Approach, truth: Truth, cas: np.ndarray, xtk: np.ndarray, vert: np.ndarray,
+def _summarise(plan: FlightPlan, truth: Truth, cas: np.ndarray, xtk: np.ndarray, vert: np.ndarray,
                dtg: np.ndarray, path: ApproachPath, reached: bool, wall: float) -> FlightSummary:
     after = truth.t >= min(CAPTURE_S, truth.t[-1] / 2)
 
@@ -210,7 +209,7 @@ def _summarise(approach: Approach, truth: Truth, cas: np.ndarray, xtk: np.ndarra
         end_h = end_lat = end_cas = end_sink = math.nan
     pitch = np.degrees(truth.euler[:, 1])
     return FlightSummary(
-        approach=approach.name, aircraft=approach.aircraft.name, duration_s=float(truth.t[-1]),
+        approach=plan.name, aircraft=plan.aircraft.name, duration_s=float(truth.t[-1]),
         steps=len(truth.t), reached_end=reached, xtk_rms_m=rms(xtk), xtk_max_m=float(np.abs(xtk[after]).max()),
         vert_rms_m=rms(vert), vert_max_m=float(np.abs(vert[after]).max()), end_height_above_m=end_h,
         end_lateral_m=end_lat, end_cas_kt=end_cas, end_sink_rate_ms=end_sink,

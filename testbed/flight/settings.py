@@ -6,6 +6,8 @@ only where the name says ``_kt`` (what pilots and approach charts use).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, Literal, Union
 
 from pydantic import Field, field_validator, model_validator
@@ -148,3 +150,41 @@ class VerticalSettings(StrictModel):
             if len(d) < 2 or any(b <= a for a, b in zip(d, d[1:])):
                 raise ValueError("constraints: expected >= 2 pairs with strictly increasing distance_to_go_m")
         return self
+
+
+class FrameSettings(StrictModel):
+    """Origin of the approach's world frame (local ENU)."""
+
+    lat_deg: float = Field(..., ge=-90, le=90)
+    lon_deg: float = Field(..., ge=-180, le=180)
+    h: float = Field(..., ge=-500, le=9000, description="WGS84 ellipsoidal height, m")
+
+
+class FlightSettings(StrictModel):
+    dt_s: float = Field(1.0 / 120.0, gt=0, le=0.05, description="JSBSim integration step")
+    start_distance_m: float | None = Field(None, gt=0, description="distance to go at the start (default: whole path)")
+    max_duration_s: float = Field(1800.0, gt=0, le=7200)
+    truth_rate_hz: float = Field(10.0, gt=0, le=120, description="rate of the decimated truth for sensors")
+    terrain_update_hz: float = Field(10.0, gt=0, le=120, description="how often JSBSim's terrain height is refreshed")
+    speed_kt: float | None = Field(None, gt=30, lt=300, description="overrides the aircraft's approach speed (CAS)")
+    flaps: float | None = Field(None, ge=0, le=1, description="overrides the aircraft's approach flaps")
+    speed_brake: float | None = Field(None, ge=0, le=1, description="overrides the aircraft's speed brake")
+
+
+@dataclass(frozen=True)
+class FlightPlan:
+    """What flying an approach needs: its frame, path, profile, flight settings, air and aircraft.
+
+    Built by :attr:`testbed.config.Approach.flight_plan`; ``source`` is the file that
+    errors are reported against.
+    """
+
+    name: str
+    source: Path
+    frame: FrameSettings
+    path: PathSettings
+    vertical: VerticalSettings
+    flight: FlightSettings
+    wind: Wind
+    gusts: Gusts
+    aircraft: AircraftSettings

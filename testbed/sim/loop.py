@@ -253,7 +253,7 @@ def run_loop(setup: RunSetup, *, seed: int = 0, sinks: list[Sink] | None = None,
     sinks = list(sinks or [])
     runner = _Runner(setup, seed, sinks, block_s)
     wall0 = time.perf_counter()
-    flight = fly(setup.approach, setup.terrain, gust_seed=gust_seed, on_step=runner.on_step)
+    flight = fly(setup.approach.flight_plan, setup.terrain, gust_seed=gust_seed, on_step=runner.on_step)
     runner.flush()
     total = time.perf_counter() - wall0
     tm = runner.timings

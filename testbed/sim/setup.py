@@ -58,6 +58,16 @@ class RunSetup:
         return min(lv.hal for lv in levels), min(lv.val for lv in levels)
 
 
+def load_terrain_for(approach: Approach):
+    """The terrain model an approach names (its ``[terrain]`` table)."""
+    from testbed.world.settings import load_terrain
+
+    try:
+        return load_terrain(approach.config.terrain, approach.source.parent)
+    except (ValueError, OSError) as exc:
+        raise ConfigError(approach.source, [f"terrain: {exc}"]) from None
+
+
 def antenna_mount(approach: Approach) -> Mount:
     return Mount(lever_arm_body=np.asarray(approach.aircraft.antenna_lever_arm_m, float))
 
@@ -80,7 +90,7 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
     which run draw blocks side by side, pass 1).
     """
     c = approach.config
-    frame, path = approach_geometry(approach)
+    frame, path = approach_geometry(approach.flight_plan)
     vision = vision_settings(approach)
     gnss = c.gnss
     ratio = vision.rate_hz / gnss.rate_hz
