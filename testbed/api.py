@@ -9,10 +9,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from testbed.config import Approach, list_approaches, load_approach, read_toml
-from testbed.flight.fly import FlightResult, check_start_clearance, fly
+from testbed.flight.fly import FlightResult, fly
 from testbed.schema import ConfigError
 from testbed.sim.setup import load_terrain_for
 from testbed.sim.truth_io import write_truth
@@ -27,8 +27,13 @@ __all__ = ["Approach", "FlightResult", "RunResult", "check_file", "fly_approach"
 def fly_approach(approach: str | Path | Approach, *, gust_seed: int | None = None,
                  truth_path: str | Path | None = None) -> FlightResult:
     """Load (if needed) and fly an approach; optionally write its truth trajectory."""
+    from testbed.sim.preflight import preflight
+
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
-    result = fly(ap.flight_plan, load_terrain_for(ap), gust_seed=gust_seed)
+    check_run_arguments(gust_seed=gust_seed)
+    _check_output_path(truth_path, "--truth", TRUTH_SUFFIXES)
+    setup = preflight(ap)
+    result = fly(ap.flight_plan, setup.terrain, gust_seed=gust_seed)
     if truth_path is not None:
         write_truth(result.truth, truth_path)
     return result
@@ -51,11 +56,9 @@ def check_file(path: str | Path) -> list[str]:
 
             expand_cells(load_spec(path))  # validates every cell's approach too
             return []
-        ap = load_approach(path)
-        check_start_clearance(ap.flight_plan, load_terrain_for(ap))
-        from testbed.sim.setup import build_setup
+        from testbed.sim.preflight import preflight
 
-        build_setup(ap, None)  # cross-section rules (rates, VA-RAIM options)
+        preflight(load_approach(path))  # everything the run will load, the trim included
     except ConfigError as exc:
         return exc.problems
     return []
@@ -108,7 +111,8 @@ def default_rrd_path(approach: Approach, seed: int) -> Path:
 def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: str | Path | None = "default",
                  live: bool = False, bind_ip: str = "127.0.0.1", port: int = 9876, block_s: float = 5.0,
                  monitors: list[str] | None = None, gust_seed: int | None = None,
-                 truth_path: str | Path | None = None) -> RunResult:
+                 truth_path: str | Path | None = None, linger_s: float = 0.0,
+                 on_landed: Callable[[RunResult], None] | None = None) -> RunResult:
     """Fly an approach with sensors and monitors in the loop; record it; evaluate it.
 
     Parameters
@@ -116,16 +120,25 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     approach : shipped name, TOML path or a loaded :class:`Approach`.
     seed : seeds every sensor draw (same seed, same results, bit for bit).
     rrd_path : the recording; ``"default"`` = ``runs/<approach>-seed<seed>.rrd``; None = no file.
-    live : also serve the stream to a Rerun viewer (gRPC on ``bind_ip:port``, loopback by default).
+    live : also serve the stream to a Rerun viewer (gRPC on ``bind_ip:port``, loopback by default;
+        another address is served unauthenticated to its network, with a warning).
     block_s : simulated seconds between live updates.
     monitors : override the approach's monitor list.
+    truth_path : also write the full-rate truth (.npz, .csv, .parquet).
+    linger_s : with ``live``, keep the server up this long after landing (the outputs are in
+        place by then; ``on_landed(result)`` is called first, e.g. to print the summary).
+
+    Every input and output path is checked before the flight; the outputs are moved into
+    place only when the whole run succeeded (a failure leaves earlier files untouched and
+    removes its partial output).
     """
     import time
 
     from testbed.sim.evaluate import summarise_monitor
     from testbed.sim.loop import gnss_fault_onset, run_loop
     from testbed.integrity.monitor import ANTENNA
-    from testbed.sim.setup import build_scene, build_setup, prepare_monitors
+    from testbed.sim.preflight import preflight
+    from testbed.sim.setup import build_scene, prepare_monitors
 
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
     if monitors is not None:
@@ -135,24 +148,32 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
                        ap.source)
         ap = replace(ap, config=cfg)
     wall0 = time.perf_counter()
-    setup = build_setup(ap, load_terrain_for(ap))
-    prepare_monitors(setup)
     if rrd_path == "default":
         rrd_path = default_rrd_path(ap, seed)
+    check_run_arguments(seed=seed, block_s=block_s, port=port, linger_s=linger_s, gust_seed=gust_seed)
+    _check_output_path(rrd_path, "--rrd", (".rrd",))
+    _check_output_path(truth_path, "--truth", TRUTH_SUFFIXES)
+    if live:
+        _check_live_address(bind_ip, port)
+    setup = preflight(ap)
+    prepare_monitors(setup)
     sinks, sink = [], None
     if rrd_path is not None or live:
         from testbed.viz.rerun_sink import RerunSink
 
         sink = RerunSink(Path(rrd_path) if rrd_path is not None else None, live=live, bind_ip=bind_ip, port=port,
-                         recording_id=f"{ap.name}-seed{seed}")
+                         recording_id=f"{ap.name}-seed{seed}",
+                         start_time_ns=int(ap.config.start_time_utc.timestamp() * 1e9))
         sink.start(build_scene(setup, setup.vision.camera.build()))
         sinks.append(sink)
     ok = False
     try:
         loop = run_loop(setup, seed=seed, sinks=sinks, block_s=block_s, gust_seed=gust_seed)
+        if truth_path is not None:
+            write_truth(loop.flight.truth, truth_path)  # before the recording is committed
         ok = True
     finally:
-        if sink is not None:
+        if sink is not None and not (ok and live and linger_s > 0):
             sink.close(ok=ok)
     onset = gnss_fault_onset(setup)
     if onset is None and setup.faults:
@@ -164,10 +185,97 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
         pos = truth_ant if mon.reference == ANTENNA else truth_cg
         summaries[mon.name] = summarise_monitor(loop.outputs[mon.name], pos, reference=mon.reference,
                                                 fault_onset_s=onset)
-    if truth_path is not None:
-        write_truth(loop.flight.truth, truth_path)
-    return RunResult(loop, summaries, Path(rrd_path) if rrd_path is not None else None,
-                     sink.live_url if sink is not None else None, time.perf_counter() - wall0)
+    result = RunResult(loop, summaries, Path(rrd_path) if rrd_path is not None else None,
+                       sink.live_url if sink is not None else None, time.perf_counter() - wall0)
+    if sink is not None and live and linger_s > 0:
+        try:
+            sink.commit()
+            if on_landed is not None:
+                on_landed(result)
+            _linger(linger_s)
+        finally:
+            sink.close()
+    elif on_landed is not None:
+        on_landed(result)
+    return result
+
+
+TRUTH_SUFFIXES = (".npz", ".csv", ".parquet")
+
+
+def check_run_arguments(*, seed: int = 0, block_s: float = 5.0, port: int = 9876, linger_s: float = 0.0,
+                        gust_seed: int | None = None) -> None:
+    """Numbers a caller hands a run, checked before any work (a ConfigError naming the option)."""
+    import math
+
+    problems = []
+    for name, v in (("--seed", seed), ("--gust-seed", gust_seed)):
+        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or not 0 <= v < 2**63):
+            problems.append(f"{name} = {v!r}: expected a whole number from 0 to 2^63 - 1")
+    if not (isinstance(block_s, (int, float)) and math.isfinite(block_s) and 0 < block_s <= 3600):
+        problems.append(f"--block = {block_s!r}: expected simulated seconds between live updates, > 0 and <= 3600")
+    if not (isinstance(port, int) and 1 <= port <= 65535):
+        problems.append(f"--port = {port!r}: expected a TCP port from 1 to 65535")
+    if not (isinstance(linger_s, (int, float)) and math.isfinite(linger_s) and 0 <= linger_s <= 86400):
+        problems.append(f"--linger = {linger_s!r}: expected seconds from 0 to 86400")
+    if problems:
+        raise ConfigError("command line", problems)
+
+
+def _check_output_path(path, option: str, suffixes: tuple[str, ...]) -> None:
+    """An output file we can create (or replace) before any work: not a folder, a known suffix, a writable place."""
+    import os
+
+    if path is None:
+        return
+    p = Path(path)
+    problem = None
+    if p.is_dir():
+        problem = f"{option} {p}: is a folder; expected a file path ending in {' or '.join(suffixes)}"
+    elif p.suffix.lower() not in suffixes:
+        problem = f"{option} {p}: unsupported suffix {p.suffix or '(none)'!r}; expected {' or '.join(suffixes)}"
+    else:
+        parent = p.parent.resolve()
+        while not parent.exists():
+            parent = parent.parent
+        if not parent.is_dir():
+            problem = f"{option} {p}: {parent} is a file, not a folder"
+        elif not os.access(parent, os.W_OK | os.X_OK):
+            problem = f"{option} {p}: cannot write in {parent} (permission denied)"
+    if problem:
+        raise ConfigError(p, [problem])
+
+
+def _check_live_address(bind_ip: str, port: int) -> None:
+    """The live server's address is free (else the run would fail at landing), and loopback or warned about."""
+    import ipaddress
+    import socket
+    import warnings
+
+    try:
+        loopback = ipaddress.ip_address(bind_ip).is_loopback
+    except ValueError:
+        raise ConfigError("command line", [f"--bind = {bind_ip!r}: expected an IP address such as 127.0.0.1"]) from None
+    if not loopback:
+        warnings.warn(f"--bind {bind_ip}: the live stream is served UNAUTHENTICATED to every host that can reach "
+                      f"{bind_ip}:{port}; use the default 127.0.0.1 unless you mean it", UserWarning, stacklevel=3)
+    fam = socket.AF_INET6 if ":" in bind_ip else socket.AF_INET
+    with socket.socket(fam, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((bind_ip, port))
+        except OSError as exc:
+            raise ConfigError("command line", [f"--port = {port}: {bind_ip}:{port} is not free ({exc.strerror}); "
+                                               "expected a free port (another live run or viewer?)"]) from None
+
+
+def _linger(seconds: float) -> None:
+    import time
+
+    print(f"live server stays up {seconds:.0f} s more (Ctrl-C to stop)", flush=True)
+    try:
+        time.sleep(seconds)
+    except KeyboardInterrupt:
+        pass
 
 
 def print_run_summary(result: RunResult) -> None:
@@ -229,10 +337,10 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
     from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
     from testbed.sensors.gnss.timebase import utc_to_gps_seconds
     from testbed.sim.loop import sensor_seeds
-    from testbed.sim.setup import build_setup
+    from testbed.sim.preflight import preflight
 
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
-    setup = build_setup(ap, load_terrain_for(ap))
+    setup = preflight(ap)
     flight = fly(ap.flight_plan, setup.terrain, gust_seed=gust_seed)
     start = ap.config.start_time_utc
     eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path, utc_to_gps_seconds(start),

@@ -51,30 +51,15 @@ def _cmd_fly(args: argparse.Namespace) -> int:
     else:
         rrd = None if args.no_record else (args.rrd if args.rrd is not None else "default")
         if args.live:
-            print(f"live: serving on {args.bind}:{args.port}; connect with: rerun --connect "
+            print(f"live: serving on {args.bind}:{args.port} once the checks pass; connect with: rerun --connect "
                   f"rerun+http://{'127.0.0.1' if args.bind in ('0.0.0.0', '127.0.0.1') else args.bind}:{args.port}/proxy",
                   flush=True)
-        result = run_approach(args.approach, seed=args.seed, rrd_path=rrd, live=args.live, bind_ip=args.bind,
-                              port=args.port, block_s=args.block, monitors=args.monitors, gust_seed=args.gust_seed,
-                              truth_path=args.truth)
-        print_run_summary(result)
-        if args.live:
-            _wait_for_viewer(args.linger)
+        run_approach(args.approach, seed=args.seed, rrd_path=rrd, live=args.live, bind_ip=args.bind,
+                     port=args.port, block_s=args.block, monitors=args.monitors, gust_seed=args.gust_seed,
+                     truth_path=args.truth, linger_s=args.linger if args.live else 0.0, on_landed=print_run_summary)
     if args.truth:
         print(f"truth written to {args.truth}")
     return 0
-
-
-def _wait_for_viewer(linger_s: float) -> None:
-    """Keep the live server up a while after the flight so a viewer can still connect."""
-    import time
-
-    if linger_s > 0:
-        print(f"live server stays up {linger_s:.0f} s more (Ctrl-C to stop)", flush=True)
-        try:
-            time.sleep(linger_s)
-        except KeyboardInterrupt:
-            pass
 
 
 def _cmd_export_rinex(args: argparse.Namespace) -> int:

@@ -36,6 +36,8 @@ from testbed.sensors.vision.settings import LandmarkSettings, VisionSettings
 from testbed.world.settings import TerrainSettings
 
 MONITORS = ("gps_raim", "va_raim", "pixel")
+GPS_EPOCH = dt.datetime(1980, 1, 6, tzinfo=dt.timezone.utc)
+LAST_START = dt.datetime(2100, 1, 1, tzinfo=dt.timezone.utc)
 
 
 class ApproachConfig(StrictModel):
@@ -68,7 +70,10 @@ class ApproachConfig(StrictModel):
     def _utc(cls, v: dt.datetime) -> dt.datetime:
         if v.tzinfo is None:
             raise ValueError("expected a UTC time with an offset, e.g. 2026-03-01T04:00:00Z")
-        return v.astimezone(dt.timezone.utc)
+        v = v.astimezone(dt.timezone.utc)
+        if not GPS_EPOCH <= v <= LAST_START:
+            raise ValueError(f"expected a time between the GPS epoch {GPS_EPOCH:%Y-%m-%d} and {LAST_START:%Y}")
+        return v
 
 
 @dataclass(frozen=True)
@@ -102,6 +107,10 @@ def read_toml(path: Path) -> dict:
             return tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(path, [f"not valid TOML: {exc}"]) from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(path, [f"not a text (UTF-8 TOML) file: byte {exc.start} is not UTF-8"]) from None
+    except OSError as exc:
+        raise ConfigError(path, [f"cannot be read: {exc.strerror or exc}"]) from None
 
 
 def validate(model: type[StrictModel], data: dict, source: Path, prefix: str = "") -> Any:
@@ -139,12 +148,24 @@ def load_aircraft(path: Path) -> AircraftSettings:
 def load_approach(name_or_path: str | Path) -> Approach:
     """Load, validate and resolve an approach file (and its aircraft)."""
     src = resolve_approach(name_or_path)
-    cfg = validate(ApproachConfig, read_toml(src), src)
+    cfg = _relative_to(validate(ApproachConfig, read_toml(src), src), src.parent)
     ac_path = resolve_aircraft(cfg.aircraft, src.parent)
     if not ac_path.is_file():
         raise ConfigError(src, [f"aircraft: {cfg.aircraft!r} -> {ac_path} not found "
                                 f"(expected a folder under {aircraft_dir()} or a path to an aircraft.toml)"])
     return Approach(cfg, load_aircraft(ac_path), src, ac_path)
+
+
+def _relative_to(cfg: ApproachConfig, base: Path) -> ApproachConfig:
+    """Data paths the file names, resolved against the file's folder (not the working directory)."""
+    g, t = cfg.gnss, cfg.terrain
+    update = {}
+    if g.almanac_path is not None and not g.almanac_path.is_absolute():
+        update["gnss"] = g.model_copy(update={"almanac_path": base / g.almanac_path})
+    if any(not p.is_absolute() for p in t.dem_paths):
+        update["terrain"] = t.model_copy(update={"dem_paths": [p if p.is_absolute() else base / p
+                                                              for p in t.dem_paths]})
+    return cfg.model_copy(update=update) if update else cfg
 
 
 def list_approaches() -> list[tuple[str, str]]:

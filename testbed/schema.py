@@ -8,15 +8,75 @@ that names the key path, and nothing can be changed after validation.
 
 from __future__ import annotations
 
+import types
+import typing
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+import re
+
+from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 
 class StrictModel(BaseModel):
-    """Unknown keys are errors; instances are frozen; no silent type coercion from str."""
+    """Unknown keys are errors; instances are frozen; numbers must be finite.
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, validate_default=True)
+    No coercion between kinds: a string or a boolean is never read as a number, and
+    only ``true``/``false`` are booleans (``"4.86"``, ``"yes"`` and ``1`` are errors).
+    Lists may stand for tuples (TOML has no tuples).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False,
+                              validate_default=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_kind_coercion(cls, data):
+        if isinstance(data, dict):
+            for name, field in cls.model_fields.items():
+                key = field.alias or name
+                if key in data:
+                    problem = _kind_problem(data[key], field.annotation)
+                    if problem:  # the key rides in the message; format_validation_error puts it in the path
+                        sub, why, got = problem
+                        raise ValueError(f"[{key}{sub}] {why} (got {got!r})")
+        return data
+
+
+def _scalar_kind(tp) -> str | None:
+    """'bool' or 'number' for an annotation that admits only that (None/Annotated unwrapped)."""
+    origin = typing.get_origin(tp)
+    if origin is typing.Annotated:
+        return _scalar_kind(typing.get_args(tp)[0])
+    if origin in (typing.Union, types.UnionType):
+        kinds = {_scalar_kind(a) for a in typing.get_args(tp) if a is not type(None)}
+        return kinds.pop() if len(kinds) == 1 else None
+    if tp is bool:
+        return "bool"
+    if tp in (int, float):
+        return "number"
+    return None
+
+
+def _kind_problem(value, tp) -> tuple[str, str, object] | None:
+    """(sub-path, why, value) when ``value`` may not stand for ``tp`` (a bool/number field,
+    or a list/tuple of them); None when it may."""
+    kind = _scalar_kind(tp)
+    if kind == "bool" and not isinstance(value, bool):
+        return "", "expected true or false", value
+    if kind == "number" and isinstance(value, (str, bool)):
+        return "", "expected a valid number, not " + ("a string" if isinstance(value, str) else "true/false"), value
+    base = tp
+    if typing.get_origin(base) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(base) if a is not type(None)]
+        base = args[0] if len(args) == 1 else None
+    if typing.get_origin(base) in (list, tuple) and isinstance(value, (list, tuple)):
+        elems = [a for a in typing.get_args(base) if a is not Ellipsis]
+        if len(set(elems)) == 1:
+            for k, v in enumerate(value):
+                p = _kind_problem(v, elems[0])
+                if p:
+                    return f".{k}{p[0]}", p[1], p[2]
+    return None
 
 
 class ConfigError(ValueError):
@@ -32,12 +92,20 @@ class ConfigError(ValueError):
         super().__init__(f"{len(self.problems)} problem(s) in {self.source}:\n{lines}")
 
 
+_KEYED = re.compile(r"^Value error, \[([^\]]+)\] (.*)$", re.S)
+
+
 def format_validation_error(err: ValidationError) -> list[str]:
     """Turn a pydantic error into ``key.path: message (got value)`` lines."""
     out = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "<top level>"
+        loc = ".".join(str(p) for p in e["loc"])
         msg = e["msg"]
+        kind = _KEYED.match(msg)
+        if kind:  # a StrictModel kind check: the key is part of the path, the value is in the message
+            out.append(f"{loc + '.' if loc else ''}{kind.group(1)}: {kind.group(2)}")
+            continue
+        loc = loc or "<top level>"
         if e["type"] == "extra_forbidden":
             msg = "unknown key (check the spelling; see README 'Configuration')"
         got = e.get("input")

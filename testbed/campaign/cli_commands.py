@@ -37,7 +37,8 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
         return 2
     out = Path(args.out) if args.out else Path("campaigns") / loaded.spec.name
     try:
-        res = run_campaign(loaded, out, resume=args.resume, scheduler=args.scheduler, progress=not args.quiet)
+        res = run_campaign(loaded, out, resume=args.resume, scheduler=args.scheduler, progress=not args.quiet,
+                           restart=args.restart)
     except ConfigError as exc:
         print(exc)
         return 2
@@ -82,7 +83,8 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("--trials", type=_positive_int, help="override the spec's trials per cell (a quick look)")
     p.add_argument("--out", help="result folder (default: campaigns/<spec name>)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: batched in-process)")
-    p.add_argument("--resume", action="store_true", help="complete an interrupted run in --out")
+    p.add_argument("--resume", action="store_true", help="complete an interrupted run in --out (same spec and inputs)")
+    p.add_argument("--restart", action="store_true", help="discard the run stored in --out and start over")
     p.add_argument("--no-report", action="store_true", help="do not draw the figures and report.md")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_campaign)

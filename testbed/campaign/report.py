@@ -16,13 +16,14 @@ Statistics:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
+from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
 AXES = ("approach", "start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "landmark_set", "calibration")
@@ -65,15 +66,28 @@ def minimal_detectable_bias(size: np.ndarray, rate: np.ndarray, power: float) ->
 
 
 def _load(out_dir: Path):
-    cells = pq.read_table(out_dir / "cells.parquet").to_pylist()
-    p = out_dir / "trials.parquet"
-    if not p.exists():
-        raise FileNotFoundError(f"{p}: no consolidated results (the campaign is incomplete: run it with --resume)")
-    trials = pq.read_table(p)
-    epochs = pq.read_table(out_dir / "epochs.parquet") if (out_dir / "epochs.parquet").exists() else None
-    hist = pq.read_table(out_dir / "stanford_hist.parquet") if (out_dir / "stanford_hist.parquet").exists() else None
-    man = json.loads((out_dir / "manifest.json").read_text())
-    return man, cells, trials, epochs, hist
+    """The stored tables of a finished campaign; a ConfigError naming what is missing or unreadable."""
+    from testbed.campaign.store import ResultStore
+
+    if not out_dir.is_dir():
+        raise ConfigError(out_dir, ["not a folder: expected a campaign result folder (testbed campaign --out)"])
+    man = ResultStore(out_dir).manifest()
+    missing = [n for n in ("cells.parquet", "trials.parquet") if not (out_dir / n).exists()]
+    if missing:
+        raise ConfigError(out_dir, [f"{n}: missing (the campaign is incomplete: complete it with testbed campaign "
+                                    f"SPEC --out {out_dir} --resume)" for n in missing])
+
+    def table(name: str):
+        p = out_dir / name
+        if not p.exists():
+            return None
+        try:
+            return pq.read_table(p)
+        except (OSError, pa.ArrowException) as exc:
+            raise ConfigError(p, [f"not a readable Parquet table ({exc}); run the campaign again"]) from None
+
+    return man, table("cells.parquet").to_pylist(), table("trials.parquet"), table("epochs.parquet"), \
+        table("stanford_hist.parquet")
 
 
 def _cols(t, names=None) -> dict[str, np.ndarray]:

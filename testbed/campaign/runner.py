@@ -38,6 +38,7 @@ from testbed.integrity.batching import available_cores
 from testbed.integrity.monitor import ANTENNA, Observations, provided_output
 from testbed.integrity.levels import service_level
 from testbed.records import MonitorOutput
+from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS, position_errors, stanford_regions
 
 TABLES = ("trials", "epochs", "hist")
@@ -415,14 +416,15 @@ class CampaignResult:
 
 def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: bool = False,
                  scheduler: str | object | None = None, progress: bool = True,
-                 max_chunks: int | None = None) -> CampaignResult:
+                 max_chunks: int | None = None, restart: bool = False) -> CampaignResult:
     """Run (or resume) a campaign into ``out_dir``.
 
     Parameters
     ----------
     spec : a spec file or a :class:`LoadedSpec` (validated before any work starts).
     out_dir : result folder (manifest, Parquet parts, consolidated tables).
-    resume : continue a run in ``out_dir`` (same spec hash), skipping stored chunks.
+    resume : continue a run in ``out_dir`` (same spec and inputs), skipping stored chunks.
+    restart : discard a stored run in ``out_dir`` and start over.
     scheduler : None = batched in-process; a Dask scheduler address, or a
         ``distributed.Client`` / ``LocalCluster``, sends the same chunk tasks there.
     progress : show a rich progress bar (trials/s, ETA).
@@ -435,9 +437,15 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     keep_freed_memory()  # the driver owns its process: keep the blocks' freed arrays in the heap
 
     loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)
+    client, own = _client(scheduler) if scheduler is not None else (None, False)  # reachable before any work
     store = ResultStore(out_dir)
     cells = _cells(loaded)
-    store.open(loaded, cells, resume=resume)
+    try:
+        store.open(loaded, cells, resume=resume, restart=restart)
+    except BaseException:
+        if own:
+            client.close()
+        raise
     plan = chunk_plan(loaded)
     done = store.done_chunks()
     todo = [p for p in plan if (p[0], p[1]) not in done]
@@ -456,7 +464,6 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
                 epochs_run += n * _epochs_of(tables)
                 bar.advance(n)
         else:
-            client, own = _client(scheduler)
             try:
                 from distributed import as_completed
 
@@ -489,7 +496,12 @@ def _client(scheduler):
     from distributed import Client
 
     if isinstance(scheduler, str):
-        return Client(scheduler), True
+        try:
+            return Client(scheduler, timeout="10s"), True
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ConfigError("command line", [f"--scheduler {scheduler!r}: no Dask scheduler answered ({exc}); "
+                                               "expected the address of a running scheduler, e.g. "
+                                               "tcp://127.0.0.1:8786"]) from None
     if isinstance(scheduler, Client):
         return scheduler, False
     return Client(scheduler), True  # a cluster object

@@ -36,10 +36,9 @@ from typing import Any, Literal
 from pydantic import Field, field_validator, model_validator
 
 from testbed.config import Approach, ApproachConfig, load_approach, read_toml, validate
-from testbed.flight.fly import approach_geometry
 from testbed.integrity.levels import service_level
 from testbed.integrity.registry import MonitorName, reads_vision
-from testbed.sim.setup import build_monitors
+from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, StrictModel
 from testbed.sensors.vision.settings import LandmarkSet
 
@@ -185,6 +184,40 @@ def spec_hash(spec: CampaignSpec) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def input_fingerprint(cells: list[Cell]) -> dict:
+    """What the results depend on beyond the spec: every cell's resolved configuration (its
+    approach and aircraft after the sweep) and the content of every file the cells read."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    files: dict[str, str] = {}
+    for c in cells:
+        cfg = c.config
+        for p in (c.approach.source, c.approach.aircraft_source, cfg.gnss.almanac_path, *cfg.terrain.dem_paths):
+            if p is not None and str(p) not in files and Path(p).is_file():
+                files[str(p)] = hashlib.sha256(Path(p).read_bytes()).hexdigest()[:16]
+    resolved = [[c.config.model_dump(mode="json"), c.approach.aircraft.model_dump(mode="json")] for c in cells]
+    try:
+        code = version("testbed")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        code = "unknown"
+    return {"cells": hashlib.sha256(json.dumps(resolved, sort_keys=True, default=str).encode()).hexdigest()[:16],
+            "files": files, "testbed": code}
+
+
+def fingerprint_changes(old: dict, new: dict) -> list[str]:
+    """What differs between two :func:`input_fingerprint` s, one line each."""
+    out = []
+    of, nf = old.get("files", {}), new.get("files", {})
+    out += [f"{p}: changed since the stored run" for p in sorted(set(of) & set(nf)) if of[p] != nf[p]]
+    out += [f"{p}: read now, not by the stored run" for p in sorted(set(nf) - set(of))]
+    out += [f"{p}: read by the stored run, not now" for p in sorted(set(of) - set(nf))]
+    if not out and old.get("cells") != new.get("cells"):
+        out.append("the resolved cell configurations differ (approach or aircraft settings)")
+    if old.get("testbed") != new.get("testbed"):
+        out.append(f"testbed version {old.get('testbed')} stored, {new.get('testbed')} now")
+    return out
+
+
 def resolve_spec_path(name_or_path: str | Path) -> Path:
     """A shipped campaign name (``gps-step-sweep``) or a path to a spec file."""
     from testbed.resources import campaigns_dir
@@ -290,7 +323,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
             idx = len(cells)
             try:
                 cfg = validate(ApproachConfig, d, ap.source)
-                build_monitors(replace(ap, config=cfg), approach_geometry(ap.flight_plan)[0])  # each monitor's option table
+                preflight(replace(ap, config=cfg), trim=False)  # what the run loads (the trim: once, when flying)
             except ConfigError as exc:
                 problems.append(f"cell {idx} ({_describe(ap.name, c)}): " + "; ".join(exc.problems))
                 continue

@@ -21,6 +21,7 @@ import json
 import os
 import shutil
 import uuid
+import warnings
 from pathlib import Path
 
 import pyarrow as pa
@@ -37,20 +38,35 @@ class ResultStore:
         self.parts = self.dir / "parts"
 
     # -- lifecycle -------------------------------------------------------------
-    def open(self, loaded, cells, *, resume: bool) -> None:
-        """Create the folder (or check it for a resume) before any work starts."""
+    def open(self, loaded, cells, *, resume: bool, restart: bool = False) -> None:
+        """Create the folder (or check it for a resume) before any work starts.
+
+        A resume is refused unless the spec, every cell's resolved configuration and every
+        input file are what the stored run used; ``restart`` discards the stored run first.
+        """
+        from testbed.campaign.spec import fingerprint_changes, input_fingerprint
+
         man = self.dir / "manifest.json"
-        if man.exists():
-            old = json.loads(man.read_text())
+        inputs = input_fingerprint(cells)
+        if restart:
+            self.discard()
+        elif man.exists():
+            old = self._read_manifest(loaded.source)
+            again = "start over in this folder with --restart, or choose another --out folder"
             if old.get("spec_hash") != loaded.hash:
                 raise ConfigError(loaded.source, [
                     f"{self.dir} holds results of another spec (hash {old.get('spec_hash')}, this spec "
-                    f"{loaded.hash}): choose another --out folder"])
+                    f"{loaded.hash}): {again}"])
+            changed = fingerprint_changes(old.get("inputs", {}), inputs)
+            if changed:
+                raise ConfigError(loaded.source, [f"{self.dir}: the stored run used other inputs ({c}): {again}"
+                                                  for c in changed])
             if not resume:
                 raise ConfigError(loaded.source, [f"{self.dir} already holds this campaign: pass --resume to "
-                                                  "complete it, or choose another --out folder"])
+                                                  f"complete it, or {again}"])
         elif resume and self.parts.exists():
-            raise ConfigError(loaded.source, [f"{self.dir}: no manifest.json to resume from"])
+            raise ConfigError(loaded.source, [f"{self.dir}: no manifest.json to resume from "
+                                              "(start over with --restart)"])
         self.parts.mkdir(parents=True, exist_ok=True)
         for p in self.parts.glob("*.tmp-*"):  # leftovers of a killed run
             shutil.rmtree(p, ignore_errors=True)
@@ -58,7 +74,7 @@ class ResultStore:
         if not man.exists():
             manifest = {"name": loaded.spec.name, "spec_hash": loaded.hash, "cells": len(cells),
                         "spec": loaded.spec.model_dump(mode="json"), "source": str(loaded.source),
-                        "format": 1}
+                        "inputs": inputs, "format": 2}
             _atomic_bytes(man, json.dumps(manifest, indent=1).encode())
 
     def _write_cells(self, cells) -> None:
@@ -68,7 +84,24 @@ class ResultStore:
         _atomic_table(self.dir / "cells.parquet", t)
 
     def manifest(self) -> dict:
-        return json.loads((self.dir / "manifest.json").read_text())
+        return self._read_manifest(self.dir / "manifest.json")
+
+    def _read_manifest(self, source) -> dict:
+        path = self.dir / "manifest.json"
+        try:
+            man = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ConfigError(path, [f"not a readable campaign manifest ({exc}); start over with --restart"]) from None
+        if not isinstance(man, dict) or "spec_hash" not in man:
+            raise ConfigError(path, ["not a campaign manifest (no spec_hash); start over with --restart"])
+        return man
+
+    def discard(self) -> None:
+        """Remove a stored run's files (only the ones the store writes; anything else is left alone)."""
+        for name in ("manifest.json", "cells.parquet", "report.md", *NAMES.values()):
+            (self.dir / name).unlink(missing_ok=True)
+        for sub in ("parts", "figures"):
+            shutil.rmtree(self.dir / sub, ignore_errors=True)
 
     # -- chunks ----------------------------------------------------------------
     @staticmethod
@@ -81,8 +114,15 @@ class ResultStore:
             return out
         for p in self.parts.iterdir():
             if p.is_dir() and ".tmp-" not in p.name and p.name.startswith("c"):
-                c, k = p.name[1:].split("-k")
-                out.add((int(c), int(k)))
+                try:
+                    c, k = (int(x) for x in p.name[1:].split("-k"))
+                except ValueError:
+                    continue  # not a chunk folder of ours
+                if _readable(p):
+                    out.add((c, k))
+                else:  # damaged after it was written (truncated, edited): recompute it
+                    warnings.warn(f"{p}: unreadable chunk removed; it will be computed again", stacklevel=2)
+                    shutil.rmtree(p, ignore_errors=True)
         return out
 
     def write_chunk(self, cell: int, chunk: int, tables: dict) -> None:
@@ -124,6 +164,16 @@ class ResultStore:
     def table(self, key: str) -> pa.Table | None:
         p = self.dir / NAMES.get(key, f"{key}.parquet")
         return pq.read_table(p) if p.exists() else None
+
+
+def _readable(chunk_dir: Path) -> bool:
+    """Every Parquet file of a chunk folder opens (its footer is intact)."""
+    try:
+        for f in chunk_dir.glob("*.parquet"):
+            pq.read_metadata(f)
+    except (OSError, pa.ArrowException):
+        return False
+    return True
 
 
 def _atomic_table(path: Path, t: pa.Table) -> None:

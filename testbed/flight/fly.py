@@ -98,6 +98,22 @@ def check_start_clearance(plan: FlightPlan, terrain: TerrainLike | None) -> floa
     return clearance
 
 
+def start_condition(plan: FlightPlan, terrain: TerrainLike | None) -> tuple[InitialCondition, float, bool, float]:
+    """The trim condition at the start point: (initial condition, flaps, gear down, speed brake)."""
+    frame, path = approach_geometry(plan)
+    fl, ac = plan.flight, plan.aircraft
+    d0 = fl.start_distance_m or path.total_length
+    e0, n0, track0 = path.start_point(d0)
+    lat0, lon0, _ = frame.enu_to_geodetic(np.array([e0, n0, 0.0]))
+    ground = float(terrain.height(float(lat0), float(lon0))) if terrain is not None else frame.h
+    speed_kt = fl.speed_kt if fl.speed_kt is not None else ac.approach.speed_kt
+    flaps = fl.flaps if fl.flaps is not None else ac.approach.flaps
+    brake = fl.speed_brake if fl.speed_brake is not None else ac.approach.speed_brake
+    ic = InitialCondition(float(lat0), float(lon0), path.height(d0), math.degrees(track0), speed_kt,
+                          -math.degrees(path.path_angle(d0)), ground)
+    return ic, flaps, ac.approach.gear_down, brake
+
+
 ROW_FIELDS = 25  # columns of a flight row (see truth_from_rows)
 
 
@@ -129,24 +145,16 @@ def fly(plan: FlightPlan, terrain: TerrainLike | None = None, *, gust_seed: int 
     cfg, ac_cfg = plan, plan.aircraft
     frame, path = approach_geometry(plan)
     check_start_clearance(plan, terrain)
-    d0 = cfg.flight.start_distance_m or path.total_length
-    e0, n0, track0 = path.start_point(d0)
-    lat0, lon0, _ = frame.enu_to_geodetic(np.array([e0, n0, 0.0]))
     ground = (lambda la, lo: float(terrain.height(la, lo))) if terrain is not None else (lambda la, lo: frame.h)
     dt = cfg.flight.dt_s
     gusts_cfg = cfg.gusts if gust_seed is None else cfg.gusts.model_copy(update={"seed": gust_seed})
     max_steps = int(cfg.flight.max_duration_s / dt) + 1
-    fl = cfg.flight
-    speed_kt = fl.speed_kt if fl.speed_kt is not None else ac_cfg.approach.speed_kt
-    flaps = fl.flaps if fl.flaps is not None else ac_cfg.approach.flaps
-    brake = fl.speed_brake if fl.speed_brake is not None else ac_cfg.approach.speed_brake
+    ic, flaps, gear_down, brake = start_condition(plan, terrain)
+    speed_kt = ic.calibrated_airspeed_kt
 
     wall0 = time.perf_counter()
     with JSBSimAircraft(ac_cfg.jsbsim_model, ac_cfg.engines, dt) as ac:
-        ic = InitialCondition(float(lat0), float(lon0), path.height(d0), math.degrees(track0),
-                              speed_kt, -math.degrees(path.path_angle(d0)),
-                              ground(float(lat0), float(lon0)))
-        trim = ac.trim(ic, flaps, ac_cfg.approach.gear_down, brake)
+        trim = ac.trim(ic, flaps, gear_down, brake)
         ac.set_wind_ned(wind_ned(cfg.wind))
         gust = GustGenerator(gusts_cfg, max_steps)
         pilot = Autopilot(path, ac_cfg.gains, trim, speed_kt * 1852 / 3600, dt)

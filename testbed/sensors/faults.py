@@ -24,8 +24,8 @@ SatSelector = Union[int, list[int], Literal["random"]]
 
 
 class _Timed(StrictModel):
-    onset_s: float = Field(0.0, ge=0.0, description="fault starts at this time since approach start (s)")
-    end_s: float | None = Field(None, description="fault ends (exclusive); None = to the end")
+    onset_s: float = Field(0.0, ge=0.0, le=7200.0, description="fault starts at this time since approach start (s)")
+    end_s: float | None = Field(None, le=7200.0, description="fault ends (exclusive); None = to the end")
 
     @model_validator(mode="after")
     def _window(self):
@@ -39,7 +39,7 @@ class GpsStep(_Timed):
 
     kind: Literal["gps_step"]
     prn: SatSelector = Field("random", description="PRN, list of PRNs, or 'random' (a visible one at onset)")
-    bias_m: float
+    bias_m: float = Field(..., ge=-1e6, le=1e6, description="m (beyond 1000 km a receiver rejects the range)")
 
 
 class GpsRamp(_Timed):
@@ -47,7 +47,7 @@ class GpsRamp(_Timed):
 
     kind: Literal["gps_ramp"]
     prn: SatSelector = "random"
-    rate_m_s: float
+    rate_m_s: float = Field(..., ge=-1e4, le=1e4, description="m/s")
 
 
 class GpsClockRunoff(_Timed):
@@ -55,8 +55,8 @@ class GpsClockRunoff(_Timed):
 
     kind: Literal["gps_clock"]
     prn: SatSelector = "random"
-    drift_m_s: float = 0.0
-    accel_m_s2: float = 0.05
+    drift_m_s: float = Field(0.0, ge=-1e4, le=1e4, description="m/s")
+    accel_m_s2: float = Field(0.05, ge=-1e3, le=1e3, description="m/s²")
 
 
 class PixelBias(_Timed):
@@ -64,8 +64,8 @@ class PixelBias(_Timed):
 
     kind: Literal["pixel_bias"]
     landmark: str | Literal["random"] = "random"
-    magnitude_px: float = Field(..., ge=0.0)
-    angle_deg: float = 0.0
+    magnitude_px: float = Field(..., ge=0.0, le=1e4)
+    angle_deg: float = Field(0.0, ge=-360.0, le=360.0)
 
 
 class LandmarkMoved(_Timed):
@@ -73,7 +73,8 @@ class LandmarkMoved(_Timed):
 
     kind: Literal["landmark_moved"]
     landmark: str | Literal["random"] = "random"
-    delta_enu_m: tuple[float, float, float]
+    delta_enu_m: tuple[Annotated[float, Field(ge=-1e4, le=1e4)], Annotated[float, Field(ge=-1e4, le=1e4)],
+                       Annotated[float, Field(ge=-1e4, le=1e4)]]
 
 
 class Misassociation(_Timed):
@@ -81,6 +82,12 @@ class Misassociation(_Timed):
 
     kind: Literal["misassociation"]
     landmarks: tuple[str, str]
+
+    @model_validator(mode="after")
+    def _two(self):
+        if self.landmarks[0] == self.landmarks[1]:
+            raise ValueError(f"landmarks: expected two different landmarks, got {list(self.landmarks)}")
+        return self
 
 
 Fault = Annotated[Union[GpsStep, GpsRamp, GpsClockRunoff, PixelBias, LandmarkMoved, Misassociation],

@@ -21,6 +21,29 @@ def entity_paths(path: str | Path) -> set[str]:
     return {ch.entity_path for ch in _chunks(path)}
 
 
+def content_digest(path: str | Path) -> str:
+    """A digest of everything a recording holds except the ids Rerun makes per write.
+
+    Rerun gives every chunk and row a TUID (a time-based unique id, ``rerun:id`` and
+    ``rerun.controls.RowId``), so two recordings of the same run differ in those bytes
+    (and hence in their compressed blocks) and nowhere else: entity paths, timelines,
+    components and values hash equal (``tests/test_recording.py``).
+    """
+    import hashlib
+
+    parts = []
+    for ch in _chunks(path):
+        rb = ch.to_record_batch()
+        keep = [k for k, name in enumerate(rb.schema.names) if name != "rerun.controls.RowId"]
+        rb = rb.select(keep).replace_schema_metadata(None)
+        h = hashlib.sha256(ch.entity_path.encode())
+        for col, field in zip(rb.columns, rb.schema):
+            h.update(field.name.encode())
+            h.update(repr(col.to_pylist()).encode())
+        parts.append(h.hexdigest())
+    return hashlib.sha256("".join(sorted(parts)).encode()).hexdigest()
+
+
 def has_blueprint(path: str | Path) -> bool:
     return bool(rrc.RrdReader(str(path)).blueprints())
 

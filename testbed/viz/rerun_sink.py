@@ -62,10 +62,13 @@ class RerunSink:
     """
 
     def __init__(self, rrd_path: Path | None, *, live: bool = False, bind_ip: str = "127.0.0.1",
-                 port: int = 9876, recording_id: str = "testbed", memory_limit: str = "512MiB") -> None:
+                 port: int = 9876, recording_id: str = "testbed", memory_limit: str = "512MiB",
+                 start_time_ns: int | None = None) -> None:
         self.rrd_path = Path(rrd_path) if rrd_path is not None else None
-        self.rec = rr.RecordingStream("testbed", recording_id=recording_id)
+        # no automatic properties: they carry the wall-clock start; we send the simulated one
+        self.rec = rr.RecordingStream("testbed", recording_id=recording_id, send_properties=False)
         self.rec.set_log_time_enabled(False)  # wall-clock stamps would make recordings irreproducible
+        self._start_time_ns = start_time_ns
         sinks = []
         self._part = None
         if self.rrd_path is not None:
@@ -88,6 +91,9 @@ class RerunSink:
     # -- static ----------------------------------------------------------------
     def start(self, scene: "Scene") -> None:
         rec = self.rec
+        rec.send_recording_name(scene.title)
+        if self._start_time_ns is not None:
+            rec.send_recording_start_time_nanos(int(self._start_time_ns))
         self.monitors = list(scene.monitors)
         rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu)),
                            make_active=True, make_default=True)
@@ -205,11 +211,22 @@ class RerunSink:
         self.rec.send_columns(f"sensors/satellites_used/{name}", indexes=tm,
                               columns=rr.Scalars.columns(scalars=np.asarray(out.n_used, float)))
 
+    def commit(self) -> None:
+        """Flush and move the recording into place (atomically); a live server stays up."""
+        self.rec.flush()
+        if self._part is not None and self._part.exists():
+            self._part.replace(self.rrd_path)
+            self._part = None
+
     def close(self, ok: bool = True) -> None:
-        """Flush and close; with ``ok`` the recording replaces ``rrd_path`` atomically."""
+        """Flush, commit (with ``ok``) and stop every sink, the live server included.
+
+        Without ``ok`` the partial ``.part`` file is removed and ``rrd_path`` is untouched.
+        """
+        if ok:
+            self.commit()
         self.rec.flush()
         self.rec.disconnect()
         if self._part is not None and self._part.exists():
-            if ok:
-                self._part.replace(self.rrd_path)
-            # on failure the .part file is left for inspection; rrd_path is untouched
+            self._part.unlink()
+            self._part = None

@@ -38,11 +38,11 @@ class CameraSettings(StrictModel):
     preset: Literal["approach-1080p", "va-raim-2015", "custom"] = Field(
         "approach-1080p", description="approach-1080p: 1920x1080, 50 deg HFOV; va-raim-2015: seed 000 camera "
         "(needs dpi; 35 mm lens on a 36x24 mm sensor, assumed); custom: give the intrinsics")
-    dpi: float | None = Field(None, gt=0, description="image resolution, dots per inch (va-raim-2015, custom form c)")
-    width_px: int | None = Field(None, ge=1, description="image width, px (custom forms a, b)")
-    height_px: int | None = Field(None, ge=1, description="image height, px (custom forms a, b)")
-    hfov_deg: float | None = Field(None, gt=0, lt=180, description="horizontal field of view, deg (custom form a)")
-    focal_px: float | None = Field(None, gt=0, description="focal length, px (custom form b)")
+    dpi: float | None = Field(None, gt=0, le=20_000, description="image resolution, dots per inch (va-raim-2015, custom form c)")
+    width_px: int | None = Field(None, ge=16, le=100_000, description="image width, px (custom forms a, b)")
+    height_px: int | None = Field(None, ge=16, le=100_000, description="image height, px (custom forms a, b)")
+    hfov_deg: float | None = Field(None, ge=0.1, le=170, description="horizontal field of view, deg (custom form a)")
+    focal_px: float | None = Field(None, ge=1, le=1e7, description="focal length, px (custom form b)")
     focal_mm: float | None = Field(None, gt=0, description=f"focal length, mm (custom form c; va-raim-2015 default {VA_RAIM_FOCAL_MM})")
     sensor_width_mm: float | None = Field(None, gt=0, description="sensor width, mm (form c)")
     sensor_height_mm: float | None = Field(None, gt=0, description="sensor height, mm (form c)")
@@ -162,9 +162,9 @@ class DetectionSettings(StrictModel):
     length L = |ω| t_exp f has a centroid spread of L/√12, the default factor.
     """
 
-    sigma_px: float = Field(1.0, ge=0, description="detection error (DE) 1-sigma per axis, px (seed sweeps 1-4)")
+    sigma_px: float = Field(1.0, ge=0, le=1000, description="detection error (DE) 1-sigma per axis, px (seed sweeps 1-4)")
     margin_px: float = Field(5.0, ge=0, description="detected only this far inside the image border, px")
-    max_range_m: float = Field(20_000.0, gt=0, description="maximum detection range, m")
+    max_range_m: float = Field(20_000.0, gt=0, le=500_000, description="maximum detection range, m")
     min_size_px: float = Field(0.0, ge=0, description="minimum apparent landmark size, px (0 = rule off)")
     min_depth_m: float = Field(1.0, gt=0, description="closer than this along the optical axis counts as behind")
     exposure_s: float = Field(0.004, ge=0, description="exposure time, s (motion blur)")
@@ -176,7 +176,8 @@ class DetectionSettings(StrictModel):
 class VisionSettings(StrictModel):
     """The camera sensor: rate, camera, mount, dithering, attitude reference, detector."""
 
-    rate_hz: float = Field(10.0, gt=0, description="vision epoch rate, Hz (the truth is decimated to it)")
+    rate_hz: float = Field(10.0, gt=0, le=120, description="vision epoch rate, Hz (the truth is decimated to it; "
+                           "at most the JSBSim rate)")
     camera: CameraSettings = Field(default_factory=CameraSettings)
     mount: MountSettings = Field(default_factory=MountSettings)
     dithering: DitheringSettings = Field(default_factory=DitheringSettings)
@@ -261,5 +262,5 @@ class LandmarkSettings(StrictModel):
 
     sets: list[LandmarkSet] = Field(default_factory=lambda: [TriangleSet(kind="triangle")],
                                     min_length=1, description="landmark groups; default: the seed triangle")
-    lpe_sigma_m: float = Field(0.05, ge=0, description="landmark position (survey) error 1-sigma per axis, m "
+    lpe_sigma_m: float = Field(0.05, ge=0, le=100, description="landmark position (survey) error 1-sigma per axis, m "
                                "(seed: 0.01-0.1), drawn once per flight")
