@@ -59,8 +59,9 @@ def check_file(path: str | Path) -> list[str]:
         from testbed.sim.preflight import preflight
 
         preflight(load_approach(path))  # everything the run will load, the trim included
-    except ConfigError as exc:
-        return exc.problems
+    except ConfigError as exc:  # a problem of another file (the aircraft, a spec's approach) names it
+        same = Path(exc.source).resolve() == Path(path).resolve()
+        return exc.problems if same else [f"{exc.source}: {p}" for p in exc.problems]
     return []
 
 

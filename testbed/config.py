@@ -118,7 +118,7 @@ def validate(model: type[StrictModel], data: dict, source: Path, prefix: str = "
     try:
         return model.model_validate(data)
     except ValidationError as err:
-        raise ConfigError(source, [prefix + p for p in format_validation_error(err)]) from None
+        raise ConfigError(source, [prefix + p for p in format_validation_error(err, data)]) from None
 
 
 def resolve_approach(name_or_path: str | Path) -> Path:

@@ -92,14 +92,34 @@ class ConfigError(ValueError):
         super().__init__(f"{len(self.problems)} problem(s) in {self.source}:\n{lines}")
 
 
+def _file_path(loc: tuple, data) -> list:
+    """``loc`` without the union tags that are not keys of ``data``."""
+    out, cur = [], data
+    for part in loc:
+        if isinstance(cur, dict) and part in cur:
+            cur = cur[part]
+        elif isinstance(cur, list) and isinstance(part, int) and 0 <= part < len(cur):
+            cur = cur[part]
+        elif isinstance(cur, dict) and isinstance(part, str) and part in [str(v) for v in cur.values()]:
+            continue  # a discriminator value, not a key of the file
+        else:
+            cur = None
+        out.append(part)
+    return out
+
+
 _KEYED = re.compile(r"^Value error, \[([^\]]+)\] (.*)$", re.S)
 
 
-def format_validation_error(err: ValidationError) -> list[str]:
-    """Turn a pydantic error into ``key.path: message (got value)`` lines."""
+def format_validation_error(err: ValidationError, data=None) -> list[str]:
+    """Turn a pydantic error into ``key.path: message (got value)`` lines.
+
+    data : the validated input, if at hand: a tagged union's tag that pydantic puts in the
+    path (``faults.0.gps_step.bias_m``) is dropped, so the path is the file's (``faults.0.bias_m``).
+    """
     out = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"])
+        loc = ".".join(str(p) for p in _file_path(e["loc"], data))
         msg = e["msg"]
         kind = _KEYED.match(msg)
         if kind:  # a StrictModel kind check: the key is part of the path, the value is in the message

@@ -112,3 +112,45 @@ def test_failed_run_keeps_the_earlier_recording(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         run_approach("va-raim-2015", rrd_path=path, monitors=["gps_raim"])
     assert path.read_bytes() == b"an earlier recording"
+
+
+def test_same_seed_recordings_hold_the_same_content(tmp_path):
+    """Same seed, same recording: every entity, timeline, component and value equal, and the
+    recording's start time is the simulated one. What differs is stated in the README: the
+    per-write ids (TUIDs) Rerun gives chunks and rows, hence the compressed bytes."""
+    from testbed.api import run_approach
+    from testbed.viz.readback import content_digest
+
+    paths = [tmp_path / f"r{k}.rrd" for k in range(2)]
+    for p in paths:
+        run_approach("va-raim-2015", seed=4, rrd_path=p, block_s=10.0)
+    assert content_digest(paths[0]) == content_digest(paths[1])
+    import rerun.chunk as rrc
+
+    starts = [rb.column(rb.schema.names.index("RecordingInfo:start_time")).to_pylist()
+              for ch in rrc.RrdReader(str(paths[0])).stream() if ch.entity_path == "/__properties"
+              for rb in [ch.to_record_batch()] if "RecordingInfo:start_time" in rb.schema.names]
+    assert starts and starts[0][0][0] == 1772337600 * 10**9  # 2026-03-01T04:00:00Z, the approach's start
+
+
+def test_linger_keeps_the_live_server_up_after_landing(tmp_path):
+    """``--linger``: the recording is in place and the server still accepts a viewer after landing."""
+    import socket
+
+    from testbed.api import run_approach
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    seen = {}
+
+    def landed(result):
+        seen["rrd"] = result.rrd_path.exists()
+        with socket.create_connection(("127.0.0.1", port), timeout=5):
+            seen["connected"] = True
+
+    run_approach("va-raim-2015", seed=1, rrd_path=tmp_path / "l.rrd", live=True, port=port, linger_s=0.5,
+                 block_s=20.0, on_landed=landed)
+    assert seen == {"rrd": True, "connected": True}
+    with socket.socket() as s:  # closed after the linger
+        assert s.connect_ex(("127.0.0.1", port)) != 0

@@ -138,7 +138,8 @@ class CampaignSpec(StrictModel):
     common_random_numbers: bool = Field(False, description="same noise draws in every cell (smoother sweeps)")
     per_epoch_trials: int = Field(20, ge=0, description="store per-epoch records for the first N trials of each cell")
     duration_s: float | None = Field(None, gt=0, description="use only the first duration_s of each flight")
-    faults: list[FaultSweep] = Field(default_factory=lambda: [FaultSweep(kind="none")])
+    faults: list[FaultSweep] = Field(default_factory=lambda: [FaultSweep(kind="none")], min_length=1,
+                                     description="fault families; [{kind = \"none\"}] for fault-free trials only")
     sweep: Sweep = Field(default_factory=Sweep)
     report: ReportSettings = Field(default_factory=ReportSettings)
 

@@ -1,0 +1,355 @@
+"""Every bad input is a clear error before any work: exit code 2 (1 for ``check``), a message that
+names the file, the key and the value, never a traceback, and nothing written or replaced.
+
+Each case runs the real command line (``testbed.cli.main``) from an empty working folder; an
+exception escaping ``main`` fails the test (a traceback is a bug).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from testbed.cli import main
+from testbed.resources import approaches_dir
+
+BASE = (approaches_dir() / "va-raim-2015.toml").read_text()
+
+
+def approach(tmp: Path, *, top: str = "", tail: str = "", replace: tuple[str, str] | None = None,
+             name: str = "bad.toml") -> Path:
+    """The seed sortie's approach with top-level keys prepended, tables appended or a line replaced."""
+    text = BASE if replace is None else BASE.replace(*replace)
+    assert replace is None or replace[0] in BASE
+    p = tmp / name
+    p.write_text(top + "\n" + text + "\n" + tail + "\n")
+    return p
+
+
+def run(capsys, *argv: str) -> tuple[int, str]:
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out + out.err
+
+
+def listing(*folders: Path) -> dict:
+    return {str(p): p.stat().st_mtime_ns for f in folders if f.exists() for p in sorted(f.rglob("*"))}
+
+
+@pytest.fixture
+def work(tmp_path, monkeypatch):
+    """An empty working folder (the command's cwd) and a separate folder for input files."""
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    monkeypatch.chdir(cwd)
+    return cwd, inputs
+
+
+def far_away_dem(folder: Path) -> Path:
+    p = folder / "elsewhere.npz"
+    lat, lon = np.linspace(10.0, 10.5, 11), np.linspace(10.0, 10.5, 11)
+    np.savez(p, lat_deg=lat, lon_deg=lon, height_m=np.full((11, 11), 100.0))
+    return p
+
+
+FAULT = "[[faults]]\nkind = \"{kind}\"\n{body}\n"
+
+# (id, how to build the file from the inputs folder, expected key text, expected value text)
+FILE_CASES = [
+    ("prn-not-in-constellation", lambda d: approach(d, tail=FAULT.format(kind="gps_step", body="prn = 99\nbias_m = 10.0\nonset_s = 5.0")),
+     "faults.0.prn", "99"),
+    ("landmark-not-in-scene", lambda d: approach(d, tail=FAULT.format(kind="pixel_bias", body='landmark = "NOPE"\nmagnitude_px = 5.0')),
+     "faults.0.landmark", "NOPE"),
+    ("start-before-gps-epoch", lambda d: approach(d, replace=("start_time_utc = 2026-03-01T04:00:00Z", "start_time_utc = 1975-01-01T00:00:00Z")),
+     "start_time_utc", "1975"),
+    ("nan-coordinate", lambda d: approach(d, replace=("lat_deg = 29.3065\nlon_deg = 94.3359", "lat_deg = nan\nlon_deg = 94.3359")),
+     "frame.lat_deg", "nan"),
+    ("vision-sigma-zero", lambda d: approach(d, replace=("sigma_px = 1.0", "sigma_px = 0.0")),
+     "vision.detection.sigma_px", "0"),
+    ("dem-of-another-area", lambda d: approach(d, replace=('kind = "two_ridges"', f'kind = "dem"\ndem_paths = ["{far_away_dem(d).name}"]')),
+     "terrain", "no height under the planned path"),
+    ("speed-cannot-trim", lambda d: approach(d, replace=("speed_kt = 160.0", "speed_kt = 31.0")),
+     "flight.speed_kt", "31"),
+    ("missing-yuma", lambda d: approach(d, tail='[gnss]\nalmanac_source = "yuma"\nalmanac_path = "missing.alm"'),
+     "gnss.almanac_path", "missing.alm"),
+    ("empty-yuma", lambda d: ((d / "empty.alm").write_text(""), approach(d, tail='[gnss]\nalmanac_source = "yuma"\nalmanac_path = "empty.alm"'))[1],
+     "gnss.almanac_path", "empty.alm"),
+    ("binary-yuma", lambda d: ((d / "bin.alm").write_bytes(bytes(range(256)) * 8), approach(d, tail='[gnss]\nalmanac_source = "yuma"\nalmanac_path = "bin.alm"'))[1],
+     "gnss.almanac_path", "bin.alm"),
+    ("truncated-rinex-nav", lambda d: ((d / "nav.rnx").write_text("     3.04           N: GNSS NAV DATA    G: GPS              RINEX VERSION / TYPE\n"),
+                                       approach(d, tail='[gnss]\nalmanac_source = "rinex_nav"\nalmanac_path = "nav.rnx"'))[1],
+     "gnss.almanac_path", "nav.rnx"),
+    ("binary-approach-file", lambda d: ((d / "bin.toml").write_bytes(b"\xff\xfe\x00\x81" * 50), d / "bin.toml")[1],
+     "bin.toml", "not a text"),
+    ("nan-fault-bias", lambda d: approach(d, tail=FAULT.format(kind="gps_step", body="bias_m = nan")),
+     "faults.0.bias_m", "nan"),
+    ("inf-ramp", lambda d: approach(d, tail=FAULT.format(kind="gps_ramp", body="rate_m_s = inf")),
+     "faults.0.rate_m_s", "inf"),
+    ("absurd-pixel-bias", lambda d: approach(d, tail=FAULT.format(kind="pixel_bias", body="magnitude_px = 1e9")),
+     "faults.0.magnitude_px", "1000000000"),
+    ("onset-after-the-flight", lambda d: approach(d, tail=FAULT.format(kind="gps_step", body="bias_m = 50.0\nonset_s = 5000.0")),
+     "faults.0.onset_s", "5000"),
+    ("misassociated-with-itself", lambda d: approach(d, tail=FAULT.format(kind="misassociation", body='landmarks = ["T1", "T1"]')),
+     "faults.0", "T1"),
+    ("megahertz-camera", lambda d: approach(d, replace=("rate_hz = 1.0", "rate_hz = 1e6")),
+     "vision.rate_hz", "1000000"),
+    ("nano-degree-fov", lambda d: approach(d, replace=('camera = { preset = "va-raim-2015", dpi = 720.0 }',
+                                                       'camera = { preset = "custom", width_px = 640, height_px = 480, hfov_deg = 1e-9 }')),
+     "vision.camera.hfov_deg", "1e-09"),
+    ("lpe-1000-km", lambda d: approach(d, replace=("lpe_sigma_m = 0.05", "lpe_sigma_m = 1e6")),
+     "landmarks.lpe_sigma_m", "1000000"),
+    ("string-for-number", lambda d: approach(d, replace=("glide_path_deg = 4.86", 'glide_path_deg = "4.86"')),
+     "vertical.glide_path_deg", "'4.86'"),
+    ("string-for-bool", lambda d: approach(d, tail='[gnss]\nterrain_masking = "yes"'),
+     "gnss.terrain_masking", "'yes'"),
+    ("unknown-monitor", lambda d: approach(d, top='monitors = ["gps_raim", "raim2"]'),
+     "monitors.1", "raim2"),
+]
+
+
+@pytest.mark.parametrize("case", FILE_CASES, ids=[c[0] for c in FILE_CASES])
+def test_a_bad_file_is_refused_by_check_and_by_fly_before_any_work(case, work, capsys):
+    cwd, inputs = work
+    _, make, key, value = case
+    path = make(inputs)
+    before = listing(cwd, inputs)
+    code, out = run(capsys, "check", path)
+    assert code == 1, out
+    assert str(path) in out and key in out and value in out, out
+    code, out = run(capsys, "fly", path, "--rrd", cwd / "x.rrd")
+    assert code == 2, out
+    assert str(path) in out and key in out and value in out, out
+    assert listing(cwd, inputs) == before  # nothing written or replaced
+
+
+def test_an_aircraft_file_problem_names_the_aircraft_file(work, capsys):
+    cwd, inputs = work
+    ac = inputs / "ac"
+    ac.mkdir()
+    text = (approaches_dir().parent / "aircraft" / "b737" / "aircraft.toml").read_text()
+    (ac / "aircraft.toml").write_text(text.replace('jsbsim_model = "737"', 'jsbsim_model = "no-such-model"'))
+    path = approach(inputs, replace=('aircraft = "b737"', 'aircraft = "./ac"'))
+    code, out = run(capsys, "check", path)
+    assert code == 1 and str(ac / "aircraft.toml") in out and "jsbsim_model" in out and "no-such-model" in out, out
+
+
+def test_data_paths_are_relative_to_the_file_that_names_them(work, capsys):
+    """almanac_path beside the approach file, run from another folder."""
+    cwd, inputs = work
+    code, out = run(capsys, "check", approach(inputs, tail='[gnss]\nalmanac_source = "yuma"\nalmanac_path = "a.alm"'))
+    assert code == 1 and str(inputs / "a.alm") in out, out
+
+
+ARG_CASES = [
+    ("seed-negative", ["--seed", "-1"], "--seed", "-1"),
+    ("block-nan", ["--block", "nan"], "--block", "nan"),
+    ("block-zero", ["--block", "0"], "--block", "0"),
+    ("block-negative", ["--block", "-5"], "--block", "-5"),
+    ("port-out-of-range", ["--live", "--port", "99999"], "--port", "99999"),
+    ("gust-seed-negative", ["--gust-seed", "-3"], "--gust-seed", "-3"),
+    ("linger-nan", ["--live", "--linger", "nan"], "--linger", "nan"),
+    ("truth-unknown-suffix", ["--truth", "out.txt"], "--truth", ".txt"),
+]
+
+
+@pytest.mark.parametrize("case", ARG_CASES, ids=[c[0] for c in ARG_CASES])
+def test_a_bad_option_is_refused_before_the_flight(case, work, capsys):
+    cwd, inputs = work
+    _, args, key, value = case
+    code, out = run(capsys, "fly", "va-raim-2015", "--rrd", cwd / "keep.rrd", *args)
+    assert code == 2 and key in out and value in out, out
+    assert listing(cwd) == {}
+
+
+def test_rrd_at_a_folder_or_under_a_file_is_refused(work, capsys):
+    cwd, inputs = work
+    code, out = run(capsys, "fly", "va-raim-2015", "--rrd", inputs)
+    assert code == 2 and "--rrd" in out and "folder" in out, out
+    (inputs / "plain.txt").write_text("x")
+    code, out = run(capsys, "fly", "va-raim-2015", "--rrd", inputs / "plain.txt" / "r.rrd")
+    assert code == 2 and "is a file" in out, out
+
+
+def test_a_bad_truth_path_never_replaces_the_recording(work, capsys):
+    """``fly --truth out.txt`` used to fail after it had already replaced the recording."""
+    cwd, inputs = work
+    rrd = inputs / "old.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    code, out = run(capsys, "fly", "va-raim-2015", "--rrd", rrd, "--truth", inputs / "out.txt")
+    assert code == 2 and "--truth" in out
+    assert rrd.read_bytes() == b"an earlier recording" and not list(inputs.glob("*.part"))
+
+
+def test_live_on_a_busy_port_is_refused_before_flying(work, capsys):
+    import socket
+
+    cwd, inputs = work
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        rrd = inputs / "old.rrd"
+        rrd.write_bytes(b"earlier")
+        code, out = run(capsys, "fly", "va-raim-2015", "--live", "--port", port, "--rrd", rrd)
+    assert code == 2 and str(port) in out and "not free" in out, out
+    assert rrd.read_bytes() == b"earlier" and not list(inputs.glob("*.part"))
+
+
+def test_a_non_loopback_bind_warns(work):
+    import warnings
+
+    from testbed.api import _check_live_address
+
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        _check_live_address("0.0.0.0", 0)
+    assert any("UNAUTHENTICATED" in str(x.message) for x in w)
+
+
+SPEC = ('name = "s"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\nblock_trials = 10\n'
+        'chunk_trials = 10\nduration_s = 10.0\n')
+
+
+def test_campaign_inputs_are_checked_before_any_work(work, capsys):
+    cwd, inputs = work
+    empty = inputs / "empty-faults.toml"
+    empty.write_text(SPEC + "faults = []\n")
+    code, out = run(capsys, "campaign", empty, "--out", inputs / "o1")
+    assert code == 2 and "faults" in out and str(empty) in out, out
+    spec = inputs / "s.toml"
+    spec.write_text(SPEC)
+    code, out = run(capsys, "campaign", spec, "--out", inputs / "o2", "--scheduler", "tcp://127.0.0.1:9", "--quiet")
+    assert code == 2 and "--scheduler" in out and "tcp://127.0.0.1:9" in out, out
+    assert not (inputs / "o1").exists() and not (inputs / "o2").exists()
+
+
+def test_report_on_a_bad_folder_is_a_message(work, capsys):
+    cwd, inputs = work
+    code, out = run(capsys, "report", inputs / "nothing-here")
+    assert code == 2 and "nothing-here" in out, out
+    d = inputs / "corrupt"
+    d.mkdir()
+    (d / "manifest.json").write_text("{ not json")
+    code, out = run(capsys, "report", d)
+    assert code == 2 and "manifest.json" in out, out
+    (d / "manifest.json").write_text(json.dumps({"spec_hash": "x", "spec": {}}))
+    code, out = run(capsys, "report", d)
+    assert code == 2 and "trials.parquet" in out and "missing" in out, out
+
+
+def test_resume_after_an_input_file_changed_is_refused_and_restart_starts_over(work, capsys):
+    from testbed.campaign.runner import run_campaign
+    from testbed.campaign.store import ResultStore
+    from testbed.schema import ConfigError
+
+    cwd, inputs = work
+    ap = approach(inputs, name="mine.toml")
+    spec = inputs / "s.toml"
+    spec.write_text(SPEC.replace('"va-raim-2015"', '"mine.toml"').replace("trials = 10", "trials = 30"))
+    out = inputs / "out"
+    run_campaign(spec, out, progress=False, max_chunks=1)  # killed after one chunk
+    ap.write_text(ap.read_text().replace("speed_kt = 160.0", "speed_kt = 165.0"))
+    with pytest.raises(ConfigError) as ei:
+        run_campaign(spec, out, resume=True, progress=False)
+    assert str(ap) in str(ei.value) and "changed" in str(ei.value) and "--restart" in str(ei.value)
+    res = run_campaign(spec, out, restart=True, progress=False)
+    assert res.chunks_skipped == 0 and ResultStore(out).complete()
+
+
+def test_a_damaged_chunk_is_computed_again_on_resume(work):
+    import pyarrow.parquet as pq
+
+    from testbed.campaign.runner import run_campaign
+
+    cwd, inputs = work
+    spec = inputs / "s.toml"
+    spec.write_text(SPEC.replace("trials = 10", "trials = 20"))
+    whole = inputs / "whole"
+    run_campaign(spec, whole, progress=False)
+    out = inputs / "out"
+    run_campaign(spec, out, progress=False, max_chunks=1)
+    part = next((out / "parts").glob("c*/trials.parquet"))
+    part.write_bytes(part.read_bytes()[:40])  # truncated after it was written
+    with pytest.warns(UserWarning, match="unreadable chunk"):
+        run_campaign(spec, out, resume=True, progress=False)
+    from test_campaign import same
+
+    assert same(pq.read_table(out / "trials.parquet"), pq.read_table(whole / "trials.parquet"))
+
+
+# --------------------------------------------------------------------------- fuzz
+
+VALUES = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12), st.booleans(),
+    st.text(max_size=6), st.lists(st.floats(-1e3, 1e3), max_size=3))
+KEYS = [("vertical", "glide_path_deg"), ("vertical", "crossing_height_m"), ("flight", "speed_kt"),
+        ("flight", "flaps"), ("frame", "h"), ("gnss", "elevation_mask_deg"), ("gnss", "sigma_ura_m"),
+        ("vision", "rate_hz"), ("landmarks", "lpe_sigma_m"), ("vision.detection", "sigma_px"),
+        ("integrity", "p_fa"), ("wind", "speed_kt")]
+
+
+def _toml(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return "nan" if v != v else ("inf" if v == np.inf else "-inf" if v == -np.inf else repr(v))
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml(x) for x in v) + "]"
+    return json.dumps(v) if isinstance(v, str) else str(v)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(key=st.sampled_from(KEYS), value=VALUES)
+def test_fuzzed_approach_values_give_a_clear_error_or_a_valid_run(tmp_path_factory, key, value):
+    """Any value at any of these keys: ``check_file`` returns problems that name the key, or none
+    (then the set-up builds); it never raises."""
+    from testbed.api import check_file, load_approach
+    from testbed.sim.setup import build_setup
+
+    d = tmp_path_factory.mktemp("fuzz")
+    table, name = key
+    text = BASE
+    header = f"[{table}]"
+    line = f"{name} = {_toml(value)}"
+    if header in text:
+        lines = text.splitlines()
+        i = lines.index(header)
+        lines = [ln for ln in lines if not ln.startswith(f"{name} =") or not _in_table(lines, ln, header)]
+        i = lines.index(header)
+        lines.insert(i + 1, line)
+        text = "\n".join(lines)
+    else:
+        text += f"\n{header}\n{line}\n"
+    p = d / "f.toml"
+    p.write_text(text)
+    problems = check_file(p)
+    if problems:
+        assert any(name in q for q in problems) or any("TOML" in q for q in problems), problems
+    else:
+        build_setup(load_approach(p), None)
+
+
+def _in_table(lines: list[str], line: str, header: str) -> bool:
+    """Whether ``line`` sits in the table ``header`` (between it and the next header)."""
+    cur = None
+    for ln in lines:
+        if ln.startswith("["):
+            cur = ln.strip()
+        if ln is line:
+            return cur == header
+    return False
+
+
+def test_nothing_is_written_to_the_working_folder_by_check(work, capsys):
+    cwd, _ = work
+    assert run(capsys, "check", approaches_dir() / "va-raim-2015.toml")[0] == 0
+    assert listing(cwd) == {}
+    assert os.listdir(cwd) == []
