@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Callable
 from testbed.config import Approach, list_approaches, load_approach, read_toml
 from testbed.flight.fly import FlightResult, fly
 from testbed.schema import ConfigError
+from testbed.sim.preflight import check_output_file, check_output_folder
 from testbed.sim.setup import load_terrain_for
 from testbed.sim.truth_io import write_truth
 
@@ -31,7 +32,7 @@ def fly_approach(approach: str | Path | Approach, *, gust_seed: int | None = Non
 
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
     check_run_arguments(gust_seed=gust_seed)
-    _check_output_path(truth_path, "--truth", TRUTH_SUFFIXES)
+    check_output_file(truth_path, "--truth", TRUTH_SUFFIXES)
     setup = preflight(ap)
     result = fly(ap.flight_plan, setup.terrain, gust_seed=gust_seed)
     if truth_path is not None:
@@ -152,8 +153,8 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     if rrd_path == "default":
         rrd_path = default_rrd_path(ap, seed)
     check_run_arguments(seed=seed, block_s=block_s, port=port, linger_s=linger_s, gust_seed=gust_seed)
-    _check_output_path(rrd_path, "--rrd", (".rrd",))
-    _check_output_path(truth_path, "--truth", TRUTH_SUFFIXES)
+    check_output_file(rrd_path, "--rrd", (".rrd",))
+    check_output_file(truth_path, "--truth", TRUTH_SUFFIXES)
     if live:
         _check_live_address(bind_ip, port)
     setup = preflight(ap)
@@ -221,30 +222,6 @@ def check_run_arguments(*, seed: int = 0, block_s: float = 5.0, port: int = 9876
         problems.append(f"--linger = {linger_s!r}: expected seconds from 0 to 86400")
     if problems:
         raise ConfigError("command line", problems)
-
-
-def _check_output_path(path, option: str, suffixes: tuple[str, ...]) -> None:
-    """An output file we can create (or replace) before any work: not a folder, a known suffix, a writable place."""
-    import os
-
-    if path is None:
-        return
-    p = Path(path)
-    problem = None
-    if p.is_dir():
-        problem = f"{option} {p}: is a folder; expected a file path ending in {' or '.join(suffixes)}"
-    elif p.suffix.lower() not in suffixes:
-        problem = f"{option} {p}: unsupported suffix {p.suffix or '(none)'!r}; expected {' or '.join(suffixes)}"
-    else:
-        parent = p.parent.resolve()
-        while not parent.exists():
-            parent = parent.parent
-        if not parent.is_dir():
-            problem = f"{option} {p}: {parent} is a file, not a folder"
-        elif not os.access(parent, os.W_OK | os.X_OK):
-            problem = f"{option} {p}: cannot write in {parent} (permission denied)"
-    if problem:
-        raise ConfigError(p, [problem])
 
 
 def _check_live_address(bind_ip: str, port: int) -> None:
@@ -341,6 +318,8 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
     from testbed.sim.preflight import preflight
 
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
+    check_run_arguments(seed=seed, gust_seed=gust_seed)
+    check_output_folder(out_dir, "DIR")
     setup = preflight(ap)
     flight = fly(ap.flight_plan, setup.terrain, gust_seed=gust_seed)
     start = ap.config.start_time_utc

@@ -353,3 +353,15 @@ def test_nothing_is_written_to_the_working_folder_by_check(work, capsys):
     assert run(capsys, "check", approaches_dir() / "va-raim-2015.toml")[0] == 0
     assert listing(cwd) == {}
     assert os.listdir(cwd) == []
+
+
+def test_an_output_folder_that_is_a_file_is_refused(work, capsys):
+    cwd, inputs = work
+    f = inputs / "taken"
+    f.write_text("mine")
+    spec = inputs / "s.toml"
+    spec.write_text(SPEC)
+    for argv in (["campaign", spec, "--out", f, "--quiet"], ["export-rinex", "va-raim-2015", f]):
+        code, out = run(capsys, *argv)
+        assert code == 2 and str(f) in out and "is a file" in out, out
+        assert f.read_text() == "mine"

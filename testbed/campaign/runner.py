@@ -436,7 +436,10 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
 
     keep_freed_memory()  # the driver owns its process: keep the blocks' freed arrays in the heap
 
+    from testbed.sim.preflight import check_output_folder
+
     loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)
+    check_output_folder(out_dir, "--out")
     client, own = _client(scheduler) if scheduler is not None else (None, False)  # reachable before any work
     store = ResultStore(out_dir)
     cells = _cells(loaded)

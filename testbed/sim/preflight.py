@@ -13,6 +13,8 @@ was expected; the run is refused with all of them at once.
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -174,3 +176,43 @@ def check_trim(approach: Approach, terrain) -> None:
                     else (approach.aircraft_source, "approach.speed_kt"))
         raise ConfigError(src, [f"{key} = {ic.calibrated_airspeed_kt:g}: the aircraft does not trim at the start "
                                 f"({ic.h:.0f} m, flaps {flaps:g}): {exc}; expected a speed it can fly there"]) from None
+
+
+def check_output_file(path, option: str, suffixes: tuple[str, ...]) -> None:
+    """An output file we can create (or replace) before any work: not a folder, a known suffix, a writable place."""
+    if path is None:
+        return
+    p = Path(path)
+    problem = None
+    if p.is_dir():
+        problem = f"{option} {p}: is a folder; expected a file path ending in {' or '.join(suffixes)}"
+    elif p.suffix.lower() not in suffixes:
+        problem = f"{option} {p}: unsupported suffix {p.suffix or '(none)'!r}; expected {' or '.join(suffixes)}"
+    else:
+        parent = p.parent.resolve()
+        while not parent.exists():
+            parent = parent.parent
+        if not parent.is_dir():
+            problem = f"{option} {p}: {parent} is a file, not a folder"
+        elif not os.access(parent, os.W_OK | os.X_OK):
+            problem = f"{option} {p}: cannot write in {parent} (permission denied)"
+    if problem:
+        raise ConfigError(p, [problem])
+
+
+def check_output_folder(path, option: str) -> None:
+    """An output folder we can create or write into, checked before any work."""
+    p = Path(path)
+    problem = None
+    if p.exists() and not p.is_dir():
+        problem = f"{option} {p}: is a file; expected a folder"
+    else:
+        parent = p.resolve()
+        while not parent.exists():
+            parent = parent.parent
+        if not parent.is_dir():
+            problem = f"{option} {p}: {parent} is a file, not a folder"
+        elif not os.access(parent, os.W_OK | os.X_OK):
+            problem = f"{option} {p}: cannot write in {parent} (permission denied)"
+    if problem:
+        raise ConfigError(p, [problem])
