@@ -28,7 +28,7 @@ from testbed.flight.settings import (
 )
 from testbed.integrity.registry import MonitorName
 from testbed.integrity.settings import IntegritySettings
-from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir
+from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir, shipped_or_path
 from testbed.schema import ConfigError, StrictModel, format_validation_error
 from testbed.sensors.faults import Fault
 from testbed.sensors.gnss.settings import GnssSettings
@@ -123,14 +123,7 @@ def validate(model: type[StrictModel], data: dict, source: Path, prefix: str = "
 
 def resolve_approach(name_or_path: str | Path) -> Path:
     """A shipped approach name (``zunz-rwy05-final``) or a path to a TOML file."""
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        return p
-    cand = approaches_dir() / f"{name_or_path}.toml"
-    if cand.is_file():
-        return cand
-    known = ", ".join(sorted(q.stem for q in approaches_dir().glob("*.toml")))
-    raise ConfigError(p, [f"no such approach file or shipped approach name (shipped: {known})"])
+    return shipped_or_path(name_or_path, approaches_dir(), "approach")
 
 
 def resolve_aircraft(ref: str, base: Path) -> Path:

@@ -46,3 +46,18 @@ def aircraft_dir() -> Path:
 
 def campaigns_dir() -> Path:
     return approaches_dir() / "campaigns"
+
+
+def shipped_or_path(name_or_path, folder: Path, what: str) -> Path:
+    """A shipped name (a ``.toml`` in ``folder``) or a path to a file; a ConfigError listing the
+    shipped names otherwise."""
+    from testbed.schema import ConfigError
+
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    cand = folder / f"{name_or_path}.toml"
+    if cand.is_file():
+        return cand
+    known = ", ".join(sorted(q.stem for q in folder.glob("*.toml")))
+    raise ConfigError(p, [f"no such {what} file or shipped {what} name (shipped: {known})"])

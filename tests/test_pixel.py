@@ -270,3 +270,18 @@ def test_mismatched_epochs_are_rejected():
     g, v, _, _ = scene(T=3)
     with pytest.raises(ValueError, match="epochs must coincide"):
         pixel_monitor(g, replace(v, t=v.t + 0.5), FRAME)
+
+
+def test_no_landmark_in_view_has_its_own_reason():
+    """Without a detected landmark the solve is GPS RAIM's: the pixel monitor says so (not "ok")."""
+    from testbed.integrity.pixel import NO_LANDMARK, PIXEL_REASONS
+
+    g, v, pos, _ = scene(T=3, rng=np.random.default_rng(6))
+    det = v.detected.copy()
+    det[1] = False
+    uv = np.where(det[..., None], v.pixel_uv, np.nan)
+    out = pixel_monitor(g, replace(v, detected=det, pixel_uv=uv), FRAME)
+    assert list(out.reason) == [0, NO_LANDMARK, 0]
+    assert "no landmark" in out.reasons[NO_LANDMARK] and out.reasons == PIXEL_REASONS
+    assert np.isnan(out.hpl[1]) and not out.available[1].any() and not out.alert[1]
+    np.testing.assert_allclose(out.pos_enu[1], pos[1], atol=5.0)  # the GPS-only position is still reported

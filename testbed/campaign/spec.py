@@ -221,16 +221,9 @@ def fingerprint_changes(old: dict, new: dict) -> list[str]:
 
 def resolve_spec_path(name_or_path: str | Path) -> Path:
     """A shipped campaign name (``gps-step-sweep``) or a path to a spec file."""
-    from testbed.resources import campaigns_dir
+    from testbed.resources import campaigns_dir, shipped_or_path
 
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        return p
-    cand = campaigns_dir() / f"{name_or_path}.toml"
-    if cand.is_file():
-        return cand
-    known = ", ".join(sorted(q.stem for q in campaigns_dir().glob("*.toml")))
-    raise ConfigError(p, [f"no such campaign spec file or shipped campaign name (shipped: {known})"])
+    return shipped_or_path(name_or_path, campaigns_dir(), "campaign spec")
 
 
 def load_spec(path: str | Path, *, trials: int | None = None) -> LoadedSpec:

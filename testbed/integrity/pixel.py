@@ -188,6 +188,11 @@ def _ffill_epochs(x: NDArray, carry: NDArray | None = None) -> NDArray:
     return np.where(seen[..., None], out, np.nan)
 
 
+#: the pixel monitor's reason texts: the least-squares ones, then its own
+PIXEL_REASONS: tuple[str, ...] = lsq.REASONS + ("unavailable: no landmark in view (the pixel monitor needs vision)",)
+NO_LANDMARK = len(lsq.REASONS)
+
+
 @dataclass(frozen=True)
 class PixelDiagnostics(Diagnostics):
     """The pixel-domain monitor's diagnostics (B..., T[, ...]).
@@ -345,6 +350,8 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     undetectable = ~np.isfinite(hpl) | ~np.isfinite(vpl)
     reason = np.where((reason == lsq.Reason.OK) & undetectable & np.isfinite(sb),
                       lsq.Reason.UNDETECTABLE, reason).astype(np.int8)
+    # without a landmark the solve is GPS RAIM's: the pixel monitor's integrity case does not apply
+    reason = np.where((reason == lsq.Reason.OK) & ~det.any(-1), NO_LANDMARK, reason).astype(np.int8)
     ok = reason == lsq.Reason.OK
     T2 = lsq.chi2_threshold(geom.dof, st.p_fa)
     hpl, vpl = np.where(ok, hpl, np.nan), np.where(ok, vpl, np.nan)
@@ -366,7 +373,7 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
         name=name, t=np.asarray(gnss.t), pos_enu=sol.x[..., :3], clock=sol.x[..., 3], hpl=hpl, vpl=vpl,
         test_stat=sse, threshold=T2, alert=ok & (sse > T2), available=availability(hpl, vpl, levels, ok),
         service_levels=tuple(st.service_levels), n_used=geom.n_used.astype(np.int16),
-        excluded=np.full(reason.shape, -1, np.int16), reason=reason, reasons=lsq.REASONS, diagnostics=diag,
+        excluded=np.full(reason.shape, -1, np.int16), reason=reason, reasons=PIXEL_REASONS, diagnostics=diag,
     )
 
 

@@ -183,19 +183,12 @@ def check_output_file(path, option: str, suffixes: tuple[str, ...]) -> None:
     if path is None:
         return
     p = Path(path)
-    problem = None
     if p.is_dir():
         problem = f"{option} {p}: is a folder; expected a file path ending in {' or '.join(suffixes)}"
     elif p.suffix.lower() not in suffixes:
         problem = f"{option} {p}: unsupported suffix {p.suffix or '(none)'!r}; expected {' or '.join(suffixes)}"
     else:
-        parent = p.parent.resolve()
-        while not parent.exists():
-            parent = parent.parent
-        if not parent.is_dir():
-            problem = f"{option} {p}: {parent} is a file, not a folder"
-        elif not os.access(parent, os.W_OK | os.X_OK):
-            problem = f"{option} {p}: cannot write in {parent} (permission denied)"
+        problem = _unwritable(p.parent, p, option)
     if problem:
         raise ConfigError(p, [problem])
 
@@ -203,16 +196,19 @@ def check_output_file(path, option: str, suffixes: tuple[str, ...]) -> None:
 def check_output_folder(path, option: str) -> None:
     """An output folder we can create or write into, checked before any work."""
     p = Path(path)
-    problem = None
-    if p.exists() and not p.is_dir():
-        problem = f"{option} {p}: is a file; expected a folder"
-    else:
-        parent = p.resolve()
-        while not parent.exists():
-            parent = parent.parent
-        if not parent.is_dir():
-            problem = f"{option} {p}: {parent} is a file, not a folder"
-        elif not os.access(parent, os.W_OK | os.X_OK):
-            problem = f"{option} {p}: cannot write in {parent} (permission denied)"
+    problem = f"{option} {p}: is a file; expected a folder" if p.exists() and not p.is_dir() else \
+        _unwritable(p, p, option)
     if problem:
         raise ConfigError(p, [problem])
+
+
+def _unwritable(folder: Path, target: Path, option: str) -> str | None:
+    """Why ``folder`` (or the nearest existing folder above it) cannot take ``target``; None if it can."""
+    place = folder.resolve()
+    while not place.exists():
+        place = place.parent
+    if not place.is_dir():
+        return f"{option} {target}: {place} is a file, not a folder"
+    if not os.access(place, os.W_OK | os.X_OK):
+        return f"{option} {target}: cannot write in {place} (permission denied)"
+    return None
