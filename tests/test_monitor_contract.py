@@ -124,7 +124,9 @@ def test_every_shipped_monitor_stepped_in_blocks_equals_one_call(blocks):
     pr = sc.gnss.pseudorange.copy()
     pr[1, 25:, np.flatnonzero(sc.gnss.visible[1, 25])[0]] += 50.0
     gnss = dataclasses.replace(sc.gnss, pseudorange=pr)
-    ctx = MonitorContext(frame=sc.frame, integrity=IntegritySettings(), threads=1)
+    # VA-RAIM's seed variant: its vision rows and calibration state are exercised
+    ctx = MonitorContext(frame=sc.frame, integrity=IntegritySettings(), options={"va_raim": {"variant": "seed"}},
+                         threads=1)
     assert sum(blocks) == len(gnss.t)
     for name in ("gps_raim", "va_raim", "pixel"):
         mon = registry.build_monitor(name, ctx)

@@ -26,9 +26,11 @@ import pyarrow.parquet as pq
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
-AXES = ("approach", "start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "landmark_set", "calibration")
+AXES = ("approach", "start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "landmark_set", "calibration",
+        "va_raim_variant")
 AXIS_LABEL = {"approach": "approach", "start_time_utc": "start", "dpi": "dpi", "sigma_px": "DE px",
-              "lpe_sigma_m": "LPE m", "landmark_set": "landmark set", "calibration": "cal"}
+              "lpe_sigma_m": "LPE m", "landmark_set": "landmark set", "calibration": "cal",
+              "va_raim_variant": "VA-RAIM variant"}
 
 
 def binomial_interval(k: np.ndarray, n: np.ndarray, confidence: float = 0.95,
@@ -121,7 +123,7 @@ def detection_table(cells: list[dict], trials, confidence: float = 0.95, method:
 
 
 def _varying(cells: list[dict]) -> list[str]:
-    return [a for a in AXES if len({str(c[a]) for c in cells}) > 1]
+    return [a for a in AXES if len({str(c.get(a)) for c in cells}) > 1]
 
 
 def _label(row: dict, axes: list[str]) -> str:

@@ -100,6 +100,8 @@ class Sweep(StrictModel):
     lpe_sigma_m: list[float] = Field(default_factory=list, description="landmark position (survey) error 1-sigma, m")
     landmark_sets: list[list[LandmarkSet]] = Field(default_factory=list, description="each entry: a full landmark set list")
     calibration: list[Literal["gps", "none"]] = Field(default_factory=list, description="VA-RAIM calibration modes")
+    va_raim_variant: list[Literal["gated", "seed"]] = Field(default_factory=list,
+                                                            description="VA-RAIM variants (testbed default 'gated')")
 
     @field_validator("start_time_utc")
     @classmethod
@@ -282,6 +284,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
         ("lpe_sigma_m", sw.lpe_sigma_m or [None]),
         ("landmark_set", list(enumerate(sw.landmark_sets)) or [None]),
         ("calibration", sw.calibration or [None]),
+        ("va_raim_variant", sw.va_raim_variant or [None]),
     ]
     names = [a for a, _ in axes]
     cells: list[Cell] = []
@@ -311,6 +314,8 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 _set(d, "landmarks.sets", [s.model_dump(mode="json") for s in sw.landmark_sets[c["landmark_set"][0]]])
             if c["calibration"] is not None:
                 d.setdefault("va_raim", {})["calibration"] = c["calibration"]
+            if c["va_raim_variant"] is not None:
+                d.setdefault("va_raim", {})["variant"] = c["va_raim_variant"]
             if reads_vision(spec.monitors):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
@@ -331,6 +336,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 "sigma_px": float(vis.detection.sigma_px), "lpe_sigma_m": float(cfg.landmarks.lpe_sigma_m),
                 "landmark_set": -1 if c["landmark_set"] is None else int(c["landmark_set"][0]),
                 "calibration": str(cfg.va_raim.get("calibration", "gps")),
+                "va_raim_variant": str(cfg.va_raim.get("variant", "gated")),
                 "hal": min(service_level(n).hal for n in cfg.integrity.service_levels),
                 "val": min(service_level(n).val for n in cfg.integrity.service_levels),
             }
@@ -344,7 +350,7 @@ def _describe(name: str, c: dict) -> str:
     parts = [name]
     fk, fam, mag = c["fault"]
     parts.append(f"faults.{fk} {fam.kind} {mag:g}")
-    for k in ("start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "calibration"):
+    for k in ("start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant"):
         if c[k] is not None:
             parts.append(f"{k}={c[k]}")
     if c["landmark_set"] is not None:

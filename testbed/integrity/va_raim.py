@@ -26,12 +26,14 @@ term, so an epoch with no GPS rows is singular (the clock is unobservable).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, field_validator
+from scipy import optimize, stats
 
 from testbed.frames import LocalFrame, q_to_R
 from testbed.integrity import kernels, lsq
@@ -68,6 +70,14 @@ from testbed.schema import StrictModel
 class VaRaimSettings(StrictModel):
     """Settings of the VA-RAIM monitor."""
 
+    variant: Literal["gated", "seed"] = Field(
+        "gated", description="'gated' (default): vision rows only where the linearised vision-range error is "
+                             "small enough next to the range for the seed's Gaussian model to hold at the test's "
+                             "threshold (linear_range_limit); 'seed': the paper's method as written (every "
+                             "converged vision solve), which exceeds its false-alarm budget when sigma_V/m is large.")
+    linearity_inflation: float = Field(
+        0.1, gt=0.0, le=1.0, description="'gated': the relative excess of a vision row's two-sided tail probability "
+                                         "at the detection threshold that is tolerated (0.1 = 10 %).")
     integrity: IntegritySettings = Field(default_factory=IntegritySettings,
                                          description="P_FA, P_MD, PL variant, service levels, WLS tolerances "
                                                      "(shared with GPS-only RAIM).")
@@ -101,6 +111,35 @@ class VaRaimSettings(StrictModel):
         if v not in SERVICE_LEVELS:
             raise ValueError(f"unknown service level {v!r}; expected one of {list(SERVICE_LEVELS)}")
         return v
+
+
+@functools.lru_cache(maxsize=64)
+def linear_range_limit(p_fa: float, inflation: float = 0.1) -> float:
+    """Largest relative vision-range error σ_V/m at which the seed's linear model keeps its tail.
+
+    A range from the angle between lines of sight to landmarks a baseline b apart is
+    m ≈ b/θ: with θ Gaussian the range is reciprocal-normal, not normal. At the k-sigma
+    point of the test (k = Φ⁻¹(1 − P_FA/2), the threshold of a single dominating row)
+    its two tails hold Φ(−k/(1 + kε)) + Φ(−k/(1 − kε)) instead of 2Φ(−k), ε = σ_V/m.
+    The limit is the ε at which that sum is ``(1 + inflation)·P_FA``; for P_FA = 1e-5
+    and 10 % it is 0.53 % (1e-2: 3.0 %). Rows beyond it are heavy-tailed at the test's
+    threshold and are left out (variant "gated").
+    """
+    k = float(stats.norm.isf(p_fa / 2))
+
+    def excess(e: float) -> float:
+        return float(stats.norm.cdf(-k / (1 + k * e)) + stats.norm.cdf(-k / (1 - k * e))) - (1 + inflation) * p_fa
+
+    return float(optimize.brentq(excess, 1e-12, 0.999 / k))
+
+
+def _linear_enough(vr: VisionRanges, limit: float) -> tuple[NDArray, NDArray]:
+    """(..., ) the largest σ_V,i/m_i over the used landmarks (NaN without vision) and whether it is ≤ limit."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sig = np.sqrt(np.maximum(np.diagonal(vr.Sigma_V, axis1=-2, axis2=-1), 0.0))
+        rel = np.where(vr.used, sig / np.abs(vr.m), -np.inf).max(-1, initial=-np.inf)
+    rel = np.where(vr.ok & np.isfinite(rel), rel, np.nan)
+    return rel, vr.ok & (rel <= limit)
 
 
 def _vision_prior(x_g: NDArray, P_g: NDArray, fix: NDArray, t: NDArray, p_enu: NDArray, off_cam: NDArray,
@@ -165,6 +204,8 @@ class VaRaimDiagnostics(Diagnostics):
     at_calibration_epoch: NDArray = epoch_array()
     cal_t: NDArray = epoch_array()
     vision_rows_used: NDArray = epoch_array()
+    vision_rel_sigma: NDArray = epoch_array()
+    vision_linear: NDArray = epoch_array()
     modified: NDArray = epoch_array()
     n_gps: NDArray = epoch_array()
     n_vision_rows: NDArray = epoch_array()
@@ -355,11 +396,14 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     li = np.maximum(last, 0)
 
     vr = vision_pseudoranges(uv, inp.det, inp.K, inp.sig, p_enu, m_pred, Sigma_pred, st.vision)
+    # the seed's Gaussian vision model holds only while σ_V/m is small (linear_range_limit)
+    rel_sigma, linear = _linear_enough(vr, linear_range_limit(ist.p_fa, st.linearity_inflation))
+    vision_ok = linear if st.variant == "gated" else vr.ok
 
     # --- 3. calibration
     lvl = service_level(st.calibration_level)
     with np.errstate(invalid="ignore"):
-        cand = ((gps.reason == 0) & (gps.hpl <= lvl.hal) & (gps.vpl <= lvl.val) & ~gps.alert & vr.ok)
+        cand = ((gps.reason == 0) & (gps.hpl <= lvl.hal) & (gps.vpl <= lvl.val) & ~gps.alert & vision_ok)
     cal_idx = calibration_epochs(cand, landmark_set_key(vr.used, vr.ok))
     if st.calibration == "none":
         cal_idx = np.full(bt, -1)
@@ -369,8 +413,8 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     # At its own calibration epoch ẑ_V(0) = r(x̃(0)) exactly: the vision rows are a function of
     # that epoch's GPS rows (no new information, and correlated with them), so they are not used.
     at_cal = cr.calibrated & (cr.cal_idx == np.arange(T))
-    use_cal = cr.calibrated & ~at_cal
-    use_raw = vr.ok & ~use_cal & ((st.uncalibrated == "inflate") | (st.calibration == "none"))
+    use_cal = cr.calibrated & ~at_cal & vision_ok
+    use_raw = vision_ok & ~use_cal & ((st.uncalibrated == "inflate") | (st.calibration == "none"))
     z_v = np.where(use_cal[..., None], cr.z_hat, vr.m)
     S_v = np.where(use_cal[..., None, None], cr.Sigma_hat, cr.Sigma_uncal)
     use_v = use_cal | use_raw
@@ -392,7 +436,8 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
         "vision_residual_stat": vr.residual_stat, "vision_gate_stat": vr.gate_stat, "vision_m_pred": vr.m_pred,
         "z_hat": cr.z_hat, "Sigma_hat": cr.Sigma_hat, "beta": cr.beta, "calibrated": cr.calibrated,
         "at_calibration_epoch": at_cal, "cal_t": np.where(cr.cal_idx >= 0, t[np.maximum(cr.cal_idx, 0)], np.nan),
-        "vision_rows_used": use_v, "modified": rows.modified, "n_gps": mg.sum(-1),
+        "vision_rows_used": use_v, "vision_rel_sigma": rel_sigma, "vision_linear": linear,
+        "modified": rows.modified, "n_gps": mg.sum(-1),
         "n_vision_rows": rows.mask.sum(-1), "converged": conv, "gps_P": P_g,
     }
     return _monitor_output(name, t, x, ft, pls, reason, ok, ist, extra, (idx, mg, pr.shape[-1]))
