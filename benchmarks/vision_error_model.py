@@ -27,7 +27,7 @@ from scipy import stats
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_va_raim_scenario import K_CAM, make_scenario  # noqa: E402
 
-from testbed.integrity.va_raim import va_raim  # noqa: E402
+from testbed.integrity.va_raim import VaRaimSettings, va_raim  # noqa: E402
 from testbed.integrity.vision_ranges import VisionReason  # noqa: E402
 
 F_720DPI_PX = 992.0  # focal length of the va-raim-2015 camera at 720 dpi
@@ -37,7 +37,7 @@ def linearity(trials: int) -> None:
     print(f"seed scenario, f = {K_CAM[0, 0]:.0f} px, {trials} trials x 13 epochs:")
     for sigma_px, lpe in ((1.0, 0.05), (6.0, 0.05), (6.0, 0.0), (24.0, 0.0)):
         sc = make_scenario(np.random.default_rng(5), (trials,), sigma_px=sigma_px, survey_sigma_m=lpe, rate_hz=0.2)
-        out = va_raim(sc.gnss, sc.vision, sc.frame)
+        out = va_raim(sc.gnss, sc.vision, sc.frame, VaRaimSettings(variant="seed"))  # the seed's error model
         used = out.diagnostics.vision_rows_used & (out.reason == 0)
         u = stats.chi2.cdf(out.test_stat[used], (out.n_used - 4)[used])
         err = (out.diagnostics.vision_m - sc.m_true).ravel()
@@ -54,7 +54,7 @@ def pixel_bias(trials: int) -> None:
     for bias in (5.0, 20.0, 50.0):
         uv = sc.vision.pixel_uv.copy()
         uv[:, 20:, 0, 0] += bias * scale
-        out = va_raim(sc.gnss, replace(sc.vision, pixel_uv=uv), sc.frame)
+        out = va_raim(sc.gnss, replace(sc.vision, pixel_uv=uv), sc.frame, VaRaimSettings(variant="seed"))
         gate = out.diagnostics.vision_reason[:, 20:] == VisionReason.BRANCH_JUMP
         print(f"  {bias:4.0f} px: alerts at {out.alert[:, 20:].mean():.3f} of faulted epochs, vision dropped by "
               f"the branch gate at {gate.mean():.3f}")

@@ -254,7 +254,7 @@ def test_reproduction_specs_are_valid():
 
     exps = loaded_experiments(200)
     assert set(exps) == {"vision-calibration", "resolution", "gps-faults", "vision-faults"}
-    assert len(expand_cells(exps["resolution"])) == 16  # 4 resolutions x 4 detection errors
+    assert len(expand_cells(exps["resolution"])) == 32  # 4 resolutions x 4 detection errors x 2 VA-RAIM variants
 
 
 def test_cli_parsers_register_three_subcommands(tmp_path, capsys):
