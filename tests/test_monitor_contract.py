@@ -163,3 +163,36 @@ def test_joining_blocks_pads_a_ragged_field_instead_of_dropping_it():
             x: np.ndarray
 
         concat_epochs([Undeclared(np.ones(2)), Undeclared(np.ones(2))])
+
+
+def test_check_compiles_nothing_and_library_calls_leave_the_heap_alone():
+    """``testbed check`` (check_file) calls no compiled kernel, and a monitor call from the library
+    does not apply the process-wide heap setting (only the CLI and the campaign driver do)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numba\n"
+        "from testbed.api import check_file\n"
+        "assert check_file('va-raim-2015') == []\n"
+        "from testbed.integrity import kernels\n"
+        "used = [n for n in dir(kernels) if isinstance(getattr(kernels, n), numba.core.registry.CPUDispatcher)"
+        " and getattr(kernels, n).signatures]\n"
+        "assert used == [], used\n"
+        "from testbed import heap\n"
+        "from test_integrity_core_helpers import make_gnss\n"
+        "from testbed.integrity.raim import gps_raim\n"
+        "import numpy as np\n"
+        "from testbed.frames import LocalFrame\n"
+        "frame = LocalFrame(29.3, 94.3, 2950.0)\n"
+        "g, _, _ = make_gnss(frame, np.zeros((3, 3)), 1e5 + np.arange(3.0), np.random.default_rng(0))\n"
+        "assert (gps_raim(g, frame).reason == 0).all()\n"
+        "assert heap.keep_freed_memory.cache_info().currsize == 0  # never applied by the library\n"
+    )
+    from pathlib import Path
+
+    import os
+
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parent,
+                         env={**os.environ, "PYTHONPATH": str(Path(__file__).parent)})
+    assert res.returncode == 0, res.stderr[-2000:]
