@@ -326,3 +326,33 @@ def test_campaign_caches_are_bounded():
         runner._cached(("probe", k), lambda: k)
     assert len(runner._CACHE) == runner._CACHE_MAX
     runner.clear_caches()
+
+
+def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
+    """From the stored per-epoch records of the first trials: per sortie = any alert from the onset
+    on; per epoch = alerted epochs / epochs from the onset with a solution (finite PL). The trial
+    table's counts and detection_table's rates are those hand counts."""
+    from testbed.campaign.report import detection_table
+
+    ep = table(reference, "epochs.parquet").to_pandas()
+    tr = table(reference).to_pandas().set_index(["cell", "trial", "monitor"])
+    cells = table(reference, "cells.parquet").to_pylist()
+    onset = {c["cell"]: c["onset_s"] for c in cells}
+    n_checked = 0
+    for (cell, trial, mon), g in ep.groupby(["cell", "trial", "monitor"]):
+        t0 = onset[cell] if onset[cell] == onset[cell] else -np.inf
+        after = g[g.t >= t0 - 1e-9]
+        solved = after[np.isfinite(after.hpl)]
+        row = tr.loc[(cell, trial, mon)]
+        assert row.onset_epochs == len(solved) and row.onset_alerts == int(solved.alert.sum())
+        assert row.detected == bool(after.alert.any())
+        n_checked += 1
+    assert n_checked >= 16
+    rows = detection_table(cells, table(reference))
+    for r in rows:
+        g = tr.xs(r["monitor"], level="monitor").loc[r["cell"]]
+        assert r["k"] == int(g.detected.sum()) and r["n"] == len(g)
+        assert r["k_ep"] == g.onset_alerts.sum() and r["n_ep"] == g.onset_epochs.sum()
+        assert r["lo_ep"] <= r["rate_ep"] <= r["hi_ep"]
+    faulted = [r for r in rows if r["fault_size"] > 0]
+    assert all(r["rate_ep"] <= r["rate"] for r in faulted)  # the per-epoch rate is never the looser

@@ -105,20 +105,40 @@ def _cols(t, names=None) -> dict[str, np.ndarray]:
 
 
 def detection_table(cells: list[dict], trials, confidence: float = 0.95, method: str = "clopper-pearson") -> list[dict]:
-    """Per cell and monitor: trials, detections, rate, interval, false-alarm flag."""
-    c = _cols(trials, ["cell", "monitor", "detected"])
+    """Per cell and monitor, both definitions of detection with their binomial intervals.
+
+    Per sortie: ``n`` trials, ``k`` with any alert from the onset on, ``rate`` in [``lo``, ``hi``].
+    Per epoch: ``n_ep`` epochs from the onset at which the monitor gives a solution, ``k_ep``
+    of them alerted, ``rate_ep`` in [``lo_ep``, ``hi_ep``] (fault-free cells: the per-epoch
+    false-alarm rate). Stores written before the per-epoch columns give NaN there.
+    """
+    names = ["cell", "monitor", "detected"]
+    per_epoch = "onset_epochs" in trials.column_names
+    c = _cols(trials, names + (["onset_epochs", "onset_alerts"] if per_epoch else []))
     rows = []
     for m in sorted(set(c["monitor"].tolist())):
         sel_m = c["monitor"] == m
-        cnt = np.bincount(c["cell"][sel_m], minlength=len(cells))
-        det = np.bincount(c["cell"][sel_m], weights=c["detected"][sel_m].astype(float), minlength=len(cells))
+        cells_m = c["cell"][sel_m]
+
+        def total(col: str) -> np.ndarray:
+            return np.bincount(cells_m, weights=c[col][sel_m].astype(float), minlength=len(cells))
+
+        cnt = np.bincount(cells_m, minlength=len(cells))
+        det = total("detected")
         lo, hi = binomial_interval(det, np.maximum(cnt, 1), confidence, method)
+        if per_epoch:
+            n_ep, k_ep = total("onset_epochs"), total("onset_alerts")
+            lo_ep, hi_ep = binomial_interval(k_ep, np.maximum(n_ep, 1), confidence, method)
+        else:
+            n_ep = k_ep = lo_ep = hi_ep = np.full(len(cells), np.nan)
         for cell in cells:
             i = cell["cell"]
             if cnt[i] == 0:
                 continue
             rows.append({**cell, "monitor": m, "n": int(cnt[i]), "k": int(det[i]), "rate": det[i] / cnt[i],
-                         "lo": float(lo[i]), "hi": float(hi[i])})
+                         "lo": float(lo[i]), "hi": float(hi[i]), "n_ep": float(n_ep[i]), "k_ep": float(k_ep[i]),
+                         "rate_ep": float(k_ep[i] / n_ep[i]) if n_ep[i] > 0 else float("nan"),
+                         "lo_ep": float(lo_ep[i]), "hi_ep": float(hi_ep[i])})
     return rows
 
 
@@ -205,19 +225,23 @@ def _save(fig, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+#: the two definitions of detection: (tag, title, rate, lower, upper key of detection_table rows)
+DETECTION_DEFINITIONS = (("sortie", "per sortie (any alert from the onset on)", "rate", "lo", "hi"),
+                         ("epoch", "per faulty epoch (alerted / epochs with a solution)", "rate_ep", "lo_ep", "hi_ep"))
+
+
 def _detection_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
-    """Section: detection rate vs fault size per fault family, and the minimal detectable bias."""
+    """Section: detection rate vs fault size per fault family, per sortie and per epoch, and the MDB of each."""
     md: list[str] = []
     figures: list[tuple[str, str]] = []
     cells, varying, figdir = inp.cells, inp.varying, inp.figdir
     det_rows, power, conf, method = inp.det_rows, inp.power, inp.conf, inp.method
-    # ---- detection rate vs fault size, per fault family
     fams = sorted({(c["fault_family"], c["fault_sweep_kind"], c["fault_unit"]) for c in cells})
     mdb_rows = []
     for fam, kind, unit in fams:
         if kind == "none":
             continue
-        fig, ax = _figure(figsize=(7.5, 4.8))
+        fig, axs = _figure(1, 2, figsize=(12, 4.8), sharey=True)
         rows = [r for r in det_rows if r["fault_family"] == fam]
         groups: dict[str, list[dict]] = {}
         for r in rows:
@@ -225,32 +249,43 @@ def _detection_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, s
         for lab, rs in sorted(groups.items()):
             rs.sort(key=lambda r: r["fault_size"])
             x = np.array([r["fault_size"] for r in rs])
-            y = np.array([r["rate"] for r in rs])
-            lo, hi = np.array([r["lo"] for r in rs]), np.array([r["hi"] for r in rs])
-            (ln,) = ax.plot(x, y, "o-", ms=3, label=lab)
-            ax.fill_between(x, lo, hi, color=ln.get_color(), alpha=0.18, lw=0)
-            mdb = minimal_detectable_bias(x, y, power)
-            mdb_lo = minimal_detectable_bias(x, lo, power)
-            fa = [r for r in rs if r["fault_size"] == 0]
-            mdb_rows.append({"fault": kind, "unit": unit, "group": lab, "mdb": mdb, "mdb_lo": mdb_lo,
-                             "fa": fa[0]["rate"] if fa else float("nan"), "n": rs[0]["n"]})
-        ax.axhline(power, color="k", ls=":", lw=0.8)
-        ax.set_xlabel(f"{kind} size ({unit})")
-        ax.set_ylabel("detection rate")
-        ax.set_ylim(-0.02, 1.02)
-        ax.set_title(f"{kind}: detection rate ({method} {100 * conf:.0f} % bands); dotted: power {power:g}")
-        ax.legend(fontsize=7, loc="lower right")
-        ax.grid(alpha=0.3)
+            row = {"fault": kind, "unit": unit, "group": lab, "n": rs[0]["n"], "n_ep": rs[0]["n_ep"]}
+            for ax, (tag, _, key, klo, khi) in zip(axs, DETECTION_DEFINITIONS):
+                y = np.array([r[key] for r in rs])
+                lo, hi = np.array([r[klo] for r in rs]), np.array([r[khi] for r in rs])
+                (ln,) = ax.plot(x, y, "o-", ms=3, label=lab)
+                ax.fill_between(x, lo, hi, color=ln.get_color(), alpha=0.18, lw=0)
+                fa = [r for r in rs if r["fault_size"] == 0]
+                row.update({f"mdb_{tag}": minimal_detectable_bias(x, y, power),
+                            f"mdb_lo_{tag}": minimal_detectable_bias(x, lo, power),
+                            f"fa_{tag}": fa[0][key] if fa else float("nan")})
+            mdb_rows.append(row)
+        per_cell = {r["cell"]: r["n"] for r in rows}  # sorties of each cell (every monitor flies them all)
+        for ax, (tag, title, *_) in zip(axs, DETECTION_DEFINITIONS):
+            ax.axhline(power, color="k", ls=":", lw=0.8)
+            ax.set_xlabel(f"{kind} size ({unit})")
+            ax.set_ylim(-0.02, 1.02)
+            ax.set_title(f"detection rate {title}", fontsize=9)
+            ax.grid(alpha=0.3)
+        axs[0].set_ylabel("detection rate")
+        axs[1].legend(fontsize=7, loc="lower right")
+        fig.suptitle(f"{kind}: {sum(per_cell.values())} sorties in {len(per_cell)} cells; {method} "
+                     f"{100 * conf:.0f} % bands; "
+                     f"dotted: power {power:g}", fontsize=10)
         name = f"detection_{fam}_{kind}.png"
         _save(fig, figdir / name)
-        figures.append((f"Detection rate vs {kind} size", name))
+        figures.append((f"Detection rate vs {kind} size, per sortie and per epoch", name))
     if mdb_rows:
         md += [f"## Minimal detectable bias at {100 * power:g} % power", "",
-               "| fault | group | trials/cell | false-alarm rate (size 0) | MDB | MDB (lower bound) |",
-               "|---|---|---|---|---|---|"]
+               "Per sortie: any alert from the onset on; per epoch: alerted epochs among the epochs from the onset "
+               "at which the monitor gives a solution (size 0: the per-epoch false-alarm rate).", "",
+               "| fault | group | sorties/cell | false alarms per sortie | MDB per sortie (lower bound) "
+               "| false alarms per epoch | MDB per epoch (lower bound) |", "|---|---|---|---|---|---|---|"]
         for r in mdb_rows:
-            md.append(f"| {r['fault']} | {r['group']} | {r['n']} | {_f(r['fa'], '{:.4f}')} | "
-                      f"{_f(r['mdb'], '{:.1f}')} {r['unit']} | {_f(r['mdb_lo'], '{:.1f}')} {r['unit']} |")
+            md.append(f"| {r['fault']} | {r['group']} | {r['n']} | {_f(r['fa_sortie'], '{:.4f}')} | "
+                      f"{_f(r['mdb_sortie'], '{:.1f}')} ({_f(r['mdb_lo_sortie'], '{:.1f}')}) {r['unit']} | "
+                      f"{_f(r['fa_epoch'], '{:.2e}')} | {_f(r['mdb_epoch'], '{:.1f}')} "
+                      f"({_f(r['mdb_lo_epoch'], '{:.1f}')}) {r['unit']} |")
         md.append("")
     return md, figures
 

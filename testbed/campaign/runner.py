@@ -254,6 +254,9 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
     after = t >= onset - 1e-9 if np.isfinite(onset) else np.ones(t.size, bool)
     det = alert & after
     detected = det.any(-1)
+    # per-epoch detection: alerted epochs / epochs from the onset at which the monitor gives a solution
+    # (fault-free cells: every epoch with a solution, so the ratio is the per-epoch false-alarm rate)
+    solved = (np.asarray(out.reason) == 0) & after
     with np.errstate(all="ignore"):
         first_any = np.where(alert.any(-1), t[alert.argmax(-1)], np.nan)
         tta = np.where(detected, t[det.argmax(-1)] - (onset if np.isfinite(onset) else 0.0), np.nan)
@@ -263,6 +266,7 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
             "cell": np.full(n, ctx.cell.index, np.int32), "trial": d.trials.astype(np.int64),
             "monitor": np.full(n, out.name, object), "epochs": np.full(n, t.size, np.int32),
             "fault_target": d.fault_target, "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
+            "onset_epochs": solved.sum(-1).astype(np.int32), "onset_alerts": (det & solved).sum(-1).astype(np.int32),
             "first_alert_s": first_any, "time_to_alert_s": tta,
             "max_he": _nanmax(he), "max_ve": _nanmax(ve), "max_hpl": _nanmax(hpl), "max_vpl": _nanmax(vpl),
             "mi_epochs": mi.sum(-1).astype(np.int32), "hmi_epochs": hmi.sum(-1).astype(np.int32),
