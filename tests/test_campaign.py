@@ -211,11 +211,14 @@ def test_resume_with_another_spec_is_refused(reference, tmp_path):
 def test_report_figures_and_region_counts(reference):
     idx = write_report(reference)
     figs = {p.name for p in (reference / "figures").glob("*.png")}
-    assert {"availability.png", "pl_time.png", "stanford_gps_raim.png", "stanford_va_raim.png",
+    assert {"pl_time.png", "stanford_gps_raim.png", "stanford_va_raim.png",
             "vision_range_error.png", "detection_0_gps_step.png"} <= figs
     text = idx.read_text()
     for f in figs:
         assert f"figures/{f}" in text
+    # availability and PL statistics: one compact table, a row per setting and monitor
+    assert "| setting | monitor | sorties | max HPL: median / p95 / max (m)" in text
+    assert text.count("| dpi 720") + text.count("| all cells") >= 2
     t = table(reference).to_pydict()
     epochs = np.asarray(t["epochs"])
     for dim in "hv":

@@ -363,77 +363,101 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
     return md, figures
 
 
+def _setting_label(cell: dict, varying: list[str]) -> str:
+    """The sweep setting of a cell (every varying axis but the start time), e.g. 'dpi 720, DE px 1'."""
+    parts = [f"{AXIS_LABEL[a]} {cell[a]:g}" if isinstance(cell[a], float) else f"{AXIS_LABEL[a]} {cell[a]}"
+             for a in varying if a != "start_time_utc"]
+    return ", ".join(parts) or "all cells"
+
+
 def _availability_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
-    """Section: availability per service level."""
-    md: list[str] = []
-    figures: list[tuple[str, str]] = []
-    cells, varying, figdir = inp.cells, inp.varying, inp.figdir
-    tc = inp.tc
-    # ---- availability per service level
+    """Section: PL statistics across sorties and per-epoch availability per service level, one table
+    (settings x monitors as rows, statistics and levels as columns)."""
+    cells, varying, tc = inp.cells, inp.varying, inp.tc
     levels = [c[len("avail_"):] for c in tc if c.startswith("avail_")]
-    fig, ax = _figure(figsize=(8, 4.5))
-    groups = sorted({_label({**cells[i], "monitor": m}, [a for a in varying if a in ("dpi", "sigma_px", "start_time_utc",
-                                                                                       "lpe_sigma_m", "landmark_set",
-                                                                                       "approach", "calibration")])
-                     for i, m in zip(tc["cell"], tc["monitor"])})
-    lab_of = np.array([_label({**cells[i], "monitor": m}, [a for a in varying]) for i, m in zip(tc["cell"], tc["monitor"])])
-    w = 0.8 / max(len(levels), 1)
-    av_rows = []
-    for j, lv in enumerate(levels):
-        vals = [float(np.mean(tc[f"avail_{lv}"][lab_of == g])) for g in groups]
-        ax.bar(np.arange(len(groups)) + j * w, vals, w, label=lv)
-        av_rows += [(g, lv, v) for g, v in zip(groups, vals)]
-    ax.set_xticks(np.arange(len(groups)) + w * (len(levels) - 1) / 2)
-    ax.set_xticklabels(groups, rotation=30, ha="right", fontsize=7)
-    ax.set_ylabel("availability (fraction of epochs)")
-    ax.set_ylim(0, 1.05)
-    ax.legend(fontsize=8)
-    ax.set_title("availability per service level")
-    _save(fig, figdir / "availability.png")
-    figures.append(("Availability per service level", "availability.png"))
-    md += ["## Availability per service level", "", "| group | level | availability |", "|---|---|---|"]
-    md += [f"| {g} | {lv} | {100 * v:.2f} % |" for g, lv, v in av_rows]
+    setting = np.array([_setting_label(cells[i], varying) for i in tc["cell"]])
+    md = ["## Protection levels across sorties and availability per service level", "",
+          "Per setting and monitor, pooled over its sorties (and start times): the median, 95th percentile and "
+          "maximum of each sortie's largest HPL / VPL, and the fraction of epochs available per service level.", "",
+          "| setting | monitor | sorties | max HPL: median / p95 / max (m) | max VPL: median / p95 / max (m) | "
+          + " | ".join(levels) + " |", "|---|---|---|---|---|" + "---|" * len(levels)]
+    for g in sorted(set(setting.tolist())):
+        for m in sorted(set(tc["monitor"][setting == g].tolist())):
+            sel = (setting == g) & (tc["monitor"] == m)
+            stats3 = [" / ".join(_f(x, "{:.1f}") for x in _median_p95_max(tc[k][sel])) for k in ("max_hpl", "max_vpl")]
+            md.append(f"| {g} | {m} | {int(sel.sum())} | {stats3[0]} | {stats3[1]} | "
+                      + " | ".join(f"{100 * float(np.mean(tc[f'avail_{lv}'][sel])):.1f} %" for lv in levels) + " |")
     md.append("")
-    return md, figures
+    return md, []
+
+
+def _median_p95_max(x: np.ndarray) -> tuple[float, float, float]:
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if not x.size:
+        return float("nan"), float("nan"), float("nan")
+    return float(np.median(x)), float(np.percentile(x, 95)), float(x.max())
+
+
+MAX_PANELS = 4  # settings per PL-over-time figure (more settings: more figures)
 
 
 def _pl_time_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
-    """Section: HPL/VPL over time (median and 5-95 % across trials)."""
-    md: list[str] = []
+    """Section: HPL/VPL over time, median and 5-95 % across trials; small multiples, one column per
+    setting, every monitor of it in the panel (GPS RAIM the reference), the alert limit dashed."""
     figures: list[tuple[str, str]] = []
     cells, varying, figdir = inp.cells, inp.varying, inp.figdir
     epochs, hal, val = inp.epochs, inp.hal, inp.val
-    # ---- HPL/VPL over time
-    if epochs is not None and epochs.num_rows:
-        ec = _cols(epochs)
-        nofault = {c["cell"] for c in cells if c["fault_kind"] == "none"}
-        use = np.isin(ec["cell"], list(nofault)) if nofault else np.ones(len(ec["cell"]), bool)
-        ep_groups = sorted({_label({**cells[i], "monitor": m}, [a for a in varying if a != "start_time_utc"])
-                            for i, m in zip(ec["cell"][use], ec["monitor"][use])})
-        ep_lab = np.array([_label({**cells[i], "monitor": m}, [a for a in varying if a != "start_time_utc"])
-                           for i, m in zip(ec["cell"], ec["monitor"])])
-        fig, axs = _figure(1, 2, figsize=(12, 4.5), sharex=True)
-        for ax, key, al in ((axs[0], "hpl", hal), (axs[1], "vpl", val)):
-            for g in ep_groups:
-                s = use & (ep_lab == g)
-                tt = np.unique(ec["t"][s])
-                q = np.full((tt.size, 3), np.nan)
-                for i, t in enumerate(tt):
-                    v = ec[key][s & (ec["t"] == t)]
-                    v = v[np.isfinite(v)]
-                    if v.size:
-                        q[i] = np.percentile(v, [5, 50, 95])
-                (ln,) = ax.plot(tt, q[:, 1], lw=1.2, label=g)
-                ax.fill_between(tt, q[:, 0], q[:, 2], color=ln.get_color(), alpha=0.2, lw=0)
-            ax.axhline(al, color="r", lw=0.8, ls="--")
-            ax.set_xlabel("time since approach start (s)")
-            ax.set_ylabel(f"{key.upper()} (m)")
-            ax.set_title(f"{key.upper()}: median and 5-95 % across trials" + (" (fault-free cells)" if nofault else ""))
-            ax.grid(alpha=0.3)
-        axs[0].legend(fontsize=7)
-        _save(fig, figdir / "pl_time.png")
-        figures.append(("HPL/VPL over time", "pl_time.png"))
-    return md, figures
+    if epochs is None or not epochs.num_rows:
+        return [], figures
+    ec = _cols(epochs)
+    nofault = {c["cell"] for c in cells if c["fault_kind"] == "none"}
+    use = np.isin(ec["cell"], list(nofault)) if nofault else np.ones(len(ec["cell"]), bool)
+    setting = np.array([_setting_label(cells[i], varying) for i in ec["cell"]])
+    groups = sorted(set(setting[use].tolist()))
+    monitors = sorted(set(ec["monitor"][use].tolist()), key=lambda m: (m != "gps_raim", m))
+    colours = {m: f"C{k}" for k, m in enumerate(monitors)}
+    for part in range(0, len(groups), MAX_PANELS):
+        gs = groups[part:part + MAX_PANELS]
+        fig, axs = _figure(2, len(gs), figsize=(3.2 * len(gs) + 1.5, 6.4), sharex=True, sharey="row", squeeze=False)
+        for j, g in enumerate(gs):
+            for row, (key, al) in enumerate((("hpl", hal), ("vpl", val))):
+                ax = axs[row][j]
+                for m in monitors:
+                    s = use & (setting == g) & (ec["monitor"] == m)
+                    if not s.any():
+                        continue
+                    tt, q = _quantiles_over_time(ec["t"][s], ec[key][s])
+                    ax.plot(tt, q[:, 1], lw=1.2, color=colours[m], label=m)
+                    ax.fill_between(tt, q[:, 0], q[:, 2], color=colours[m], alpha=0.18, lw=0)
+                ax.axhline(al, color="r", lw=0.8, ls="--")
+                ax.grid(alpha=0.3)
+                if j == 0:
+                    ax.set_ylabel(f"{key.upper()} (m); {key[0].upper()}AL {al:g} m dashed")
+                if row == 0:
+                    n_tr = len({(c, t) for c, t in zip(ec["cell"][use & (setting == g)], ec["trial"][use & (setting == g)])})
+                    ax.set_title(f"{g}\n({n_tr} sorties)", fontsize=8)
+                else:
+                    ax.set_xlabel("time since approach start (s)")
+        axs[0][-1].legend(fontsize=7, loc="upper right")
+        fig.suptitle("HPL / VPL over time: median and 5-95 % across the stored sorties"
+                     + (" (fault-free cells)" if nofault else ""), fontsize=10)
+        name = "pl_time.png" if part == 0 else f"pl_time_{part // MAX_PANELS + 1}.png"
+        _save(fig, figdir / name)
+        figures.append(("HPL/VPL over time" + ("" if part == 0 else f" ({part // MAX_PANELS + 1})"), name))
+    return [], figures
+
+
+def _quantiles_over_time(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(epochs, (T, 3) 5/50/95 % of the finite values at each epoch)."""
+    tt = np.unique(t)
+    q = np.full((tt.size, 3), np.nan)
+    for i, ti in enumerate(tt):
+        x = v[t == ti]
+        x = x[np.isfinite(x)]
+        if x.size:
+            q[i] = np.percentile(x, [5, 50, 95])
+    return tt, q
 
 
 def _vision_range_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
