@@ -154,3 +154,17 @@ def test_linger_keeps_the_live_server_up_after_landing(tmp_path):
     assert seen == {"rrd": True, "connected": True}
     with socket.socket() as s:  # closed after the linger
         assert s.connect_ex(("127.0.0.1", port)) != 0
+
+
+def test_series_views_show_the_whole_flight(tmp_path):
+    """Every time-series view of the stored layout (each monitor's HPL, VPL and test statistic, and
+    the sensors in use) spans the whole flight, not the seconds before the cursor."""
+    from testbed.api import run_approach
+    from testbed.viz.readback import view_time_ranges
+
+    rrd = tmp_path / "bp.rrd"
+    run_approach("va-raim-2015", seed=1, rrd_path=rrd, block_s=30.0, monitors=["gps_raim", "va_raim"])
+    ranges = view_time_ranges(rrd)
+    assert len(ranges) == 2 * 3 + 1
+    for r in ranges:
+        assert r == [{"timeline": "sim_time", "range": {"start": None, "end": None}}]

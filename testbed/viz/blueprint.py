@@ -24,12 +24,23 @@ def approach_eye(planned_enu) -> rrb.EyeControls3D:
     return rrb.EyeControls3D(position=pos, look_target=0.5 * (start + end), eye_up=[0.0, 0.0, 1.0])
 
 
+#: series views show the whole flight, not the last seconds before the cursor
+WHOLE_FLIGHT = rrb.VisibleTimeRange("sim_time", start=rrb.TimeRangeBoundary.infinite(),
+                                    end=rrb.TimeRangeBoundary.infinite())
+
+
+def _series(name: str, origin: str) -> rrb.TimeSeriesView:
+    """A time-series view over the whole flight, its legend in a corner where the curves rarely are."""
+    return rrb.TimeSeriesView(name=name, origin=origin, time_ranges=[WHOLE_FLIGHT],
+                              plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.LeftTop))
+
+
 def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None) -> rrb.Blueprint:
     monitor_tabs = [
         rrb.Vertical(
-            rrb.TimeSeriesView(name=f"{m}: HPL vs HAL", origin=f"/integrity/{m}/horizontal"),
-            rrb.TimeSeriesView(name=f"{m}: VPL vs VAL", origin=f"/integrity/{m}/vertical"),
-            rrb.TimeSeriesView(name=f"{m}: test statistic vs threshold", origin=f"/integrity/{m}/detection"),
+            _series(f"{m}: HPL vs HAL (m)", f"/integrity/{m}/horizontal"),
+            _series(f"{m}: VPL vs VAL (m)", f"/integrity/{m}/vertical"),
+            _series(f"{m}: test statistic vs threshold", f"/integrity/{m}/detection"),
             name=m,
         )
         for m in monitors
@@ -47,7 +58,7 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None)
     right = rrb.Vertical(
         rrb.Tabs(*monitor_tabs) if monitor_tabs else rrb.TextLogView(name="alerts", origin="/alerts"),
         rrb.Horizontal(
-            rrb.TimeSeriesView(name="in use", origin="/sensors"),
+            _series("satellites and landmarks in use", "/sensors"),
             rrb.TextLogView(name="alerts", origin="/alerts"),
         ),
         rrb.MapView(name="map", origin="/map"),

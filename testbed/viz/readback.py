@@ -44,6 +44,19 @@ def content_digest(path: str | Path) -> str:
     return hashlib.sha256("".join(sorted(parts)).encode()).hexdigest()
 
 
+def view_time_ranges(path: str | Path) -> list[list[dict]]:
+    """The visible time ranges each view of the stored blueprint declares (overrides excluded):
+    one list per view of ``{"timeline", "range": {"start", "end"}}`` (None = unbounded)."""
+    r = rrc.RrdReader(str(path))
+    out = []
+    for bp in r.blueprints():
+        for ch in r.stream(store=bp):
+            if ch.entity_path.startswith("/view/") and ch.entity_path.endswith("/VisibleTimeRanges"):
+                col = _column(ch.to_record_batch(), "VisibleTimeRanges:ranges")
+                out += [x for x in col.to_pylist()] if col is not None else []
+    return out
+
+
 def has_blueprint(path: str | Path) -> bool:
     return bool(rrc.RrdReader(str(path)).blueprints())
 
