@@ -327,6 +327,21 @@ class VisionEpochs:
     attitude_sigma: NDArray = field()
 
 
+def one_landmark_survey(vision, monitor: str) -> NDArray:
+    """``vision.landmark_pos_ecef`` as the one (L, 3) surveyed set a monitor call takes.
+
+    ``sample_vision`` draws a survey per trial ((B, L, 3)); a monitor call works on one
+    survey (campaigns draw one per block), so anything else is a clear error, not a
+    broadcast failure deep inside the monitor.
+    """
+    p = np.asarray(vision.landmark_pos_ecef, float)
+    if p.ndim != 2 or p.shape[-1] != 3:
+        raise ValueError(f"{monitor}: vision.landmark_pos_ecef has shape {p.shape}; expected one surveyed set "
+                         f"(L, 3) per call (a survey per trial: call the monitor per trial or per block of "
+                         f"trials sharing a survey, as campaigns do)")
+    return p
+
+
 @dataclass(frozen=True)
 class MonitorOutput:
     """What an integrity monitor returns per epoch (batched).

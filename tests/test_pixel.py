@@ -285,3 +285,14 @@ def test_no_landmark_in_view_has_its_own_reason():
     assert "no landmark" in out.reasons[NO_LANDMARK] and out.reasons == PIXEL_REASONS
     assert np.isnan(out.hpl[1]) and not out.available[1].any() and not out.alert[1]
     np.testing.assert_allclose(out.pos_enu[1], pos[1], atol=5.0)  # the GPS-only position is still reported
+
+
+def test_a_survey_per_trial_is_a_clear_error_not_a_broadcast_failure():
+    """``sample_vision`` draws a landmark survey per trial; a monitor call takes one set."""
+    from testbed.integrity.va_raim import va_raim
+
+    g, v, _, _ = scene(T=2)
+    per_trial = replace(v, landmark_pos_ecef=np.broadcast_to(v.landmark_pos_ecef, (3,) + v.landmark_pos_ecef.shape))
+    for call in (lambda: pixel_monitor(g, per_trial, FRAME), lambda: va_raim(g, per_trial, FRAME)):
+        with pytest.raises(ValueError, match=r"landmark_pos_ecef has shape \(3, \d+, 3\); expected one surveyed set"):
+            call()

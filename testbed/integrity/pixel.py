@@ -51,7 +51,15 @@ from testbed.integrity.levels import availability, service_level
 from testbed.integrity.raim import compact_rows, scatter_rows
 from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
-from testbed.records import Diagnostics, GnssEpochs, Mount, MonitorOutput, VisionEpochs, epoch_array
+from testbed.records import (
+    Diagnostics,
+    GnssEpochs,
+    MonitorOutput,
+    Mount,
+    VisionEpochs,
+    epoch_array,
+    one_landmark_survey,
+)
 
 
 def _skew(v: NDArray) -> NDArray:
@@ -272,7 +280,7 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     det = np.broadcast_to(np.asarray(vision.detected, bool), lead + (L,))
     sigma_px = np.broadcast_to(np.asarray(vision.sigma_px, float), lead + (L,))
     q_ref = np.broadcast_to(np.asarray(vision.q_body_to_enu_ref, float), lead + (4,))
-    lm_enu = frame.ecef_to_enu(np.asarray(vision.landmark_pos_ecef, float))
+    lm_enu = frame.ecef_to_enu(one_landmark_survey(vision, "pixel_monitor"))
     K = np.asarray(vision.K, float)
 
     # GNSS rows compacted (used first), as in gps_raim

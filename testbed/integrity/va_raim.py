@@ -62,6 +62,7 @@ from testbed.records import (
     VisionEpochs,
     concat_epochs,
     epoch_array,
+    one_landmark_survey,
     take_epochs,
 )
 from testbed.schema import StrictModel
@@ -319,7 +320,7 @@ def _read_inputs(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame) -> _
                          f"got {uv.shape[:-2]}")
     if len(vision.t) != T or not np.allclose(np.asarray(vision.t, float), t):
         raise ValueError("vision.t: expected the same epochs as gnss.t (resample one of them first)")
-    p_enu = frame.ecef_to_enu(np.asarray(vision.landmark_pos_ecef, float))  # (L, 3)
+    p_enu = frame.ecef_to_enu(one_landmark_survey(vision, "va_raim"))  # (L, 3)
     L = p_enu.shape[0]
     vis = np.broadcast_to(np.asarray(gnss.visible, bool), pr.shape)
     return _Inputs(
