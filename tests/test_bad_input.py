@@ -112,6 +112,11 @@ FILE_CASES = [
      "gnss.terrain_masking", "'yes'"),
     ("unknown-monitor", lambda d: approach(d, top='monitors = ["gps_raim", "raim2"]'),
      "monitors.1", "raim2"),
+    ("unknown-va-raim-variant", lambda d: approach(d, tail='[va_raim]\nvariant = "foo"'), "va_raim.variant", "foo"),
+    ("nan-linearity-inflation", lambda d: approach(d, tail="[va_raim]\nlinearity_inflation = nan"),
+     "va_raim.linearity_inflation", "nan"),
+    ("negative-linearity-inflation", lambda d: approach(d, tail="[va_raim]\nlinearity_inflation = -1.0"),
+     "va_raim.linearity_inflation", "-1.0"),
 ]
 
 
@@ -365,3 +370,16 @@ def test_an_output_folder_that_is_a_file_is_refused(work, capsys):
         code, out = run(capsys, *argv)
         assert code == 2 and str(f) in out and "is a file" in out, out
         assert f.read_text() == "mine"
+
+
+def test_new_campaign_options_are_checked(work, capsys):
+    cwd, inputs = work
+    for bad in ("-1", "0", "abc", "nan"):
+        with pytest.raises(SystemExit) as ei:  # argparse: usage message, exit 2
+            main(["campaign", "quick-look", "--trials", bad, "--out", str(inputs / "o")])
+        assert ei.value.code == 2 and bad in capsys.readouterr().err
+    spec = inputs / "v.toml"
+    spec.write_text(SPEC + '[sweep]\nva_raim_variant = ["nope"]\n')
+    code, out = run(capsys, "campaign", spec, "--out", inputs / "o")
+    assert code == 2 and "sweep.va_raim_variant.0" in out and "nope" in out, out
+    assert not (inputs / "o").exists()
