@@ -202,10 +202,14 @@ def gps_fix(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: N
     return GpsFix(idx, m, z, w, anchor, x, ft, pls, reason, ok, conv, iters)
 
 
-def gps_output(fix: GpsFix, t: NDArray, S: int, st: IntegritySettings, name: str) -> MonitorOutput:
-    """GPS RAIM's MonitorOutput at a fix (one function for the module and VA-RAIM's step 1)."""
-    ft, pls, ok, reason = fix.fit, fix.pls, fix.ok, fix.reason
-    idx, m = fix.idx, fix.mask
+def snapshot_output(name: str, t: NDArray, x: NDArray, ft, pls: dict, reason: NDArray, ok: NDArray,
+                    st: IntegritySettings, make_diagnostics) -> MonitorOutput:
+    """The MonitorOutput of a slope-PL snapshot monitor at its solution (GPS RAIM, VA-RAIM).
+
+    PLs of ``st.pl_variant``, SSE against T², alerts and availability per service level on the
+    epochs with a solution (``ok``; NaN elsewhere). ``make_diagnostics(pl, per_variant)`` builds
+    the monitor's record from the selected PLs and every variant's ``hpl_*``/``vpl_*``.
+    """
     pl = pls[st.pl_variant]
     hpl = np.where(ok, pl.hpl, np.nan)
     vpl = np.where(ok, pl.vpl, np.nan)
@@ -213,20 +217,28 @@ def gps_output(fix: GpsFix, t: NDArray, S: int, st: IntegritySettings, name: str
     T2 = np.where(ok, pl.T2, np.nan)
     with np.errstate(invalid="ignore"):
         alert = ok & (sse > T2)
-        dop = lsq.dops(ft)
     levels = tuple(service_level(s) for s in st.service_levels)
-    avail = availability(hpl, vpl, levels, ok)
     per_variant = {f"{d}pl_{v}": np.where(ok, getattr(p, f"{d}pl"), np.nan) for v, p in pls.items() for d in "hv"}
-    diag = GpsRaimDiagnostics(
-        hslope=scatter_rows(pl.hslope, idx, m, S), vslope=scatter_rows(pl.vslope, idx, m, S),
-        residual=scatter_rows(ft.residual, idx, m, S), lam_det=np.where(ok, pl.lam_det, np.nan), cond=ft.cond,
-        converged=fix.converged & ft.solvable, n_iter=fix.n_iter, **per_variant, **dop)
     return MonitorOutput(
-        name=name, t=t, pos_enu=fix.x[..., :3], clock=fix.x[..., 3], hpl=hpl, vpl=vpl,
-        test_stat=sse, threshold=T2, alert=alert, available=avail, service_levels=tuple(st.service_levels),
+        name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl, test_stat=sse, threshold=T2,
+        alert=alert, available=availability(hpl, vpl, levels, ok), service_levels=tuple(st.service_levels),
         n_used=ft.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
-        reasons=lsq.REASONS, diagnostics=diag,
-    )
+        reasons=lsq.REASONS, diagnostics=make_diagnostics(pl, per_variant))
+
+
+def gps_output(fix: GpsFix, t: NDArray, S: int, st: IntegritySettings, name: str) -> MonitorOutput:
+    """GPS RAIM's MonitorOutput at a fix (one function for the module and VA-RAIM's step 1)."""
+    ft, ok, idx, m = fix.fit, fix.ok, fix.idx, fix.mask
+
+    def diagnostics(pl, per_variant) -> GpsRaimDiagnostics:
+        with np.errstate(invalid="ignore"):
+            dop = lsq.dops(ft)
+        return GpsRaimDiagnostics(
+            hslope=scatter_rows(pl.hslope, idx, m, S), vslope=scatter_rows(pl.vslope, idx, m, S),
+            residual=scatter_rows(ft.residual, idx, m, S), lam_det=np.where(ok, pl.lam_det, np.nan), cond=ft.cond,
+            converged=fix.converged & ft.solvable, n_iter=fix.n_iter, **per_variant, **dop)
+
+    return snapshot_output(name, t, fix.x, ft, fix.pls, fix.reason, ok, st, diagnostics)
 
 
 def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,

@@ -45,9 +45,16 @@ from testbed.integrity.calibration import (
     calibration_epochs,
     landmark_set_key,
 )
-from testbed.integrity.levels import SERVICE_LEVELS, availability, service_level
+from testbed.integrity.levels import SERVICE_LEVELS, service_level
 from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
-from testbed.integrity.raim import GpsRaimMonitor, fix_at_solution, gps_fix, gps_output, scatter_rows
+from testbed.integrity.raim import (
+    GpsRaimMonitor,
+    fix_at_solution,
+    gps_fix,
+    gps_output,
+    scatter_rows,
+    snapshot_output,
+)
 from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.vision_ranges import (
     VISION_REASONS,
@@ -231,29 +238,18 @@ class VaRaimDiagnostics(Diagnostics):
 
 def _monitor_output(name, t, x, ft: WlsFit, pls, reason, ok, ist, extra: dict, gps_rows: tuple) -> MonitorOutput:
     """gps_rows : (idx, mask, S) of the compacted GPS rows, to put the stacked rows back in satellite slots."""
-    pl = pls[ist.pl_variant]
     idx, mg, S = gps_rows
     Ng = idx.shape[-1]
 
     def slots(v: NDArray) -> NDArray:  # (..., Ng + N_C) -> (..., S + N_C)
         return np.concatenate([scatter_rows(v[..., :Ng], idx, mg, S), v[..., Ng:]], axis=-1)
 
-    hpl = np.where(ok, pl.hpl, np.nan)
-    vpl = np.where(ok, pl.vpl, np.nan)
-    sse = np.where(ok, ft.sse, np.nan)
-    T2 = np.where(ok, pl.T2, np.nan)
-    with np.errstate(invalid="ignore"):
-        alert = ok & (sse > T2)
-    levels = tuple(service_level(s) for s in ist.service_levels)
-    per_variant = {f"{d}pl_{v}": np.where(ok, getattr(p, f"{d}pl"), np.nan) for v, p in pls.items() for d in "hv"}
-    diag = VaRaimDiagnostics(hslope=slots(pl.hslope), vslope=slots(pl.vslope), residual=slots(ft.residual),
-                             lam_det=np.where(ok, pl.lam_det, np.nan), cond=ft.cond, ws_diag=slots(ft.ws_diag),
-                             **per_variant, **extra)
-    return MonitorOutput(
-        name=name, t=t, pos_enu=x[..., :3], clock=x[..., 3], hpl=hpl, vpl=vpl, test_stat=sse, threshold=T2,
-        alert=alert, available=availability(hpl, vpl, levels, ok), service_levels=tuple(ist.service_levels),
-        n_used=ft.n_used.astype(np.int16), excluded=np.full(reason.shape, -1, np.int16), reason=reason,
-        reasons=lsq.REASONS, diagnostics=diag)
+    def diagnostics(pl, per_variant) -> VaRaimDiagnostics:
+        return VaRaimDiagnostics(hslope=slots(pl.hslope), vslope=slots(pl.vslope), residual=slots(ft.residual),
+                                 lam_det=np.where(ok, pl.lam_det, np.nan), cond=ft.cond, ws_diag=slots(ft.ws_diag),
+                                 **per_variant, **extra)
+
+    return snapshot_output(name, t, x, ft, pls, reason, ok, ist, diagnostics)
 
 
 @dataclass(frozen=True)
