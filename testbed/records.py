@@ -17,24 +17,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 
-def _take_epochs(rec, idx):
-    """Return a copy of ``rec`` with every epoch-indexed array sliced by ``idx``.
-
-    Arrays whose axis ``epoch_axis`` matches ``len(rec.t)`` are sliced;
-    per-record constants (prn, landmark ids, frames) are kept.
-    """
-    n = len(rec.t)
-    out = {}
-    for f in fields(rec):
-        v = getattr(rec, f.name)
-        if isinstance(v, np.ndarray) and v.ndim >= 1 and f.name in rec._epoch_fields():
-            axis = rec._epoch_axis(v)
-            out[f.name] = np.take(v, idx, axis=axis) if v.shape[axis] == n else v
-        else:
-            out[f.name] = v
-    return replace(rec, **out)
-
-
 def epoch_array(tail: int = 0, *, ragged: bool = False, batched: bool = True):
     """A record field holding a per-epoch array: ``(B..., T, *tail axes)``.
 
@@ -169,32 +151,24 @@ class Truth:
     frame_origin : (3,) lat_deg, lon_deg, h of the world frame's origin.
     """
 
-    t: NDArray
-    pos_ecef: NDArray
-    lat_deg: NDArray
-    lon_deg: NDArray
-    h: NDArray
-    pos_enu: NDArray
-    vel_enu: NDArray
-    q_body_to_enu: NDArray
-    euler: NDArray
-    omega_body: NDArray
-    specific_force_body: NDArray
-    agl: NDArray
-    airspeed: NDArray
-    frame_origin: NDArray
-
-    @staticmethod
-    def _epoch_fields() -> set[str]:
-        return {f.name for f in fields(Truth)} - {"frame_origin"}
-
-    @staticmethod
-    def _epoch_axis(v: NDArray) -> int:
-        return 0
+    t: NDArray = epoch_array(batched=False)
+    pos_ecef: NDArray = epoch_array(1)
+    lat_deg: NDArray = epoch_array()
+    lon_deg: NDArray = epoch_array()
+    h: NDArray = epoch_array()
+    pos_enu: NDArray = epoch_array(1)
+    vel_enu: NDArray = epoch_array(1)
+    q_body_to_enu: NDArray = epoch_array(1)
+    euler: NDArray = epoch_array(1)
+    omega_body: NDArray = epoch_array(1)
+    specific_force_body: NDArray = epoch_array(1)
+    agl: NDArray = epoch_array()
+    airspeed: NDArray = epoch_array()
+    frame_origin: NDArray = field()
 
     def at_indices(self, idx: NDArray) -> "Truth":
         """The record at the given epoch indices (e.g. decimated to a sensor rate)."""
-        return _take_epochs(self, np.asarray(idx))
+        return take_epochs(self, np.asarray(idx))
 
     def decimate(self, rate_hz: float) -> "Truth":
         """The record sampled at ``rate_hz`` (nearest flight epochs, starting at t[0])."""
@@ -286,14 +260,14 @@ class GnssTruth:
     elevation, azimuth : (T, S) rad, true geometry.
     """
 
-    antenna_pos_ecef: NDArray
-    geometric_range: NDArray
-    clock_bias: NDArray
-    noise: NDArray
-    fault_bias: NDArray
-    faulty: NDArray
-    elevation: NDArray
-    azimuth: NDArray
+    antenna_pos_ecef: NDArray = epoch_array(1)
+    geometric_range: NDArray = epoch_array(1)
+    clock_bias: NDArray = epoch_array()
+    noise: NDArray = epoch_array(1)
+    fault_bias: NDArray = epoch_array(1)
+    faulty: NDArray = epoch_array(1)
+    elevation: NDArray = epoch_array(1)
+    azimuth: NDArray = epoch_array(1)
 
 
 @dataclass(frozen=True)

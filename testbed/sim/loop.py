@@ -25,7 +25,7 @@ import numpy as np
 
 from testbed.flight.fly import FlightResult, fly, truth_from_rows
 from testbed.integrity.monitor import Observations
-from testbed.records import GnssEpochs, GnssTruth, MonitorOutput, Truth
+from testbed.records import GnssEpochs, GnssTruth, MonitorOutput, Truth, concat_epochs, take_epochs
 from testbed.sensors.faults import GNSS_KINDS
 from testbed.sensors.gnss.almanac import load_constellation
 from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
@@ -164,7 +164,7 @@ class _Runner:
             g_all, gt_all = sample_gnss(self.g_geom, s.gnss, faults=s.faults,
                                         rng=np.random.default_rng(self.seed_gnss))
             new = slice(self.n_g, self.n_g + g_sel.size)
-            block.gnss, block.gnss_truth = slicing.take(g_all, new), slicing.take(gt_all, new)
+            block.gnss, block.gnss_truth = take_epochs(g_all, new), take_epochs(gt_all, new)
             self.n_g += g_sel.size
             ant_enu = s.frame.ecef_to_enu(block.gnss_truth.antenna_pos_ecef)
             sat_enu = s.frame.ecef_to_enu(block.gnss.sat_pos_ecef)
@@ -182,14 +182,14 @@ class _Runner:
             v_all, vt_all = vdetect.sample_vision(self.v_geom, s.vision, landmarks=s.landmarks, faults=list(s.faults),
                                                   rng=np.random.default_rng(self.seed_vision))
             new = slice(self.n_v, self.n_v + len(truth_v.t))
-            block.vision, block.vision_truth = slicing.take(v_all, new), slicing.take(vt_all, new)
+            block.vision, block.vision_truth = take_epochs(v_all, new), take_epochs(vt_all, new)
             self.n_v += len(truth_v.t)
             block.camera_enu = s.frame.ecef_to_enu(block.vision_truth.cam_pos_ecef)
             from testbed.frames import q_to_R
             block.R_cam_to_world = s.frame.R @ q_to_R(block.vision_truth.q_cam_to_ecef)
             self.parts["vision"].append(block.vision)
             self.parts["vision_truth"].append(block.vision_truth)
-            v_at_g = slicing.take(block.vision, g_sel)
+            v_at_g = take_epochs(block.vision, g_sel)
         t_b = time.perf_counter()
         self.timings.sensors += t_b - t_a
         if block.gnss is not None:
@@ -260,20 +260,11 @@ def run_loop(setup: RunSetup, *, seed: int = 0, sinks: list[Sink] | None = None,
     tm.flight = total - tm.sensors - tm.monitors - tm.logging
     p = runner.parts
     return LoopResult(
-        flight=flight, gnss=slicing.concat(p["gnss"]), gnss_truth=slicing.concat(p["gnss_truth"]),
-        vision=slicing.concat(p["vision"]) if p["vision"] else None,
-        vision_truth=slicing.concat(p["vision_truth"]) if p["vision_truth"] else None,
-        outputs={m: slicing.concat(v) for m, v in runner.outputs.items() if v},
-        truth_at_gnss=_concat_truth(p["truth"]), timings=tm, events=runner.events)
-
-
-def _concat_truth(parts: list[Truth]) -> Truth:
-    from dataclasses import fields, replace
-
-    if len(parts) == 1:
-        return parts[0]
-    kw = {f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Truth) if f.name != "frame_origin"}
-    return replace(parts[0], **kw)
+        flight=flight, gnss=concat_epochs(p["gnss"]), gnss_truth=concat_epochs(p["gnss_truth"]),
+        vision=concat_epochs(p["vision"]) if p["vision"] else None,
+        vision_truth=concat_epochs(p["vision_truth"]) if p["vision_truth"] else None,
+        outputs={m: concat_epochs(v) for m, v in runner.outputs.items() if v},
+        truth_at_gnss=concat_epochs(p["truth"]), timings=tm, events=runner.events)
 
 
 def gnss_fault_onset(setup: RunSetup) -> float | None:

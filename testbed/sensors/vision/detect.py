@@ -44,14 +44,14 @@ line of sight, is computed once per trajectory.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from testbed.frames import R_ecef_to_enu, R_to_q, ecef_to_geodetic
-from testbed.records import Mount, NotVisible, Truth, VisionEpochs
+from testbed.records import Mount, NotVisible, Truth, VisionEpochs, epoch_array
 from testbed.sensors.faults import LandmarkMoved, Misassociation, PixelBias, VISION_KINDS, active
 
 from .attitude_ref import attitude_reference_from_euler, q_to_euler
@@ -99,23 +99,23 @@ class VisionTruth:
     fault_kind : (B..., T, L) int8 :class:`FaultKind` code.
     """
 
-    t: NDArray
-    cam_pos_ecef: NDArray
-    q_cam_to_ecef: NDArray
-    dither_cam: NDArray
-    attitude_ref_error: NDArray
-    landmark_true_ecef: NDArray
-    landmark_survey_ecef: NDArray
-    landmark_moved_ecef: NDArray
-    landmark_moved: NDArray
-    pixel_true: NDArray
-    range_m: NDArray
-    visible: NDArray
-    noise_px: NDArray
-    blur_sigma_px: NDArray
-    fault_pixel_bias: NDArray
-    faulty: NDArray
-    fault_kind: NDArray
+    t: NDArray = epoch_array(batched=False)
+    cam_pos_ecef: NDArray = epoch_array(1)
+    q_cam_to_ecef: NDArray = epoch_array(1)
+    dither_cam: NDArray = epoch_array(1)
+    attitude_ref_error: NDArray = epoch_array(1)
+    landmark_true_ecef: NDArray = field()
+    landmark_survey_ecef: NDArray = field()
+    landmark_moved_ecef: NDArray = field()
+    landmark_moved: NDArray = epoch_array(1)
+    pixel_true: NDArray = epoch_array(2)
+    range_m: NDArray = epoch_array(1)
+    visible: NDArray = epoch_array(1)
+    noise_px: NDArray = epoch_array(2)
+    blur_sigma_px: NDArray = epoch_array()
+    fault_pixel_bias: NDArray = epoch_array(2)
+    faulty: NDArray = epoch_array(1)
+    fault_kind: NDArray = epoch_array(1)
 
 
 def visibility(camera: PinholeCamera, det: DetectionSettings, p_cam: NDArray, range_m: NDArray,
