@@ -326,7 +326,6 @@ def test_fuzzed_approach_values_give_a_clear_error_or_a_valid_run(tmp_path_facto
     line = f"{name} = {_toml(value)}"
     if header in text:
         lines = text.splitlines()
-        i = lines.index(header)
         lines = [ln for ln in lines if not ln.startswith(f"{name} =") or not _in_table(lines, ln, header)]
         i = lines.index(header)
         lines.insert(i + 1, line)

@@ -200,7 +200,7 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
           f"- tables: `cells.parquet`, `trials.parquet` (per trial and monitor), `epochs.parquet` "
           f"(first {man['spec']['per_epoch_trials']} trials per cell), `stanford_hist.parquet`", ""]
     figures: list[tuple[str, str]] = []
-    for section in (_detection_section, _stanford_section, _availability_section, _pl_time_section,
+    for section in (_detection_section, _stanford_section, _pl_and_availability_section, _pl_time_section,
                     _vision_range_section):
         lines, figs = section(inp)
         md += lines
@@ -370,7 +370,7 @@ def _setting_label(cell: dict, varying: list[str]) -> str:
     return ", ".join(parts) or "all cells"
 
 
-def _availability_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+def _pl_and_availability_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: PL statistics across sorties and per-epoch availability per service level, one table
     (settings x monitors as rows, statistics and levels as columns)."""
     cells, varying, tc = inp.cells, inp.varying, inp.tc

@@ -142,15 +142,14 @@ def _terrain_problems(approach: Approach, setup) -> list[str]:
     """The terrain model must give a height all along the planned path (a DEM of another area does not)."""
     if setup.terrain is None:
         return []
-    pts = setup.path.sample_enu(200.0)
-    lat, lon, _ = setup.frame.enu_to_geodetic(pts)
+    lat, lon, _ = (np.ravel(v) for v in setup.frame.enu_to_geodetic(setup.path.sample_enu(200.0)))
     with np.errstate(invalid="ignore"):
-        h = np.asarray([float(setup.terrain.height(a, o)) for a, o in zip(np.ravel(lat), np.ravel(lon))])
+        h = np.asarray(setup.terrain.height(lat, lon), float)  # the terrain models take arrays
     bad = ~np.isfinite(h)
     if bad.any():
         i = int(np.argmax(bad))
-        return [f"terrain: no height under the planned path (first at {float(np.ravel(lat)[i]):.4f} N, "
-                f"{float(np.ravel(lon)[i]):.4f} E; {int(bad.sum())} of {bad.size} path points): expected a "
+        return [f"terrain: no height under the planned path (first at {float(lat[i]):.4f} N, "
+                f"{float(lon[i]):.4f} E; {int(bad.sum())} of {bad.size} path points): expected a "
                 f"terrain model covering the approach (a DEM tile of another area?)"]
     return []
 

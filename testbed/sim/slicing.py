@@ -11,6 +11,7 @@ from dataclasses import fields, replace
 
 import numpy as np
 
+
 def geometry_prefix(geom, T1: int):
     """A GNSS geometry restricted to its first ``T1`` epochs."""
     T = len(geom.t)
