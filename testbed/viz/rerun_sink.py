@@ -78,10 +78,12 @@ class RerunSink:
             self._part = self.rrd_path.with_name(self.rrd_path.name + ".part")
             sinks.append(rr.FileSink(str(self._part)))
         self.live_url = None
+        self._server = None
         if live:
             sinks.append(rr.GrpcServerSink(bind_ip=bind_ip, port=port, server_memory_limit=memory_limit))
             host = "127.0.0.1" if bind_ip in ("127.0.0.1", "0.0.0.0") else bind_ip
             self.live_url = f"rerun+http://{host}:{port}/proxy"
+            self._server = (host, port)
         if not sinks:
             raise ValueError("RerunSink needs a file (rrd_path) or live=True")
         self.rec.set_sinks(*sinks)
@@ -227,6 +229,29 @@ class RerunSink:
             self.commit()
         self.rec.flush()
         self.rec.disconnect()
+        if self._server is not None:
+            _wait_until_closed(*self._server)
+            self._server = None
         if self._part is not None and self._part.exists():
             self._part.unlink()
             self._part = None
+
+
+def _wait_until_closed(host: str, port: int, timeout_s: float = 10.0) -> None:
+    """Block until the live server stops accepting connections.
+
+    Rerun stops its gRPC server on a background thread after ``disconnect``; without
+    this wait a caller that returns from a live run could still find the port taken
+    (a second live run on the same port would then be refused by its preflight).
+    """
+    import socket
+    import time
+
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket(family) as s:
+            s.settimeout(0.5)
+            if s.connect_ex((host, port)) != 0:
+                return
+        time.sleep(0.02)
