@@ -99,7 +99,7 @@ def test_slopes_and_lambda_match_brute_force_injection(weights):
     clean = lsq.solve_ranges(sat, z0, W, None, np.ones(n), n_iter=10, tol_m=1e-9)
     np.testing.assert_allclose(clean.x, [*RX_ENU, clock], atol=ONE_MM)
     geom = clean.geometry
-    hs, vs = lsq.slopes(geom)
+    hs, vs = geom.hslope, geom.vslope
     WS = geom.ws_matrix()
     bias = 10.0  # m
     for i in range(n):
@@ -131,7 +131,7 @@ def test_pl_variants_closed_form():
     G = rng.standard_normal((3, 8, 4))
     w = rng.uniform(0.5, 2.0, (3, 8))
     geom = lsq.wls_geometry(G, w)
-    hs, vs = lsq.slopes(geom)
+    hs, vs = geom.hslope, geom.vslope
     seed = lsq.protection_levels(geom, 1e-5, 1e-3, "seed")
     pb = lsq.protection_levels(geom, 1e-5, 1e-3, "pbias")
     T = np.sqrt(stats.chi2.isf(1e-5, 4))

@@ -13,8 +13,10 @@ pixel-domain monitor) builds on. Notation follows INTEGRITY_MATH.md §4 and seed
   epochs is one stack of matrices.
 * ``J = (GᵀWG)⁻¹``, ``A = J GᵀW``, ``S = I − G A``, ``SSE = rᵀ W r``.
 
-Nothing here forms the N×N matrix ``S`` on the hot path: ``(WS)ᵢᵢ = Wᵢᵢ −
-(WG)ᵢ J (WG)ᵢᵀ`` needs only ``WG`` and ``J``, so memory is O(N) per epoch.
+One compiled pass per epoch (:func:`kernels.wls_epoch`, behind :func:`wls_fit` and
+:func:`wls_geometry`) computes all of it, degenerate epochs included; it never forms
+the N×N matrix ``S``: ``(WS)ᵢᵢ = Wᵢᵢ − (WG)ᵢ J (WG)ᵢᵀ`` needs only ``WG`` and ``J``.
+The numpy/LAPACK formulas it replaces are the test oracle (``tests/wls_oracle.py``).
 
 A bad batch element (fewer rows than unknowns, singular geometry, NaN in a used
 row) never raises: it gets NaN outputs and a :class:`Reason` code, and the rest
@@ -101,44 +103,8 @@ def apply_W(W: NDArray, X: NDArray, diag: bool) -> NDArray:
     return W @ X
 
 
-def masked_inputs(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None,
-                  z: ArrayLike | None = None) -> tuple[NDArray, NDArray, bool, NDArray, NDArray, NDArray | None]:
-    """Zero unused rows (and, for full W, their columns); flag NaN in used rows.
-
-    Returns
-    -------
-    G0 (..., N, 4), W0 (same form as W), diag, mask (..., N) bool, nan_bad (...) bool,
-    z0 (..., N) or None. Inputs are not modified.
-    """
-    G = np.asarray(G, float)
-    W = np.asarray(W, float)
-    diag = _is_diag(W, G)
-    lead = G.shape[:-1]
-    m = np.ones(lead, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), lead)
-    Wd = W if diag else np.diagonal(W, axis1=-2, axis2=-1)
-    nan_row = ~np.isfinite(G).all(-1) | ~np.isfinite(np.broadcast_to(Wd, lead))
-    if not diag:
-        # an off-diagonal NaN between two used rows is as bad as a diagonal one
-        mm = m[..., :, None] & m[..., None, :]
-        nan_row = nan_row | (~np.isfinite(W) & mm).any(-1)
-    z0 = None
-    if z is not None:
-        z = np.broadcast_to(np.asarray(z, float), lead)
-        nan_row = nan_row | ~np.isfinite(z)
-        z0 = np.where(m, z, 0.0)
-        z0 = np.where(np.isfinite(z0), z0, 0.0)
-    nan_bad = (nan_row & m).any(-1)
-    G0 = np.where(m[..., None] & np.isfinite(G), G, 0.0)
-    if diag:
-        W0 = np.where(m & np.isfinite(Wd), np.broadcast_to(W, lead), 0.0)
-    else:
-        mm = m[..., :, None] & m[..., None, :]
-        W0 = np.where(mm & np.isfinite(W), W, 0.0)
-    return G0, W0, diag, m, nan_bad, z0
-
-
 # ---------------------------------------------------------------------------
-# geometry: J, A, (WS)_ii
+# the fit of an epoch: J, A, (WS)_ii, condition, residuals, SSE, slopes
 # ---------------------------------------------------------------------------
 
 
@@ -161,44 +127,58 @@ class SolvedEpochs:
 
 
 @dataclass(frozen=True)
-class WlsGeometry(SolvedEpochs):
-    """The weighted-LS matrices of a batch of epochs (seed 000 eq. 19-21).
+class WlsFit(SolvedEpochs):
+    """The weighted LS of a batch of epochs at a linearisation point (:func:`wls_fit`).
 
-    Attributes
-    ----------
-    G : (..., N, 4) observation matrix, unused rows zeroed.
-    W : (..., N) or (..., N, N) weights, unused rows/columns zeroed.
-    diag : whether ``W`` is the diagonal form.
-    mask : (..., N) bool, rows used.
-    n_used : (...) int, number of used rows.
-    n_states : (...) int, number of estimated states (4, or 3 when no used row
-        has a clock term: the clock is then not estimated).
-    WG : (..., N, 4) ``W G``.
-    J : (..., 4, 4) ``(GᵀWG)⁻¹`` (NaN where the epoch has no solution).
-    A : (..., 4, N) ``J GᵀW`` (NaN where the epoch has no solution).
-    ws_diag : (..., N) ``(W S)ᵢᵢ``, NaN on unused rows.
-    cond : (...) condition number of the Jacobi-scaled normal matrix.
-    reason : (...) int8 :class:`Reason` code (OK, NAN_INPUT, NO_POSITION,
-        NO_REDUNDANCY, SINGULAR).
+    Batch shape ``(...)``, N rows, 4 states.
+
+    mask : (..., N) rows used.  n_used, n_states : (...) rows used and states estimated
+        (3 when no used row has a clock term: the clock is not estimated).
+    J : (..., 4, 4) ``(GᵀWG)⁻¹``.  A : (..., 4, N) ``J GᵀW`` (zero columns on unused rows).
+    ws_diag : (..., N) ``(WS)ᵢᵢ``, NaN on unused rows.
+    cond : (...) 1-norm condition number of the Jacobi-scaled GᵀWG (inf: numerically singular).
+    reason : (...) int8 :class:`Reason` (OK, NAN_INPUT, NO_POSITION, NO_REDUNDANCY, SINGULAR).
+    residual : (..., N) ``z − h`` (0 on unused rows).  sse : (...) ``rᵀWr`` (seed eq. 26).
+    hslope, vslope : (..., N) slopes (INTEGRITY_MATH.md §4), NaN on unused rows, inf where
+        (WS)ᵢᵢ = 0 (a fault there is undetectable); hmax, vmax : (...) their maxima.
+    J, A, residual, sse, slopes and ws_diag are NaN where the epoch has no solution.
     """
 
-    G: NDArray
-    W: NDArray
-    diag: bool
     mask: NDArray
     n_used: NDArray
     n_states: NDArray
-    WG: NDArray
     J: NDArray
     A: NDArray
     ws_diag: NDArray
     cond: NDArray
     reason: NDArray
+    residual: NDArray
+    sse: NDArray
+    hslope: NDArray
+    vslope: NDArray
+    hmax: NDArray
+    vmax: NDArray
+
+    def protection_levels(self, p_fa: float, p_md: float, variant: PlVariant = "pbias") -> ProtectionLevels:
+        """:func:`protection_levels` of this fit."""
+        return protection_levels(self, p_fa, p_md, variant)
+
+
+@dataclass(frozen=True)
+class WlsGeometry(WlsFit):
+    """A :class:`WlsFit` that also keeps its masked G (..., N, 4) and W, for the full matrices.
+
+    ``W`` is in the form given: diagonal (..., N) when ``diag``, else (..., N, N).
+    """
+
+    G: NDArray
+    W: NDArray
+    diag: bool
 
     def ws_matrix(self) -> NDArray:
-        """Full ``W S = W − WG J (WG)ᵀ`` ``(..., N, N)`` (symmetric; for small problems/tests)."""
+        """Full ``W S = W − W G A`` ``(..., N, N)`` (symmetric; for small problems and subspace slopes)."""
         W = self.W[..., :, None] * np.eye(self.W.shape[-1]) if self.diag else self.W
-        return W - self.WG @ self.J @ np.swapaxes(self.WG, -1, -2)
+        return W - apply_W(self.W, self.G, self.diag) @ self.A
 
     def residual_projector(self) -> NDArray:
         """Full ``S = I − G A`` ``(..., N, N)`` (for tests and small problems)."""
@@ -206,53 +186,48 @@ class WlsGeometry(SolvedEpochs):
         return np.eye(N) - self.G @ self.A
 
 
-#: wls_geometry: elements with a Jacobi-scaled condition number up to this get the explicit
-#: LDLᵀ inverse (agrees with LAPACK to ~1e-12 relative); a (WS)_ii at or below FAST_WS_RTOL·W_ii
-#: (zero redundancy: the value is rounding noise) sends its element through the old operations.
-FAST_INV_COND = 1e3
-FAST_WS_RTOL = 1e-3
-
-#: Smallest accepted LDLᵀ pivot relative to its diagonal entry in the compiled inverse
-#: (:func:`kernels.normal_geometry`). Above it the explicit solve agrees with LAPACK to ~1e-11
-#: relative; below it (ill-conditioned, singular, indefinite) the element takes LAPACK's inverse.
-SPD_PIVOT_RTOL = 1e-5
-
-#: Above this condition estimate the extreme eigenvalues are recomputed by LAPACK.
-_COND_RECHECK = 1e5
+_FIT_FIELDS = ("J", "A", "ws_diag", "cond", "residual", "sse", "hslope", "vslope", "hmax", "vmax", "n_used",
+               "n_states", "reason")
 
 
-def _eigvalsh_cond(Ms: NDArray) -> NDArray:
-    """λ_max / λ_min of symmetric matrices by LAPACK (inf where λ_min ≤ 0)."""
-    ev = np.linalg.eigvalsh(Ms)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(ev[..., 0] > 0, ev[..., -1] / ev[..., 0], np.inf)
+def wls_fit(h: ArrayLike, G: ArrayLike, z: ArrayLike, w_diag: ArrayLike, W_block: ArrayLike | None,
+            mask: ArrayLike | None, max_cond: float = MAX_COND) -> WlsFit:
+    """The weighted LS of every epoch at predictions h (..., N) with partials G (..., N, 4).
 
-
-def _scaled_cond(Ms: NDArray) -> NDArray:
-    """Condition number ``λ_max / λ_min`` of finite symmetric 4×4 matrices (inf if not PD).
-
-    Equal (to rounding) to the ``eigvalsh`` ratio but much cheaper on large batches:
-    the extreme roots of the characteristic polynomial by Laguerre's method, certified
-    by shifted LDLᵀ factorisations (:func:`kernels._cond4`). Elements that are not
-    clearly positive definite and well conditioned (estimate above ``_COND_RECHECK``,
-    not certified) are recomputed with ``eigvalsh``, so the SINGULAR flag at
-    ``max_cond`` is decided by LAPACK.
+    z : (..., N) measurements; mask : (..., N) rows used (None: all; unused rows may hold
+    anything). Weights ``W = blockdiag(diag(w_diag), W_block)``: w_diag (..., n1) for the
+    first, uncorrelated rows (e.g. pseudoranges), W_block (..., N − n1, N − n1) for the
+    rest (e.g. a vision block), or None when ``n1 = N``. One compiled pass per epoch
+    (:func:`kernels.wls_epoch`) decides every epoch, degenerate ones included, on its
+    own: a chunk of a batch gives the same numbers, bit for bit, as the whole.
     """
-    n = Ms.shape[-1]
-    if n != 4 or Ms.size == 0:
-        return _eigvalsh_cond(Ms)
-    X = kernels.kernel_input(Ms, Ms.shape, (-1, 4, 4))
-    cond = np.empty(X.shape[0])
-    kernels.cond4_batch(X, cond)
-    recheck = ~(cond <= _COND_RECHECK)
-    if recheck.any():
-        cond[recheck] = _eigvalsh_cond(X[recheck])
-    return cond.reshape(Ms.shape[:-2])
+    G = np.asarray(G, float)
+    if G.ndim < 2 or G.shape[-1] != N_STATES:
+        raise ValueError(f"G: expected (..., N, {N_STATES}) partials, got shape {G.shape}")
+    N = G.shape[-2]
+    wd = np.asarray(w_diag, float)
+    n1 = wd.shape[-1] if wd.ndim else -1
+    Wb = np.zeros((0, 0)) if W_block is None else np.asarray(W_block, float)
+    if not (0 <= n1 <= N and Wb.ndim >= 2 and Wb.shape[-2:] == (N - n1, N - n1)):
+        raise ValueError(f"weights: expected w_diag (..., n1) and W_block (..., N − n1, N − n1) with N = {N} "
+                         f"(from G {G.shape}), got w_diag {wd.shape} and W_block {Wb.shape}")
+    m = np.ones(G.shape[:-1], bool) if mask is None else np.asarray(mask, bool)
+    h, z = np.asarray(h, float), np.asarray(z, float)
+    batch = np.broadcast_shapes(G.shape[:-2], h.shape[:-1], z.shape[:-1], wd.shape[:-1], Wb.shape[:-2],
+                                m.shape[:-1])
+    out = {"J": np.empty(batch + (N_STATES, N_STATES)), "A": np.empty(batch + (N_STATES, N)),
+           "ws_diag": np.empty(batch + (N,)), "cond": np.empty(batch), "residual": np.empty(batch + (N,)),
+           "sse": np.empty(batch), "hslope": np.empty(batch + (N,)), "vslope": np.empty(batch + (N,)),
+           "hmax": np.empty(batch), "vmax": np.empty(batch), "n_used": np.empty(batch, np.int64),
+           "n_states": np.empty(batch, np.int64), "reason": np.empty(batch, np.int8)}
+    kernels.wls_epoch(G, h, z, wd, Wb, m, float(max_cond), *(out[k] for k in _FIT_FIELDS))
+    return WlsFit(mask=np.broadcast_to(m, batch + (N,)), **out)
 
 
 def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
-                 max_cond: float = MAX_COND) -> WlsGeometry:
-    """Weighted-LS matrices for a batch of epochs.
+                 max_cond: float = MAX_COND, h: ArrayLike | None = None,
+                 z: ArrayLike | None = None) -> WlsGeometry:
+    """:func:`wls_fit` with W diagonal (..., N) or full (..., N, N), keeping masked G and W.
 
     Parameters
     ----------
@@ -260,159 +235,24 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
     W : (..., N) diagonal weights (1/m²) or (..., N, N) full weight matrix (Σ⁻¹).
     mask : (..., N) bool, rows to use (default all). Unused rows may hold NaN.
     max_cond : largest accepted condition number of the Jacobi-scaled GᵀWG.
-
-    Returns
-    -------
-    WlsGeometry
-    """
-    return _wls_geometry(G, W, mask, max_cond, fast_inverse=True)
-
-
-def _wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None, max_cond: float,
-                  fast_inverse: bool) -> WlsGeometry:
-    """:func:`wls_geometry`; ``fast_inverse=False`` keeps LAPACK's inverse for every element."""
-    G0, W0, diag, m, nan_bad, _ = masked_inputs(G, W, mask)
-    WG = apply_W(W0, G0, diag)  # (..., N, 4)
-    Wd = W0 if diag else np.diagonal(W0, axis1=-2, axis2=-1)
-    return _geometry_core(G0, W0, diag, Wd, WG, m, nan_bad, max_cond, fast_inverse)
-
-
-def wls_geometry_blocks(G: ArrayLike, w_diag: ArrayLike, W_block: ArrayLike, mask: ArrayLike,
-                        max_cond: float = MAX_COND) -> WlsGeometry:
-    """:func:`wls_geometry` for block-diagonal weights, never forming the N×N matrix.
-
-    ``W = blockdiag(diag(w_diag), W_block)``: the first ``n1 = w_diag.shape[-1]`` rows
-    (e.g. pseudoranges) are uncorrelated, the last ``n2`` rows (e.g. the vision block)
-    have the dense weight ``W_block`` (..., n2, n2). Same masking/NaN rules, reasons and
-    numbers (to rounding) as ``wls_geometry(G, W_full, mask)``. The returned geometry
-    stores the diagonal of the masked weight in ``W`` with ``diag=True`` (enough for
-    :func:`slopes` and the PLs; :meth:`WlsGeometry.ws_matrix` is not valid for it).
+    h, z : (..., N) predictions and measurements for the residuals and SSE (default 0).
     """
     G = np.asarray(G, float)
-    wd = np.asarray(w_diag, float)
-    Wb = np.asarray(W_block, float)
-    n1 = wd.shape[-1]
-    m = np.broadcast_to(np.asarray(mask, bool), G.shape[:-1])
-    m1, m2 = m[..., :n1], m[..., n1:]
-    mm2 = m2[..., :, None] & m2[..., None, :]
-    finG = np.isfinite(G)
-    finW = np.isfinite(Wb)
-    nan_row = ~finG.all(-1)
-    nan_row = nan_row | np.concatenate(
-        [~np.isfinite(wd), ~np.diagonal(finW, axis1=-2, axis2=-1) | (~finW & mm2).any(-1)], axis=-1)
-    nan_bad = (nan_row & m).any(-1)
-    G0 = np.where(m[..., None] & finG, G, 0.0)
-    wd0 = np.where(m1 & np.isfinite(wd), wd, 0.0)
-    Wb0 = np.where(mm2 & finW, Wb, 0.0)
-    WG = np.concatenate([wd0[..., None] * G0[..., :n1, :], Wb0 @ G0[..., n1:, :]], axis=-2)
-    Wd = np.concatenate([wd0, np.diagonal(Wb0, axis1=-2, axis2=-1)], axis=-1)
-    return _geometry_core(G0, Wd, True, Wd, WG, m, nan_bad, max_cond, True)
-
-
-def _compiled_geometry(G0: NDArray, WG: NDArray, Wd: NDArray) -> tuple[NDArray, ...]:
-    """:func:`kernels.normal_geometry` on a batch: M, cond, J, A, (WS)_ii, J-ok."""
-    batch, (N, n) = G0.shape[:-2], G0.shape[-2:]
-    P = int(np.prod(batch, dtype=np.int64))
-
-    def flat(a: NDArray, tail: tuple) -> NDArray:
-        return kernels.kernel_input(a, batch + tail, (P,) + tail)
-
-    M, cond = np.empty((P, n, n)), np.empty(P)
-    J, A, ws, ok = np.empty((P, n, n)), np.empty((P, n, N)), np.empty((P, N)), np.empty(P, bool)
-    kernels.normal_geometry(flat(G0, (N, n)), flat(WG, (N, n)), flat(Wd, (N,)), SPD_PIVOT_RTOL, M, cond, J, A, ws, ok)
-    return (M.reshape(batch + (n, n)), cond.reshape(batch), J.reshape(batch + (n, n)), A.reshape(batch + (n, N)),
-            ws.reshape(batch + (N,)), ok.reshape(batch))
-
-
-def _geometry_core(G0: NDArray, W0: NDArray, diag: bool, Wd: NDArray, WG: NDArray, m: NDArray,
-                   nan_bad: NDArray, max_cond: float, fast_inverse: bool) -> WlsGeometry:
-    """The part of :func:`wls_geometry` after masking: J, A, (WS)_ii, cond, reasons."""
-    n_used = m.sum(-1)
-    # A state no used row depends on (the clock when there are no pseudorange
-    # rows) is dropped: it keeps its starting value, J/A rows are zero, and the
-    # test has one more degree of freedom. live (..., 4): a used row depends on the
-    # state (G0 has no NaN); only the clock may be dropped (a dead position column is
-    # singular), so only its column is scanned.
-    live = np.ones(G0.shape[:-2] + (G0.shape[-1],), bool)
-    live[..., 3] = (G0[..., 3] != 0).any(-1)
-    n_states = live.sum(-1)
-    elem_live = live.all(-1)
-    eye = np.eye(G0.shape[-1])
-    # Every decision below is per element, so an element's numbers never depend on the
-    # rest of the batch (chunks of a batch are bit-identical to the whole).
-    if fast_inverse:  # GᵀWG, its condition, J, A and (WS)_ii per epoch, compiled
-        M, cond, J, A, ws, okJ = _compiled_geometry(G0, WG, Wd)
-        # uncertified or above the recheck level: the extreme eigenvalues from LAPACK, as in _scaled_cond
-        recheck = elem_live & (np.isnan(cond) | (np.isfinite(cond) & (cond > _COND_RECHECK)))
-        if recheck.any():
-            d = np.sqrt(np.abs(np.diagonal(M[recheck], axis1=-2, axis2=-1)))
-            Ms = M[recheck] / (d[..., :, None] * d[..., None, :])
-            cond[recheck] = _eigvalsh_cond(np.where(np.isfinite(Ms), Ms, 0.0))
-        numpy_way = ~elem_live  # a dropped clock: the reduced normal matrix below
-    else:
-        M = np.swapaxes(G0, -1, -2) @ WG  # GᵀWG (..., 4, 4)
-        cond = np.empty(n_used.shape)
-        J, A, ws = np.empty(M.shape), np.empty(WG.shape[:-2] + (WG.shape[-1], WG.shape[-2])), np.empty(Wd.shape)
-        okJ = np.zeros(n_used.shape, bool)
-        numpy_way = np.ones(n_used.shape, bool)
-    if numpy_way.any():
-        ln = live[numpy_way]
-        Mn = np.where(ln[..., :, None] & ln[..., None, :], M[numpy_way], 0.0) + eye * ~ln[..., None, :]
-        # Jacobi scaling makes the condition number independent of the units of
-        # each state and of an overall weight scale.
-        d = np.sqrt(np.abs(np.diagonal(Mn, axis1=-2, axis2=-1)))
-        d_safe = np.where(d > 0, d, 1.0)
-        Ms = Mn / (d_safe[..., :, None] * d_safe[..., None, :])
-        M[numpy_way] = Mn
-        cond[numpy_way] = np.where((d > 0).all(-1), _scaled_cond(np.where(np.isfinite(Ms), Ms, 0.0)), np.inf)
-    n_states_full = M.shape[-1]
-
-    reason = np.zeros(n_used.shape, np.int8)
-    reason = np.where(cond > max_cond, Reason.SINGULAR, reason)
-    reason = np.where(n_used - n_states < 1, Reason.NO_REDUNDANCY, reason)
-    reason = np.where(n_used < n_states, Reason.NO_POSITION, reason)
-    reason = np.where(nan_bad, Reason.NAN_INPUT, reason).astype(np.int8)
-    solvable = (reason == Reason.OK) | (reason == Reason.NO_REDUNDANCY)
-
-    # invert only the good elements: a singular element must not raise for the batch
-    M_safe = np.where(solvable[..., None, None], M, np.eye(n_states_full))
-    # Well-conditioned elements keep the compiled LDLᵀ inverse and (WS)_ii = W_ii − Σ_k (WG)_ik A_ki.
-    # The rest (ill-conditioned, dropped clock, and any with a near-zero (WS)_ii, whose value
-    # is rounding noise) take the LAPACK inverse and the 3-operand sum.
-    J = np.where(solvable[..., None, None], J, np.nan)
-    A = np.where(solvable[..., None, None], A, np.nan)
-    fast = solvable & elem_live & (cond <= FAST_INV_COND) & okJ
-    fast = fast & ~(m & ~(ws > FAST_WS_RTOL * np.abs(Wd))).any(-1)
-    slow = ~fast
-    if slow.any():
-        Js = np.linalg.inv(M_safe[slow])
-        ls = live[slow]
-        Js = np.where(ls[..., :, None] & ls[..., None, :], Js, 0.0)  # dropped states: not estimated
-        Js = np.where(solvable[slow][..., None, None], Js, np.nan)
-        WGs = WG[slow]
-        J[slow] = Js
-        A[slow] = Js @ np.swapaxes(WGs, -1, -2)
-        ws[slow] = Wd[slow] - np.einsum("...ni,...ij,...nj->...n", WGs, Js, WGs)  # (W S)_ii
-    ws = np.where(m, ws, np.nan)
-    return WlsGeometry(G=G0, W=W0, diag=diag, mask=m, n_used=n_used, n_states=n_states, WG=WG, J=J, A=A,
-                       ws_diag=ws, cond=cond, reason=reason)
-
-
-def weighted_sse(r: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None) -> NDArray:
-    """Test statistic ``SSE = rᵀ W r`` (seed 000 eq. 19), unused rows ignored.
-
-    r : (..., N) residuals; W : (..., N) diagonal or (..., N, N) full. Returns (...).
-    """
-    r = np.asarray(r, float)
     W = np.asarray(W, float)
-    m = np.ones(r.shape, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), r.shape)
-    r0 = np.where(m, r, 0.0)
-    r0 = np.where(np.isfinite(r0), r0, 0.0)
-    if W.ndim == r.ndim:
-        return np.sum(np.where(m, W, 0.0) * r0 * r0, axis=-1)
-    mm = m[..., :, None] & m[..., None, :]
-    W0 = np.where(mm & np.isfinite(W), W, 0.0)
-    return np.sum((W0 @ r0[..., None])[..., 0] * r0, axis=-1)
+    diag = _is_diag(W, G)
+    N = G.shape[-2]
+    zero = np.zeros(N)
+    h = zero if h is None else h
+    z = zero if z is None else z
+    ft = wls_fit(h, G, z, W, None, mask, max_cond) if diag else wls_fit(h, G, z, W[..., 0, :0], W, mask, max_cond)
+    m = ft.mask
+    G0 = np.where(m[..., None] & np.isfinite(G), G, 0.0)
+    if diag:
+        W0 = np.where(m & np.isfinite(W), W, 0.0)
+    else:
+        mm = m[..., :, None] & m[..., None, :]
+        W0 = np.where(mm & np.isfinite(W), W, 0.0)
+    return WlsGeometry(**{f: getattr(ft, f) for f in ("mask",) + _FIT_FIELDS}, G=G0, W=W0, diag=diag)
 
 
 # ---------------------------------------------------------------------------
@@ -480,34 +320,6 @@ def lambda_det(dof: ArrayLike, p_fa: float, p_md: float) -> NDArray:
 def k_md(p_md: float) -> float:
     """Two-sided missed-detection multiplier ``Φ⁻¹(1 − P_MD/2)`` (seed eq. 22-23)."""
     return float(stats.norm.isf(_check_prob(p_md, "p_md") / 2))
-
-
-def slopes(geom: WlsGeometry) -> tuple[NDArray, NDArray]:
-    """Horizontal and vertical slopes per measurement (INTEGRITY_MATH.md §4).
-
-    ``Hslopeᵢ = sqrt(A₁ᵢ² + A₂ᵢ²) / sqrt((WS)ᵢᵢ)``, ``Vslopeᵢ = |A₃ᵢ| / sqrt((WS)ᵢᵢ)``:
-    position error per unit of sqrt(λ) for a bias on row i alone.
-
-    Returns
-    -------
-    hslope, vslope : (..., N), NaN on unused rows and unsolvable epochs, inf
-    where (WS)ᵢᵢ ≤ 0 (a fault on that row is undetectable).
-    """
-    A = geom.A
-    num_h = np.hypot(A[..., 0, :], A[..., 1, :])
-    num_v = np.abs(A[..., 2, :])
-    ws = geom.ws_diag
-    # (WS)_ii is ≥ 0 in exact arithmetic; a tiny negative is round-off of a
-    # zero-redundancy row. Relative floor against W_ii.
-    Wd = geom.W if geom.diag else np.diagonal(geom.W, axis1=-2, axis2=-1)
-    zero = ws <= 1e-12 * np.abs(Wd)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        den = np.sqrt(np.where(zero, np.nan, ws))
-        hs = np.where(zero & geom.mask, np.inf, num_h / den)
-        vs = np.where(zero & geom.mask, np.inf, num_v / den)
-    hs = np.where(geom.mask, hs, np.nan)
-    vs = np.where(geom.mask, vs, np.nan)
-    return hs, vs
 
 
 def max_generalized_eig(P: NDArray, Q: NDArray, rtol: float = 1e-9) -> NDArray:
@@ -596,12 +408,7 @@ class ProtectionLevels:
     reason: NDArray
 
 
-def max_over_rows(x: NDArray) -> NDArray:
-    """Largest value over the last axis, NaN (unused rows) ignored; −inf where every row is NaN."""
-    return np.max(np.where(np.isnan(x), -np.inf, x), axis=-1)
-
-
-def protection_levels(geom: WlsGeometry, p_fa: float, p_md: float,
+def protection_levels(geom: WlsFit, p_fa: float, p_md: float,
                       variant: PlVariant = "pbias") -> ProtectionLevels:
     """HPL/VPL by the slope method (INTEGRITY_MATH.md §4), two variants.
 
@@ -612,19 +419,11 @@ def protection_levels(geom: WlsGeometry, p_fa: float, p_md: float,
     Epochs with reason ≠ OK get NaN; an epoch whose worst slope is infinite
     gets reason UNDETECTABLE and NaN.
     """
-    hs, vs = slopes(geom)
-    hmax, vmax = max_over_rows(hs), max_over_rows(vs)
-    return slope_protection_levels(hs, vs, hmax, vmax, geom.J, geom.dof, geom.reason, p_fa, p_md, variant)
-
-
-def slope_protection_levels(hs: NDArray, vs: NDArray, hmax: NDArray, vmax: NDArray, J: NDArray, dof: NDArray,
-                            reason: NDArray, p_fa: float, p_md: float, variant: PlVariant) -> ProtectionLevels:
-    """:func:`protection_levels` from the slopes (..., N), their maxima (...), J (..., 4, 4),
-    the degrees of freedom and the geometry's reason codes (...)."""
     if variant not in ("seed", "pbias"):
         raise ValueError(f"variant: expected 'seed' or 'pbias', got {variant!r}")
-    T2 = chi2_threshold(dof, p_fa)
-    lam = lambda_det(dof, p_fa, p_md)
+    hs, vs, hmax, vmax, J, reason = geom.hslope, geom.vslope, geom.hmax, geom.vmax, geom.J, geom.reason
+    T2 = chi2_threshold(geom.dof, p_fa)
+    lam = lambda_det(geom.dof, p_fa, p_md)
     if variant == "seed":
         kmd = k_md(p_md)
         T = np.sqrt(T2)
@@ -699,12 +498,9 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
     iters = np.zeros(z.shape[:-1], np.int64)
     for it in range(1, n_iter + 1):
         h, G = model(x)
-        # Iterates keep LAPACK's inverse: the converged state depends on the path of the
-        # iterations (stop at a 1 mm step), so rounding changes there would move the outputs.
-        geom = _wls_geometry(G, W, mask, max_cond, fast_inverse=False)
-        dz = np.where(geom.mask, z - h, 0.0)
-        dz = np.where(np.isfinite(dz), dz, 0.0)
-        dx = np.einsum("...ij,...j->...i", geom.A, dz)  # x̂ = x + A (z − h(x))
+        geom = wls_geometry(G, W, mask, max_cond, h, z)
+        dz = np.where(np.isfinite(geom.residual), geom.residual, 0.0)
+        dx = np.einsum("...ij,...j->...i", geom.A, dz)  # x̂ = x + A (z − h(x)) (seed eq. 24)
         stepping = ~(frozen | converged)  # a converged element stops where it converged
         frozen = frozen | (stepping & ~geom.solvable)
         stepping &= geom.solvable
@@ -715,25 +511,19 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
         if np.all(converged | frozen):
             break
     h, G = model(x)
-    return _solution_at(x, h, G, z, W, mask, converged, frozen, nan_z, iters, max_cond)
+    return _solution_at(x, wls_geometry(G, W, mask, max_cond, h, z), converged, frozen, iters)
 
 
-def _solution_at(x: NDArray, h: NDArray, G: NDArray, z: NDArray, W: ArrayLike, mask: ArrayLike | None,
-                 converged: NDArray, frozen: NDArray, nan_z: NDArray, n_iter: ArrayLike,
-                 max_cond: float) -> WlsSolution:
-    """Geometry, residuals, SSE and reasons at the final state of an iterated solve."""
-    geom = wls_geometry(G, W, mask, max_cond)
-    r = np.where(geom.mask, z - h, 0.0)
-    r = np.where(np.isfinite(r), r, 0.0)
-    sse = weighted_sse(r, geom.W, geom.mask)
-    reason = np.where(nan_z, Reason.NAN_INPUT, geom.reason)
-    reason = np.where((reason == Reason.OK) & ~converged, Reason.NOT_CONVERGED, reason).astype(np.int8)
+def _solution_at(x: NDArray, geom: WlsGeometry, converged: NDArray, frozen: NDArray,
+                 n_iter: ArrayLike) -> WlsSolution:
+    """The solve's verdict at its final state: NaN where frozen, NOT_CONVERGED where it did not stop."""
+    reason = np.where((geom.reason == Reason.OK) & ~converged, Reason.NOT_CONVERGED, geom.reason).astype(np.int8)
     bad = ~geom.solvable | frozen
     x = np.where(bad[..., None], np.nan, x)
     # the geometry carries the solve's verdict, so PLs computed from it are NaN too
     geom = replace(geom, reason=reason)
-    return WlsSolution(x=x, residual=np.where(bad[..., None], np.nan, r), sse=np.where(bad, np.nan, sse),
-                       geometry=geom, converged=converged & ~bad,
+    return WlsSolution(x=x, residual=np.where(bad[..., None], np.nan, geom.residual),
+                       sse=np.where(bad, np.nan, geom.sse), geometry=geom, converged=converged & ~bad,
                        n_iter=np.broadcast_to(np.asarray(n_iter, np.int64), reason.shape).copy(), reason=reason)
 
 
@@ -744,7 +534,7 @@ def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, visi
     gps = ``(anchor (..., NG, 3), antenna offset (..., 3), z, w, mask (..., NG))``;
     vision = ``(landmarks (L, 3), camera offset (..., 3), Tm (..., R, L), z (..., R),
     W (..., R, R), mask (..., R))`` or None. The monitors then evaluate the geometry once,
-    at the solution, for the reasons, SSE, slopes and PLs (:func:`fit.wls_fit`).
+    at the solution, for the reasons, SSE, slopes and PLs (:func:`wls_fit`).
     Returns the state (..., 4), a converged flag (...), the steps taken (...), and the
     stacked predictions h (..., N) and partials G (..., N, 4) at that state (N = NG + R;
     masked rows zero).
@@ -860,15 +650,14 @@ def solve_ranges(anchor_enu: ArrayLike, z: ArrayLike, W: ArrayLike, mask: ArrayL
         x0b = np.broadcast_to(np.asarray(x0, float), batch + (N_STATES,))
         x, conv, iters, h, G = gauss_newton_ranges(
             x0b, n_iter, tol_m, (np.broadcast_to(a, batch + (N, 3)), o, zb, np.broadcast_to(Wa, batch + (N,)), m))
-        nan_z = (m & ~np.isfinite(zb)).any(-1)
-        return _solution_at(x, h, G, zb, np.broadcast_to(Wa, batch + (N,)), m, conv, nan_z, nan_z,
-                            iters, max_cond)
+        geom = wls_geometry(G, np.broadcast_to(Wa, batch + (N,)), m, max_cond, h, zb)
+        return _solution_at(x, geom, conv, ~geom.solvable, iters)
     return iterate_wls(range_model(anchor_enu, clock_col, offset_enu), z, W, mask, x0,
                        n_iter=n_iter, tol_m=tol_m, max_cond=max_cond)
 
 
 def dops(geom, sigma_uere: float = 1.0) -> dict[str, NDArray]:
-    """Weighted DOPs from ``geom.J`` (a WlsGeometry or fit.WlsFit; equal to classic DOPs when
+    """Weighted DOPs from ``geom.J`` (a WlsFit; equal to classic DOPs when
     W = I/σ²·sigma_uere²).
 
     Returns dict with ``gdop, pdop, hdop, vdop, tdop`` (...), computed as

@@ -15,7 +15,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import LocalFrame
 from testbed.integrity import kernels, lsq
-from testbed.integrity.fit import wls_fit
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.settings import IntegritySettings
@@ -131,10 +130,10 @@ def fix_at_solution(h: NDArray, G: NDArray, z: NDArray, W: tuple, mask: NDArray,
     iterated solve (GPS RAIM, and VA-RAIM's GPS and integrated solves).
 
     h (..., N), G (..., N, 4): the predictions and partials at x. W = ``(w_diag, W_block)``:
-    the block-diagonal weight of :func:`fit.wls_fit` (GPS rows first, then the vision block;
+    the block-diagonal weight of :func:`lsq.wls_fit` (GPS rows first, then the vision block;
     W_block None for GPS rows only).
     """
-    ft = wls_fit(h, G, z, W[0], W[1], mask, ist.max_cond)
+    ft = lsq.wls_fit(h, G, z, W[0], W[1], mask, ist.max_cond)
     with np.errstate(invalid="ignore", over="ignore"):
         pls = {v: ft.protection_levels(ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
     reason = np.where((ft.reason == lsq.Reason.OK) & ~conv, lsq.Reason.NOT_CONVERGED, ft.reason)

@@ -40,8 +40,9 @@ class IntegritySettings(StrictModel):
                                                          "covariance.")
     max_iter: int = Field(8, ge=1, le=50, description="Maximum Gauss-Newton iterations of the WLS solve.")
     tol_m: float = Field(1e-3, gt=0.0, description="WLS convergence: position step below this (m).")
-    max_cond: float = Field(1e10, gt=1.0, description="Largest accepted condition number of the Jacobi-scaled "
-                                                      "normal matrix GᵀWG; above it the epoch is 'singular geometry'.")
+    max_cond: float = Field(1e10, gt=1.0, description="Largest accepted (1-norm) condition number of the "
+                                                      "Jacobi-scaled normal matrix GᵀWG; above it the epoch is "
+                                                      "'singular geometry'.")
 
     @field_validator("service_levels")
     @classmethod

@@ -38,7 +38,6 @@ from scipy import optimize, stats
 from testbed.frames import LocalFrame, q_to_R
 from testbed.integrity import kernels, lsq
 from testbed.integrity.batching import map_trial_chunks
-from testbed.integrity.fit import WlsFit
 from testbed.integrity.calibration import (
     CalibratedRanges,
     calibrate,
@@ -236,7 +235,7 @@ class VaRaimDiagnostics(Diagnostics):
         return col
 
 
-def _monitor_output(name, t, x, ft: WlsFit, pls, reason, ok, ist, extra: dict, gps_rows: tuple) -> MonitorOutput:
+def _monitor_output(name, t, x, ft: lsq.WlsFit, pls, reason, ok, ist, extra: dict, gps_rows: tuple) -> MonitorOutput:
     """gps_rows : (idx, mask, S) of the compacted GPS rows, to put the stacked rows back in satellite slots."""
     idx, mg, S = gps_rows
     Ng = idx.shape[-1]

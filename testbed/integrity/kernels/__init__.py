@@ -8,9 +8,10 @@ on its own, so an epoch's answer never depends on what else is in the batch
 checked against the numpy or LAPACK formula it replaces
 (``tests/test_integrity_kernels.py``).
 
-* :mod:`.small` – small dense linear algebra (LU, products, certified 4×4 condition);
+* :mod:`.small` – small dense linear algebra (LU, products);
 * :mod:`.ranges` – the used-row gather and the range Gauss–Newton (GPS and vision rows);
-* :mod:`.geometry` – GᵀWG, J, A, (WS)ᵢᵢ and the solution-side fit (residuals, SSE, slopes);
+* :mod:`.geometry` – the weighted LS of an epoch: GᵀWG, its condition, J, A, (WS)ᵢᵢ, residuals,
+  SSE, slopes and the reason code (a gufunc);
 * :mod:`.vision` – cosines and Σ_c, the cosine-rule solve and its products, the vision
   prior and the integrated solve's vision block;
 * :mod:`.calibration` – the GPS calibration of the vision ranges.
@@ -27,9 +28,9 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.integrity.kernels.calibration import calibrate_epochs
-from testbed.integrity.kernels.geometry import fit_at_solution, normal_geometry
+from testbed.integrity.kernels.geometry import wls_epoch
 from testbed.integrity.kernels.ranges import gather_used_rows, range_gauss_newton
-from testbed.integrity.kernels.small import _cond4, _lu_solve, cond4_batch
+from testbed.integrity.kernels.small import _lu_solve
 from testbed.integrity.kernels.vision import (
     cosine_gauss_newton,
     cosine_rule_products,
@@ -38,9 +39,9 @@ from testbed.integrity.kernels.vision import (
     vision_rows,
 )
 
-__all__ = ["calibrate_epochs", "compile_all", "cond4_batch", "cosine_gauss_newton", "cosine_rule_products",
-           "cosines_and_covariance", "fit_at_solution", "gather_used_rows", "kernel_input", "normal_geometry",
-           "range_gauss_newton", "vision_prior", "vision_rows", "_cond4", "_lu_solve"]
+__all__ = ["calibrate_epochs", "compile_all", "cosine_gauss_newton", "cosine_rule_products",
+           "cosines_and_covariance", "gather_used_rows", "kernel_input", "range_gauss_newton", "vision_prior",
+           "vision_rows", "wls_epoch", "_lu_solve"]
 
 
 def kernel_input(a, shape: tuple, out_shape: tuple | None = None, dtype=np.float64) -> np.ndarray:
@@ -73,7 +74,6 @@ def compile_all() -> None:
     def w(*shape, dt=f):  # an output
         return np.zeros(shape, dt)
 
-    eye = kernel_input(np.eye(4), (1, 4, 4))
     gather_used_rows(r(1, 4, dt=b), r(1, 4), r(1, 4), r(1, 4, 3), r(3, 3), r(3), w(1, 3, dt=i), w(1, 3, dt=b), w(1, 3), w(1, 3),
                      w(1, 3, 3))
     range_gauss_newton(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
@@ -81,10 +81,9 @@ def compile_all() -> None:
                        w(1, 4), w(1, 4, 4))
     cosine_gauss_newton(r(1, 3), r(1, 3, 3), r(3), r(1, 3), r(1, 3, dt=b), r(1, 3, dt=b), 1, 1e-4, w(1, 3),
                         w(1, dt=i), w(1, dt=b), w(1, dt=b))
-    normal_geometry(r(1, 5, 4), r(1, 5, 4), r(1, 5), 1e-5, w(1, 4, 4), w(1), w(1, 4, 4), w(1, 4, 5), w(1, 5),
-                    w(1, dt=b))
-    fit_at_solution(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e-5, 1e3, 1e-3, w(1, 4, 4),
-                    w(1, 5), w(1), w(1, 5), w(1), w(1, 5), w(1, 5), w(1), w(1), w(1, dt=i), w(1, dt=b))
+    wls_epoch(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e10, w(1, 4, 4), w(1, 4, 5),
+              w(1, 5), w(1), w(1, 5), w(1), w(1, 5), w(1, 5), w(1), w(1), w(1, dt=i), w(1, dt=i),
+              w(1, dt=np.int8))
     cosine_rule_products(r(1, 3), r(1, 3), r(3), r(1, 3, dt=b), r(1, 3, dt=b), r(1, 3, 3), r(1, 3, 3), r(1, 3),
                          r(1, 3, 3), w(1, 3, 3), w(1, 3), w(1, 3, 3), w(1, dt=b), w(1), w(1, 3, 3), w(1), w(1), w(1),
                          w(1, dt=b))
@@ -97,4 +96,3 @@ def compile_all() -> None:
     calibrate_epochs(r(1, 1, dt=i), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3, 3),
                      r(1, 1, 3, 3), r(1, 1, 3, dt=b), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(3, 3), r(3, 3),
                      w(1, 1, 3), w(1, 1, 3), w(1, 1, 3, 3), w(1, 1, 3, 3))
-    cond4_batch(eye, w(1))

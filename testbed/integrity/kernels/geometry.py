@@ -1,204 +1,224 @@
-"""The weighted-LS geometry of every epoch: GᵀWG, its condition, J, A, (WS)ᵢᵢ, and the solution-side fit."""
+"""The weighted-LS geometry and fit of one epoch (INTEGRITY_MATH.md §4), as a gufunc.
+
+One implementation for every monitor and every epoch, clean or not: the used rows,
+NaN checks, a dropped clock, GᵀWG, its Jacobi-scaled condition, J, A, (WS)ᵢᵢ, the
+residuals, SSE and the slopes, with the epoch's :class:`~testbed.integrity.lsq.Reason`.
+numpy's gufunc machinery broadcasts it over any batch axes and releases the GIL.
+"""
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import guvectorize
 
-from testbed.integrity.kernels.small import _cond4, _matmul
+# lsq.Reason codes (kernels cannot import lsq: lsq imports the kernels)
+_OK, _NAN_INPUT, _NO_POSITION, _NO_REDUNDANCY, _SINGULAR = 0, 1, 2, 3, 4
+
+#: A used row whose (WS)ᵢᵢ is at or below this fraction of Wᵢᵢ has zero redundancy: the
+#: value is rounding noise, and a fault on the row moves the position unseen (slope inf).
+ZERO_REDUNDANCY_RTOL = 1e-12
+
+SIGNATURE = "(n,k),(n),(n),(a),(b,b),(n),()->(k,k),(k,n),(n),(),(n),(),(n),(n),(),(),(),(),()"
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def normal_geometry(G0, WG, Wd, pivot_rtol, M_out, cond_out, J_out, A_out, ws_out, ok_out):
-    """The weighted-LS matrices of every epoch (n states, all estimated).
+@guvectorize(SIGNATURE, nopython=True, cache=True)
+def wls_epoch(G, h, z, wd, Wb, mask, max_cond,
+              J, A, ws, cond, r, sse, hslope, vslope, hmax, vmax, n_used, n_states, reason):
+    """Weighted LS of one epoch at the linearisation point (prediction ``h``, partials ``G``).
 
-    G0, WG (P, N, n) masked observation matrix and ``W G``; Wd (P, N) the diagonal of W.
-    Writes ``M = GᵀWG``, the condition number of the Jacobi-scaled M (``λ_max/λ_min``,
-    :func:`_cond4`; inf if a diagonal is zero, NaN where the caller must use LAPACK),
-    ``J = M⁻¹`` by LDLᵀ, ``A = J (WG)ᵀ`` and ``(WS)_ii = W_ii − Σ_k (WG)_ik A_ki``.
-    ``ok_out`` is False where a pivot ``d_j ≤ pivot_rtol·M_jj`` (J not trusted there).
+    Inputs: G (N, 4) rows ∂h/∂[E, N, U, clock]; h, z (N) prediction and measurement;
+    ``W = blockdiag(diag(wd), Wb)``, wd (n1) for the first, uncorrelated rows, Wb (R, R)
+    with R = N − n1 for the rest; mask (N) rows used (unused rows may hold anything);
+    max_cond the largest accepted condition number.
+
+    Outputs (NaN where the epoch has no solution): J (4, 4) = (GᵀWG)⁻¹, A (4, N) = J GᵀW
+    (zero columns on unused rows), ws (N) = (WS)ᵢᵢ (NaN on unused rows), cond, r (N) = z − h
+    (0 on unused rows), sse = rᵀWr, hslope/vslope (N) with their maxima hmax/vmax (−inf
+    with no used row), n_used, n_states (3 when no used row has a clock term: the clock
+    is then not estimated, its J/A rows are zero and the test gains a degree of freedom),
+    reason (NAN_INPUT, NO_POSITION, SINGULAR, NO_REDUNDANCY or OK).
+
+    cond is the 1-norm condition number ‖S‖₁‖S⁻¹‖₁ of the Jacobi-scaled normal matrix
+    S = D⁻¹(GᵀWG)D⁻¹, D = diag(GᵀWG)^½ (independent of state units and weight scale;
+    κ₂ ≤ κ₁ ≤ 4κ₂ for 4 states). S is factorised LDLᵀ; a pivot that is not positive
+    means S is numerically singular (cond = inf). For SPD S the factorisation is
+    backward stable, so J is as accurate as LAPACK's inverse at any accepted condition.
     """
-    P, N, n = G0.shape
-    S = np.empty((n, n))
-    scratch = np.empty((4, 4))
-    Lm = np.zeros((n, n))
-    d = np.empty(n)
-    y = np.empty(n)
-    for p in range(P):
-        cond_out[p], ok_out[p] = _normal_element(G0[p], WG[p], Wd[p], pivot_rtol, M_out[p], S, scratch, Lm, d, y,
-                                                 J_out[p], A_out[p], ws_out[p])
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _normal_element(G0, WG, Wd, pivot_rtol, M, S, scratch, Lm, d, y, J, A, ws):
-    """:func:`normal_geometry` of one epoch: G0, WG (N, n), Wd (N,) in; M, J (n, n), A (n, N),
-    ws (N,) out (J, A, ws NaN where J is not trusted); S, scratch, Lm (n, n), d, y (n,) scratch.
-    Returns (cond, J trusted)."""
-    N, n = G0.shape
-    _matmul(G0.T, WG, M)
-    # condition of the Jacobi-scaled (symmetrised) matrix
-    zero_diag = False
-    for i in range(n):
-        d[i] = np.sqrt(abs(M[i, i]))
-        if not d[i] > 0.0:
-            zero_diag = True
-    if zero_diag:
-        cond = np.inf
-    else:
-        for i in range(n):
-            for j in range(n):
-                v = 0.5 * (M[i, j] + M[j, i]) / (d[i] * d[j])
-                S[i, j] = v if np.isfinite(v) else 0.0
-        cond = _cond4(S, scratch) if n == 4 else np.nan
-    # J = M⁻¹ by LDLᵀ (M symmetric positive definite when well posed)
-    for j in range(n):
-        s = M[j, j]
-        for q in range(j):
-            s -= Lm[j, q] * Lm[j, q] * d[q]
-        if not (s > pivot_rtol * M[j, j] and np.isfinite(s)):
-            J[:] = np.nan
-            A[:] = np.nan
-            ws[:] = np.nan
-            return cond, False
-        d[j] = s
-        for i in range(j + 1, n):
-            s = M[i, j]
-            for q in range(j):
-                s -= Lm[i, q] * Lm[j, q] * d[q]
-            Lm[i, j] = s / d[j]
-    for c in range(n):  # column c of J: L D Lᵀ x = e_c
-        for i in range(n):
-            s = 1.0 if i == c else 0.0
-            for q in range(i):
-                s -= Lm[i, q] * y[q]
-            y[i] = s
-        for i in range(n - 1, -1, -1):
-            s = y[i] / d[i]
-            for q in range(i + 1, n):
-                s -= Lm[q, i] * J[q, c]
-            J[i, c] = s
-    _matmul(J, WG.T, A)
-    for k in range(N):
-        s = 0.0
-        for i in range(n):
-            s += WG[k, i] * A[i, k]
-        ws[k] = Wd[k] - s
-    return cond, True
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def fit_at_solution(G, h, z, wd, Wb, mask, pivot_rtol, fast_cond, ws_rtol,
-                    J_out, ws_out, cond_out, r_out, sse_out, hs_out, vs_out, hmax_out, vmax_out,
-                    n_used_out, fast_out):
-    """Geometry, residuals, SSE and slopes at the solution of an iterated solve, every epoch.
-
-    Rows (P, N): G (P, N, 4) partials, h predictions, z measurements, mask rows used. The
-    weight is block-diagonal, ``W = blockdiag(diag(wd), Wb)``: the first n1 = wd.shape[1]
-    rows uncorrelated, the last R = N − n1 rows with the dense block Wb (P, R, R).
-
-    For a *clean* epoch — every used row finite, a clock row, J trusted (pivots as
-    :func:`normal_geometry`), the condition number certified and ≤ ``fast_cond``, and
-    ``(WS)_ii > ws_rtol·W_ii`` on every used row — writes J (4, 4), (WS)_ii (NaN on unused
-    rows), cond, residuals ``z − h`` (0 on unused rows), ``SSE = rᵀWr``, slopes
-    ``hypot(A₁ᵢ, A₂ᵢ)/sqrt((WS)ᵢᵢ)`` and ``|A₃ᵢ|/sqrt((WS)ᵢᵢ)`` (NaN on unused rows) with their
-    maxima, and sets ``fast_out``. Every other epoch gets ``fast_out`` False and unspecified
-    outputs (except ``n_used_out``): the caller takes it through the numpy path, which
-    decides its reason.
-    """
-    P, N, n = G.shape
-    n1 = wd.shape[1]
+    N, K = G.shape
+    n1 = wd.shape[0]
     R = N - n1
-    G0 = np.empty((N, n))
-    WG = np.empty((N, n))
-    Wd = np.empty(N)
-    M = np.empty((n, n))
-    S = np.empty((n, n))
-    scratch = np.empty((4, 4))
-    Lm = np.zeros((n, n))
-    d = np.empty(n)
-    y = np.empty(n)
-    A = np.empty((n, N))
-    for p in range(P):
-        clean = True
-        clock = False
-        nu = 0
+    # -- rows used, finite inputs, residuals -------------------------------------
+    nu = 0
+    finite = True
+    clock = False
+    for k in range(N):
+        r[k] = 0.0
+        if mask[k]:
+            nu += 1
+            rk = z[k] - h[k]
+            finite = finite and np.isfinite(rk)
+            r[k] = rk
+            for c in range(K):
+                finite = finite and np.isfinite(G[k, c])
+            clock = clock or (np.isfinite(G[k, 3]) and G[k, 3] != 0.0)
+    for k in range(n1):
+        if mask[k]:
+            finite = finite and np.isfinite(wd[k])
+    for i in range(R):
+        if mask[n1 + i]:
+            for j in range(R):
+                if mask[n1 + j]:
+                    finite = finite and np.isfinite(Wb[i, j])
+    ns = K if clock else K - 1
+    n_used[0] = nu
+    n_states[0] = ns
+    hmax[0] = -np.inf
+    vmax[0] = -np.inf
+    cond[0] = np.nan
+    code = _OK
+    if not finite:
+        code = _NAN_INPUT
+    elif nu < ns:
+        code = _NO_POSITION
+    if code == _OK:
+        # -- M = GᵀWG, the normal matrix of A = (GᵀWG)⁻¹GᵀW (seed eq. 20-21); WG in A's columns for now --
+        M = np.zeros((K, K))
         for k in range(N):
-            if mask[p, k]:
-                nu += 1
-                rk = z[p, k] - h[p, k]
-                clean = clean and np.isfinite(rk)
-                r_out[p, k] = rk
-                for c in range(n):
-                    G0[k, c] = G[p, k, c]
-                    clean = clean and np.isfinite(G0[k, c])
-                clock = clock or G0[k, 3] != 0.0
-            else:
-                r_out[p, k] = 0.0
-                G0[k, :] = 0.0
-        n_used_out[p] = nu
-        for k in range(n1):
-            w = wd[p, k] if mask[p, k] else 0.0
-            clean = clean and np.isfinite(w)
-            Wd[k] = w
-            for c in range(n):
-                WG[k, c] = w * G0[k, c]
-        for r in range(R):
-            k = n1 + r
-            Wd[k] = 0.0
-            WG[k, :] = 0.0
-            if not mask[p, k]:
+            for c in range(K):
+                A[c, k] = 0.0
+            if not mask[k]:
                 continue
-            for s in range(R):
-                if not mask[p, n1 + s]:
-                    continue
-                w = Wb[p, r, s]
-                clean = clean and np.isfinite(w)
-                if s == r:
-                    Wd[k] = w
-                for c in range(n):
-                    WG[k, c] += w * G0[n1 + s, c]
-        fast_out[p] = False
-        if not (clean and clock):
-            continue
-        cond, ok = _normal_element(G0, WG, Wd, pivot_rtol, M, S, scratch, Lm, d, y, J_out[p], A, ws_out[p])
-        cond_out[p] = cond
-        if not (ok and cond <= fast_cond):
-            continue
-        fast = True
+            if k < n1:
+                for c in range(K):
+                    A[c, k] = wd[k] * G[k, c]
+            else:
+                for j in range(R):
+                    if mask[n1 + j]:
+                        for c in range(K):
+                            A[c, k] += Wb[k - n1, j] * G[n1 + j, c]
+            for i in range(K):
+                for c in range(K):
+                    M[i, c] += G[k, i] * A[c, k]
+        if not clock:  # the clock is not estimated: its row and column out, a unit pivot in
+            for i in range(K):
+                M[i, K - 1] = 0.0
+                M[K - 1, i] = 0.0
+            M[K - 1, K - 1] = 1.0
+        # -- Jacobi scaling, LDLᵀ, the inverse and its 1-norm condition -----------
+        d = np.empty(K)
+        for i in range(K):
+            d[i] = np.sqrt(M[i, i]) if M[i, i] > 0.0 else 0.0
+            if not d[i] > 0.0:
+                code = _SINGULAR
+        if code == _OK:
+            S = np.empty((K, K))
+            for i in range(K):
+                for c in range(K):
+                    S[i, c] = 0.5 * (M[i, c] + M[c, i]) / (d[i] * d[c])
+            L = np.zeros((K, K))
+            piv = np.empty(K)
+            for c in range(K):
+                s = S[c, c]
+                for q in range(c):
+                    s -= L[c, q] * L[c, q] * piv[q]
+                if not (s > 0.0 and np.isfinite(s)):
+                    code = _SINGULAR
+                    break
+                piv[c] = s
+                for i in range(c + 1, K):
+                    s = S[i, c]
+                    for q in range(c):
+                        s -= L[i, q] * L[c, q] * piv[q]
+                    L[i, c] = s / piv[c]
+        if code == _OK:
+            Si = np.empty((K, K))
+            y = np.empty(K)
+            for c in range(K):  # column c of S⁻¹: L D Lᵀ x = e_c
+                for i in range(K):
+                    s = 1.0 if i == c else 0.0
+                    for q in range(i):
+                        s -= L[i, q] * y[q]
+                    y[i] = s
+                for i in range(K - 1, -1, -1):
+                    s = y[i] / piv[i]
+                    for q in range(i + 1, K):
+                        s -= L[q, i] * Si[q, c]
+                    Si[i, c] = s
+            n_s = 0.0
+            n_si = 0.0
+            for c in range(K):
+                a = 0.0
+                b = 0.0
+                for i in range(K):
+                    a += abs(S[i, c])
+                    b += abs(Si[i, c])
+                n_s = max(n_s, a)
+                n_si = max(n_si, b)
+            kappa = n_s * n_si
+            cond[0] = kappa if np.isfinite(kappa) else np.inf
+            if not cond[0] <= max_cond:
+                code = _SINGULAR
+            else:
+                for i in range(K):  # J = D⁻¹ S⁻¹ D⁻¹; a dropped clock is not estimated
+                    for c in range(K):
+                        J[i, c] = Si[i, c] / (d[i] * d[c])
+                if not clock:
+                    for i in range(K):
+                        J[i, K - 1] = 0.0
+                        J[K - 1, i] = 0.0
+        else:
+            cond[0] = np.inf
+        if code == _OK and nu - ns < 1:
+            code = _NO_REDUNDANCY
+    reason[0] = code
+    if not (code == _OK or code == _NO_REDUNDANCY):
+        J[:, :] = np.nan
+        A[:, :] = np.nan
+        sse[0] = np.nan
         for k in range(N):
-            if mask[p, k]:
-                fast = fast and ws_out[p, k] > ws_rtol * abs(Wd[k])
-            else:
-                ws_out[p, k] = np.nan
-        if not fast:
+            r[k] = np.nan
+            ws[k] = np.nan
+            hslope[k] = np.nan
+            vslope[k] = np.nan
+        return
+    # -- per row: A = J (WG)ᵀ, (WS)ᵢᵢ = Wᵢᵢ − (WG)ᵢ Aᵢ, slopes (seed eq. 20-21 with (WS)ᵢᵢ, §4) --
+    wg = np.empty(K)
+    for k in range(N):
+        if not mask[k]:
+            ws[k] = np.nan
+            hslope[k] = np.nan
+            vslope[k] = np.nan
             continue
-        fast_out[p] = True
-        sse = 0.0
-        for k in range(n1):
-            sse += Wd[k] * r_out[p, k] * r_out[p, k]
-        sv = 0.0
-        for r in range(R):
-            if not mask[p, n1 + r]:
-                continue
+        for c in range(K):
+            wg[c] = A[c, k]
+        s = 0.0
+        for i in range(K):
+            a = 0.0
+            for c in range(K):
+                a += J[i, c] * wg[c]
+            A[i, k] = a
+            s += wg[i] * a
+        w_kk = wd[k] if k < n1 else Wb[k - n1, k - n1]
+        ws[k] = w_kk - s
+        if ws[k] <= ZERO_REDUNDANCY_RTOL * abs(w_kk):
+            hslope[k] = np.inf
+            vslope[k] = np.inf
+        else:
+            den = np.sqrt(ws[k])
+            hslope[k] = np.hypot(A[0, k], A[1, k]) / den
+            vslope[k] = abs(A[2, k]) / den
+        hmax[0] = max(hmax[0], hslope[k])
+        vmax[0] = max(vmax[0], vslope[k])
+    # -- SSE = rᵀWr at the solution (seed eq. 25-26) --------------------------------
+    s = 0.0
+    for k in range(n1):
+        if mask[k]:
+            s += wd[k] * r[k] * r[k]
+    for i in range(R):
+        if mask[n1 + i]:
             t = 0.0
-            for s in range(R):
-                if mask[p, n1 + s]:
-                    t += Wb[p, r, s] * r_out[p, n1 + s]
-            sv += t * r_out[p, n1 + r]
-        sse_out[p] = sse + sv
-        hmax = -np.inf
-        vmax = -np.inf
-        for k in range(N):
-            if not mask[p, k]:
-                hs_out[p, k] = np.nan
-                vs_out[p, k] = np.nan
-                continue
-            den = np.sqrt(ws_out[p, k])
-            hs = np.hypot(A[0, k], A[1, k]) / den
-            vs = abs(A[2, k]) / den
-            hs_out[p, k] = hs
-            vs_out[p, k] = vs
-            hmax = max(hmax, hs)
-            vmax = max(vmax, vs)
-        hmax_out[p] = hmax
-        vmax_out[p] = vmax
+            for j in range(R):
+                if mask[n1 + j]:
+                    t += Wb[i, j] * r[n1 + j]
+            s += t * r[n1 + i]
+    sse[0] = s
