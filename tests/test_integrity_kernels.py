@@ -1,17 +1,12 @@
-"""The compiled per-epoch kernels against numpy/LAPACK and the numpy formulas they replace."""
+"""The compiled per-epoch kernels against numpy/LAPACK oracles (``wls_oracle.py``, ``vision_oracle.py``)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from vision_oracle import bearings_from_pixels, cosine_covariance, cosine_model, cosine_rule_jacobians, cosines
+
 from testbed.integrity import kernels, lsq
-from testbed.integrity.vision_ranges import (
-    bearings_from_pixels,
-    cosine_covariance,
-    cosine_model,
-    cosine_rule_jacobians,
-    cosines,
-)
 
 
 def test_lu_solve_matches_lapack_and_flags_singular_and_nan():

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed.integrity.vision_ranges import (VisionRangeSettings, VisionReason, bearings_from_pixels,
-                                             cosine_covariance, cosine_model, cosine_rule_jacobians, cosines,
-                                             pair_indices, survey_covariance, vision_pseudoranges)
+from testbed.integrity.vision_ranges import (VisionRangeSettings, VisionReason, pair_indices, survey_covariance,
+                                             vision_pseudoranges)
+from vision_oracle import bearings_from_pixels, cosine_covariance, cosine_model, cosine_rule_jacobians, cosines
 
 F = 3400.0
 K = np.array([[F, 0.0, 1223.5], [0.0, F, 1023.5], [0.0, 0.0, 1.0]])

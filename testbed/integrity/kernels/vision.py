@@ -114,7 +114,7 @@ def cosines_and_covariance(uv, used, sigma_px, Kinv, c_out, Sc_out):
     sigma_px (P, L); Kinv (3, 3). Writes ``c_out`` (P, N_C), ``c_ij = b_i·b_j`` with
     ``b = normalise(K⁻¹[u, v, 1])``, and ``Sc_out`` (P, N_C, N_C) = ``Jc diag(σ²) Jcᵀ``
     with ``Jc = ∂c/∂pixel`` (pairs in ``triu_indices(L, 1)`` order). The same numbers as
-    ``vision_ranges.bearings_from_pixels`` → ``cosines`` → ``cosine_covariance``.
+    the numpy oracle in ``tests/vision_oracle.py``: bearings → ``cosines`` → ``cosine_covariance``.
     """
     P, L, _ = uv.shape
     nc = L * (L - 1) // 2
@@ -178,7 +178,7 @@ def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
     S_pred (P, L, L) their covariance (P = 0 rows: no branch gate). Writes, with
     ``m̄ = m`` on used landmarks and 1 elsewhere:
 
-    * A (N_C, L) of :func:`vision_ranges.cosine_rule_jacobians` at m̄ (zero outside the
+    * A (N_C, L) of seed eq. 2 at m̄ (oracle: ``tests/vision_oracle.py``; zero outside the
       used pairs × landmarks) and the diagonal B (N_C) (zero on unused pairs);
     * ``A⁺ = (AᵀWA + pad)⁻¹AᵀW`` (L, N_C) with ``good`` False where that matrix is
       non-finite or singular; the condition ``‖A diag(m̄)‖_F ‖diag(m̄)⁻¹A⁺‖_F`` (inf if not finite);
