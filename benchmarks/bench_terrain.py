@@ -17,7 +17,8 @@ import pymap3d.vincenty
 
 from testbed.frames import R_ecef_to_enu, geodetic_to_ecef
 from testbed.world import airport
-from testbed.world.terrain import Flat, LinZhiSyntheticValley, TwoRidges, valley_centreline
+from testbed.world.terrain import Flat, TwoRidges
+from testbed.world.valley import LinZhiSyntheticValley, valley_centreline
 
 
 def _best(fn, repeat: int = 3) -> float:

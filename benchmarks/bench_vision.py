@@ -56,7 +56,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3)
     args = ap.parse_args()
     try:
-        from testbed.world.terrain import LinZhiSyntheticValley, TwoRidges
+        from testbed.world.terrain import TwoRidges
+        from testbed.world.valley import LinZhiSyntheticValley
     except ImportError:  # the terrain room is optional here
         TwoRidges = LinZhiSyntheticValley = None
 

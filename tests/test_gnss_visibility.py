@@ -111,7 +111,7 @@ class ValleyStub:
 
 def _valley(frame):
     try:
-        from testbed.world.terrain import LinZhiSyntheticValley
+        from testbed.world.valley import LinZhiSyntheticValley
     except ImportError:  # the terrain room not landed: closed-form stub valley
         return ValleyStub(frame), "stub valley (walls ±2 km, 1100 m)"
     return LinZhiSyntheticValley(), "LinZhiSyntheticValley"

@@ -12,9 +12,9 @@ import pytest
 from testbed.frames import LocalFrame, R_ecef_to_enu, geodetic_to_ecef
 from testbed.world import airport
 from testbed.world.settings import TerrainSettings, load_terrain
-from testbed.world.terrain import (
-    VALLEY_FAR_COURSE_DEG, Flat, LinZhiSyntheticValley, Terrain, TwoRidges, radii_of_curvature,
-    valley_axis_heading_deg, valley_centreline, valley_floor_half_width_m)
+from testbed.world.terrain import Flat, Terrain, TwoRidges, radii_of_curvature
+from testbed.world.valley import (VALLEY_FAR_COURSE_DEG, LinZhiSyntheticValley, valley_axis_heading_deg,
+                                  valley_centreline, valley_floor_half_width_m)
 
 THRESHOLD_TOL_M = 1.0  # floor height at the thresholds vs published elevations
 BRUTE_STEP_M = 2.0  # brute-force march step
@@ -409,7 +409,7 @@ def test_fast_geodetic_conversion_matches_pymap3d():
 
 
 def test_valley_roughness_is_deterministic():
-    from testbed.world import terrain as tm
+    from testbed.world import valley as tm
     rebuilt = tm._noise_lattice.__wrapped__()
     for a, b in zip(rebuilt, tm._noise_lattice()):
         np.testing.assert_array_equal(a, b)

@@ -9,7 +9,8 @@ from pydantic import ValidationError
 from testbed.frames import geodetic_to_ecef
 from testbed.world.dem import read_hgt
 from testbed.world.settings import TerrainSettings, load_terrain
-from testbed.world.terrain import Flat, GridTerrain, LinZhiSyntheticValley, TwoRidges
+from testbed.world.terrain import Flat, GridTerrain, TwoRidges
+from testbed.world.valley import LinZhiSyntheticValley
 
 NODE_TOL_M = 1e-6  # grid nodes: exact up to the float rounding of the node's fractional index
 BILINEAR_TOL_M = 1e-3  # between nodes: float32 storage of heights up to ~6000 m

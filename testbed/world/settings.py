@@ -14,7 +14,8 @@ from pydantic import Field, model_validator
 
 from testbed.schema import StrictModel
 from testbed.world import airport
-from testbed.world.terrain import Flat, GridTerrain, LinZhiSyntheticValley, Terrain, TwoRidges
+from testbed.world.terrain import Flat, GridTerrain, Terrain, TwoRidges
+from testbed.world.valley import LinZhiSyntheticValley
 
 
 class TerrainSettings(StrictModel):
