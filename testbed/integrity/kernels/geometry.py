@@ -82,7 +82,9 @@ def wls_epoch(G, h, z, wd, Wb, mask, max_cond,
         code = _NO_POSITION
     if code == _OK:
         # -- M = GᵀWG, the normal matrix of A = (GᵀWG)⁻¹GᵀW (seed eq. 20-21); WG in A's columns for now --
-        M = np.zeros((K, K))
+        work = np.empty((4, K, K))  # one allocation for M, S, its LDLᵀ factor L, S⁻¹
+        M, S, L, Si = work[0], work[1], work[2], work[3]
+        M[:, :] = 0.0
         for k in range(N):
             for c in range(K):
                 A[c, k] = 0.0
@@ -105,18 +107,17 @@ def wls_epoch(G, h, z, wd, Wb, mask, max_cond,
                 M[K - 1, i] = 0.0
             M[K - 1, K - 1] = 1.0
         # -- Jacobi scaling, LDLᵀ, the inverse and its 1-norm condition -----------
-        d = np.empty(K)
+        vec = np.empty((3, K))  # d, the LDLᵀ pivots, a forward-substitution column
+        d, piv, y = vec[0], vec[1], vec[2]
         for i in range(K):
             d[i] = np.sqrt(M[i, i]) if M[i, i] > 0.0 else 0.0
             if not d[i] > 0.0:
                 code = _SINGULAR
         if code == _OK:
-            S = np.empty((K, K))
             for i in range(K):
                 for c in range(K):
                     S[i, c] = 0.5 * (M[i, c] + M[c, i]) / (d[i] * d[c])
-            L = np.zeros((K, K))
-            piv = np.empty(K)
+            L[:, :] = 0.0
             for c in range(K):
                 s = S[c, c]
                 for q in range(c):
@@ -131,8 +132,6 @@ def wls_epoch(G, h, z, wd, Wb, mask, max_cond,
                         s -= L[i, q] * L[c, q] * piv[q]
                     L[i, c] = s / piv[c]
         if code == _OK:
-            Si = np.empty((K, K))
-            y = np.empty(K)
             for c in range(K):  # column c of S⁻¹: L D Lᵀ x = e_c
                 for i in range(K):
                     s = 1.0 if i == c else 0.0
