@@ -38,6 +38,12 @@ onset_s = 20.0
 
 [sweep]
 camera_dpi = [720.0]
+{sorties}"""
+
+CONSECUTIVE = """
+[sorties]
+start = "consecutive"
+sortie_s = 60.0
 """
 
 
@@ -57,20 +63,23 @@ def main() -> None:
 
     cores = available_cores()
     with tempfile.TemporaryDirectory() as tmp:
-        spec = Path(tmp) / "bench.toml"
-        spec.write_text(SPEC.format(trials=args.trials, block=args.block, chunk=args.chunk))
-        loaded = load_spec(spec)
-        t0 = time.perf_counter()
-        for c in expand_cells(loaded):
-            cell_context(c)  # flight (JSBSim) + geometry, once
-        setup_s = time.perf_counter() - t0
-        res = run_campaign(loaded, Path(tmp) / "out", progress=False)
-    n_trials = res.trials
-    eps = res.epochs_per_s
-    print(f"flight + geometry (once): {setup_s:.2f} s")
-    print(f"campaign end to end (store included), {n_trials} sorties x 61 epochs, GPS RAIM + VA-RAIM: "
-          f"{res.wall_s:.2f} s, {n_trials / res.wall_s:,.0f} sorties/s, {eps:,.0f} sortie-epochs/s "
-          f"(one process, {cores} cores: draw blocks on threads)")
+        walls = {}
+        for kind, extra in (("fixed start", ""), ("consecutive 60 s sorties", CONSECUTIVE)):
+            spec = Path(tmp) / f"bench{len(walls)}.toml"
+            spec.write_text(SPEC.format(trials=args.trials, block=args.block, chunk=args.chunk, sorties=extra))
+            loaded = load_spec(spec)
+            t0 = time.perf_counter()
+            for c in expand_cells(loaded):
+                cell_context(c, loaded.spec)  # flight (JSBSim) + geometry (every sky window), once
+            setup_s = time.perf_counter() - t0
+            res = run_campaign(loaded, Path(tmp) / f"out{len(walls)}", progress=False)
+            walls[kind] = res.wall_s
+            print(f"{kind}: flight + geometry (once): {setup_s:.2f} s; campaign end to end (store included), "
+                  f"{res.trials} sorties x 61 epochs, GPS RAIM + VA-RAIM: {res.wall_s:.2f} s, "
+                  f"{res.trials / res.wall_s:,.0f} sorties/s, {res.epochs_per_s:,.0f} sortie-epochs/s "
+                  f"(one process, {cores} cores: draw blocks on threads)")
+    print(f"start times spread / fixed, after the one-off geometry: "
+          f"{walls['consecutive 60 s sorties'] / walls['fixed start']:.2f}x")
 
     # the --full reproduction: time one chunk of each experiment, project its settings at 6e6 epochs
     full_s = 0.0
@@ -80,7 +89,7 @@ def main() -> None:
         spec_n = le.spec.model_copy(update={"chunk_trials": args.per_experiment})
         le = dataclasses.replace(le, spec=spec_n)
         cells = expand_cells(le)
-        cell_context(cells[0])
+        cell_context(cells[0], le.spec)
         run_chunk(le, 0, 0)  # warm: kernels, chi-square tables
         t0 = time.perf_counter()
         tables = run_chunk(le, 0, 0)

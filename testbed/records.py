@@ -223,7 +223,8 @@ class GnssEpochs:
 
     Attributes
     ----------
-    t : (T,) s since the approach start.  t_gps : (T,) s since the GPS epoch (1980-01-06).
+    t : (T,) s since the approach start.  t_gps : (T,) s since the GPS epoch (1980-01-06),
+        or (B..., T) when the trials start at different times (a campaign's sorties).
     prn : (S,) int satellite numbers, one slot per satellite of the constellation.
     sat_pos_ecef : (B..., T, S, 3) m, satellite position at transmit time expressed in
         the ECEF frame of the *receive* time (Earth rotation during flight applied),
@@ -238,7 +239,7 @@ class GnssEpochs:
     """
 
     t: NDArray = epoch_array(batched=False)
-    t_gps: NDArray = epoch_array(batched=False)
+    t_gps: NDArray = epoch_array()
     prn: NDArray = field()
     sat_pos_ecef: NDArray = epoch_array(2)
     sat_vel_ecef: NDArray = epoch_array(2)
@@ -257,7 +258,8 @@ class GnssTruth:
     antenna_pos_ecef : (T, 3) true antenna position.  geometric_range : (T, S).
     clock_bias : (B..., T) m, receiver clock bias.  noise : (B..., T, S) m, the drawn
     nominal error.  fault_bias : (B..., T, S) m, injected fault.  faulty : (B..., T, S) bool.
-    elevation, azimuth : (T, S) rad, true geometry.
+    elevation, azimuth : (T, S) rad, true geometry ((B..., T, S) when the trials start at
+    different times, as is geometric_range).
     """
 
     antenna_pos_ecef: NDArray = epoch_array(1)

@@ -33,7 +33,8 @@ from typing import Callable
 import numpy as np
 import pyarrow as pa
 
-from testbed.campaign.spec import Cell, LoadedSpec, expand_cells, resolve_spec
+from testbed.campaign.sorties import sky_windows, sortie_offsets, window_offsets
+from testbed.campaign.spec import CampaignSpec, Cell, LoadedSpec, expand_cells, resolve_spec
 from testbed.integrity.batching import available_cores
 from testbed.integrity.monitor import ANTENNA, Observations, provided_output
 from testbed.integrity.levels import service_level
@@ -108,20 +109,36 @@ class CellContext:
     val: float
     levels: tuple[str, ...]
     onset_s: float  # nan without fault
+    sky: np.ndarray | None = None  # (W,) sorted sky windows of the sorties (g_geom stacked); None: fixed start
+
+    def gnss_geometry_of(self, windows: np.ndarray | None):
+        """The GNSS geometry of trials flying in sky ``windows`` (n,) (None: the fixed start)."""
+        if self.sky is None:
+            return self.g_geom
+        return self.g_geom.windows(np.searchsorted(self.sky, windows))
 
 
-def cell_context(cell: Cell, duration_s: float | None = None) -> CellContext:
-    """The cached geometry of a cell: flight, GNSS geometry, vision geometry."""
+#: Sidereal windows whose geometry is computed in one batched pass (bounds the temporaries).
+_WINDOWS_PER_PASS = 128
+
+
+def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
+    """The cached geometry of a cell: flight, GNSS geometry (per sky window of the
+    sorties' start times, when ``spec.sorties`` spreads them), vision geometry."""
     from testbed.sensors.gnss.almanac import load_constellation
-    from testbed.sensors.gnss.synth import gnss_geometry
+    from testbed.sensors.gnss.synth import concat_windows, gnss_geometry
     from testbed.sensors.gnss.timebase import utc_to_gps_seconds
     from testbed.sensors.vision import detect as vdetect
     from testbed.sim.setup import build_setup
 
     c = cell.config
+    duration_s = None if spec is None else spec.duration_s
     terrain = _terrain(cell)
     setup = build_setup(cell.approach, terrain, monitor_threads=1)  # blocks run side by side instead
     fkey = _flight_key(cell)
+    sky = None
+    if spec is not None and spec.sorties.start != "fixed":
+        sky = np.unique(sky_windows(sortie_offsets(spec, np.arange(spec.trials)), spec.sorties.window_s))
 
     def truth_g():
         tr = flown_truth(cell).decimate(setup.gnss.rate_hz)
@@ -132,13 +149,19 @@ def cell_context(cell: Cell, duration_s: float | None = None) -> CellContext:
     tkey = ("truth_g", fkey, setup.gnss.rate_hz, duration_s)
     truth = _cached(tkey, truth_g)
     gkey = ("gnss_geom", tkey, c.start_time_utc.isoformat(), json.dumps(c.gnss.model_dump(mode="json"), sort_keys=True),
-            json.dumps(c.aircraft and cell.approach.aircraft.antenna_lever_arm_m))
+            json.dumps(c.aircraft and cell.approach.aircraft.antenna_lever_arm_m),
+            None if sky is None else (spec.sorties.window_s, sky.tobytes()))
 
     def ggeom():
         eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path,
                                  utc_to_gps_seconds(c.start_time_utc), setup.gnss.almanac_week)
-        return gnss_geometry(truth, setup.antenna, setup.gnss, start_utc=c.start_time_utc, terrain=terrain,
-                             constellation=eph)
+        if sky is None:
+            return gnss_geometry(truth, setup.antenna, setup.gnss, start_utc=c.start_time_utc, terrain=terrain,
+                                 constellation=eph)
+        offsets = window_offsets(sky, spec.sorties.window_s)
+        return concat_windows([gnss_geometry(truth, setup.antenna, setup.gnss, start_utc=c.start_time_utc,
+                                             terrain=terrain, constellation=eph, offsets_s=offsets[i:i + _WINDOWS_PER_PASS])
+                               for i in range(0, offsets.size, _WINDOWS_PER_PASS)])
 
     g_geom = _cached(gkey, ggeom)
     v_geom, lm = None, None
@@ -155,7 +178,8 @@ def cell_context(cell: Cell, duration_s: float | None = None) -> CellContext:
     return CellContext(cell=cell, setup=setup, t=np.asarray(truth.t, float), g_geom=g_geom, v_geom=v_geom,
                        landmarks=lm, truth_cg_enu=setup.frame.ecef_to_enu(truth.pos_ecef),
                        truth_ant_enu=setup.frame.ecef_to_enu(g_geom.ant_pos_ecef),
-                       hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset))
+                       hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset),
+                       sky=sky)
 
 
 # ----------------------------------------------------------------------------- one block
@@ -175,6 +199,8 @@ class BlockDraw:
     gnss_truth: object
     vision_truth: object | None
     fault_target: np.ndarray  # (n,) PRN of the faulty satellite / index of the faulty landmark, -1 none
+    start_offset_s: np.ndarray  # (n,) the sortie's start, s after the approach's start time
+    sky_window: np.ndarray  # (n,) int sky window whose geometry it flew in (-1: the fixed start)
 
 
 def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
@@ -187,7 +213,11 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     n = min(spec.block_trials, spec.trials - i0)
     ss_g, ss_v, ss_s = block_seed(spec.base_seed, ctx.cell.index, block, spec.common_random_numbers).spawn(3)
     faults = list(s.faults)
-    gnss, gtruth = sample_gnss(ctx.g_geom, s.gnss, faults=faults, rng=np.random.default_rng(ss_g), n_trials=n)
+    trials = np.arange(i0, i0 + n)
+    offsets = sortie_offsets(spec, trials)
+    windows = None if ctx.sky is None else sky_windows(offsets, spec.sorties.window_s)
+    gnss, gtruth = sample_gnss(ctx.gnss_geometry_of(windows), s.gnss, faults=faults, rng=np.random.default_rng(ss_g),
+                               n_trials=n)
     vis = vtruth = None
     if ctx.v_geom is not None:
         vis, vtruth = vdetect.sample_vision(ctx.v_geom, s.vision, landmarks=ctx.landmarks, faults=faults,
@@ -203,7 +233,8 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     elif vtruth is not None and np.asarray(vtruth.faulty).any():
         hit = np.asarray(vtruth.faulty).any(axis=-2)
         target = np.where(hit.any(-1), hit.argmax(-1), -1)
-    return BlockDraw(np.arange(i0, i0 + n), Observations(gnss, vis), gtruth, vtruth, target)
+    return BlockDraw(trials, Observations(gnss, vis), gtruth, vtruth, target, offsets,
+                     np.full(n, -1, np.int64) if windows is None else windows)
 
 
 def monitor_block(monitors, obs: Observations) -> dict[str, MonitorOutput]:
@@ -265,6 +296,7 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
         col = {
             "cell": np.full(n, ctx.cell.index, np.int32), "trial": d.trials.astype(np.int64),
             "monitor": np.full(n, out.name, object), "epochs": np.full(n, t.size, np.int32),
+            "start_offset_s": d.start_offset_s, "sky_window": d.sky_window,
             "fault_target": d.fault_target, "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
             "onset_epochs": solved.sum(-1).astype(np.int32), "onset_alerts": (det & solved).sum(-1).astype(np.int32),
             "first_alert_s": first_any, "time_to_alert_s": tta,
@@ -340,7 +372,7 @@ def run_chunk(loaded: LoadedSpec, cell_index: int, chunk: int, threads: int | No
     """
     spec = loaded.spec
     cell = _cells(loaded)[cell_index]
-    ctx = cell_context(cell, spec.duration_s)
+    ctx = cell_context(cell, spec)
     per_chunk = spec.chunk_trials // spec.block_trials
     n_blocks = -(-spec.trials // spec.block_trials)
     blocks = range(chunk * per_chunk, min((chunk + 1) * per_chunk, n_blocks))

@@ -120,6 +120,55 @@ class Sweep(StrictModel):
         return v
 
 
+#: Period after which the GPS sky over a place repeats, s: two orbits, about 10 s less than a
+#: sidereal day (Choi, Bilich, Larson & Axelrad 2004, "Modified sidereal filtering": 86154 s on
+#: average). Measured here on the DO-229 almanac: the best repeat over sidereal day ± 600 s is
+#: 86154.1 s, elevations then agree to 0.044° a day later (0.10° at one sidereal day).
+SKY_REPEAT_S = 86154.0
+
+
+class SortieStarts(StrictModel):
+    """When each sortie of a cell is flown (``[sorties]`` in a spec).
+
+    The trajectory is flown once; only the start time (the satellites' sky) changes.
+    Sortie k starts ``offset_k`` after the approach's ``start_time_utc``:
+
+    * ``fixed``: offset 0 for every sortie (one geometry per cell);
+    * ``consecutive``: ``offset_k = k · sortie_s`` (the VA-RAIM paper's "1e5 sorties of
+      60 s": about 69 days for 1e5 sorties);
+    * ``uniform``: offsets drawn uniformly over ``[0, span_s − sortie_s]`` (seeded by the
+      spec's base seed and the draw block; the same in every cell).
+
+    The sky repeats after :data:`SKY_REPEAT_S` (about a sidereal day), so an offset is
+    reduced modulo that period and rounded to a grid of ``window_s``: every sortie in one
+    window flies under one computed sky, the first period's (at most
+    ``round(86154 / window_s)`` windows, 1436 for 60 s). Two approximations, both measured
+    (``tests/test_sorties.py``): the start phase is off by at most ``window_s / 2`` (30 s:
+    ≤ 0.22° of satellite elevation over ZUNZ), and the constellation does not repeat exactly:
+    a sortie d periods into the span flies a sky whose elevations differ from its true
+    date's by up to 0.044° per period (3° by the 69th day of 1e5 consecutive 60 s sorties).
+    Sky *coverage* (every phase of the repeat, each as often) is what the statistics need
+    and is exact; a sortie's calendar date is not.
+    """
+
+    start: Literal["fixed", "consecutive", "uniform"] = Field("fixed", description="fixed | consecutive | uniform")
+    sortie_s: float | None = Field(None, gt=0, description="sortie spacing (consecutive) and length (uniform), s; "
+                                                           "default: the spec's duration_s")
+    span_s: float | None = Field(None, gt=0, description="uniform: the span the starts are drawn over, s")
+    window_s: float = Field(60.0, gt=0, le=3600, description="start times within one window of the sky's repeat "
+                                                              "period share one geometry, s")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.start == "uniform" and self.span_s is None:
+            raise ValueError("start = 'uniform' needs span_s (the span the start times are drawn over, s)")
+        if self.start != "uniform" and self.span_s is not None:
+            raise ValueError(f"span_s is only used with start = 'uniform', not {self.start!r}")
+        if self.span_s is not None and self.sortie_s is not None and self.span_s < self.sortie_s:
+            raise ValueError(f"span_s = {self.span_s:g} s is shorter than one sortie (sortie_s = {self.sortie_s:g} s)")
+        return self
+
+
 class ReportSettings(StrictModel):
     power: float = Field(0.99, gt=0, lt=1, description="detection power for the minimal detectable bias")
     confidence: float = Field(0.95, gt=0, lt=1, description="confidence of the binomial bands")
@@ -143,10 +192,18 @@ class CampaignSpec(StrictModel):
     faults: list[FaultSweep] = Field(default_factory=lambda: [FaultSweep(kind="none")], min_length=1,
                                      description="fault families; [{kind = \"none\"}] for fault-free trials only")
     sweep: Sweep = Field(default_factory=Sweep)
+    sorties: SortieStarts = Field(default_factory=SortieStarts)
     report: ReportSettings = Field(default_factory=ReportSettings)
 
     @model_validator(mode="after")
     def _chunks(self):
+        so = self.sorties
+        if so.start != "fixed" and so.sortie_s is None and self.duration_s is None:
+            raise ValueError(f"sorties.sortie_s: expected the sortie length in s (or duration_s) with "
+                             f"start = {so.start!r}")
+        length = so.sortie_s if so.sortie_s is not None else self.duration_s
+        if so.span_s is not None and length is not None and so.span_s < length:
+            raise ValueError(f"sorties.span_s = {so.span_s:g} s is shorter than one sortie ({length:g} s)")
         if self.chunk_trials % self.block_trials:
             raise ValueError(f"chunk_trials ({self.chunk_trials}) must be a multiple of block_trials "
                              f"({self.block_trials})")

@@ -25,12 +25,12 @@ t[0]); a truth already at or below that rate passes unchanged.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 from typing import Any, Sequence
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import C_LIGHT, OMEGA_EARTH
 from testbed.records import GnssEpochs, GnssTruth, Mount, Truth
@@ -59,6 +59,10 @@ class GnssGeometry:
     sat_clock_s, sat_clock_rate : (T, S) satellite clock offset (s) / rate at transmit time.
     geometric_range : (T, S) m.  geometric_range_rate : (T, S) m/s.
     elevation, azimuth, elevation_body : (T, S) rad.  reason : (T, S) int8.  visible : (T, S) bool.
+
+    A *stacked* geometry (:func:`gnss_geometry` with ``offsets_s``, or :meth:`windows`) has
+    a leading axis on ``t_gps`` (W, T) and on every (T, S, ...) array: one per start time.
+    The trajectory arrays (``t``, ``ant_pos_ecef``, ``ant_vel_ecef``) are shared.
     """
 
     t: NDArray
@@ -79,6 +83,28 @@ class GnssGeometry:
     elevation_body: NDArray
     reason: NDArray
     visible: NDArray
+
+    @property
+    def stacked(self) -> bool:
+        """True when the time-dependent arrays have a leading start-time axis."""
+        return self.visible.ndim == 3
+
+    def windows(self, which: ArrayLike) -> "GnssGeometry":
+        """The stacked geometry of start-time windows ``which`` (n,) (one per trial, repeats allowed)."""
+        if not self.stacked:
+            raise ValueError("windows(): expected a stacked geometry (gnss_geometry with offsets_s)")
+        idx = np.asarray(which, np.intp)
+        return replace(self, **{f: getattr(self, f)[idx] for f in _PER_START})
+
+
+def concat_windows(geoms: Sequence[GnssGeometry]) -> GnssGeometry:
+    """One stacked geometry from stacked geometries of the same trajectory (windows in order)."""
+    return replace(geoms[0], **{f: np.concatenate([getattr(g, f) for g in geoms]) for f in _PER_START})
+
+
+#: GnssGeometry fields that depend on the start time (stacked: a leading window axis).
+_PER_START = ("t_gps", "sat_pos_ecef", "sat_vel_ecef", "sat_clock_s", "sat_clock_rate", "geometric_range",
+              "geometric_range_rate", "elevation", "azimuth", "elevation_body", "reason", "visible")
 
 
 def _rotate_z(v: NDArray, theta: NDArray) -> NDArray:
@@ -114,7 +140,8 @@ def signal_geometry(eph: Ephemeris, t_gps: NDArray, ant_pos_ecef: NDArray, ant_v
 
 
 def gnss_geometry(truth: Truth, antenna: Mount, settings: GnssSettings, *, start_utc: datetime | str,
-                  terrain: Any = None, constellation: Ephemeris | None = None) -> GnssGeometry:
+                  terrain: Any = None, constellation: Ephemeris | None = None,
+                  offsets_s: ArrayLike | None = None) -> GnssGeometry:
     """Satellite geometry and visibility along a trajectory (no noise; see module doc).
 
     ``truth`` is used at its own epochs (decimate it first, or use
@@ -122,34 +149,53 @@ def gnss_geometry(truth: Truth, antenna: Mount, settings: GnssSettings, *, start
     ``terrain`` is any object with ``sky_visible`` (ignored when
     ``settings.terrain_masking`` is False). ``constellation`` overrides the
     one named in ``settings``.
+
+    ``offsets_s`` (W,): the same trajectory flown at W start times ``start_utc + offset``
+    (sorties spread over a span, flown once): one batched pass, and a *stacked*
+    geometry whose time-dependent arrays carry a leading window axis (W, T, ...)
+    (:meth:`GnssGeometry.windows` picks per-trial windows from it).
     """
     t = np.asarray(truth.t, float)
-    t_gps = utc_to_gps_seconds(start_utc) + t
+    off = np.zeros(1) if offsets_s is None else np.asarray(offsets_s, float).reshape(-1)
+    W, T = off.size, t.size
+    t_gps = utc_to_gps_seconds(start_utc) + off[:, None] + t[None, :]  # (W, T)
     eph = constellation if constellation is not None else load_constellation(
-        settings.almanac_source, settings.almanac_path, float(t_gps[t_gps.size // 2]), settings.almanac_week)
+        settings.almanac_source, settings.almanac_path, float(t_gps[0, T // 2]), settings.almanac_week)
     ant_pos, ant_vel, R_b2e, R_e2n = antenna_state(truth, antenna)
-    sat_pos, sat_vel, clk, clk_rate, rng_m, rate = signal_geometry(eph, t_gps, ant_pos, ant_vel)
-    los = (sat_pos - ant_pos[:, None, :]) / rng_m[..., None]
+
+    def tiled(a: NDArray) -> NDArray:  # (T, ...) -> (W·T, ...), window-major
+        return np.broadcast_to(a, (W,) + a.shape).reshape((W * T,) + a.shape[1:])
+
+    sat_pos, sat_vel, clk, clk_rate, rng_m, rate = signal_geometry(eph, t_gps.reshape(-1), tiled(ant_pos),
+                                                                   tiled(ant_vel))
+    los = (sat_pos - tiled(ant_pos)[:, None, :]) / rng_m[..., None]
     el, az, el_body, reason = classify(
-        los, ant_pos, R_e2n, R_b2e, eph.health, elevation_mask_deg=settings.elevation_mask_deg,
+        los, tiled(ant_pos), tiled(R_e2n), tiled(R_b2e), eph.health, elevation_mask_deg=settings.elevation_mask_deg,
         terrain=terrain if settings.terrain_masking else None, airframe_masking=settings.airframe_masking,
         airframe_mask_deg=settings.airframe_mask_deg)
-    return GnssGeometry(t=t, t_gps=t_gps, prn=np.asarray(eph.prn), eph=eph, antenna=antenna,
-                        ant_pos_ecef=ant_pos, ant_vel_ecef=ant_vel, sat_pos_ecef=sat_pos, sat_vel_ecef=sat_vel,
-                        sat_clock_s=clk, sat_clock_rate=clk_rate, geometric_range=rng_m,
-                        geometric_range_rate=rate, elevation=el, azimuth=az, elevation_body=el_body,
-                        reason=reason, visible=reason == 0)
+    lead = (T,) if offsets_s is None else (W, T)
+
+    def shaped(a: NDArray) -> NDArray:
+        return a.reshape(lead + a.shape[1:])
+
+    return GnssGeometry(t=t, t_gps=t_gps.reshape(lead), prn=np.asarray(eph.prn), eph=eph, antenna=antenna,
+                        ant_pos_ecef=ant_pos, ant_vel_ecef=ant_vel, sat_pos_ecef=shaped(sat_pos),
+                        sat_vel_ecef=shaped(sat_vel), sat_clock_s=shaped(clk), sat_clock_rate=shaped(clk_rate),
+                        geometric_range=shaped(rng_m), geometric_range_rate=shaped(rate), elevation=shaped(el),
+                        azimuth=shaped(az), elevation_body=shaped(el_body), reason=shaped(reason),
+                        visible=shaped(reason == 0))
 
 
 def _fault_bias(faults: Sequence, geom: GnssGeometry, rng: np.random.Generator,
                 batch: tuple[int, ...]) -> NDArray:
     gnss = [f for f in faults if f.kind in GNSS_KINDS]
-    T, S = geom.visible.shape
+    T, S = geom.visible.shape[-2:]
     if not gnss:
         return np.zeros(batch + (T, S))
-    if batch and any(f.prn == "random" for f in gnss):
-        # a fresh random satellite per trial (drawn in trial order from rng)
-        return np.stack([gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng) for _ in range(batch[0])])
+    if batch and (geom.stacked or any(f.prn == "random" for f in gnss)):
+        # per trial (drawn in trial order from rng): a fresh random satellite, visible in the trial's sky
+        vis = geom.visible if geom.stacked else np.broadcast_to(geom.visible, batch + (T, S))
+        return np.stack([gnss_fault_bias(gnss, geom.t, geom.prn, vis[i], rng) for i in range(batch[0])])
     return np.broadcast_to(gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng), batch + (T, S))
 
 
@@ -162,13 +208,18 @@ def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence 
     (satellite states, visibility, sigma) are broadcast views, not copies.
     Faults (``testbed.sensors.faults``) are added after the noise; the
     truth records them in ``fault_bias`` and ``faulty = fault_bias != 0``.
+    A stacked geometry (:meth:`GnssGeometry.windows`, one start time per trial) needs
+    ``n_trials`` equal to its number of windows; its arrays are used as they are.
     """
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     if n_trials is not None and (int(n_trials) != n_trials or n_trials < 1):
         raise ValueError(f"n_trials: expected a positive integer or None, got {n_trials!r}")
     batch = () if n_trials is None else (int(n_trials),)
-    T, S = geom.visible.shape
+    T, S = geom.visible.shape[-2:]
+    if geom.stacked and batch != geom.visible.shape[:1]:
+        raise ValueError(f"n_trials: a stacked geometry of {geom.visible.shape[0]} start times needs "
+                         f"n_trials = {geom.visible.shape[0]}, got {n_trials!r}")
     shape = batch + (T, S)
     el = geom.elevation
     dt = float(np.median(np.diff(geom.t))) if T > 1 else 1.0
@@ -197,8 +248,8 @@ def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence 
     pr = np.where(vis, geom.geometric_range + bias[..., None] + noise + fault, np.nan)
     rr = np.where(vis, geom.geometric_range_rate + drift[..., None] + rr_noise, np.nan)
 
-    def b(x):
-        return np.broadcast_to(x, batch + x.shape)
+    def b(x):  # geometry per trial: stacked already, or one geometry broadcast over the trials
+        return x if geom.stacked else np.broadcast_to(x, batch + x.shape)
 
     epochs = GnssEpochs(t=geom.t, t_gps=geom.t_gps, prn=geom.prn, sat_pos_ecef=b(geom.sat_pos_ecef),
                         sat_vel_ecef=b(geom.sat_vel_ecef), pseudorange=pr, range_rate=rr,
