@@ -359,3 +359,21 @@ def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
         assert r["lo_ep"] <= r["rate_ep"] <= r["hi_ep"]
     faulted = [r for r in rows if r["fault_size"] > 0]
     assert all(r["rate_ep"] <= r["rate"] for r in faulted)  # the per-epoch rate is never the looser
+
+
+def test_accuracy_quantile_from_the_histogram_matches_the_sample_quantile():
+    """hist_quantile on the runner's 0.05-dex bins against numpy's quantile of the raw errors."""
+    from testbed.campaign.report import hist_quantile
+    from testbed.campaign.runner import HIST_BINS, HIST_LOG10_MAX, HIST_LOG10_MIN
+
+    rng = np.random.default_rng(5)
+    for scale in (0.7, 3.0, 25.0):
+        e = scale * np.abs(rng.standard_normal(200_000))
+        le = np.clip(np.log10(e), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
+        counts, _ = np.histogram(le, bins=np.linspace(HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS + 1))
+        b = np.flatnonzero(counts)
+        hc = {"err_bin": b, "count": counts[b]}
+        got, ref = hist_quantile(hc, None, 0.95), np.quantile(e, 0.95)
+        assert abs(got / ref - 1) < 10 ** 0.05 - 1, (scale, got, ref)  # within one bin (12 %)
+        assert abs(got / (1.95996 * scale) - 1) < 0.13  # and the half-normal's closed form
+    assert np.isnan(hist_quantile({"err_bin": np.zeros(0, int), "count": np.zeros(0)}, None, 0.95))

@@ -323,10 +323,8 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
                 pcm = ax.pcolormesh(edges, edges, H.T, norm=LogNorm(vmin=1, vmax=max(H.max(), 2)), cmap="viridis",
                                     shading="flat")
                 fig.colorbar(pcm, ax=ax, label="epochs")
-                cum = np.cumsum(H.sum(axis=1))
-                e95 = float(edges[1:][np.searchsorted(cum, 0.95 * cum[-1])])
-            else:
-                e95 = float("nan")
+            hc = None if hist is None else _cols(hist)
+            e95 = hist_quantile(hc, None if hc is None else (hc["monitor"] == m) & (hc["dim"] == dim), 0.95)
             acc_rows.append({"monitor": m, "dim": dim, "e95": e95})
             lim = (edges[0], edges[-1])
             ax.plot(lim, lim, "k-", lw=0.8)
@@ -363,6 +361,32 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
     return md, figures
 
 
+def hist_quantile(hist: dict[str, np.ndarray] | None, select: np.ndarray | None, q: float) -> float:
+    """The q-quantile of the position errors counted in Stanford-histogram rows ``select``.
+
+    Rows are (err_bin, pl_bin, count) on :func:`runner.hist_edges` (0.05-dex bins); the
+    quantile is interpolated log-linearly inside its bin (resolution about 12 %, exact at
+    bin edges). NaN with no counts.
+    """
+    from testbed.campaign.runner import hist_edges
+
+    if hist is None:
+        return float("nan")
+    edges = hist_edges()
+    sel = np.ones(hist["count"].shape, bool) if select is None else select
+    per_bin = np.bincount(hist["err_bin"][sel].astype(np.int64), weights=hist["count"][sel],
+                          minlength=len(edges) - 1)[: len(edges) - 1]
+    total = per_bin.sum()
+    if total <= 0:
+        return float("nan")
+    cum = np.cumsum(per_bin)
+    k = int(np.searchsorted(cum, q * total))
+    below = cum[k - 1] if k > 0 else 0.0
+    frac = (q * total - below) / per_bin[k]
+    lo, hi = np.log10(edges[k]), np.log10(edges[k + 1])
+    return float(10 ** (lo + frac * (hi - lo)))
+
+
 def _setting_label(cell: dict, varying: list[str]) -> str:
     """The sweep setting of a cell (every varying axis but the start time), e.g. 'dpi 720, DE px 1'."""
     parts = [f"{AXIS_LABEL[a]} {cell[a]:g}" if isinstance(cell[a], float) else f"{AXIS_LABEL[a]} {cell[a]}"
@@ -376,16 +400,24 @@ def _pl_and_availability_section(inp: _ReportInputs) -> tuple[list[str], list[tu
     cells, varying, tc = inp.cells, inp.varying, inp.tc
     levels = [c[len("avail_"):] for c in tc if c.startswith("avail_")]
     setting = np.array([_setting_label(cells[i], varying) for i in tc["cell"]])
-    md = ["## Protection levels across sorties and availability per service level", "",
+    cell_setting = {int(c["cell"]): _setting_label(c, varying) for c in cells}
+    hc = None if inp.hist is None else _cols(inp.hist)
+    md = ["## Protection levels, accuracy and availability across sorties", "",
           "Per setting and monitor, pooled over its sorties (and start times): the median, 95th percentile and "
-          "maximum of each sortie's largest HPL / VPL, and the fraction of epochs available per service level.", "",
+          "maximum of each sortie's largest HPL / VPL; the 95 % horizontal / vertical accuracy (95th percentile "
+          "of the position error over its epochs with a protection level and no alert, from the 0.05-dex "
+          "error histogram: ±6 %); the fraction of epochs available per service level.", "",
           "| setting | monitor | sorties | max HPL: median / p95 / max (m) | max VPL: median / p95 / max (m) | "
-          + " | ".join(levels) + " |", "|---|---|---|---|---|" + "---|" * len(levels)]
+          "H / V accuracy 95 % (m) | " + " | ".join(levels) + " |", "|---|---|---|---|---|---|" + "---|" * len(levels)]
     for g in sorted(set(setting.tolist())):
+        in_setting = None if hc is None else np.isin(hc["cell"], [k for k, v in cell_setting.items() if v == g])
         for m in sorted(set(tc["monitor"][setting == g].tolist())):
             sel = (setting == g) & (tc["monitor"] == m)
             stats3 = [" / ".join(_f(x, "{:.1f}") for x in _median_p95_max(tc[k][sel])) for k in ("max_hpl", "max_vpl")]
+            acc = [hist_quantile(hc, None if hc is None else in_setting & (hc["monitor"] == m) & (hc["dim"] == d), 0.95)
+                   for d in ("H", "V")]
             md.append(f"| {g} | {m} | {int(sel.sum())} | {stats3[0]} | {stats3[1]} | "
+                      f"{_f(acc[0], '{:.2f}')} / {_f(acc[1], '{:.2f}')} | "
                       + " | ".join(f"{100 * float(np.mean(tc[f'avail_{lv}'][sel])):.1f} %" for lv in levels) + " |")
     md.append("")
     return md, []
