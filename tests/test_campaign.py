@@ -256,8 +256,14 @@ def test_reproduction_specs_are_valid():
     from testbed.campaign.reproduce import loaded_experiments
 
     exps = loaded_experiments(200)
-    assert set(exps) == {"vision-calibration", "resolution", "gps-faults", "vision-faults"}
+    assert set(exps) == {"vision-calibration", "vision-calibration-precise", "resolution", "gps-faults",
+                         "vision-faults", "where-vision-pays"}
     assert len(expand_cells(exps["resolution"])) == 32  # 4 resolutions x 4 detection errors x 2 VA-RAIM variants
+    pays = expand_cells(exps["where-vision-pays"])
+    assert len(pays) == 6 * 5 * 3  # GPS steps (0 included) x focal lengths x baselines
+    cam = pays[-1].config.vision.camera.build()  # f = 1e5 px at the 720-dpi camera's field of view
+    assert cam.fx == 1e5 and abs(cam.width_px / cam.fx - 1020 / 992.1) < 1e-3
+    assert all(e.spec.sorties.start == "consecutive" for e in exps.values())
 
 
 def test_cli_parsers_register_three_subcommands(tmp_path, capsys):
@@ -333,8 +339,9 @@ def test_campaign_caches_are_bounded():
 
 def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
     """From the stored per-epoch records of the first trials: per sortie = any alert from the onset
-    on; per epoch = alerted epochs / epochs from the onset with a solution (finite PL). The trial
-    table's counts and detection_table's rates are those hand counts."""
+    on; per epoch = alerted epochs / faulty epochs from the onset with a solution (finite PL, the
+    faulty satellite in view). The trial table's counts and detection_table's rates are those hand
+    counts."""
     from testbed.campaign.report import detection_table
 
     ep = table(reference, "epochs.parquet").to_pandas()
@@ -345,7 +352,7 @@ def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
     for (cell, trial, mon), g in ep.groupby(["cell", "trial", "monitor"]):
         t0 = onset[cell] if onset[cell] == onset[cell] else -np.inf
         after = g[g.t >= t0 - 1e-9]
-        solved = after[np.isfinite(after.hpl)]
+        solved = after[np.isfinite(after.hpl) & after.fault_present]
         row = tr.loc[(cell, trial, mon)]
         assert row.onset_epochs == len(solved) and row.onset_alerts == int(solved.alert.sum())
         assert row.detected == bool(after.alert.any())

@@ -26,9 +26,9 @@ import pyarrow.parquet as pq
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
-AXES = ("approach", "start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "landmark_set", "calibration",
+AXES = ("approach", "start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "landmark_set", "calibration",
         "va_raim_variant")
-AXIS_LABEL = {"approach": "approach", "start_time_utc": "start", "dpi": "dpi", "sigma_px": "DE px",
+AXIS_LABEL = {"approach": "approach", "start_time_utc": "start", "dpi": "dpi", "focal_px": "f px", "sigma_px": "DE px",
               "lpe_sigma_m": "LPE m", "landmark_set": "landmark set", "calibration": "cal",
               "va_raim_variant": "VA-RAIM variant"}
 
@@ -108,7 +108,8 @@ def detection_table(cells: list[dict], trials, confidence: float = 0.95, method:
     """Per cell and monitor, both definitions of detection with their binomial intervals.
 
     Per sortie: ``n`` trials, ``k`` with any alert from the onset on, ``rate`` in [``lo``, ``hi``].
-    Per epoch: ``n_ep`` epochs from the onset at which the monitor gives a solution, ``k_ep``
+    Per epoch: ``n_ep`` faulty epochs (from the onset, the fault in the observations: its
+    satellite visible, its landmark detected) at which the monitor gives a solution, ``k_ep``
     of them alerted, ``rate_ep`` in [``lo_ep``, ``hi_ep``] (fault-free cells: the per-epoch
     false-alarm rate). Stores written before the per-epoch columns give NaN there.
     """
@@ -227,7 +228,7 @@ def _save(fig, path: Path) -> None:
 
 #: the two definitions of detection: (tag, title, rate, lower, upper key of detection_table rows)
 DETECTION_DEFINITIONS = (("sortie", "per sortie (any alert from the onset on)", "rate", "lo", "hi"),
-                         ("epoch", "per faulty epoch (alerted / epochs with a solution)", "rate_ep", "lo_ep", "hi_ep"))
+                         ("epoch", "per faulty epoch (alerted / faulty epochs with a solution)", "rate_ep", "lo_ep", "hi_ep"))
 
 
 def _detection_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:

@@ -271,7 +271,7 @@ def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndar
         rows[mon.name] = _trial_columns(ctx, d, out, he, ve)
         hist.update(_stanford_counts(mon.name, out, he, ve))
         if keep_ep.any():
-            ep[mon.name] = _epoch_columns(ctx, d.trials, np.flatnonzero(keep_ep), out, he, ve)
+            ep[mon.name] = _epoch_columns(ctx, d, np.flatnonzero(keep_ep), out, he, ve)
     return {"trials": rows, "epochs": ep, "hist": hist}
 
 
@@ -285,9 +285,11 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
     after = t >= onset - 1e-9 if np.isfinite(onset) else np.ones(t.size, bool)
     det = alert & after
     detected = det.any(-1)
-    # per-epoch detection: alerted epochs / epochs from the onset at which the monitor gives a solution
-    # (fault-free cells: every epoch with a solution, so the ratio is the per-epoch false-alarm rate)
-    solved = (np.asarray(out.reason) == 0) & after
+    # per-epoch detection: alerted epochs / faulty epochs at which the monitor gives a solution, a
+    # faulty epoch being one whose measurements carry the fault (the faulty satellite can set or
+    # be masked, a faulty landmark leave the image); fault-free cells: every epoch with a solution,
+    # so the ratio is the per-epoch false-alarm rate
+    solved = (np.asarray(out.reason) == 0) & after & _fault_present(d)
     with np.errstate(all="ignore"):
         first_any = np.where(alert.any(-1), t[alert.argmax(-1)], np.nan)
         tta = np.where(detected, t[det.argmax(-1)] - (onset if np.isfinite(onset) else 0.0), np.nan)
@@ -314,6 +316,17 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
     return col
 
 
+def _fault_present(d: BlockDraw) -> np.ndarray:
+    """(n, T) epochs whose observations carry an injected fault (all True without a fault)."""
+    gf = np.asarray(d.gnss_truth.faulty, bool)
+    if not gf.any() and (d.vision_truth is None or not np.asarray(d.vision_truth.faulty).any()):
+        return np.ones(gf.shape[:-1], bool)
+    present = (gf & np.asarray(d.obs.gnss.visible, bool)).any(-1)
+    if d.vision_truth is not None:
+        present |= (np.asarray(d.vision_truth.faulty, bool) & np.asarray(d.obs.vision.detected, bool)).any(-1)
+    return present
+
+
 def _stanford_counts(name: str, out: MonitorOutput, he: np.ndarray, ve: np.ndarray) -> dict[str, list]:
     """Sparse Stanford histograms over the epochs the regions place (alerted ones are counted apart)."""
     edges_log = np.linspace(HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS + 1)
@@ -329,9 +342,10 @@ def _stanford_counts(name: str, out: MonitorOutput, he: np.ndarray, ve: np.ndarr
     return hist
 
 
-def _epoch_columns(ctx: CellContext, trials: np.ndarray, k_idx: np.ndarray, out: MonitorOutput, he: np.ndarray,
+def _epoch_columns(ctx: CellContext, d: BlockDraw, k_idx: np.ndarray, out: MonitorOutput, he: np.ndarray,
                    ve: np.ndarray) -> dict:
     """Per-epoch records of the kept trials ``k_idx`` (block positions)."""
+    trials = d.trials
     t, T, nk = ctx.t, ctx.t.size, k_idx.size
     avail = np.asarray(out.available, bool)
     e = {"cell": np.full(nk * T, ctx.cell.index, np.int32), "trial": np.repeat(trials[k_idx], T),
@@ -339,7 +353,7 @@ def _epoch_columns(ctx: CellContext, trials: np.ndarray, k_idx: np.ndarray, out:
          "he": he[k_idx].ravel(), "ve": ve[k_idx].ravel(), "hpl": np.asarray(out.hpl, float)[k_idx].ravel(),
          "vpl": np.asarray(out.vpl, float)[k_idx].ravel(), "test_stat": np.asarray(out.test_stat, float)[k_idx].ravel(),
          "threshold": np.asarray(out.threshold, float)[k_idx].ravel(),
-         "alert": np.asarray(out.alert, bool)[k_idx].ravel()}
+         "alert": np.asarray(out.alert, bool)[k_idx].ravel(), "fault_present": _fault_present(d)[k_idx].ravel()}
     for k, lv in enumerate(ctx.levels):
         e[f"avail_{lv}"] = avail[k_idx, :, k].ravel()
     return e

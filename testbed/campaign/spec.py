@@ -96,6 +96,9 @@ class Sweep(StrictModel):
 
     start_time_utc: list[dt.datetime] = Field(default_factory=list, description="start times across the day (UTC)")
     camera_dpi: list[float] = Field(default_factory=list, description="camera resolution, dpi (va-raim-2015 / custom dpi cameras)")
+    camera_focal_px: list[float] = Field(default_factory=list,
+                                         description="camera focal length, px, at the approach camera's field of view "
+                                                     "(the pixel count scales with it): the angular precision sweep")
     detection_sigma_px: list[float] = Field(default_factory=list, description="detection error 1-sigma, px")
     lpe_sigma_m: list[float] = Field(default_factory=list, description="landmark position (survey) error 1-sigma, m")
     landmark_sets: list[list[LandmarkSet]] = Field(default_factory=list, description="each entry: a full landmark set list")
@@ -118,6 +121,20 @@ class Sweep(StrictModel):
         if bad:
             raise ValueError(f"expected values >= 0, got {bad}")
         return v
+
+    @field_validator("camera_focal_px")
+    @classmethod
+    def _positive(cls, v):
+        bad = [x for x in v if not x > 0]
+        if bad:
+            raise ValueError(f"expected focal lengths > 0 px, got {bad}")
+        return v
+
+    @model_validator(mode="after")
+    def _one_camera_axis(self):
+        if self.camera_dpi and self.camera_focal_px:
+            raise ValueError("camera_dpi and camera_focal_px: expected at most one camera axis (both set the camera)")
+        return self
 
 
 #: Period after which the GPS sky over a place repeats, s: two orbits, about 10 s less than a
@@ -337,6 +354,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
         ("start_time_utc", sw.start_time_utc or [None]),
         ("fault", [(k, f, m) for k, f in enumerate(spec.faults) for m in f.magnitudes]),
         ("dpi", sw.camera_dpi or [None]),
+        ("focal_px", sw.camera_focal_px or [None]),
         ("sigma_px", sw.detection_sigma_px or [None]),
         ("lpe_sigma_m", sw.lpe_sigma_m or [None]),
         ("landmark_set", list(enumerate(sw.landmark_sets)) or [None]),
@@ -361,6 +379,8 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 d["start_time_utc"] = c["start_time_utc"].isoformat()
             if c["dpi"] is not None:
                 _set(d, "vision.camera.dpi", c["dpi"])
+            if c["focal_px"] is not None:
+                _set(d, "vision.camera", _camera_at_focal(ap.config.vision.camera, c["focal_px"]))
             if c["sigma_px"] is not None:
                 _set(d, "vision.detection.sigma_px", c["sigma_px"])
             if c["lpe_sigma_m"] is not None:
@@ -390,6 +410,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 "fault_sweep_kind": fam.kind, "fault_size": float(mag), "fault_unit": MAGNITUDE_UNITS[fam.kind],
                 "onset_s": float(fam.onset_s) if fault is not None else float("nan"),
                 "dpi": float(vis.camera.dpi) if vis.camera.dpi is not None else float("nan"),
+                "focal_px": float(c["focal_px"]) if c["focal_px"] is not None else float("nan"),
                 "sigma_px": float(vis.detection.sigma_px), "lpe_sigma_m": float(cfg.landmarks.lpe_sigma_m),
                 "landmark_set": -1 if c["landmark_set"] is None else int(c["landmark_set"][0]),
                 "calibration": str(cfg.va_raim.get("calibration", "gps")),
@@ -403,11 +424,26 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
     return cells
 
 
+def _camera_at_focal(camera, focal_px: float) -> dict:
+    """A custom camera with the field of view (and distortion) of ``camera`` and focal length
+    ``focal_px``: the pixel count scales with the focal length, so only the angular precision
+    σ_px / f changes and the landmarks stay in view as with the approach's own camera."""
+    import math
+
+    cam = camera.build()
+    hfov = 2 * math.atan(cam.width_px / (2 * cam.fx))
+    vfov = 2 * math.atan(cam.height_px / (2 * cam.fy))
+    return {"preset": "custom", "focal_px": float(focal_px),
+            "width_px": max(16, int(round(2 * focal_px * math.tan(hfov / 2)))),
+            "height_px": max(16, int(round(2 * focal_px * math.tan(vfov / 2)))),
+            "k1": camera.k1, "k2": camera.k2, "p1": camera.p1, "p2": camera.p2}
+
+
 def _describe(name: str, c: dict) -> str:
     parts = [name]
     fk, fam, mag = c["fault"]
     parts.append(f"faults.{fk} {fam.kind} {mag:g}")
-    for k in ("start_time_utc", "dpi", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant"):
+    for k in ("start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant"):
         if c[k] is not None:
             parts.append(f"{k}={c[k]}")
     if c["landmark_set"] is not None:

@@ -39,8 +39,8 @@ class CameraSettings(StrictModel):
         "approach-1080p", description="approach-1080p: 1920x1080, 50 deg HFOV; va-raim-2015: seed 000 camera "
         "(needs dpi; 35 mm lens on a 36x24 mm sensor, assumed); custom: give the intrinsics")
     dpi: float | None = Field(None, gt=0, le=20_000, description="image resolution, dots per inch (va-raim-2015, custom form c)")
-    width_px: int | None = Field(None, ge=16, le=100_000, description="image width, px (custom forms a, b)")
-    height_px: int | None = Field(None, ge=16, le=100_000, description="image height, px (custom forms a, b)")
+    width_px: int | None = Field(None, ge=16, le=1_000_000, description="image width, px (custom forms a, b)")
+    height_px: int | None = Field(None, ge=16, le=1_000_000, description="image height, px (custom forms a, b)")
     hfov_deg: float | None = Field(None, ge=0.1, le=170, description="horizontal field of view, deg (custom form a)")
     focal_px: float | None = Field(None, ge=1, le=1e7, description="focal length, px (custom form b)")
     focal_mm: float | None = Field(None, gt=0, description=f"focal length, mm (custom form c; va-raim-2015 default {VA_RAIM_FOCAL_MM})")
