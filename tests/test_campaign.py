@@ -92,6 +92,12 @@ def reference(tmp_path_factory) -> Path:
      '[sweep]\nstart_time_utc = [2026-03-01T04:00:00]\n', "sweep.start_time_utc", "UTC"),
     ('name = "x"\napproaches = ["no-such-approach"]\nmonitors = ["gps_raim"]\ntrials = 10\n',
      "approaches.0", "no such approach"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["va_raim"]\ntrials = 10\n'
+     '[sweep]\ncamera_focal_px = [992.0, 0.0]\n', "sweep.camera_focal_px", "focal lengths > 0 px"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["va_raim"]\ntrials = 10\n'
+     '[sweep]\ncamera_focal_px = [992.0]\ncamera_dpi = [720.0]\n', "sweep", "at most one camera axis"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["va_raim"]\ntrials = 10\n'
+     '[sweep]\nlandmark_sets = [[{kind = "triangle", radius_m = -100.0}]]\n', "sweep.landmark_sets.0.0", "radius_m"),
 ])
 def test_spec_errors_name_file_key_and_expectation(tmp_path, text, where, expected):
     p = write_spec(tmp_path, "bad.toml", text=text)
