@@ -168,3 +168,69 @@ def test_series_views_show_the_whole_flight(tmp_path):
     assert len(ranges) == 2 * 3 + 1
     for r in ranges:
         assert r == [{"timeline": "sim_time", "range": {"start": None, "end": None}}]
+
+
+def test_events_are_marked_on_every_integrity_plot(run):
+    """Fault onset and each monitor's first alert as markers on its HPL, VPL and test-statistic
+    plots, at the epochs the alert log gives (on the HAL / VAL / threshold line)."""
+    log = readback.text_log(run.rrd_path)
+    for m in ("gps_raim", "va_raim", "pixel"):
+        t, v = readback.scalar_series(run.rrd_path, f"integrity/{m}/horizontal/marks/fault_onset")
+        assert list(t) == [pytest.approx(FAULT_ONSET_S)]
+        out = run.outputs[m]
+        if out.alert.any():
+            first = float(out.t[np.flatnonzero(out.alert)[0]])
+            ta, va = readback.scalar_series(run.rrd_path, f"integrity/{m}/detection/marks/alert")
+            assert ta[0] == pytest.approx(first)
+            assert any(e[0] == pytest.approx(first) and e[2].startswith(f"{m}: ALERT") for e in log)
+            k = int(np.flatnonzero(out.t == first)[0])
+            assert va[0] == pytest.approx(out.threshold[k])  # on the threshold line
+            th, vh = readback.scalar_series(run.rrd_path, f"integrity/{m}/horizontal/marks/alert")
+            assert th[0] == pytest.approx(first) and np.all(vh == vh[0])  # on the HAL line
+
+
+def test_protection_volumes_and_the_faulty_ray_in_3d(run):
+    """Each monitor's protection volume: an ellipsoid at its estimate with semi-axes HPL, HPL, VPL,
+    coloured by the worse Stanford region; the faulty satellite's ray labelled from the onset."""
+    from testbed.integrity.monitor import ANTENNA
+    from testbed.integrity.pixel import PixelMonitor
+    from testbed.integrity.raim import GpsRaimMonitor
+    from testbed.integrity.va_raim import VaRaimMonitor
+    from testbed.sim.evaluate import position_errors, stanford_regions
+    from testbed.sim.setup import approach_geometry
+    from testbed.viz.rerun_sink import REGION_COLOURS, REGION_PRIORITY, worse_region
+
+    MONITOR_CLASSES = {"gps_raim": GpsRaimMonitor, "va_raim": VaRaimMonitor, "pixel": PixelMonitor}
+    frame, _ = approach_geometry(load_approach("va-raim-2015").flight_plan)
+    hal, val = 40.0, 20.0  # APV-II, the most demanding default level
+    for m in ("gps_raim", "va_raim", "pixel"):
+        out = run.outputs[m]
+        t, half = readback.component_rows(run.rrd_path, f"world/integrity/{m}/protection", "Ellipsoids3D:half_sizes")
+        _, centres = readback.component_rows(run.rrd_path, f"world/integrity/{m}/protection", "Ellipsoids3D:centers")
+        _, colours = readback.component_rows(run.rrd_path, f"world/integrity/{m}/protection", "Ellipsoids3D:colors")
+        ok = np.isfinite(out.hpl) & np.isfinite(out.vpl) & np.isfinite(out.pos_enu).all(-1)
+        np.testing.assert_allclose(t, out.t[ok], atol=1e-9)
+        half = np.array([h[0] for h in half])
+        np.testing.assert_allclose(half, np.column_stack([out.hpl[ok], out.hpl[ok], out.vpl[ok]]), rtol=1e-6)
+        np.testing.assert_allclose(np.array([c[0] for c in centres]), out.pos_enu[ok], atol=0.01)  # float32
+        at_antenna = MONITOR_CLASSES[m].reference == ANTENNA
+        truth = frame.ecef_to_enu(run.loop.gnss_truth.antenna_pos_ecef if at_antenna else run.loop.truth_at_gnss.pos_ecef)
+        he, ve = position_errors(out, truth)
+        want = worse_region(stanford_regions(he, out.hpl, hal, out.alert), stanford_regions(ve, out.vpl, val, out.alert))
+        rgba = [np.uint32(c[0]) for c in colours]
+        got = [((int(x) >> 24) & 255, (int(x) >> 16) & 255, (int(x) >> 8) & 255) for x in rgba]
+        assert got == [REGION_COLOURS[REGION_PRIORITY[k]] for k in want[ok]]
+    t, labels = readback.component_rows(run.rrd_path, "world/gnss/faulty", "LineStrips3D:labels")
+    prn = run.loop.gnss.prn[np.asarray(run.loop.gnss_truth.faulty).any(0)][0]
+    marked = [lb for lb in labels if lb]
+    assert t[[bool(lb) for lb in labels]].min() == pytest.approx(FAULT_ONSET_S)
+    assert marked and all(lb == [f"faulty PRN {prn}"] for lb in marked)
+
+
+def test_blueprint_has_a_view_that_follows_the_aircraft_and_titles_with_alert_limits(run):
+    vs = readback.views(run.rrd_path)
+    assert {"class": "3D", "name": "follow the aircraft", "origin": "/world/aircraft"} in vs
+    assert {"class": "3D", "name": "world", "origin": "/world"} in vs
+    names = [v["name"] for v in vs]
+    assert any(n.startswith("gps_raim: HPL vs HAL 40 m") for n in names), names
+    assert any(n.startswith("gps_raim: VPL vs VAL 20 m") for n in names), names

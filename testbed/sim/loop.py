@@ -24,7 +24,7 @@ from typing import Protocol
 import numpy as np
 
 from testbed.flight.fly import FlightResult, fly, truth_from_rows
-from testbed.integrity.monitor import Observations
+from testbed.integrity.monitor import ANTENNA, Observations
 from testbed.records import GnssEpochs, GnssTruth, MonitorOutput, Truth, concat_epochs, take_epochs
 from testbed.sensors.faults import GNSS_KINDS
 from testbed.sensors.gnss.almanac import load_constellation
@@ -54,6 +54,11 @@ class LoopBlock:
     outputs: dict[str, MonitorOutput]
     events: list[tuple[float, str, str]]
     alert_limits: tuple[float, float]
+    #: true position of each monitor's reference point (antenna or CG), (T, 3) world frame
+    reference_enu: dict[str, np.ndarray] = field(default_factory=dict)
+    #: (t, monitor name or "" for all, kind) of the events plots mark: "fault onset", "alert",
+    #: "alert cleared", "unavailable", "available"
+    marks: list[tuple[float, str, str]] = field(default_factory=list)
 
 
 class Sink(Protocol):
@@ -210,6 +215,8 @@ class _Runner:
             pm = self.timings.per_monitor
             pm[mon.name] = pm.get(mon.name, 0.0) + time.perf_counter() - t0
             block.outputs[mon.name] = out
+            block.reference_enu[mon.name] = (block.antenna_enu if mon.reference == ANTENNA
+                                             else self.setup.frame.ecef_to_enu(block.truth.pos_ecef))
             self.outputs[mon.name].append(out)
 
     # -- events ----------------------------------------------------------------
@@ -219,6 +226,7 @@ class _Runner:
             if onset <= t_end and (onset, kind) not in self.onset_logged:
                 self.onset_logged.add((onset, kind))
                 block.events.append((onset, WARN, f"[truth] fault injected: {kind} at t = {onset:.1f} s"))
+                block.marks.append((onset, "", "fault onset"))
         for name, out in block.outputs.items():
             level0 = out.service_levels[0] if out.service_levels else "?"
             for i, t in enumerate(out.t):
@@ -226,14 +234,17 @@ class _Runner:
                 if a and not self.prev_alert[name]:
                     block.events.append((float(t), ERROR, f"{name}: ALERT test statistic {out.test_stat[i]:.1f} "
                                                            f"> threshold {out.threshold[i]:.1f}"))
+                    block.marks.append((float(t), name, "alert"))
                 elif not a and self.prev_alert[name]:
                     block.events.append((float(t), INFO, f"{name}: alert cleared"))
+                    block.marks.append((float(t), name, "alert cleared"))
                 self.prev_alert[name] = a
                 av = bool(out.available[i, 0]) if out.available.ndim == 2 and out.available.shape[1] else True
                 if av != self.prev_avail[name]:
                     why = out.reasons[out.reason[i]] if out.reason[i] else "PL above alert limit"
                     block.events.append((float(t), WARN if not av else INFO,
                                          f"{name}: {level0} {'available' if av else 'UNAVAILABLE (' + why + ')'}"))
+                    block.marks.append((float(t), name, "available" if av else "unavailable"))
                 self.prev_avail[name] = av
         block.events.sort(key=lambda e: e[0])
         self.events.extend(block.events)

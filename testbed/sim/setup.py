@@ -142,6 +142,7 @@ class Scene:
     landmark_ids: tuple[str, ...]
     camera_K: np.ndarray | None
     camera_resolution: tuple[int, int]
+    alert_limits: tuple[float, float] = (float("nan"), float("nan"))  # HAL, VAL of the most demanding level
 
 
 def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
@@ -167,7 +168,8 @@ def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
     ap = setup.approach
     return Scene(title=f"{ap.name} ({ap.aircraft.name})", monitors=setup.monitor_names, planned_enu=planned,
                  terrain_mesh=mesh, runway_enu=runway, landmarks_enu=lm_enu,
-                 landmark_ids=tuple(str(i) for i in setup.landmarks.id), camera_K=K, camera_resolution=res)
+                 landmark_ids=tuple(str(i) for i in setup.landmarks.id), camera_K=K, camera_resolution=res,
+                 alert_limits=tuple(setup.alert_limits))
 
 
 def R_body_to_world(frame: LocalFrame, euler: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:

@@ -1,8 +1,9 @@
 """The default Rerun layout stored in every recording.
 
 Left: the 3D world (terrain, runway, landmarks, planned path, flown trail,
-aircraft, satellite lines of sight) above the camera view with its
-detections. Right: one tab per monitor with HPL/VPL against HAL/VAL and the
+aircraft, satellite lines of sight, each monitor's estimate with its HPL circle
+and VPL bar coloured by Stanford region), as a fixed view and one that follows
+the aircraft, above the camera view with its detections. Right: one tab per monitor with HPL/VPL against HAL/VAL and the
 test statistic against its threshold; below, satellites/landmarks in use, the
 alert log and the map track.
 """
@@ -35,24 +36,30 @@ def _series(name: str, origin: str) -> rrb.TimeSeriesView:
                               plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.LeftTop))
 
 
-def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None) -> rrb.Blueprint:
+def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
+                      alert_limits: tuple[float, float] = (float("nan"), float("nan"))) -> rrb.Blueprint:
+    hal, val = alert_limits
     monitor_tabs = [
         rrb.Vertical(
-            _series(f"{m}: HPL vs HAL (m)", f"/integrity/{m}/horizontal"),
-            _series(f"{m}: VPL vs VAL (m)", f"/integrity/{m}/vertical"),
-            _series(f"{m}: test statistic vs threshold", f"/integrity/{m}/detection"),
+            _series(f"{m}: HPL vs HAL {hal:g} m (m; marks: fault onset, alerts, availability)",
+                    f"/integrity/{m}/horizontal"),
+            _series(f"{m}: VPL vs VAL {val:g} m (m)", f"/integrity/{m}/vertical"),
+            _series(f"{m}: test statistic (SSE) vs threshold", f"/integrity/{m}/detection"),
             name=m,
         )
         for m in monitors
     ]
+    # the flown trail is one point per epoch: show all of them up to the cursor
+    trail = {"world/path/flown": rrb.VisibleTimeRanges(rrb.VisibleTimeRange(
+        "sim_time", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()))}
+    world = ["/world/**", "- /world/camera/detections/**"]
     left = rrb.Vertical(
-        rrb.Spatial3DView(name="world", origin="/world", eye_controls=eye,
-                          contents=["/world/**", "- /world/camera/detections/**"],
-                          # the flown trail is one point per epoch: show all of them up to the cursor
-                          overrides={"world/path/flown": rrb.VisibleTimeRanges(rrb.VisibleTimeRange(
-                              "sim_time", start=rrb.TimeRangeBoundary.infinite(),
-                              end=rrb.TimeRangeBoundary.cursor_relative()))}),
-        rrb.Spatial2DView(name="camera", origin="/world/camera"),
+        rrb.Tabs(
+            rrb.Spatial3DView(name="world", origin="/world", eye_controls=eye, contents=world, overrides=trail),
+            # the aircraft's frame as the view's origin: the eye rides with it down the approach
+            rrb.Spatial3DView(name="follow the aircraft", origin="/world/aircraft", contents=world, overrides=trail),
+        ),
+        rrb.Spatial2DView(name="camera (detections; red: faulty)", origin="/world/camera"),
         row_shares=[3, 2],
     )
     right = rrb.Vertical(

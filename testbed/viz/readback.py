@@ -57,6 +57,45 @@ def view_time_ranges(path: str | Path) -> list[list[dict]]:
     return out
 
 
+def views(path: str | Path) -> list[dict]:
+    """Every view of the stored blueprint: ``{"class", "name", "origin"}`` (e.g. Spatial3D, "world", "/world")."""
+    r = rrc.RrdReader(str(path))
+    out = []
+    for bp in r.blueprints():
+        for ch in r.stream(store=bp):
+            if not (ch.entity_path.startswith("/view/") and ch.entity_path.count("/") == 2):
+                continue
+            rb = ch.to_record_batch()
+            cols = [_column(rb, f"ViewBlueprint:{k}") for k in ("class_identifier", "display_name", "space_origin")]
+            if any(c is None for c in cols):
+                continue
+            for k in range(rb.num_rows):
+                cls, name, origin = (c[k].as_py() for c in cols)
+                out.append({"class": _first(cls), "name": _first(name), "origin": _first(origin)})
+    return out
+
+
+def _first(x):
+    return x[0] if isinstance(x, list) and x else x
+
+
+def component_rows(path: str | Path, entity: str, column: str) -> tuple[np.ndarray, list]:
+    """``(t_s, values)`` of one component column (e.g. ``"Ellipsoids3D:half_sizes"``) of an
+    entity's temporal rows, sorted by time: each value is that row's list of instances."""
+    entity = entity if entity.startswith("/") else "/" + entity
+    rows = []
+    for ch in _chunks(path):
+        if ch.entity_path != entity or ch.is_static:
+            continue
+        rb = ch.to_record_batch()
+        t, c = _column(rb, "sim_time"), _column(rb, column)
+        if t is None or c is None:
+            continue
+        rows += list(zip((t.cast("int64").to_numpy() * 1e-9).tolist(), c.to_pylist()))
+    rows.sort(key=lambda r: r[0])
+    return np.array([r[0] for r in rows]), [r[1] for r in rows]
+
+
 def has_blueprint(path: str | Path) -> bool:
     return bool(rrc.RrdReader(str(path)).blueprints())
 

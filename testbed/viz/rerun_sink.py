@@ -9,9 +9,14 @@ logged in the approach's local ENU world frame (Rerun stores float32).
 Entity tree (timeline ``sim_time``):
 - ``world/terrain`` mesh, ``world/runway``, ``world/landmarks``, ``world/path/planned``,
   ``world/path/flown``, ``world/aircraft`` (transform + box), ``world/gnss/los`` (rays
-  coloured visible / terrain-masked / airframe / faulty), ``world/camera`` (pinhole
-  with the true pose) and ``world/camera/detections`` (faulty ones red);
-- ``integrity/<monitor>/{horizontal/{hpl,hal}, vertical/{vpl,val}, detection/{test_stat,threshold}}``;
+  coloured visible / terrain-masked / airframe / faulty), ``world/gnss/faulty`` (the faulty
+  satellite's ray, thick and labelled), ``world/camera`` (pinhole with the true pose) and
+  ``world/camera/detections`` (faulty ones red);
+- ``world/integrity/<monitor>/protection``: the protection volume, an ellipsoid at the estimate
+  with semi-axes HPL, HPL, VPL (wireframe), coloured by the worse Stanford region against the
+  truth (:data:`REGION_COLOURS`, :data:`REGION_PRIORITY`);
+- ``integrity/<monitor>/{horizontal/{hpl,hal}, vertical/{vpl,val}, detection/{test_stat,threshold}}``
+  with ``.../marks/<event>`` markers (fault onset, alert, alert cleared, (un)available);
 - ``sensors/{satellites_visible, satellites_used/<monitor>, landmarks_detected}``;
 - ``alerts`` (TextLog), ``map/aircraft`` (GeoPoints).
 """
@@ -43,6 +48,41 @@ COLOURS = {
     "landmark": (255, 255, 255),
     "runway": (200, 200, 200),
 }
+#: Stanford region -> colour of the 3D protection volume
+REGION_COLOURS = {"normal": (60, 200, 90), "unavailable": (150, 150, 150), "misleading": (240, 160, 40),
+                  "hazardous": (230, 30, 30), "unavailable_misleading": (200, 90, 40), "alerted": (220, 40, 220),
+                  "no_solution": (90, 90, 90)}
+#: events marked on every integrity plot -> (colour, marker)
+MARKS = {"fault onset": ((220, 40, 220), "Diamond"), "alert": ((230, 30, 30), "Cross"),
+         "alert cleared": ((60, 200, 90), "Plus"), "unavailable": ((150, 150, 150), "Down"),
+         "available": ((60, 200, 90), "Up")}
+PANELS = ("horizontal", "vertical", "detection")
+
+
+def _slug(kind: str) -> str:
+    return kind.replace(" ", "_")
+
+
+#: the order in which a horizontal or vertical region decides the colour of the protection volume
+REGION_PRIORITY = ("hazardous", "unavailable_misleading", "misleading", "alerted", "unavailable", "normal",
+                   "no_solution")
+
+
+def worse_region(rh: dict[str, np.ndarray], rv: dict[str, np.ndarray]) -> np.ndarray:
+    """(...) index into REGION_PRIORITY of the worse of each epoch's H and V Stanford regions."""
+    shape = rh["normal"].shape
+    out = np.full(shape, len(REGION_PRIORITY) - 1)
+    for k in range(len(REGION_PRIORITY) - 1, -1, -1):  # the worst written last
+        r = REGION_PRIORITY[k]
+        out[rh[r] | rv[r]] = k
+    return out
+
+
+def _worse_region_colours(rh: dict[str, np.ndarray], rv: dict[str, np.ndarray]) -> np.ndarray:
+    palette = np.array([REGION_COLOURS[r] for r in REGION_PRIORITY], np.uint8)
+    return palette[worse_region(rh, rv)]
+
+
 SERIES = {  # entity suffix -> (colour, line name)
     "horizontal/hpl": ((80, 160, 255), "HPL"), "horizontal/hal": ((230, 60, 50), "HAL"),
     "vertical/vpl": ((80, 160, 255), "VPL"), "vertical/val": ((230, 60, 50), "VAL"),
@@ -97,7 +137,7 @@ class RerunSink:
         if self._start_time_ns is not None:
             rec.send_recording_start_time_nanos(int(self._start_time_ns))
         self.monitors = list(scene.monitors)
-        rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu)),
+        rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu), tuple(scene.alert_limits)),
                            make_active=True, make_default=True)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scene.terrain_mesh is not None:
@@ -126,6 +166,13 @@ class RerunSink:
             for suffix, (colour, name) in SERIES.items():
                 rec.log(f"integrity/{m}/{suffix}", rr.SeriesLines(colors=[colour], names=[name], widths=[2.0]),
                         static=True)
+            rec.log(f"world/integrity/{m}/protection", rr.Ellipsoids3D.from_fields(
+                fill_mode="MajorWireframe", line_radii=[-1.5], labels=[m], show_labels=True), static=True)
+            for panel in PANELS:
+                for kind, (colour, marker) in MARKS.items():
+                    rec.log(f"integrity/{m}/{panel}/marks/{_slug(kind)}",
+                            rr.SeriesPoints(colors=[colour], names=[kind], markers=[marker], marker_sizes=[6.0]),
+                            static=True)
         rec.log("sensors/satellites_visible", rr.SeriesLines(names=["satellites visible"]), static=True)
         rec.log("sensors/landmarks_detected", rr.SeriesLines(names=["landmarks detected"]), static=True)
         rec.set_time("sim_time", duration=0.0)
@@ -155,6 +202,8 @@ class RerunSink:
             self._log_vision(block)
         for name, out in block.outputs.items():
             self._log_monitor(name, out, block, times)
+            self._log_protection_in_3d(name, out, block)
+        self._log_marks(block)
         for t_ev, level, text in block.events:
             rec.set_time("sim_time", duration=t_ev)
             rec.log("alerts", rr.TextLog(text, level=level))
@@ -178,6 +227,15 @@ class RerunSink:
             "world/gnss/los", indexes=times,
             columns=rr.LineStrips3D.columns(strips=list(strips), colors=colour[draw],
                                             radii=np.full(len(strips), -1.0)).partition(lengths))
+        # the faulty satellite's ray again, thick and labelled (empty where none is faulty and in view)
+        bad = faulty & (reason == NotVisible.VISIBLE)
+        prn = np.broadcast_to(np.asarray(g.prn), reason.shape)
+        self.rec.send_columns(
+            "world/gnss/faulty", indexes=times,
+            columns=rr.LineStrips3D.columns(strips=list(np.stack([start[bad], end[bad]], 1)),
+                                            colors=np.tile(COLOURS["faulty"], (int(bad.sum()), 1)),
+                                            radii=np.full(int(bad.sum()), -4.0),
+                                            labels=[f"faulty PRN {p}" for p in prn[bad]]).partition(bad.sum(axis=1)))
         self.rec.send_columns("sensors/satellites_visible", indexes=times,
                               columns=rr.Scalars.columns(scalars=np.asarray(g.visible).sum(axis=-1).astype(float)))
 
@@ -212,6 +270,46 @@ class RerunSink:
                                   columns=rr.Scalars.columns(scalars=np.asarray(x, float)))
         self.rec.send_columns(f"sensors/satellites_used/{name}", indexes=tm,
                               columns=rr.Scalars.columns(scalars=np.asarray(out.n_used, float)))
+
+    def _log_marks(self, block: "LoopBlock") -> None:
+        """Fault onset, alerts and availability changes as markers on each monitor's three panels
+        (on the alert-limit / threshold line, so they are in range whatever the PLs do)."""
+        hal, val = block.alert_limits
+        for t_m, who, kind in block.marks:
+            for m in ([who] if who else list(block.outputs)):
+                out = block.outputs.get(m)
+                if out is None:
+                    continue
+                thr = np.asarray(out.threshold, float)
+                fin = np.isfinite(thr)
+                y_det = float(np.interp(t_m, out.t[fin], thr[fin])) if fin.any() else 0.0
+                self.rec.set_time("sim_time", duration=t_m)
+                for panel, y in (("horizontal", hal), ("vertical", val), ("detection", y_det)):
+                    self.rec.log(f"integrity/{m}/{panel}/marks/{_slug(kind)}", rr.Scalars([y]))
+
+    def _log_protection_in_3d(self, name: str, out, block: "LoopBlock") -> None:
+        """The monitor's protection volume: an ellipsoid at its estimate with horizontal semi-axes
+        HPL and vertical semi-axis VPL (wireframe: the HPL circle and the ±VPL meridians), coloured
+        by the worse of its horizontal and vertical Stanford regions against the truth at its
+        reference point (hazardous > misleading > alerted > unavailable > normal)."""
+        from testbed.sim.evaluate import position_errors, stanford_regions
+
+        ref = block.reference_enu.get(name)
+        if ref is None:
+            return
+        hal, val = block.alert_limits
+        pos, hpl, vpl = np.asarray(out.pos_enu, float), np.asarray(out.hpl, float), np.asarray(out.vpl, float)
+        ok = np.isfinite(pos).all(-1) & np.isfinite(hpl) & np.isfinite(vpl)
+        if not ok.any():
+            return
+        he, ve = position_errors(out, ref)
+        alert = np.asarray(out.alert, bool)
+        colour = _worse_region_colours(stanford_regions(he, hpl, hal, alert), stanford_regions(ve, vpl, val, alert))[ok]
+        t = out.t[ok]
+        self.rec.send_columns(f"world/integrity/{name}/protection", indexes=[rr.TimeColumn("sim_time", duration=t)],
+                              columns=rr.Ellipsoids3D.columns(
+                                  centers=pos[ok], half_sizes=np.column_stack([hpl[ok], hpl[ok], vpl[ok]]),
+                                  colors=colour).partition(np.ones(t.size, int)))
 
     def commit(self) -> None:
         """Flush and move the recording into place (atomically); a live server stays up."""
