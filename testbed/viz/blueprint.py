@@ -52,14 +52,15 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
     # the flown trail is one point per epoch: show all of them up to the cursor
     trail = {"world/path/flown": rrb.VisibleTimeRanges(rrb.VisibleTimeRange(
         "sim_time", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()))}
-    world = ["/world/**", "- /world/camera/detections/**"]
+    world = ["/world/**", "- /world/camera/detections/**", "- /world/camera/scene/**"]
     left = rrb.Vertical(
         rrb.Tabs(
             rrb.Spatial3DView(name="world", origin="/world", eye_controls=eye, contents=world, overrides=trail),
             # the aircraft's frame as the view's origin: the eye rides with it down the approach
             rrb.Spatial3DView(name="follow the aircraft", origin="/world/aircraft", contents=world, overrides=trail),
         ),
-        rrb.Spatial2DView(name="camera (detections; red: faulty)", origin="/world/camera"),
+        rrb.Spatial2DView(name="camera: detections (cyan; red: faulty), landmarks and runway where they are (white)",
+                          origin="/world/camera"),
         row_shares=[3, 2],
     )
     right = rrb.Vertical(

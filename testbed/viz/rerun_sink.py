@@ -10,8 +10,9 @@ Entity tree (timeline ``sim_time``):
 - ``world/terrain`` mesh, ``world/runway``, ``world/landmarks``, ``world/path/planned``,
   ``world/path/flown``, ``world/aircraft`` (transform + box), ``world/gnss/los`` (rays
   coloured visible / terrain-masked / airframe / faulty), ``world/gnss/faulty`` (the faulty
-  satellite's ray, thick and labelled), ``world/camera`` (pinhole with the true pose) and
-  ``world/camera/detections`` (faulty ones red);
+  satellite's ray, thick and labelled), ``world/camera`` (pinhole with the true pose),
+  ``world/camera/detections`` (faulty ones red) and ``world/camera/scene/{landmarks, runway}``
+  (where the surveyed landmarks and the runway outline fall in the image, true pose);
 - ``world/integrity/<monitor>/protection``: the protection volume, an ellipsoid at the estimate
   with semi-axes HPL, HPL, VPL (wireframe), coloured by the worse Stanford region against the
   truth (:data:`REGION_COLOURS`, :data:`REGION_PRIORITY`);
@@ -137,6 +138,9 @@ class RerunSink:
         if self._start_time_ns is not None:
             rec.send_recording_start_time_nanos(int(self._start_time_ns))
         self.monitors = list(scene.monitors)
+        self._scene_landmarks = scene.landmarks_enu
+        self._scene_runway = scene.runway_enu
+        self._K, self._resolution = scene.camera_K, scene.camera_resolution
         rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu), tuple(scene.alert_limits)),
                            make_active=True, make_default=True)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -158,6 +162,13 @@ class RerunSink:
         rec.log("world/aircraft/body", rr.Boxes3D(half_sizes=[[18.0, 3.0, 2.0]], colors=[(255, 255, 255)]),
                 static=True)
         if scene.camera_K is not None:
+            rec.log("world/camera/detections", rr.AnnotationContext(
+                [rr.ClassDescription(info=(k, lid)) for k, lid in enumerate(scene.landmark_ids)]), static=True)
+            rec.log("world/camera/detections", rr.Points2D.from_fields(radii=[4.0], show_labels=True), static=True)
+            rec.log("world/camera/scene/landmarks", rr.Points2D.from_fields(colors=[COLOURS["landmark"]], radii=[7.0]),
+                    static=True)
+            rec.log("world/camera/scene/runway", rr.LineStrips2D.from_fields(colors=[COLOURS["runway"]], radii=[1.5]),
+                    static=True)
             w, h = scene.camera_resolution
             rec.log("world/camera", rr.Pinhole(image_from_camera=scene.camera_K, resolution=[w, h],
                                                camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=60.0),
@@ -225,14 +236,14 @@ class RerunSink:
         lengths = draw.sum(axis=1)
         self.rec.send_columns(
             "world/gnss/los", indexes=times,
-            columns=rr.LineStrips3D.columns(strips=list(strips), colors=colour[draw],
+            columns=rr.LineStrips3D.columns(strips=strips, colors=colour[draw],
                                             radii=np.full(len(strips), -1.0)).partition(lengths))
         # the faulty satellite's ray again, thick and labelled (empty where none is faulty and in view)
         bad = faulty & (reason == NotVisible.VISIBLE)
         prn = np.broadcast_to(np.asarray(g.prn), reason.shape)
         self.rec.send_columns(
             "world/gnss/faulty", indexes=times,
-            columns=rr.LineStrips3D.columns(strips=list(np.stack([start[bad], end[bad]], 1)),
+            columns=rr.LineStrips3D.columns(strips=np.stack([start[bad], end[bad]], 1),
                                             colors=np.tile(COLOURS["faulty"], (int(bad.sum()), 1)),
                                             radii=np.full(int(bad.sum()), -4.0),
                                             labels=[f"faulty PRN {p}" for p in prn[bad]]).partition(bad.sum(axis=1)))
@@ -249,12 +260,41 @@ class RerunSink:
         uv = np.asarray(v.pixel_uv)[det]
         faulty = np.asarray(vt.faulty)[det] if vt is not None else np.zeros(len(uv), bool)
         colours = np.where(faulty[:, None], COLOURS["detection_faulty"], COLOURS["detection"]).astype(np.uint8)
-        ids = np.broadcast_to(np.asarray(v.landmark_id), det.shape)[det]
+        # the landmark's slot as class id: its label comes from the annotation context (ints are cheap)
+        slot = np.broadcast_to(np.arange(det.shape[-1]), det.shape)[det]
         rec.send_columns("world/camera/detections", indexes=tv,
-                         columns=rr.Points2D.columns(positions=uv, colors=colours, radii=np.full(len(uv), 4.0),
-                                                     labels=[str(s) for s in ids]).partition(det.sum(axis=1)))
+                         columns=rr.Points2D.columns(positions=uv, colors=colours, class_ids=slot).partition(
+                             det.sum(axis=1)))
         rec.send_columns("sensors/landmarks_detected", indexes=tv,
                          columns=rr.Scalars.columns(scalars=det.sum(axis=1).astype(float)))
+        self._log_scene_in_camera(tv, block.camera_enu, block.R_cam_to_world)
+
+    def _log_scene_in_camera(self, tv, cam_enu: np.ndarray, R_c2w: np.ndarray) -> None:
+        """Where the surveyed landmarks and the runway outline fall in the image (true pose, no
+        noise), every vision epoch they are in front of the camera and inside the image: the
+        camera view shows the scene while it is in view, beside the detections."""
+        if self._K is None:
+            return
+        w, h = self._resolution
+
+        def project(X):  # (T, N, 3) world -> (T, N, 2) px, and in front of the camera
+            c = np.einsum("tji,tnj->tni", R_c2w, X[None] - cam_enu[:, None, :])  # R_c2wᵀ (X − c), RDF
+            z = c[..., 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv = np.stack([c[..., 0] / z, c[..., 1] / z, np.ones_like(z)], -1) @ self._K.T
+            return uv[..., :2], z > 1.0
+
+        if self._scene_landmarks is not None and len(self._scene_landmarks):
+            uv, front = project(np.asarray(self._scene_landmarks, float))
+            inside = front & (uv[..., 0] >= 0) & (uv[..., 0] < w) & (uv[..., 1] >= 0) & (uv[..., 1] < h)
+            self.rec.send_columns("world/camera/scene/landmarks", indexes=tv,
+                                  columns=rr.Points2D.columns(positions=uv[inside]).partition(inside.sum(axis=1)))
+        if self._scene_runway is not None:
+            uv, front = project(np.asarray(self._scene_runway, float))
+            whole = front.all(-1)  # an outline partly behind the camera does not project to a polygon
+            rings = np.concatenate([uv[whole], uv[whole][:, :1]], axis=1)  # an ndarray: 30x faster than a list
+            self.rec.send_columns("world/camera/scene/runway", indexes=tv,
+                                  columns=rr.LineStrips2D.columns(strips=rings).partition(whole.astype(int)))
 
     def _log_monitor(self, name: str, out, block: "LoopBlock", times) -> None:
         tm = [rr.TimeColumn("sim_time", duration=out.t)]
