@@ -37,7 +37,9 @@ def _series(name: str, origin: str) -> rrb.TimeSeriesView:
 
 
 def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
-                      alert_limits: tuple[float, float] = (float("nan"), float("nan"))) -> rrb.Blueprint:
+                      alert_limits: tuple[float, float] = (float("nan"), float("nan")),
+                      play_state: str | None = None) -> rrb.Blueprint:
+    """The layout; ``play_state`` ("following": the cursor at the newest data) for the time panel."""
     hal, val = alert_limits
     monitor_tabs = [
         rrb.Vertical(
@@ -72,4 +74,7 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
         rrb.MapView(name="map", origin="/map"),
         row_shares=[3, 2, 2],
     )
-    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[3, 2]), collapse_panels=True)
+    # the time panel on the simulation's timeline (a viewer would otherwise pick the first one it sees)
+    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[3, 2]),
+                         rrb.TimePanel(timeline="sim_time", state="collapsed", play_state=play_state),
+                         collapse_panels=True)
