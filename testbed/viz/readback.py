@@ -26,22 +26,22 @@ def content_digest(path: str | Path) -> str:
 
     Rerun gives every chunk and row a TUID (a time-based unique id, ``rerun:id`` and
     ``rerun.controls.RowId``), so two recordings of the same run differ in those bytes
-    (and hence in their compressed blocks) and nowhere else: entity paths, timelines,
-    components and values hash equal (``tests/test_recording.py``).
+    (and hence in their compressed blocks) and nowhere else; and how rows are batched into
+    chunks may depend on timing. So the digest is over rows: entity path, timelines,
+    components and values of each row, in a sorted order (``tests/test_recording.py``).
     """
     import hashlib
 
-    parts = []
+    rows = []
     for ch in _chunks(path):
         rb = ch.to_record_batch()
         keep = [k for k, name in enumerate(rb.schema.names) if name != "rerun.controls.RowId"]
-        rb = rb.select(keep).replace_schema_metadata(None)
-        h = hashlib.sha256(ch.entity_path.encode())
-        for col, field in zip(rb.columns, rb.schema):
-            h.update(field.name.encode())
-            h.update(repr(col.to_pylist()).encode())
-        parts.append(h.hexdigest())
-    return hashlib.sha256("".join(sorted(parts)).encode()).hexdigest()
+        rb = rb.select(keep)
+        cols = [(f.name, c.to_pylist()) for f, c in zip(rb.schema, rb.columns)]
+        for k in range(rb.num_rows):
+            row = repr((ch.entity_path, [(name, vals[k]) for name, vals in cols if vals[k] is not None]))
+            rows.append(hashlib.sha256(row.encode()).hexdigest())
+    return hashlib.sha256("".join(sorted(rows)).encode()).hexdigest()
 
 
 def view_time_ranges(path: str | Path) -> list[list[dict]]:

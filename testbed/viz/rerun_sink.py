@@ -313,8 +313,10 @@ class RerunSink:
 
     def _log_marks(self, block: "LoopBlock") -> None:
         """Fault onset, alerts and availability changes as markers on each monitor's three panels
-        (on the alert-limit / threshold line, so they are in range whatever the PLs do)."""
+        (on the alert-limit / threshold line, so they are in range whatever the PLs do). Sent as
+        columns, one call per marker series, so the recording's chunks do not depend on timing."""
         hal, val = block.alert_limits
+        series: dict[str, tuple[list, list]] = {}
         for t_m, who, kind in block.marks:
             for m in ([who] if who else list(block.outputs)):
                 out = block.outputs.get(m)
@@ -323,9 +325,13 @@ class RerunSink:
                 thr = np.asarray(out.threshold, float)
                 fin = np.isfinite(thr)
                 y_det = float(np.interp(t_m, out.t[fin], thr[fin])) if fin.any() else 0.0
-                self.rec.set_time("sim_time", duration=t_m)
                 for panel, y in (("horizontal", hal), ("vertical", val), ("detection", y_det)):
-                    self.rec.log(f"integrity/{m}/{panel}/marks/{_slug(kind)}", rr.Scalars([y]))
+                    ts, ys = series.setdefault(f"integrity/{m}/{panel}/marks/{_slug(kind)}", ([], []))
+                    ts.append(t_m)
+                    ys.append(y)
+        for entity, (ts, ys) in series.items():
+            self.rec.send_columns(entity, indexes=[rr.TimeColumn("sim_time", duration=np.asarray(ts))],
+                                  columns=rr.Scalars.columns(scalars=np.asarray(ys, float)))
 
     def _log_protection_in_3d(self, name: str, out, block: "LoopBlock") -> None:
         """The monitor's protection volume: an ellipsoid at its estimate with horizontal semi-axes
