@@ -233,8 +233,8 @@ def test_blueprint_has_a_view_that_follows_the_aircraft_and_titles_with_alert_li
     assert {"class": "3D", "name": "follow the aircraft", "origin": "/world/aircraft"} in vs
     assert {"class": "3D", "name": "world", "origin": "/world"} in vs
     names = [v["name"] for v in vs]
-    assert any(n.startswith("gps_raim: HPL vs HAL 40 m") for n in names), names
-    assert any(n.startswith("gps_raim: VPL vs VAL 20 m") for n in names), names
+    assert any(n.startswith("gps_raim: HPL (blue) vs HAL 40 m (red), m.") for n in names), names
+    assert any(n.startswith("gps_raim: VPL (blue) vs VAL 20 m (red), m.") for n in names), names
 
 
 def test_camera_view_shows_where_the_landmarks_are_beside_the_detections(run):

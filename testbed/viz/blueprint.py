@@ -25,15 +25,22 @@ def approach_eye(planned_enu) -> rrb.EyeControls3D:
     return rrb.EyeControls3D(position=pos, look_target=0.5 * (start + end), eye_up=[0.0, 0.0, 1.0])
 
 
+#: what the event markers on the integrity plots mean (viz.rerun_sink.MARKS)
+MARK_KEY = "Marks: ◆ fault onset, ✕ alert, + cleared, ▼ unavailable, ▲ available"
+
 #: series views show the whole flight, not the last seconds before the cursor
 WHOLE_FLIGHT = rrb.VisibleTimeRange("sim_time", start=rrb.TimeRangeBoundary.infinite(),
                                     end=rrb.TimeRangeBoundary.infinite())
+#: ... and their x axis spans it too (the viewer's default is a window around the cursor)
+WHOLE_AXIS = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
+                                                   end=rrb.TimeRangeBoundary.infinite()))
 
 
 def _series(name: str, origin: str) -> rrb.TimeSeriesView:
-    """A time-series view over the whole flight, its legend in a corner where the curves rarely are."""
-    return rrb.TimeSeriesView(name=name, origin=origin, time_ranges=[WHOLE_FLIGHT],
-                              plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.LeftTop))
+    """A time-series view over the whole flight. No legend box (any corner hides some data): the
+    title names each curve's colour."""
+    return rrb.TimeSeriesView(name=name, origin=origin, time_ranges=[WHOLE_FLIGHT], axis_x=WHOLE_AXIS,
+                              plot_legend=rrb.PlotLegend(visible=False))
 
 
 def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
@@ -43,10 +50,9 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
     hal, val = alert_limits
     monitor_tabs = [
         rrb.Vertical(
-            _series(f"{m}: HPL vs HAL {hal:g} m (m; marks: fault onset, alerts, availability)",
-                    f"/integrity/{m}/horizontal"),
-            _series(f"{m}: VPL vs VAL {val:g} m (m)", f"/integrity/{m}/vertical"),
-            _series(f"{m}: test statistic (SSE) vs threshold", f"/integrity/{m}/detection"),
+            _series(f"{m}: HPL (blue) vs HAL {hal:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/horizontal"),
+            _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/vertical"),
+            _series(f"{m}: test statistic SSE (blue) vs threshold (red). {MARK_KEY}", f"/integrity/{m}/detection"),
             name=m,
         )
         for m in monitors
@@ -68,7 +74,9 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
     right = rrb.Vertical(
         rrb.Tabs(*monitor_tabs) if monitor_tabs else rrb.TextLogView(name="alerts", origin="/alerts"),
         rrb.Horizontal(
-            _series("satellites and landmarks in use", "/sensors"),
+            rrb.TimeSeriesView(name="satellites and landmarks in view / in use", origin="/sensors",
+                               time_ranges=[WHOLE_FLIGHT], axis_x=WHOLE_AXIS,
+                               plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.LeftTop)),
             rrb.TextLogView(name="alerts", origin="/alerts"),
         ),
         rrb.MapView(name="map", origin="/map"),
