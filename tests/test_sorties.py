@@ -9,39 +9,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from test_campaign import TINY
+
 from testbed.campaign import runner
 from testbed.campaign.sorties import n_windows, sky_windows, sortie_offsets, window_offsets
 from testbed.campaign.spec import SKY_REPEAT_S, expand_cells, load_spec
 from testbed.schema import ConfigError
 from testbed.sensors.gnss.synth import gnss_geometry
 
-SPEC = """
-name = "span"
-approaches = ["va-raim-2015"]
-monitors = ["gps_raim", "va_raim"]
-trials = {trials}
-block_trials = 10
-chunk_trials = {chunk}
-base_seed = 3
-per_epoch_trials = 2
-duration_s = 30.0
-
-[[faults]]
-kind = "gps_step"
-magnitudes = [0.0, 40.0]
-onset_s = 10.0
-
-[sweep]
-camera_dpi = [720.0]
-
-[sorties]
-{sorties}
-"""
+def spec_text(trials: int, chunk: int, sorties: str) -> str:
+    """test_campaign's tiny spec (GPS RAIM + VA-RAIM, a 60 m step), with these trials and sorties."""
+    return (TINY.format(chunk=chunk, monitors='["gps_raim", "va_raim"]').replace("trials = 40", f"trials = {trials}")
+            + f"\n[sorties]\n{sorties}\n")
 
 
 def write(tmp_path, sorties='start = "consecutive"\nsortie_s = 60.0', trials=40, chunk=20, name="span.toml"):
     p = tmp_path / name
-    p.write_text(SPEC.format(trials=trials, chunk=chunk, sorties=sorties))
+    p.write_text(spec_text(trials, chunk, sorties))
     return p
 
 
@@ -117,7 +101,7 @@ def test_span_results_do_not_depend_on_chunks_or_threads(tmp_path):
     assert same(a, b)
     t = a.to_pydict()
     assert sorted(set(t["start_offset_s"]))[:3] == [0.0, 60.0, 120.0] and len(set(t["sky_window"])) == 40
-    # detection still works under the moving sky: the 40 m step is caught in most sorties
+    # detection still works under the moving sky: the 60 m step is caught in most sorties
     det = np.asarray(t["detected"])[(np.asarray(t["cell"]) == 1) & (np.asarray(t["monitor"]) == "gps_raim")]
     assert det.mean() > 0.8
 
@@ -138,7 +122,7 @@ def test_bad_sortie_settings_name_the_key(tmp_path, sorties, where, expected):
 
 
 def test_a_span_shorter_than_the_flight_is_refused(tmp_path):
-    text = SPEC.format(trials=10, chunk=10, sorties='start = "uniform"\nspan_s = 20.0')  # duration_s = 30
+    text = spec_text(10, 10, 'start = "uniform"\nspan_s = 20.0')  # duration_s = 40
     p = tmp_path / "short.toml"
     p.write_text(text)
     with pytest.raises(ConfigError, match="shorter than one sortie"):
