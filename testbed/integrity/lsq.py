@@ -224,6 +224,20 @@ def wls_fit(h: ArrayLike, G: ArrayLike, z: ArrayLike, w_diag: ArrayLike, W_block
     return WlsFit(mask=np.broadcast_to(m, batch + (N,)), **out)
 
 
+def wls_fit_any(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None, max_cond: float = MAX_COND,
+                h: ArrayLike | None = None, z: ArrayLike | None = None) -> tuple[WlsFit, bool]:
+    """:func:`wls_fit` with W diagonal (..., N) or full (..., N, N); also returns whether W is diagonal."""
+    G = np.asarray(G, float)
+    W = np.asarray(W, float)
+    diag = _is_diag(W, G)
+    zero = np.zeros(G.shape[-2])
+    h = zero if h is None else h
+    z = zero if z is None else z
+    if diag:
+        return wls_fit(h, G, z, W, None, mask, max_cond), True
+    return wls_fit(h, G, z, W[..., 0, :0], W, mask, max_cond), False
+
+
 def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
                  max_cond: float = MAX_COND, h: ArrayLike | None = None,
                  z: ArrayLike | None = None) -> WlsGeometry:
@@ -239,12 +253,7 @@ def wls_geometry(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None,
     """
     G = np.asarray(G, float)
     W = np.asarray(W, float)
-    diag = _is_diag(W, G)
-    N = G.shape[-2]
-    zero = np.zeros(N)
-    h = zero if h is None else h
-    z = zero if z is None else z
-    ft = wls_fit(h, G, z, W, None, mask, max_cond) if diag else wls_fit(h, G, z, W[..., 0, :0], W, mask, max_cond)
+    ft, diag = wls_fit_any(G, W, mask, max_cond, h, z)
     m = ft.mask
     G0 = np.where(m[..., None] & np.isfinite(G), G, 0.0)
     if diag:
@@ -498,7 +507,7 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
     iters = np.zeros(z.shape[:-1], np.int64)
     for it in range(1, n_iter + 1):
         h, G = model(x)
-        geom = wls_geometry(G, W, mask, max_cond, h, z)
+        geom, _ = wls_fit_any(G, W, mask, max_cond, h, z)  # the masked G and W only at the solution
         dz = np.where(np.isfinite(geom.residual), geom.residual, 0.0)
         dx = np.einsum("...ij,...j->...i", geom.A, dz)  # x̂ = x + A (z − h(x)) (seed eq. 24)
         stepping = ~(frozen | converged)  # a converged element stops where it converged
