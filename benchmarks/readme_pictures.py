@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -71,9 +73,10 @@ def screenshot(rrd: Path, png: Path, wait_s: float = 120.0, size: tuple[int, int
     from playwright.sync_api import sync_playwright
 
     grpc, web, files = free_port(), free_port(), free_port()
+    # its own process group: `rerun` is a wrapper that starts the viewer binary as a child
     viewer = subprocess.Popen([shutil.which("rerun") or "rerun", "--serve-web", "--bind", "127.0.0.1",
                                "--port", str(grpc), "--web-viewer-port", str(web)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     http = _file_server(rrd.parent, files)
     try:
         time.sleep(4.0)
@@ -89,7 +92,7 @@ def screenshot(rrd: Path, png: Path, wait_s: float = 120.0, size: tuple[int, int
             browser.close()
     finally:
         http.shutdown()
-        viewer.terminate()
+        os.killpg(viewer.pid, signal.SIGTERM)  # the wrapper and the viewer it started
         viewer.wait(timeout=10)
 
 
