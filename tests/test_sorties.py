@@ -112,6 +112,8 @@ def test_span_results_do_not_depend_on_chunks_or_threads(tmp_path):
     ('start = "consecutive"\nsortie_s = -1.0', "sorties.sortie_s", "greater than 0"),
     ('start = "sometimes"', "sorties.start", "consecutive"),
     ('start = "fixed"\nspan_s = 600.0', "sorties", "only used with start = 'uniform'"),
+    ('start = "consecutive"\nsortie_s = 60.0\nwindow_s = nan', "sorties.window_s", "finite number"),
+    ('start = "consecutive"\nsortie_s = "60"', "sorties.sortie_s", "not a string"),
 ])
 def test_bad_sortie_settings_name_the_key(tmp_path, sorties, where, expected):
     p = write(tmp_path, sorties)

@@ -79,6 +79,7 @@ import json
 from pathlib import Path
 
 from testbed.campaign.spec import CampaignSpec, LoadedSpec, resolve_spec
+from testbed.campaign.report import _f
 from testbed.config import approaches_dir
 
 PAPERS = ("va-raim-2015",)
@@ -505,10 +506,6 @@ def _vision_fault_claim(tb):
         return "-", None
     m = _mdb(rates)
     return f"detected per epoch {rates[big]['rate_ep']:.4f} at {big:g} px; MDB {_g(m)} px", bool(m == m)
-
-
-def _f(x: float, fmt: str) -> str:
-    return "-" if x is None or x != x else fmt.format(x)
 
 
 def _g(x: float) -> str:

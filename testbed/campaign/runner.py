@@ -201,6 +201,7 @@ class BlockDraw:
     fault_target: np.ndarray  # (n,) PRN of the faulty satellite / index of the faulty landmark, -1 none
     start_offset_s: np.ndarray  # (n,) the sortie's start, s after the approach's start time
     sky_window: np.ndarray  # (n,) int sky window whose geometry it flew in (-1: the fixed start)
+    fault_present: np.ndarray  # (n, T) epochs whose observations carry the injected fault (all True: none)
 
 
 def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
@@ -234,7 +235,7 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
         hit = np.asarray(vtruth.faulty).any(axis=-2)
         target = np.where(hit.any(-1), hit.argmax(-1), -1)
     return BlockDraw(trials, Observations(gnss, vis), gtruth, vtruth, target, offsets,
-                     np.full(n, -1, np.int64) if windows is None else windows)
+                     np.full(n, -1, np.int64) if windows is None else windows, _fault_present(gnss, gtruth, vis, vtruth))
 
 
 def monitor_block(monitors, obs: Observations) -> dict[str, MonitorOutput]:
@@ -289,7 +290,7 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
     # faulty epoch being one whose measurements carry the fault (the faulty satellite can set or
     # be masked, a faulty landmark leave the image); fault-free cells: every epoch with a solution,
     # so the ratio is the per-epoch false-alarm rate
-    solved = (np.asarray(out.reason) == 0) & after & _fault_present(d)
+    solved = (np.asarray(out.reason) == 0) & after & d.fault_present
     with np.errstate(all="ignore"):
         first_any = np.where(alert.any(-1), t[alert.argmax(-1)], np.nan)
         tta = np.where(detected, t[det.argmax(-1)] - (onset if np.isfinite(onset) else 0.0), np.nan)
@@ -316,14 +317,14 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
     return col
 
 
-def _fault_present(d: BlockDraw) -> np.ndarray:
+def _fault_present(gnss, gtruth, vis, vtruth) -> np.ndarray:
     """(n, T) epochs whose observations carry an injected fault (all True without a fault)."""
-    gf = np.asarray(d.gnss_truth.faulty, bool)
-    if not gf.any() and (d.vision_truth is None or not np.asarray(d.vision_truth.faulty).any()):
+    gf = np.asarray(gtruth.faulty, bool)
+    if not gf.any() and (vtruth is None or not np.asarray(vtruth.faulty).any()):
         return np.ones(gf.shape[:-1], bool)
-    present = (gf & np.asarray(d.obs.gnss.visible, bool)).any(-1)
-    if d.vision_truth is not None:
-        present |= (np.asarray(d.vision_truth.faulty, bool) & np.asarray(d.obs.vision.detected, bool)).any(-1)
+    present = (gf & np.asarray(gnss.visible, bool)).any(-1)
+    if vtruth is not None:
+        present |= (np.asarray(vtruth.faulty, bool) & np.asarray(vis.detected, bool)).any(-1)
     return present
 
 
@@ -353,7 +354,7 @@ def _epoch_columns(ctx: CellContext, d: BlockDraw, k_idx: np.ndarray, out: Monit
          "he": he[k_idx].ravel(), "ve": ve[k_idx].ravel(), "hpl": np.asarray(out.hpl, float)[k_idx].ravel(),
          "vpl": np.asarray(out.vpl, float)[k_idx].ravel(), "test_stat": np.asarray(out.test_stat, float)[k_idx].ravel(),
          "threshold": np.asarray(out.threshold, float)[k_idx].ravel(),
-         "alert": np.asarray(out.alert, bool)[k_idx].ravel(), "fault_present": _fault_present(d)[k_idx].ravel()}
+         "alert": np.asarray(out.alert, bool)[k_idx].ravel(), "fault_present": d.fault_present[k_idx].ravel()}
     for k, lv in enumerate(ctx.levels):
         e[f"avail_{lv}"] = avail[k_idx, :, k].ravel()
     return e

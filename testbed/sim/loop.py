@@ -209,14 +209,14 @@ class _Runner:
     # -- monitors --------------------------------------------------------------
     def _monitors(self, block: LoopBlock, v_at_g) -> None:
         obs = Observations(block.gnss, v_at_g)
+        cg_enu = self.setup.frame.ecef_to_enu(block.truth.pos_ecef)
         for mon in self.setup.monitors:
             t0 = time.perf_counter()
             out, self.states[mon.name] = mon.step(obs, self.states[mon.name])
             pm = self.timings.per_monitor
             pm[mon.name] = pm.get(mon.name, 0.0) + time.perf_counter() - t0
             block.outputs[mon.name] = out
-            block.reference_enu[mon.name] = (block.antenna_enu if mon.reference == ANTENNA
-                                             else self.setup.frame.ecef_to_enu(block.truth.pos_ecef))
+            block.reference_enu[mon.name] = block.antenna_enu if mon.reference == ANTENNA else cg_enu
             self.outputs[mon.name].append(out)
 
     # -- events ----------------------------------------------------------------
