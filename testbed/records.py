@@ -288,6 +288,8 @@ class VisionEpochs:
     camera : the camera mount (lever arm, R_cam_to_body; camera axes x right, y down, z forward).
     q_body_to_enu_ref : (B..., T, 4) the navigation attitude reference (with its errors).
     attitude_sigma : (3,) rad, 1-sigma of the attitude reference per axis (roll, pitch, yaw).
+    dither_sigma : (3,) rad, rms of the camera's dithering on its mount per camera axis
+        (x: pitch, y: yaw, z: roll) — its published statistics, not its realisation.
     """
 
     t: NDArray = epoch_array(batched=False)
@@ -301,6 +303,7 @@ class VisionEpochs:
     camera: Mount = field()
     q_body_to_enu_ref: NDArray = epoch_array(1)
     attitude_sigma: NDArray = field()
+    dither_sigma: NDArray = field(default_factory=lambda: np.zeros(3))
 
 
 def one_landmark_survey(vision, monitor: str) -> NDArray:
@@ -339,6 +342,9 @@ class MonitorOutput:
     reasons : tuple of the reason texts (index 0 is "ok").
     diagnostics : the monitor's typed :class:`Diagnostics` record (slopes, residuals,
         DOP...) for plots and tests; never state.
+    fde : what fault exclusion did (:class:`testbed.integrity.fde.FdeRecord`), None when the
+        monitor ran without FDE. With FDE, ``alert`` is an alert no exclusion cleared, and
+        the position, test and PLs of an excluded epoch are the reduced solve's.
     """
 
     name: str
@@ -357,3 +363,9 @@ class MonitorOutput:
     reason: NDArray = epoch_array()
     reasons: tuple[str, ...]
     diagnostics: Diagnostics | None = None
+    fde: Diagnostics | None = None
+
+    @property
+    def detected(self) -> NDArray:
+        """(B..., T) bool: the fault test failed (an alert, or an alert FDE cleared by an exclusion)."""
+        return self.alert if self.fde is None else self.fde.detected

@@ -23,8 +23,8 @@ from scipy.spatial.transform import Rotation
 from test_integrity_core_helpers import make_gnss
 from testbed.frames import euler_to_q_body_to_enu
 from testbed.integrity import lsq
-from testbed.integrity.pixel import (attitude_pixel_jacobian, body_to_world, fault_units, pixel_monitor,
-                                     project_landmarks)
+from testbed.integrity.pixel import fault_units, pixel_monitor
+from testbed.integrity.pixel_model import attitude_pixel_jacobian, body_to_world, project_landmarks
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount, VisionEpochs
 from testbed.world.airport import RWY05_COURSE_DEG, runway_corners_enu, runway_frame
@@ -125,12 +125,34 @@ def test_pl_composition_follows_the_patent():
     d = out.diagnostics
     np.testing.assert_allclose(out.hpl, np.sqrt(np.maximum(d.hpl1, d.hpl2) ** 2 + d.hpl3 ** 2))
     np.testing.assert_allclose(out.vpl, np.sqrt(np.maximum(d.vpl1, d.vpl2) ** 2 + d.vpl3 ** 2))
-    k_ff = stats.norm.isf(IntegritySettings().p_ff / 2)
-    np.testing.assert_allclose(d.hpl1, k_ff * d.sigma_x)
+    p_ff = IntegritySettings().p_ff
+    np.testing.assert_allclose(d.hpl1, np.sqrt(-2 * np.log(p_ff)) * d.sigma_x)  # the radial default
+    patent = pixel_monitor(g, v, FRAME, IntegritySettings(pixel_h1="patent")).diagnostics
+    np.testing.assert_allclose(patent.hpl1, stats.norm.isf(p_ff / 2) * d.sigma_x)
+    np.testing.assert_array_equal(patent.vpl1, d.vpl1)  # one axis: Φ⁻¹(1 − P_ff/2) is right there
     # the worst pair contains the worst single fault, so H3 ≥ H2
     assert np.all(d.hpl3 >= d.hpl2 * (1 - 1e-12))
     one = pixel_monitor(g, v, FRAME, IntegritySettings(pixel_two_faults=False))
     np.testing.assert_allclose(one.hpl, np.maximum(d.hpl1, d.hpl2))
+
+
+def test_h1_radial_factor_bounds_the_radial_risk_and_the_patent_factor_does_not():
+    """Closed form: a circular 2-D Gaussian has P(r > kσ) = exp(−k²/2) (Rayleigh), the worst case for
+    a bound on the semi-major axis; Monte Carlo over elongated ellipses stays under it."""
+    from testbed.integrity.pixel import h1_factor
+
+    for p_ff in (1e-3, 1e-5, 1e-7):
+        k_r, k_p = h1_factor(p_ff, "radial"), h1_factor(p_ff, "patent")
+        np.testing.assert_allclose(stats.rayleigh.sf(k_r), p_ff, rtol=1e-9)
+        assert stats.rayleigh.sf(k_p) > 3 * p_ff  # the printed form under-bounds the radial error
+    np.testing.assert_allclose(stats.rayleigh.sf(h1_factor(1e-7, "patent")) / 1e-7, 6.9, rtol=0.01)
+    rng = np.random.default_rng(4)
+    p_ff, n = 1e-2, 400_000
+    k = h1_factor(p_ff, "radial")
+    for ratio in (1.0, 0.5, 0.1):  # minor / major axis
+        xy = rng.standard_normal((n, 2)) * [1.0, ratio]
+        hits = int((np.hypot(*xy.T) > k).sum())
+        assert hits <= stats.binom.ppf(0.999, n, p_ff), (ratio, hits)
 
 
 def _worst_by_sweep(A_rows, WS, cols, dirs):
@@ -287,12 +309,25 @@ def test_no_landmark_in_view_has_its_own_reason():
     np.testing.assert_allclose(out.pos_enu[1], pos[1], atol=5.0)  # the GPS-only position is still reported
 
 
-def test_a_survey_per_trial_is_a_clear_error_not_a_broadcast_failure():
-    """``sample_vision`` draws a landmark survey per trial; a monitor call takes one set."""
+def test_a_survey_per_trial_as_sample_vision_draws_it():
+    """``sample_vision`` draws a landmark survey per trial (B, L, 3): the pixel monitor takes it as it
+    is and equals calling it trial by trial; VA-RAIM (one calibration per survey) says clearly
+    that it takes one set, and a survey that fits no trial axis is a clear error."""
     from testbed.integrity.va_raim import va_raim
 
-    g, v, _, _ = scene(T=2)
-    per_trial = replace(v, landmark_pos_ecef=np.broadcast_to(v.landmark_pos_ecef, (3,) + v.landmark_pos_ecef.shape))
-    for call in (lambda: pixel_monitor(g, per_trial, FRAME), lambda: va_raim(g, per_trial, FRAME)):
-        with pytest.raises(ValueError, match=r"landmark_pos_ecef has shape \(3, \d+, 3\); expected one surveyed set"):
-            call()
+    g, v, _, _ = scene(T=2, batch=(3,), rng=np.random.default_rng(8))
+    shift = np.random.default_rng(9).normal(0.0, 2.0, (3,) + v.landmark_pos_ecef.shape)
+    per_trial = replace(v, landmark_pos_ecef=v.landmark_pos_ecef + shift)
+    out = pixel_monitor(g, per_trial, FRAME)
+    for b in range(3):
+        gb = replace(g, **{k: getattr(g, k)[b] for k in ("pseudorange", "visible", "sigma", "sat_pos_ecef")})
+        vb = replace(v, landmark_pos_ecef=per_trial.landmark_pos_ecef[b],
+                     **{k: getattr(v, k)[b] for k in ("pixel_uv", "detected", "sigma_px", "q_body_to_enu_ref", "reason")})
+        one = pixel_monitor(gb, vb, FRAME)
+        np.testing.assert_allclose(out.pos_enu[b], one.pos_enu, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(out.hpl[b], one.hpl, rtol=1e-12)
+    with pytest.raises(ValueError, match=r"landmark_pos_ecef has shape \(3, \d+, 3\); expected one surveyed set"):
+        va_raim(g, per_trial, FRAME)
+    g1, v1, _, _ = scene(T=2)
+    with pytest.raises(ValueError, match=r"landmark_pos_ecef has shape \(3, \d+, 3\); expected \(L, 3\)"):
+        pixel_monitor(g1, replace(v1, landmark_pos_ecef=per_trial.landmark_pos_ecef), FRAME)

@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import LocalFrame
 from testbed.integrity import kernels, lsq
+from testbed.integrity.fde import Verdict, exclude, flat_take
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.settings import IntegritySettings
@@ -245,7 +246,33 @@ def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray
                     width: int) -> MonitorOutput:
     """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
     fix = gps_fix(pr, vis, sat_ecef, sigma, off, x0, frame, st, width)
-    return gps_output(fix, t, pr.shape[-1], st, name)
+    out = gps_output(fix, t, pr.shape[-1], st, name)
+    return gps_exclusion(fix, out, off, st) if st.fde else out
+
+
+def snapshot_verdict(ft: lsq.WlsFit, pls: dict, ok: NDArray, x: NDArray, st: IntegritySettings) -> Verdict:
+    """A slope-PL solve (:func:`fix_at_solution`'s results) as FDE judges it."""
+    pl = pls[st.pl_variant]
+    return Verdict(x=x, test_stat=ft.sse, threshold=pl.T2, dof=ft.dof, hpl=pl.hpl, vpl=pl.vpl, ok=ok,
+                   n_used=ft.n_used.astype(np.int16))
+
+
+def gps_exclusion(fix: GpsFix, out: MonitorOutput, off: NDArray | None, st: IntegritySettings) -> MonitorOutput:
+    """GPS RAIM's output after FDE (:func:`testbed.integrity.fde.exclude`): a unit is a satellite's row."""
+    nb = fix.mask.ndim - 1
+    x_start = np.where(np.isfinite(fix.x), fix.x, 0.0)  # the full-set fix: a few metres from the reduced one
+
+    def solve_without(sel: NDArray, keep: NDArray) -> Verdict:
+        take = lambda a: flat_take(a, nb, sel)  # noqa: E731
+        m = take(fix.mask) & keep
+        o = np.zeros((sel.size, 3)) if off is None else flat_take(np.broadcast_to(off, fix.x.shape[:-1] + (3,)), nb, sel)
+        z, w, anchor = take(fix.z), take(fix.w), take(fix.anchor)
+        x_it, conv, _, h, G = lsq.gauss_newton_ranges(take(x_start), st.max_iter, st.tol_m, (anchor, o, z, w, m))
+        ft, pls, _, ok, x = fix_at_solution(h, G, z, (w, None), m, x_it, conv, st)
+        return snapshot_verdict(ft, pls, ok, x, st)
+
+    N = fix.mask.shape[-1]
+    return exclude(out, np.eye(N, dtype=bool), np.where(fix.mask, fix.idx, -1), solve_without, st)
 
 
 @dataclass(frozen=True)

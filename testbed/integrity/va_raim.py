@@ -46,13 +46,16 @@ from testbed.integrity.calibration import (
 )
 from testbed.integrity.levels import SERVICE_LEVELS, service_level
 from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
+from testbed.integrity.fde import Verdict, exclude, flat_take
 from testbed.integrity.raim import (
     GpsRaimMonitor,
     fix_at_solution,
+    gps_exclusion,
     gps_fix,
     gps_output,
     scatter_rows,
     snapshot_output,
+    snapshot_verdict,
 )
 from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.vision_ranges import (
@@ -426,7 +429,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
                                                   (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask))
     ft, pls, reason, ok, x = fix_at_solution(h, G, z_all, W_blocks, mask_all, x_it, conv, ist)
     extra = {
-        "gps": gps,
+        "gps": gps_exclusion(fix_g, gps, None, ist) if ist.fde else gps,
         "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,
         "vision_n_v": vr.n_v, "vision_iterations": vr.iterations,
         "vision_residual_stat": vr.residual_stat, "vision_gate_stat": vr.gate_stat, "vision_m_pred": vr.m_pred,
@@ -436,7 +439,45 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
         "modified": rows.modified, "n_gps": mg.sum(-1),
         "n_vision_rows": rows.mask.sum(-1), "converged": conv, "gps_P": P_g,
     }
-    return _monitor_output(name, t, x, ft, pls, reason, ok, ist, extra, (idx, mg, pr.shape[-1]))
+    out = _monitor_output(name, t, x, ft, pls, reason, ok, ist, extra, (idx, mg, pr.shape[-1]))
+    if not ist.fde:
+        return out
+    gps_rows = (anchor_g, off_ant, zg, wg, mg)
+    vision_rows = (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask)
+    return _exclusion(out, gps_rows, vision_rows, idx, np.where(ok[..., None], x, x0), ist)
+
+
+def _exclusion(out: MonitorOutput, gps_rows: tuple, vision_rows: tuple, idx: NDArray, x_start: NDArray,
+               ist: IntegritySettings) -> MonitorOutput:
+    """VA-RAIM after FDE (:func:`testbed.integrity.fde.exclude`).
+
+    Units: each satellite's row, and the vision block as one unit (its rows are correlated
+    and one detection fault enters several of them; excluding it leaves GPS RAIM's rows).
+    """
+    mg, mv = gps_rows[-1], vision_rows[-1]
+    Ng, Nv = mg.shape[-1], mv.shape[-1]
+    nb = mg.ndim - 1
+    S = out.diagnostics.hslope.shape[-1] - Nv
+    label = np.concatenate([np.where(mg, idx, -1), np.where(mv.any(-1), S, -1)[..., None]], -1)
+    unit_rows = np.zeros((Ng + 1, Ng + Nv), bool)
+    unit_rows[np.arange(Ng), np.arange(Ng)] = True
+    unit_rows[Ng, Ng:] = True
+    x_start = np.where(np.isfinite(x_start), x_start, 0.0)
+
+    def solve_without(sel: NDArray, keep: NDArray) -> Verdict:
+        take = lambda a: flat_take(np.broadcast_to(a, mg.shape[:-1] + np.shape(a)[nb:]), nb, sel)  # noqa: E731
+        anchor, off_a, zg, wg, m = (take(a) for a in gps_rows)
+        m = m & keep[:, :Ng]
+        p_enu = vision_rows[0]
+        off_c, Tm, zv, Wv, mvs = (take(a) for a in vision_rows[1:])
+        mvs = mvs & keep[:, Ng:]
+        x_it, conv, _, h, G = lsq.gauss_newton_ranges(take(x_start), ist.max_iter, ist.tol_m,
+                                                      (anchor, off_a, zg, wg, m), (p_enu, off_c, Tm, zv, Wv, mvs))
+        ft, pls, _, ok, x = fix_at_solution(h, G, np.concatenate([zg, zv], -1), (wg, Wv),
+                                            np.concatenate([m, mvs], -1), x_it, conv, ist)
+        return snapshot_verdict(ft, pls, ok, x, ist)
+
+    return exclude(out, unit_rows, label, solve_without, ist)
 
 
 @dataclass(frozen=True)

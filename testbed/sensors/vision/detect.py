@@ -56,7 +56,7 @@ from testbed.sensors.faults import LandmarkMoved, Misassociation, PixelBias, VIS
 
 from .attitude_ref import attitude_reference_from_euler, q_to_euler
 from .camera import PinholeCamera
-from .dithering import camera_pose, dithering_angles, mount_from_settings
+from .dithering import camera_pose, dither_rms_cam, dithering_angles, mount_from_settings
 from .landmarks import Landmarks, build_landmarks, survey
 from .settings import DetectionSettings, LandmarkSettings, VisionSettings
 
@@ -503,7 +503,8 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
 
     epochs = VisionEpochs(t=t.copy(), landmark_id=lm.id.copy(), landmark_pos_ecef=lm_survey, pixel_uv=uv_meas,
                           detected=detected, reason=rep_reason, sigma_px=sigma_told, K=cam.K, camera=mount,
-                          q_body_to_enu_ref=q_ref, attitude_sigma=att_sigma)
+                          q_body_to_enu_ref=q_ref, attitude_sigma=att_sigma,
+                          dither_sigma=dither_rms_cam(settings.dithering))
     vtruth = VisionTruth(t=t.copy(), cam_pos_ecef=g.cam_pos_ecef.copy(), q_cam_to_ecef=R_to_q(R_c2e),
                          dither_cam=delta, attitude_ref_error=att_err, landmark_true_ecef=lm.pos_ecef.copy(),
                          landmark_survey_ecef=lm_survey, landmark_moved_ecef=moved_pos, landmark_moved=moved,

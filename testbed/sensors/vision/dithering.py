@@ -141,6 +141,20 @@ def dithering_angles(t: ArrayLike, settings: DitheringSettings, rng: np.random.G
     return delta, rate
 
 
+def dither_rms_cam(settings: DitheringSettings) -> NDArray:
+    """Stationary rms (3,) rad of the dithering rotation per camera axis: what a monitor may know of it.
+
+    Tones contribute amplitude/√2 each (random phase), the band-limited noise its rms.
+    """
+    ms = np.zeros(3)
+    if not settings.enabled:
+        return ms
+    for tone in settings.tones:
+        ms[AXIS_TO_CAM[tone.axis]] += np.radians(tone.amplitude_deg) ** 2 / 2
+    ms[RPY_TO_CAM] += np.radians(np.asarray(settings.noise_rms_deg, float)) ** 2
+    return np.sqrt(ms)
+
+
 def camera_pose(pos_ecef: ArrayLike, q_body_to_enu: ArrayLike, mount: Mount,
                 delta_cam: ArrayLike | None = None) -> tuple[NDArray, NDArray]:
     """Camera position and attitude from the aircraft pose.
