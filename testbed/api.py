@@ -280,6 +280,7 @@ def print_run_summary(result: RunResult) -> None:
         ("VPL max / p95", [f"{nan(s.vpl_max, '{:.1f}')} / {nan(s.vpl_p95, '{:.1f}')} m" for s in S]),
         ("HPE95 / VPE95", [f"{nan(s.hpe95, '{:.1f}')} / {nan(s.vpe95, '{:.1f}')} m" for s in S]),
         ("alert epochs", [f"{s.alert_epochs} / {s.epochs}" for s in S]),
+        ("excluded epochs", [f"{s.excluded_epochs}" for s in S]),
         ("time to alert", [nan(s.time_to_alert_s, "{:.1f} s") for s in S]),
         ("misleading (err > PL, no alert)", [str(s.mi_epochs) for s in S]),
         ("hazardously misleading", [str(s.hmi_epochs) for s in S]),

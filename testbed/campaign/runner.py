@@ -284,7 +284,7 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
     avail = np.asarray(out.available, bool)  # (n, T, K)
     rh, rv = stanford_regions(he, hpl, ctx.hal, alert), stanford_regions(ve, vpl, ctx.val, alert)
     after = t >= onset - 1e-9 if np.isfinite(onset) else np.ones(t.size, bool)
-    det = alert & after
+    det = np.asarray(out.detected, bool) & after  # with FDE: an alert or an exclusion
     detected = det.any(-1)
     # per-epoch detection: alerted epochs / faulty epochs at which the monitor gives a solution, a
     # faulty epoch being one whose measurements carry the fault (the faulty satellite can set or
@@ -301,6 +301,7 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
             "monitor": np.full(n, out.name, object), "epochs": np.full(n, t.size, np.int32),
             "start_offset_s": d.start_offset_s, "sky_window": d.sky_window,
             "fault_target": d.fault_target, "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
+            "excluded_epochs": (np.asarray(out.excluded) >= 0).sum(-1).astype(np.int32),
             "onset_epochs": solved.sum(-1).astype(np.int32), "onset_alerts": (det & solved).sum(-1).astype(np.int32),
             "first_alert_s": first_any, "time_to_alert_s": tta,
             "max_he": _nanmax(he), "max_ve": _nanmax(ve), "max_hpl": _nanmax(hpl), "max_vpl": _nanmax(vpl),

@@ -300,7 +300,9 @@ def _solve(pb: _Problem, st: IntegritySettings, keep: NDArray | None = None) -> 
     if st.pixel_vision_rows:
         # without a landmark the solve is GPS RAIM's: the pixel monitor's integrity case does not apply
         reason = np.where((reason == lsq.Reason.OK) & ~det.any(-1), NO_LANDMARK, reason)
-    reason = np.where(pb.has_start, reason, NO_START).astype(np.int8)
+    # a solve started from nowhere (the frame origin) reports NO_START, unless too few rows explain it
+    no_start = ~pb.has_start & (reason != lsq.Reason.NO_POSITION)
+    reason = np.where(no_start, NO_START, reason).astype(np.int8)
     ok = reason == lsq.Reason.OK
     T2 = lsq.chi2_threshold(geom.dof, st.p_fa)
     levels = {"hpl1": hpl1, "hpl2": hpl2, "hpl3": hpl3, "vpl1": vpl1, "vpl2": vpl2, "vpl3": vpl3,

@@ -64,6 +64,7 @@ class MonitorSummary:
     hpe95: float
     vpe95: float
     alert_epochs: int
+    excluded_epochs: int  # epochs whose alert FDE cleared by an exclusion
     first_alert_s: float  # nan if none
     time_to_alert_s: float  # from the first fault onset; nan if no fault or never alerted
     mi_epochs: int  # error > PL (H or V) with no alert
@@ -101,7 +102,7 @@ def summarise_monitor(out: MonitorOutput, true_pos_enu: NDArray, *, reference: s
     first_alert = float(t[alert][0]) if alert.any() else float("nan")
     tta = float("nan")
     if fault_onset_s is not None:
-        after = alert & (t >= fault_onset_s - 1e-9)
+        after = np.asarray(out.detected, bool) & (t >= fault_onset_s - 1e-9)  # an alert or an exclusion
         if after.any():
             tta = float(t[after][0] - fault_onset_s)
     sol = np.isfinite(he)
@@ -111,5 +112,6 @@ def summarise_monitor(out: MonitorOutput, true_pos_enu: NDArray, *, reference: s
         hpl_max=float(np.nanmax(hpl)) if np.isfinite(hpl).any() else float("nan"), hpl_p95=_pct(hpl, 95),
         vpl_max=float(np.nanmax(vpl)) if np.isfinite(vpl).any() else float("nan"), vpl_p95=_pct(vpl, 95),
         hpe95=_pct(he[sol], 95), vpe95=_pct(ve[sol], 95), alert_epochs=int(alert.sum()),
+        excluded_epochs=int((np.asarray(out.excluded) >= 0).sum()),
         first_alert_s=first_alert, time_to_alert_s=tta, mi_epochs=int(mi.sum()), hmi_epochs=int(hmi.sum()),
         regions_h={k: int(v.sum()) for k, v in rh.items()}, regions_v={k: int(v.sum()) for k, v in rv.items()})
