@@ -447,15 +447,23 @@ def test_no_start_point_has_its_own_reason_and_a_block_carries_the_last_start():
     np.testing.assert_array_equal(st2.x_start, st1.x_start)
 
 
-def test_landmark_cap_keeps_the_nearest_and_equals_dropping_the_rest():
+def test_landmark_cap_spreads_the_rows_and_equals_dropping_the_rest():
+    """``pixel_max_landmarks = 4``: the nearest landmark, then farthest-point picks in the image
+    (recomputed here by a plain loop), and the result equals the monitor run on those four alone."""
     g, v, pos, _ = scene(T=2, rng=np.random.default_rng(35))
     st = IntegritySettings(pixel_max_landmarks=4)
     out = pixel_monitor(g, v, FRAME, st)
     tracked = out.diagnostics.tracked
     assert (tracked.sum(-1) == 4).all() and (out.diagnostics.n_landmarks == 4).all()
-    rng_m = np.linalg.norm(LANDMARKS[None] - pos[:, None], axis=-1)
     for k in range(2):
-        np.testing.assert_array_equal(np.sort(np.flatnonzero(tracked[k])), np.sort(np.argsort(rng_m[k])[:4]))
+        uv, det = v.pixel_uv[k], v.detected[k]
+        cand = [i for i in range(len(LANDMARKS)) if det[i]]
+        rng_m = np.linalg.norm(LANDMARKS - out.diagnostics.x_start[k, :3], axis=-1)
+        chosen = [min(cand, key=lambda i: rng_m[i])]
+        while len(chosen) < 4:
+            chosen.append(max((i for i in cand if i not in chosen),
+                              key=lambda i: min(np.linalg.norm(uv[i] - uv[j]) for j in chosen)))
+        np.testing.assert_array_equal(np.flatnonzero(tracked[k]), np.sort(chosen))
     det = np.array(v.detected) & tracked
     ref = pixel_monitor(g, replace(v, detected=det, pixel_uv=np.where(det[..., None], v.pixel_uv, np.nan)), FRAME)
     for f in ("pos_enu", "test_stat", "hpl", "vpl"):

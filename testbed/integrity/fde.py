@@ -187,40 +187,48 @@ def exclude(out: MonitorOutput, unit_rows: NDArray, unit_label: NDArray, solve_w
     """
     bt = out.alert.shape
     alert = np.asarray(out.alert, bool).reshape(-1)
+    sel = np.flatnonzero(alert)
+    record = FdeRecord(detected=out.alert, outcome=np.zeros(bt, np.int8), excluded=np.full(bt + (2,), -1, np.int16),
+                       test_stat_all=out.test_stat, threshold_all=out.threshold, hpl_all=out.hpl, vpl_all=out.vpl)
+    if not sel.size:  # nothing to try: the output as it is (the common, fault-free case)
+        return replace(out, fde=record)
     label = np.asarray(unit_label).reshape(alert.size, -1)
     U = label.shape[-1]
-    sel = np.flatnonzero(alert)
-    outcome = np.zeros(alert.size, np.int8)
-    excl = np.full((alert.size, 2), -1, np.int64)
-    fields = {k: np.array(getattr(out, k)).reshape((alert.size,) + getattr(out, k).shape[len(bt):])
+    ch = _try(sel, [(u,) for u in range(U)], unit_rows, label, solve_without, st.fde_rule)
+    if st.fde_max_excluded >= 2 and U >= 2:
+        retry = ch.outcome == NONE_PASSES
+        if retry.any():
+            ch2 = _try(sel[retry], list(combinations(range(U), 2)), unit_rows, label, solve_without, st.fde_rule)
+            ch = _merge_choices(ch, retry, ch2)
+    return _apply(out, record, sel, ch, label)
+
+
+def _apply(out: MonitorOutput, record: FdeRecord, sel: NDArray, ch: _Choice, label: NDArray) -> MonitorOutput:
+    """``out`` with the exclusions ``ch`` at its alerted epochs ``sel`` (flat) written in."""
+    bt = out.alert.shape
+    P = int(np.prod(bt, dtype=np.int64))
+    fields = {k: np.array(getattr(out, k)).reshape((P,) + getattr(out, k).shape[len(bt):])
               for k in ("pos_enu", "clock", "hpl", "vpl", "test_stat", "threshold", "alert", "available", "n_used")}
-    full = {k: fields[k].copy() for k in ("test_stat", "threshold", "hpl", "vpl")}
-    if sel.size:
-        ch = _try(sel, [(u,) for u in range(U)], unit_rows, label, solve_without, st.fde_rule)
-        if st.fde_max_excluded >= 2 and U >= 2:
-            retry = ch.outcome == NONE_PASSES
-            if retry.any():
-                ch2 = _try(sel[retry], list(combinations(range(U), 2)), unit_rows, label, solve_without, st.fde_rule)
-                ch = _merge_choices(ch, retry, ch2)
-        outcome[sel] = ch.outcome
-        done = ch.outcome == EXCLUDED
-        at = sel[done]
-        if at.size:
-            v = ch.verdict.take(np.flatnonzero(done))
-            fields["pos_enu"][at] = v.x[:, :3]
-            fields["clock"][at] = v.x[:, 3]
-            fields["hpl"][at], fields["vpl"][at] = v.hpl, v.vpl
-            fields["test_stat"][at], fields["threshold"][at] = v.test_stat, v.threshold
-            fields["alert"][at] = False
-            fields["n_used"][at] = v.n_used
-            u = ch.units[done]
-            excl[at] = np.where(u >= 0, label[at[:, None], np.maximum(u, 0)], -1)
+    outcome = np.zeros(P, np.int8)
+    excl = np.full((P, 2), -1, np.int64)
+    outcome[sel] = ch.outcome
+    done = ch.outcome == EXCLUDED
+    at = sel[done]
+    if at.size:
+        v = ch.verdict.take(np.flatnonzero(done))
+        fields["pos_enu"][at] = v.x[:, :3]
+        fields["clock"][at] = v.x[:, 3]
+        fields["hpl"][at], fields["vpl"][at] = v.hpl, v.vpl
+        fields["test_stat"][at], fields["threshold"][at] = v.test_stat, v.threshold
+        fields["alert"][at] = False
+        fields["n_used"][at] = v.n_used
+        u = ch.units[done]
+        excl[at] = np.where(u >= 0, label[at[:, None], np.maximum(u, 0)], -1)
         levels = tuple(service_level(s) for s in out.service_levels)
         fields["available"][at] = availability(fields["hpl"][at], fields["vpl"][at], levels)
-        fields["available"][sel[~done]] = False  # an alert no exclusion clears: no service
+    fields["available"][sel[~done]] = False  # an alert no exclusion clears: no service
     shaped = {k: v.reshape(bt + v.shape[1:]) for k, v in fields.items()}
-    record = FdeRecord(detected=alert.reshape(bt), outcome=outcome.reshape(bt), excluded=excl.reshape(bt + (2,)).astype(np.int16),
-                       **{f"{k}_all": v.reshape(bt) for k, v in full.items()})
+    record = replace(record, outcome=outcome.reshape(bt), excluded=excl.reshape(bt + (2,)).astype(np.int16))
     return replace(out, **shaped, excluded=excl[:, 0].reshape(bt).astype(np.int16), fde=record)
 
 

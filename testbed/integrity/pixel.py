@@ -185,7 +185,7 @@ START_GPS, START_VISION, START_CARRIED, START_GIVEN = range(4)
 @dataclass(frozen=True)
 class _Problem:
     """The stacked problem of P epochs (flat over the batch and epoch axes): Ng GPS rows
-    (compacted), then 2·Lc pixel rows of the tracked landmarks (compacted, nearest first)."""
+    (compacted), then 2·Lc pixel rows of the tracked landmarks (:func:`_spread_landmarks`)."""
 
     anchor: NDArray  # (P, Ng, 3) satellites, world ENU
     z_g: NDArray  # (P, Ng)
@@ -352,11 +352,9 @@ def _read_problem(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame, st:
     has_start = np.isfinite(x_start).all(-1)
     x_start = np.where(has_start[:, None], x_start, 0.0)
 
-    # landmark rows: the detected ones, nearest first, at most pixel_max_landmarks
-    rng_m = np.linalg.norm(lm_all - x_start[:, None, :3], axis=-1)
-    order = np.argsort(np.where(det_all, rng_m, np.inf), axis=-1, kind="stable")
+    # landmark rows: at most pixel_max_landmarks detected ones, spread over the image
     Lc = max(min(int(det_all.sum(-1).max(initial=0)), st.pixel_max_landmarks), 1)
-    lm_idx = order[:, :Lc]
+    lm_idx = _spread_landmarks(uv_all, det_all, np.linalg.norm(lm_all - x_start[:, None, :3], axis=-1), Lc)
     det = np.take_along_axis(det_all, lm_idx, -1)
     uv = np.take_along_axis(uv_all, lm_idx[..., None], -2)
     lm = np.take_along_axis(lm_all, lm_idx[..., None], -2)
@@ -375,6 +373,30 @@ def _read_problem(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame, st:
                   x_start=x_start, has_start=has_start, lever_ant=np.asarray(gnss.antenna.lever_arm_body, float),
                   camera=vision.camera, K=K, frame=frame)
     return pb, _Layout(lead=lead, S=S, L=L, sat_idx=idx, lm_idx=lm_idx, start_kind=kind)
+
+
+def _spread_landmarks(uv: NDArray, det: NDArray, range_m: NDArray, n: int) -> NDArray:
+    """(P, n) landmark slots to track: the nearest detected one, then greedily the detected one
+    farthest in the image from those chosen (farthest-point sampling), detected slots first.
+
+    Spread pixels make a good geometry from few rows; the nearest-n would take one marker's
+    clustered corners. Epochs with fewer than n detections fill with undetected slots.
+    """
+    P, L = det.shape
+    rows = np.arange(P)
+    chosen = np.zeros((P, L), bool)
+    out = np.zeros((P, n), np.int64)
+    first = np.argmin(np.where(det, range_m, np.inf), axis=-1)
+    gap = np.full((P, L), np.inf)
+    pick = first
+    for k in range(n):
+        out[:, k] = pick
+        chosen[rows, pick] = True
+        d = np.linalg.norm(np.nan_to_num(uv) - np.nan_to_num(uv[rows, pick])[:, None, :], axis=-1)
+        gap = np.minimum(gap, d)
+        score = np.where(det & ~chosen, gap, np.where(~chosen, -1.0, -np.inf))
+        pick = np.argmax(score, axis=-1)
+    return out
 
 
 def _survey_per_epoch(vision: VisionEpochs, lead: tuple) -> NDArray:
@@ -484,7 +506,7 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     ----------
     gnss : GnssEpochs (B..., T, S); ``visible`` rows are used.
     vision : VisionEpochs (B..., T, L) at the same epochs; ``detected`` landmarks
-        give two rows each (u, v), the nearest ``pixel_max_landmarks`` of them;
+        give two rows each (u, v), at most ``pixel_max_landmarks`` of them, spread over the image;
         ``landmark_pos_ecef`` one survey (L, 3) or one per trial (B..., L, 3).
     frame : world frame of the state [E, N, U, clock] (clock dropped when an
         epoch has no pseudorange row).

@@ -53,9 +53,10 @@ class IntegritySettings(StrictModel):
         "radial", description="Pixel monitor H1 multiplier of the horizontal error ellipse's semi-major axis: "
                               "'radial' = sqrt(-2 ln P_ff) (bounds the radial fault-free risk by P_ff); "
                               "'patent' = Φ⁻¹(1 − P_ff/2) as printed (a one-axis bound: up to 6.9 P_ff radially).")
-    pixel_max_landmarks: int = Field(12, ge=1, le=1000, description="Pixel monitor: landmarks used per epoch, the "
-                                                                    "nearest detected ones (the cost grows with the "
-                                                                    "square of the rows and the H3 pairs).")
+    pixel_max_landmarks: int = Field(12, ge=1, le=1000, description="Pixel monitor: landmarks used per epoch: the "
+                                                                    "nearest detected one, then farthest-point picks "
+                                                                    "in the image (the cost grows with the square of "
+                                                                    "the rows and with the H3 pairs).")
     pixel_vision_rows: bool = Field(True, description="Pixel monitor: False = the patent's three-hypothesis rule on "
                                                       "the GNSS rows alone (what vision buys, for comparison).")
     max_iter: int = Field(8, ge=1, le=50, description="Maximum Gauss-Newton iterations of the WLS solve.")

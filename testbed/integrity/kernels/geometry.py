@@ -19,9 +19,13 @@ _OK, _NAN_INPUT, _NO_POSITION, _NO_REDUNDANCY, _SINGULAR = 0, 1, 2, 3, 4
 ZERO_REDUNDANCY_RTOL = 1e-12
 
 SIGNATURE = "(n,k),(n),(n),(a),(b,b),(n),()->(k,k),(k,n),(n),(),(n),(),(n),(n),(),(),(),(),()"
+#: the one type signature: a static gufunc is a plain numpy ufunc (a few µs a call), where
+#: a dynamic one (layout only) costs ~0.8 ms of Python dispatch a call
+TYPES = ("void(f8[:,:], f8[:], f8[:], f8[:], f8[:,:], b1[:], f8, f8[:,:], f8[:,:], f8[:], f8[:], f8[:], f8[:], "
+         "f8[:], f8[:], f8[:], f8[:], i8[:], i8[:], i1[:])")
 
 
-@guvectorize(SIGNATURE, nopython=True, cache=True)
+@guvectorize([TYPES], SIGNATURE, nopython=True, cache=True)
 def wls_epoch(G, h, z, wd, Wb, mask, max_cond,
               J, A, ws, cond, r, sse, hslope, vslope, hmax, vmax, n_used, n_states, reason):
     """Weighted LS of one epoch at the linearisation point (prediction ``h``, partials ``G``).
