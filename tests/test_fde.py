@@ -147,7 +147,7 @@ def test_two_faults_are_excluded_as_a_pair_when_allowed():
 
 def test_va_raim_excludes_a_satellite_and_the_vision_block_through_the_same_mechanism():
     """VA-RAIM with FDE: an 80 m GPS step after calibration is excluded by satellite slot; a 20 px pixel bias on a
-    landmark by the vision block (index S); its step 1 equals GPS RAIM with FDE (provides())."""
+    landmark by the vision block (index S + L); its step 1 equals GPS RAIM with FDE (provides())."""
     from test_va_raim import outward_survey_error
     from test_va_raim_scenario import make_scenario
 
@@ -183,11 +183,14 @@ def test_va_raim_excludes_a_satellite_and_the_vision_block_through_the_same_mech
     uv = sc.vision.pixel_uv.copy()
     uv[:, 1:, 0, 0] += 20.0  # larger biases are caught earlier, by the P3P branch gate
     out = va_raim(sc.gnss, replace(sc.vision, pixel_uv=uv), sc.frame, st)
-    S = sc.gnss.visible.shape[-1]
+    S, L = sc.gnss.visible.shape[-1], len(sc.vision.landmark_id)
     used = out.diagnostics.vision_rows_used[:, 1:]
     assert used.mean() > 0.2
     e = out.excluded[:, 1:][used]
-    assert (e == S).mean() >= 0.97 and (e[e >= 0] == S).mean() >= 0.99
+    assert (e == S + L).mean() >= 0.97 and (e[e >= 0] == S + L).mean() >= 0.99
+    assert fde.measurement_label(S + L, sc.gnss.prn, sc.vision.landmark_id) == "the vision block"
+    assert fde.measurement_label(S + 1, sc.gnss.prn, sc.vision.landmark_id) == f"landmark {sc.vision.landmark_id[1]}"
+    assert fde.measurement_label(0, sc.gnss.prn) == f"PRN {int(sc.gnss.prn[0])}"
 
 
 def test_va_raim_fault_free_exclusions_within_budget():

@@ -250,3 +250,25 @@ def test_camera_view_shows_where_the_landmarks_are_beside_the_detections(run):
             gaps.append(np.min(np.linalg.norm(a[:, None] - b[None], axis=-1), axis=0))  # each detection's nearest
     gaps = np.concatenate(gaps)
     assert gaps.size > 100 and np.median(gaps) < 3.0  # 1 px detection noise, sub-pixel dithering
+
+
+def test_an_exclusion_is_logged_and_marked(tmp_path):
+    """FDE on, a 100 m step: GPS RAIM excludes the faulty satellite from the first faulty epoch on; the
+    log names its PRN and the plots carry the exclusion mark there (no alert mark: it was cleared)."""
+    ap = load_approach("va-raim-2015")
+    cfg = ap.config.model_copy(update={
+        "faults": [GpsStep(kind="gps_step", prn="random", bias_m=100.0, onset_s=FAULT_ONSET_S)],
+        "integrity": ap.config.integrity.model_copy(update={"fde": True}), "monitors": ["gps_raim"]})
+    res = run_approach(dataclasses.replace(ap, config=cfg), seed=4, rrd_path=tmp_path / "fde.rrd")
+    out = res.outputs["gps_raim"]
+    first = float(out.t[np.flatnonzero(out.excluded >= 0)[0]])
+    assert first == pytest.approx(FAULT_ONSET_S) and not out.alert.any()
+    faulty = np.asarray(res.loop.gnss_truth.faulty)[np.flatnonzero(out.t == first)[0]]
+    prn = int(np.asarray(res.loop.gnss.prn)[np.flatnonzero(faulty)[0]])
+    log = readback.text_log(res.rrd_path)
+    hits = [e for e in log if "EXCLUDED" in e[2]]
+    assert hits and hits[0][0] == pytest.approx(first) and f"PRN {prn} EXCLUDED" in hits[0][2]
+    t, _ = readback.scalar_series(res.rrd_path, "integrity/gps_raim/detection/marks/excluded")
+    assert t[0] == pytest.approx(first)
+    assert res.summaries["gps_raim"].excluded_epochs == int((out.excluded >= 0).sum()) > 0
+    assert res.summaries["gps_raim"].time_to_alert_s == pytest.approx(0.0)  # a detection, though no alert

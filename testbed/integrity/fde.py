@@ -40,8 +40,9 @@ excluding a pair) 19 % of the pair exclusions are wrong and 6.7 % exceed the PL.
 False-exclusion budget: an exclusion needs an alert first, so fault-free
 P(exclusion) ≤ P_FA per epoch (tested against the binomial bound).
 
-Measurement indices in ``excluded``: a satellite slot ``0 ≤ k < S``; ``S + l`` for
-landmark l (pixel monitor); ``S`` for VA-RAIM's vision block.
+Measurement indices in ``excluded`` (:func:`measurement_label` names them): a satellite
+slot ``0 ≤ k < S``; ``S + l`` for landmark l (pixel monitor); ``S + L`` for VA-RAIM's
+vision block (L landmarks).
 """
 
 from __future__ import annotations
@@ -126,6 +127,19 @@ def flat_take(a: NDArray, batch_ndim: int, sel: NDArray) -> NDArray:
     """Epochs ``sel`` (flat over the first ``batch_ndim`` axes, trial and epoch) of ``a``: (n, *tail)."""
     a = np.asarray(a)
     return a.reshape((-1,) + a.shape[batch_ndim:])[sel]
+
+
+def measurement_label(index: int, prn, landmark_id=None) -> str:
+    """What an ``excluded`` index names: "PRN 12", "landmark RWY3", "the vision block" (or "" for -1)."""
+    S = len(prn)
+    L = 0 if landmark_id is None else len(landmark_id)
+    if index < 0:
+        return ""
+    if index < S:
+        return f"PRN {int(prn[index])}"
+    if index < S + L:
+        return f"landmark {landmark_id[index - S]}"
+    return "the vision block"
 
 
 #: re-solve epochs ``sel`` (n,) (flat over the output's batch and epoch axes) keeping rows ``keep`` (n, R)

@@ -451,14 +451,15 @@ def _exclusion(out: MonitorOutput, gps_rows: tuple, vision_rows: tuple, idx: NDA
                ist: IntegritySettings) -> MonitorOutput:
     """VA-RAIM after FDE (:func:`testbed.integrity.fde.exclude`).
 
-    Units: each satellite's row, and the vision block as one unit (its rows are correlated
-    and one detection fault enters several of them; excluding it leaves GPS RAIM's rows).
+    Units: each satellite's row, and the vision block as one unit, index S + L (its rows are
+    correlated and one detection fault enters several of them; excluding it leaves GPS RAIM's
+    rows).
     """
     mg, mv = gps_rows[-1], vision_rows[-1]
     Ng, Nv = mg.shape[-1], mv.shape[-1]
     nb = mg.ndim - 1
-    S = out.diagnostics.hslope.shape[-1] - Nv
-    label = np.concatenate([np.where(mg, idx, -1), np.where(mv.any(-1), S, -1)[..., None]], -1)
+    S, L = out.diagnostics.hslope.shape[-1] - Nv, vision_rows[0].shape[0]
+    label = np.concatenate([np.where(mg, idx, -1), np.where(mv.any(-1), S + L, -1)[..., None]], -1)
     unit_rows = np.zeros((Ng + 1, Ng + Nv), bool)
     unit_rows[np.arange(Ng), np.arange(Ng)] = True
     unit_rows[Ng, Ng:] = True

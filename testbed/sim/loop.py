@@ -24,6 +24,7 @@ from typing import Protocol
 import numpy as np
 
 from testbed.flight.fly import FlightResult, fly, truth_from_rows
+from testbed.integrity.fde import measurement_label
 from testbed.integrity.monitor import ANTENNA, Observations
 from testbed.records import GnssEpochs, GnssTruth, MonitorOutput, Truth, concat_epochs, take_epochs
 from testbed.sensors.faults import GNSS_KINDS
@@ -57,7 +58,7 @@ class LoopBlock:
     #: true position of each monitor's reference point (antenna or CG), (T, 3) world frame
     reference_enu: dict[str, np.ndarray] = field(default_factory=dict)
     #: (t, monitor name or "" for all, kind) of the events plots mark: "fault onset", "alert",
-    #: "alert cleared", "unavailable", "available"
+    #: "alert cleared", "excluded", "unavailable", "available"
     marks: list[tuple[float, str, str]] = field(default_factory=list)
 
 
@@ -132,6 +133,7 @@ class _Runner:
         self.states = {m.name: m.initial_state() for m in setup.monitors}  # each monitor's typed state
         self.prev_alert = {m: False for m in names}
         self.prev_avail = {m: True for m in names}
+        self.prev_excluded = {m: -1 for m in names}
         self.onsets = sorted({(f.onset_s, f.kind) for f in setup.faults})
         self.onset_logged: set = set()
         self.events: list[tuple[float, str, str]] = []
@@ -239,6 +241,16 @@ class _Runner:
                     block.events.append((float(t), INFO, f"{name}: alert cleared"))
                     block.marks.append((float(t), name, "alert cleared"))
                 self.prev_alert[name] = a
+                ex = int(out.excluded[i])
+                if ex >= 0 and ex != self.prev_excluded.get(name, -1):
+                    what = measurement_label(ex, block.gnss.prn, None if block.vision is None else block.vision.landmark_id)
+                    block.events.append((float(t), WARN, f"{name}: fault detected, {what} EXCLUDED (test "
+                                                          f"{out.fde.test_stat_all[i]:.1f} > {out.fde.threshold_all[i]:.1f}; "
+                                                          f"without it {out.test_stat[i]:.1f} ≤ {out.threshold[i]:.1f})"))
+                    block.marks.append((float(t), name, "excluded"))
+                elif ex < 0 and self.prev_excluded.get(name, -1) >= 0:
+                    block.events.append((float(t), INFO, f"{name}: exclusion ended"))
+                self.prev_excluded[name] = ex
                 av = bool(out.available[i, 0]) if out.available.ndim == 2 and out.available.shape[1] else True
                 if av != self.prev_avail[name]:
                     why = out.reasons[out.reason[i]] if out.reason[i] else "PL above alert limit"

@@ -26,7 +26,7 @@ def approach_eye(planned_enu) -> rrb.EyeControls3D:
 
 
 #: what the event markers on the integrity plots mean (viz.rerun_sink.MARKS)
-MARK_KEY = "Marks: ◆ fault onset, ✕ alert, + cleared, ▼ unavailable, ▲ available"
+MARK_KEY = "Marks: ◆ fault onset, ✕ alert, + cleared, ✱ excluded, ▼ unavailable, ▲ available"
 
 #: series views show the whole flight, not the last seconds before the cursor
 WHOLE_FLIGHT = rrb.VisibleTimeRange("sim_time", start=rrb.TimeRangeBoundary.infinite(),

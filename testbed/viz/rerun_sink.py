@@ -55,7 +55,8 @@ REGION_COLOURS = {"normal": (60, 200, 90), "unavailable": (150, 150, 150), "misl
                   "no_solution": (90, 90, 90)}
 #: events marked on every integrity plot -> (colour, marker)
 MARKS = {"fault onset": ((220, 40, 220), "Diamond"), "alert": ((230, 30, 30), "Cross"),
-         "alert cleared": ((60, 200, 90), "Plus"), "unavailable": ((150, 150, 150), "Down"),
+         "alert cleared": ((60, 200, 90), "Plus"), "excluded": ((240, 160, 40), "Asterisk"),
+         "unavailable": ((150, 150, 150), "Down"),
          "available": ((60, 200, 90), "Up")}
 PANELS = ("horizontal", "vertical", "detection")
 
