@@ -107,8 +107,10 @@ def format_table(rows: list[dict], levels: tuple[str, ...]) -> str:
     return "\n".join(lines)
 
 
-def draw_benefit(rows: list[dict], level: str, path: str | Path) -> Path:
-    """Bars: availability at ``level`` and median HPL/VPL per variant."""
+def draw_benefit(rows: list[dict], level: str, path: str | Path, scene: str = "") -> Path:
+    """Bars: availability at ``level`` and median HPL/VPL per variant (``scene``: what was flown, for the title)."""
+    from testbed.integrity.levels import service_level
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -125,10 +127,13 @@ def draw_benefit(rows: list[dict], level: str, path: str | Path) -> Path:
     w = 0.38
     axs[1].barh(y - w / 2, [r["hpl_median"] for r in rows], w, color="#228833", label="median HPL")
     axs[1].barh(y + w / 2, [r["vpl_median"] for r in rows], w, color="#ee6677", label="median VPL")
-    axs[1].set_xlabel("protection level (m), median over solved epochs")
+    lv = service_level(level)
+    axs[1].axvline(lv.hal, color="#228833", ls=":", lw=1)
+    axs[1].axvline(lv.val, color="#ee6677", ls=":", lw=1)
+    axs[1].set_xlabel(f"median PL (m); dotted: {level} HAL {lv.hal:g}, VAL {lv.val:g} m")
     axs[1].legend(loc="lower right", frameon=False)
-    fig.suptitle("What the patent's monitor buys: its PL rule with and without vision rows and H3, beside GPS RAIM",
-                 fontsize=10)
+    title = "What the patent's monitor buys: its PL rule with and without vision rows and H3, beside GPS RAIM"
+    fig.suptitle(title + (f"\n{scene}" if scene else ""), fontsize=10)
     path = Path(path)
     fig.savefig(path, dpi=110)
     plt.close(fig)

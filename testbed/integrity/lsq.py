@@ -331,26 +331,35 @@ def k_md(p_md: float) -> float:
     return float(stats.norm.isf(_check_prob(p_md, "p_md") / 2))
 
 
-def max_generalized_eig(P: NDArray, Q: NDArray, rtol: float = 1e-9) -> NDArray:
-    """Largest μ of ``P v = μ Q v`` = ``max_b (bᵀPb)/(bᵀQb)`` for stacked symmetric k×k pairs.
+def worst_direction_slopes(Ah: NDArray, Av: NDArray, Q: NDArray, rtol: float = 1e-9) -> tuple[NDArray, NDArray]:
+    """``max_b ‖Ah b‖² / bᵀQb`` and ``max_b (Av b)² / bᵀQb`` for stacked c×c ``Q`` (one eigendecomposition).
 
-    P, Q : (..., k, k), P ⪰ 0, Q ⪰ 0 (possibly singular). Directions in Q's null
-    space where P is non-zero give ``inf`` (a fault there moves the position but
-    not the test statistic); null directions where P is zero are ignored
-    (padding columns). Returns (...).
+    Ah : (..., 2, c), Av : (..., 1, c) the rows of A a fault b on c rows moves the position
+    through; Q : (..., c, c) ⪰ 0 (possibly singular), the fault's WS block. With
+    ``Q = V diag(q) Vᵀ`` the maxima are the largest eigenvalues of ``R V q⁻¹ Vᵀ Rᵀ``
+    (2×2 for Ah: closed form; 1×1 for Av) over Q's range. A direction in Q's null space
+    that moves the position gives ``inf`` (the fault moves it, not the test statistic);
+    null directions that do not are ignored (padding columns). Returns two (...) arrays.
     """
     q, V = np.linalg.eigh(Q)
     qmax = np.maximum(q[..., -1:], 0.0)
     good = q > rtol * qmax
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv_sqrt = np.where(good, 1.0 / np.sqrt(np.where(good, q, 1.0)), 0.0)
-    Vs = V * inv_sqrt[..., None, :]
-    Mx = np.swapaxes(Vs, -1, -2) @ P @ Vs
-    mu = np.linalg.eigvalsh(Mx)[..., -1]
-    Pn = np.einsum("...ik,...ij,...jk->...k", V, P, V)  # diag(VᵀPV)
-    scale = np.maximum(np.trace(P, axis1=-2, axis2=-1), np.finfo(float).tiny)
-    leak = (~good & (Pn > rtol * scale[..., None])).any(-1)
-    return np.where(leak, np.inf, np.maximum(mu, 0.0))
+        inv = np.where(good, 1.0 / np.where(good, q, 1.0), 0.0)
+    out = []
+    for R in (Ah, Av):
+        RV = R @ V  # (..., r, c)
+        M = (RV * inv[..., None, :]) @ np.swapaxes(RV, -1, -2)  # (..., r, r)
+        if M.shape[-1] == 1:
+            mu = M[..., 0, 0]
+        else:  # the larger eigenvalue of a symmetric 2×2
+            a, b, d = M[..., 0, 0], M[..., 0, 1], M[..., 1, 1]
+            mu = 0.5 * (a + d) + np.sqrt((0.5 * (a - d)) ** 2 + b * b)
+        moved = (RV**2).sum(-2)  # (..., c) how far each eigen-direction moves the position
+        scale = np.maximum(moved.sum(-1), np.finfo(float).tiny)
+        leak = (~good & (moved > rtol * scale[..., None])).any(-1)
+        out.append(np.where(leak, np.inf, np.maximum(mu, 0.0)))
+    return out[0], out[1]
 
 
 def subspace_slopes(geom: WlsGeometry, cols: ArrayLike, WS: NDArray | None = None) -> tuple[NDArray, NDArray]:
@@ -384,17 +393,13 @@ def subspace_slopes(geom: WlsGeometry, cols: ArrayLike, WS: NDArray | None = Non
     A_sel = np.where(pad, 0.0, geom.A[..., :, c0])  # (..., 4, M, c)
     Q = WS[..., c0[:, :, None], c0[:, None, :]]  # (..., M, c, c)
     Q = np.where(pad[:, :, None] | pad[:, None, :], 0.0, Q)
-    Ah = A_sel[..., :2, :, :]
-    Av = A_sel[..., 2:3, :, :]
-    Ph = np.einsum("...kmi,...kmj->...mij", Ah, Ah)
-    Pv = np.einsum("...kmi,...kmj->...mij", Av, Av)
     used = np.where(pad, True, geom.mask[..., c0]).all(-1)  # (..., M)
     ok = used & geom.solvable[..., None]
     Qs = np.where(ok[..., None, None], Q, np.eye(cols.shape[1]))
+    A_m = np.moveaxis(np.where(ok[..., None, :, None], A_sel, 0.0), -3, -2)  # (..., 4, M, c) -> (..., M, 4, c)
     with np.errstate(invalid="ignore"):
-        hs = np.sqrt(max_generalized_eig(np.where(ok[..., None, None], Ph, 0.0), Qs))
-        vs = np.sqrt(max_generalized_eig(np.where(ok[..., None, None], Pv, 0.0), Qs))
-    return np.where(ok, hs, np.nan), np.where(ok, vs, np.nan)
+        h2, v2 = worst_direction_slopes(A_m[..., :2, :], A_m[..., 2:3, :], Qs)
+    return np.where(ok, np.sqrt(h2), np.nan), np.where(ok, np.sqrt(v2), np.nan)
 
 
 PlVariant = Literal["seed", "pbias"]
