@@ -38,14 +38,6 @@ class IntegritySettings(StrictModel):
     pixel_attitude_noise: bool = Field(True, description="Pixel monitor: add the attitude-reference error, "
                                                          "propagated into pixels, to each landmark's 2×2 pixel "
                                                          "covariance.")
-    fde: bool = Field(False, description="Fault exclusion after an alert (GPS RAIM, VA-RAIM, pixel monitor; "
-                                         "testbed.integrity.fde): re-solve without each measurement unit, keep the "
-                                         "exclusion whose reduced test passes, protect with the reduced geometry's PLs.")
-    fde_rule: Literal["best", "unique"] = Field(
-        "best", description="Which passing exclusion FDE takes: 'best' = the most consistent reduced test (largest "
-                            "chi-square p-value); 'unique' = only when exactly one passes (else the alert stands).")
-    fde_max_excluded: int = Field(1, ge=1, le=2, description="Measurement units FDE may exclude at one epoch (2: pairs "
-                                                             "are tried when no single exclusion passes).")
     pixel_dither_noise: bool = Field(True, description="Pixel monitor: add the camera dithering the vision front end "
                                                        "publishes (its rms, VisionEpochs.dither_sigma), propagated "
                                                        "into pixels, to the pixel covariance.")
@@ -59,6 +51,14 @@ class IntegritySettings(StrictModel):
                                                                     "the rows and with the H3 pairs).")
     pixel_vision_rows: bool = Field(True, description="Pixel monitor: False = the patent's three-hypothesis rule on "
                                                       "the GNSS rows alone (what vision buys, for comparison).")
+    fde: bool = Field(False, description="Fault exclusion after an alert (GPS RAIM, VA-RAIM, pixel monitor; "
+                                         "testbed.integrity.fde): re-solve without each measurement unit, keep the "
+                                         "exclusion whose reduced test passes, protect with the reduced geometry's PLs.")
+    fde_rule: Literal["best", "unique"] = Field(
+        "best", description="Which passing exclusion FDE takes: 'best' = the most consistent reduced test (largest "
+                            "chi-square p-value); 'unique' = only when exactly one passes (else the alert stands).")
+    fde_max_excluded: int = Field(1, ge=1, le=2, description="Measurement units FDE may exclude at one epoch (2: pairs "
+                                                             "are tried when no single exclusion passes).")
     max_iter: int = Field(8, ge=1, le=50, description="Maximum Gauss-Newton iterations of the WLS solve.")
     tol_m: float = Field(1e-3, gt=0.0, description="WLS convergence: position step below this (m).")
     max_cond: float = Field(1e10, gt=1.0, description="Largest accepted (1-norm) condition number of the "
