@@ -145,7 +145,11 @@ class Truth:
     q_body_to_enu : (T, 4) body (FRD) -> local ENU at the aircraft, scalar last.
     euler : (T, 3) rad, roll, pitch, true heading.
     omega_body : (T, 3) rad/s, inertial body rates p, q, r.
-    specific_force_body : (T, 3) m/s², accelerometer truth at the CG.
+    specific_force_eye_body : (T, 3) m/s², specific force at the pilot's eye point (JSBSim's
+        ``a-pilot``: the CG's plus ω̇ × r_eye + ω × (ω × r_eye), r_eye ≈ 14 m ahead on the 737).
+    specific_force_cg_body : (T, 3) m/s², specific force at the CG (accelerometer truth there;
+        JSBSim's load factors × standard gravity).
+    omega_dot_body : (T, 3) rad/s², body angular acceleration.
     agl : (T,) m, height above the terrain model.
     airspeed : (T,) m/s, true airspeed.
     frame_origin : (3,) lat_deg, lon_deg, h of the world frame's origin.
@@ -161,9 +165,11 @@ class Truth:
     q_body_to_enu: NDArray = epoch_array(1)
     euler: NDArray = epoch_array(1)
     omega_body: NDArray = epoch_array(1)
-    specific_force_body: NDArray = epoch_array(1)
+    specific_force_eye_body: NDArray = epoch_array(1)
     agl: NDArray = epoch_array()
     airspeed: NDArray = epoch_array()
+    specific_force_cg_body: NDArray = epoch_array(1)
+    omega_dot_body: NDArray = epoch_array(1)
     frame_origin: NDArray = field()
 
     def at_indices(self, idx: NDArray) -> "Truth":
@@ -186,7 +192,9 @@ class Truth:
                                  ("vel_enu", self.vel_enu, "enu"), ("q_body_to_enu", self.q_body_to_enu, "xyzw"),
                                  ("euler", self.euler, ("roll", "pitch", "heading")),
                                  ("omega_body", self.omega_body, "pqr"),
-                                 ("specific_force_body", self.specific_force_body, "xyz")]:
+                                 ("specific_force_eye_body", self.specific_force_eye_body, "xyz"),
+                                 ("specific_force_cg_body", self.specific_force_cg_body, "xyz"),
+                                 ("omega_dot_body", self.omega_dot_body, "pqr")]:
             for k, c in enumerate(comps):
                 cols[f"{name}_{c}"] = arr[:, k]
         return cols
@@ -304,6 +312,38 @@ class VisionEpochs:
     q_body_to_enu_ref: NDArray = epoch_array(1)
     attitude_sigma: NDArray = field()
     dither_sigma: NDArray = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """What the IMU reports (no truth): increments over each interval ending at ``t``.
+
+    t : (K,) s, end of each interval.  dtheta : (B..., K, 3) rad, gyro angle increments
+    (body axes).  dvel : (B..., K, 3) m/s, accelerometer velocity increments (body axes).
+    dt : interval, s.  lever_arm_body : (3,) m, IMU position from the CG.
+    earth_rotation : whether the increments include the Earth's rate (the mechanisation must match).
+    """
+
+    t: NDArray = epoch_array(batched=False)
+    dtheta: NDArray = epoch_array(1)
+    dvel: NDArray = epoch_array(1)
+    dt: float = field()
+    lever_arm_body: NDArray = field()
+    earth_rotation: bool = field()
+
+
+@dataclass(frozen=True)
+class ImuTruth:
+    """The IMU's truth (evaluation only): error-free increments (K, 3), biases (B..., K, 3) in
+    force over each interval, scale-factor errors (B..., 3)."""
+
+    t: NDArray = epoch_array(batched=False)
+    dtheta: NDArray = epoch_array(1)
+    dvel: NDArray = epoch_array(1)
+    gyro_bias: NDArray = epoch_array(1)
+    accel_bias: NDArray = epoch_array(1)
+    gyro_scale: NDArray = field()
+    accel_scale: NDArray = field()
 
 
 def one_landmark_survey(vision, monitor: str) -> NDArray:

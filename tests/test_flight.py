@@ -62,7 +62,7 @@ def test_truth_record_is_consistent(calm):
     assert drift < 0.005 * np.linalg.norm(dp[-1])  # < 0.5 %, the ENU tilt over the path is 0.2 %
     # unit quaternions; specific force ~ 1 g in steady descent
     assert np.allclose(np.linalg.norm(tr.q_body_to_enu, axis=1), 1.0)
-    assert np.median(np.linalg.norm(tr.specific_force_body, axis=1)) == pytest.approx(9.79, abs=0.1)
+    assert np.median(np.linalg.norm(tr.specific_force_cg_body, axis=1)) == pytest.approx(9.79, abs=0.1)
     dec = tr.decimate(10.0)
     assert np.allclose(np.diff(dec.t), 0.1, atol=1e-6)
 
@@ -89,7 +89,7 @@ def test_same_seed_bit_identical_other_seed_differs(final):
     ap = variant(final, gusts=Gusts(intensity="moderate", seed=11), flight={"start_distance_m": 3000.0})
     a, b = fly(ap.flight_plan), fly(ap.flight_plan)
     c = fly(ap.flight_plan, gust_seed=12)
-    for f in ("pos_ecef", "q_body_to_enu", "omega_body", "specific_force_body"):
+    for f in ("pos_ecef", "q_body_to_enu", "omega_body", "specific_force_cg_body"):
         assert np.array_equal(getattr(a.truth, f), getattr(b.truth, f)), f
     n = min(len(a.truth.t), len(c.truth.t))
     assert not np.array_equal(a.truth.pos_ecef[:n], c.truth.pos_ecef[:n])

@@ -114,7 +114,7 @@ def start_condition(plan: FlightPlan, terrain: TerrainLike | None) -> tuple[Init
     return ic, flaps, ac.approach.gear_down, brake
 
 
-ROW_FIELDS = 25  # columns of a flight row (see truth_from_rows)
+ROW_FIELDS = 31  # columns of a flight row (see truth_from_rows)
 
 
 def truth_from_rows(rows, frame: LocalFrame, t0: float = 0.0) -> Truth:
@@ -125,8 +125,9 @@ def truth_from_rows(rows, frame: LocalFrame, t0: float = 0.0) -> Truth:
         t=a[:, 0] - t0, pos_ecef=a[:, 1:4], lat_deg=a[:, 4], lon_deg=a[:, 5], h=a[:, 6],
         pos_enu=a[:, 7:10], vel_enu=a[:, 10:13],
         q_body_to_enu=euler_to_q_body_to_enu(euler[:, 0], euler[:, 1], euler[:, 2]),
-        euler=euler, omega_body=a[:, 16:19], specific_force_body=a[:, 19:22], agl=a[:, 22],
-        airspeed=a[:, 23], frame_origin=np.array([frame.lat_deg, frame.lon_deg, frame.h]))
+        euler=euler, omega_body=a[:, 16:19], specific_force_eye_body=a[:, 19:22], agl=a[:, 22],
+        airspeed=a[:, 23], specific_force_cg_body=a[:, 25:28], omega_dot_body=a[:, 28:31],
+        frame_origin=np.array([frame.lat_deg, frame.lon_deg, frame.h]))
 
 
 def fly(plan: FlightPlan, terrain: TerrainLike | None = None, *, gust_seed: int | None = None,
@@ -172,7 +173,7 @@ def fly(plan: FlightPlan, terrain: TerrainLike | None = None, *, gust_seed: int 
             ps = pilot.last
             row = (round(k * dt, 9), x, y, z, s["lat_deg"], s["lon_deg"], s["h"], *enu, s["vel_ned"][1],
                    s["vel_ned"][0], -s["vel_ned"][2], s["phi"], s["theta"], s["psi"], s["p"], s["q"],
-                   s["r"], *s["f_body"], s["agl"], s["tas"], s["cas"])
+                   s["r"], *s["f_eye_body"], s["agl"], s["tas"], s["cas"], *s["f_cg_body"], *s["omega_dot"])
             rows.append(row)
             xtk.append(ps.cross_track)
             vert.append(pilot.h_error)

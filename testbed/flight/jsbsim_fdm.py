@@ -24,6 +24,9 @@ from testbed.frames import FT, KT
 
 jsbsim.FGJSBBase().debug_lvl = 0
 
+#: JSBSim's load factors N_x,y,z are the CG specific force over standard gravity (m/s²)
+STANDARD_GRAVITY = 9.80665
+
 READ = {
     "lat": "position/lat-geod-deg",
     "lon": "position/long-gc-deg",
@@ -46,6 +49,12 @@ READ = {
     "ax_fps2": "accelerations/a-pilot-x-ft_sec2",
     "ay_fps2": "accelerations/a-pilot-y-ft_sec2",
     "az_fps2": "accelerations/a-pilot-z-ft_sec2",
+    "nx": "accelerations/Nx",  # CG specific force / standard gravity (Nz positive up)
+    "ny": "accelerations/Ny",
+    "nz": "accelerations/Nz",
+    "pdot": "accelerations/pdot-rad_sec2",
+    "qdot": "accelerations/qdot-rad_sec2",
+    "rdot": "accelerations/rdot-rad_sec2",
     "wow": "gear/wow",
 }
 WRITE = {
@@ -203,6 +212,8 @@ class JSBSimAircraft:
             "p": v["p"], "q": v["q"], "r": v["r"],
             "vel_ned": (v["vn_fps"] * FT, v["ve_fps"] * FT, v["vd_fps"] * FT),
             "cas": v["vc_kt"] * KT, "tas": v["vt_fps"] * FT,
-            "f_body": (v["ax_fps2"] * FT, v["ay_fps2"] * FT, v["az_fps2"] * FT),
+            "f_eye_body": (v["ax_fps2"] * FT, v["ay_fps2"] * FT, v["az_fps2"] * FT),
+            "f_cg_body": (v["nx"] * STANDARD_GRAVITY, v["ny"] * STANDARD_GRAVITY, -v["nz"] * STANDARD_GRAVITY),
+            "omega_dot": (v["pdot"], v["qdot"], v["rdot"]),
             "on_ground": v["wow"] > 0.5,
         }

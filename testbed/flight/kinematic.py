@@ -53,6 +53,6 @@ def straight_truth(frame: LocalFrame, start_enu: ArrayLike, end_enu: ArrayLike, 
     speed = np.linalg.norm(vel_enu, axis=1)
     return Truth(t=t, pos_ecef=pos_ecef, lat_deg=lat, lon_deg=lon, h=h, pos_enu=pos_enu,
                  vel_enu=vel_enu, q_body_to_enu=q, euler=np.stack([phi, theta, psi], 1),
-                 omega_body=np.zeros((n, 3)), specific_force_body=f_body,
-                 agl=np.full(n, np.nan), airspeed=speed,
+                 omega_body=np.zeros((n, 3)), specific_force_eye_body=f_body, specific_force_cg_body=f_body,
+                 omega_dot_body=np.zeros((n, 3)), agl=np.full(n, np.nan), airspeed=speed,
                  frame_origin=np.array([frame.lat_deg, frame.lon_deg, frame.h]))
