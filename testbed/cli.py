@@ -71,6 +71,13 @@ def _cmd_export_rinex(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_observability(args: argparse.Namespace) -> int:
+    from testbed.navigation.observability import format_tables
+
+    print(format_tables(seed=args.seed))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="testbed", description="GNSS/vision integrity testbed for approaches into ZUNZ")
     sub = p.add_subparsers(dest="command", required=True)
@@ -107,6 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
     from testbed.campaign.cli_commands import add_campaign_parsers
 
     add_campaign_parsers(sub)
+
+    o = sub.add_parser("observability", help="seed 002's observability tables: the seed's model and the consistent "
+                                             "one along a racetrack, an RF turn and the straight final (~15 s)")
+    o.add_argument("--seed", type=int, default=0, help="seed of the random lines of sight, features and h_V")
+    o.set_defaults(func=_cmd_observability)
 
     c = sub.add_parser("check", help="validate approach (or campaign) files and explain every problem")
     c.add_argument("files", nargs="+", type=Path)
