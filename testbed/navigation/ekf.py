@@ -1,0 +1,209 @@
+"""Seed 002's GNSS/vision/INS error-state EKF: the core (NAV_FILTER.md §1–§6), batched over trials.
+
+State (per trial): the nominal IMU-point pose and biases — ``C = C_b^w``, v, p in the
+approach's world frame, accelerometer and gyro biases, receiver clock bias and
+drift — and the covariance P of the 17 error states ``[δp, δv, δψ, δb_a, δb_g,
+δc_b, δc_d]`` with ``C = Exp(δψ) Ĉ``. A live flight is a batch of one.
+
+* **Predict** at the IMU rate: the strapdown step of :mod:`testbed.inertial` on
+  bias-corrected increments, and ``P ← ΦPΦᵀ + Q`` with the piecewise-constant
+  transition of §2 (Earth rate, Coriolis and the vertical gravity gradient
+  kept) and Q from the IMU's random walks, its Gauss–Markov biases and the
+  clock's two-state model (trapezoidal discretisation: second order in Δt).
+* **Update** at the aiding epochs: pseudorange rows
+  ``−eᵢᵀδp + eᵢᵀ[(Ĉl_a)×]δψ + δc_b`` for however many satellites are in view
+  (0, 1, 2, 3 or more — the filter never needs four) and two pixel rows per
+  surveyed landmark (``∂m^c/∂δp = −C_c^bᵀĈᵀ``, ``∂m^c/∂δψ = C_c^bᵀĈᵀ[(m − p)×]``),
+  with the pixel noise, the published camera dithering and the landmark survey
+  error in R; Joseph-form covariance update, masked rows inert; the normalised
+  innovation squared (NIS) and its dof per epoch are kept for the integrity test.
+
+Not yet here (NAV_FILTER.md §6 onwards): unsurveyed features with delayed
+initialisation, range-rate rows, the integrity layer and the monitor contract.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from testbed.frames import LocalFrame
+from testbed.inertial import earth_rate_world, gravity_world, mechanise_step, normal_gravity, skew, so3_exp
+from testbed.integrity.pixel_model import project_landmarks
+
+N = 17
+P_, V_, PSI, BA, BG = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+CB, CD = 15, 16
+R_EARTH = 6_371_000.0
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """What the filter knows of its IMU: random walks (per √s), bias Gauss–Markov σ and τ."""
+
+    arw: float
+    vrw: float
+    gyro_inrun: float
+    accel_inrun: float
+    tau_gyro: float
+    tau_accel: float
+
+    @classmethod
+    def from_figures(cls, f: dict) -> ImuNoise:
+        return cls(f["arw"], f["vrw"], f["gyro_inrun"], f["accel_inrun"], f["tau_gyro"], f["tau_accel"])
+
+
+@dataclass(frozen=True)
+class ClockNoise:
+    sf: float = 9.0e-3  # m²/s, white FM
+    sg: float = 3.55e-2  # m²/s³, random-walk FM
+
+
+@dataclass(frozen=True)
+class NavState:
+    """Batched filter state (B trials)."""
+
+    C: NDArray  # (B, 3, 3)
+    v: NDArray  # (B, 3)
+    p: NDArray  # (B, 3)
+    ba: NDArray  # (B, 3)
+    bg: NDArray  # (B, 3)
+    cb: NDArray  # (B,)
+    cd: NDArray  # (B,)
+    P: NDArray  # (B, 17, 17)
+
+
+def transition(C: NDArray, f_w: NDArray, p: NDArray, dt: float, w_ie: NDArray, tau_g: float, tau_a: float,
+               g0: NDArray) -> NDArray:
+    """Φ (B, 17, 17) of one step with the specific force f_w (B, 3) and attitude C constant over it."""
+    B = C.shape[0]
+    Phi = np.broadcast_to(np.eye(N), (B, N, N)).copy()
+    Fx = skew(f_w)
+    W = skew(np.broadcast_to(w_ie, (B, 3)))
+    # vertical gravity gradient 2g/R (the horizontal −g/R terms kept too)
+    Gam = np.zeros((B, 3, 3))
+    Gam[:, 0, 0] = Gam[:, 1, 1] = -g0 / R_EARTH
+    Gam[:, 2, 2] = 2 * g0 / R_EARTH
+    Phi[:, P_, V_] = dt * np.eye(3)
+    Phi[:, P_, PSI] = -0.5 * dt**2 * Fx
+    Phi[:, P_, BA] = -0.5 * dt**2 * C
+    Phi[:, P_, BG] = dt**3 / 6.0 * Fx @ C
+    Phi[:, V_, P_] = dt * Gam
+    Phi[:, V_, V_] = np.eye(3) - 2.0 * dt * W
+    Phi[:, V_, PSI] = -dt * Fx
+    Phi[:, V_, BA] = -dt * C
+    Phi[:, V_, BG] = 0.5 * dt**2 * Fx @ C
+    Phi[:, PSI, PSI] = np.eye(3) - dt * W
+    Phi[:, PSI, BG] = -dt * C
+    Phi[:, BA, BA] = np.exp(-dt / tau_a) * np.eye(3)
+    Phi[:, BG, BG] = np.exp(-dt / tau_g) * np.eye(3)
+    Phi[:, CB, CD] = dt
+    return Phi
+
+
+def process_noise(Phi: NDArray, C: NDArray, dt: float, imu: ImuNoise, clock: ClockNoise) -> NDArray:
+    """Q (B, 17, 17): the continuous noise ``G Q_c Gᵀ`` discretised by the trapezoid ½(ΦGQ_cGᵀΦᵀ + GQ_cGᵀ)Δt,
+    the clock's exactly."""
+    B = C.shape[0]
+    Qc = np.zeros((B, N, N))
+    Qc[:, V_, V_] = imu.vrw**2 * C @ np.swapaxes(C, -1, -2)  # δv̇ = −Ĉ n_a
+    Qc[:, PSI, PSI] = imu.arw**2 * C @ np.swapaxes(C, -1, -2)
+    Qc[:, BA, BA] = 2 * imu.accel_inrun**2 / imu.tau_accel * np.eye(3)
+    Qc[:, BG, BG] = 2 * imu.gyro_inrun**2 / imu.tau_gyro * np.eye(3)
+    Q = 0.5 * (Phi @ Qc @ np.swapaxes(Phi, -1, -2) + Qc) * dt
+    Q[:, CB:, :] = 0.0
+    Q[:, :, CB:] = 0.0
+    Q[:, CB, CB] = clock.sf * dt + clock.sg * dt**3 / 3.0
+    Q[:, CB, CD] = Q[:, CD, CB] = clock.sg * dt**2 / 2.0
+    Q[:, CD, CD] = clock.sg * dt
+    return Q
+
+
+def predict(s: NavState, dtheta: NDArray, dvel: NDArray, dt: float, frame: LocalFrame, imu: ImuNoise,
+            clock: ClockNoise, earth_rotation: bool = True) -> NavState:
+    """One IMU step for every trial: dtheta, dvel (B, 3) measured increments."""
+    w_ie = earth_rate_world(frame, earth_rotation)
+    s1, C_mid, f_w, g = nominal_step(s, dtheta, dvel, dt, frame, imu, earth_rotation)
+    Phi = transition(C_mid, f_w, s.p, dt, w_ie, imu.tau_gyro, imu.tau_accel, np.linalg.norm(g, axis=-1))
+    Q = process_noise(Phi, s.C, dt, imu, clock)
+    P = Phi @ s.P @ np.swapaxes(Phi, -1, -2) + Q
+    return replace(s1, P=0.5 * (P + np.swapaxes(P, -1, -2)))
+
+
+def nominal_step(s: NavState, dtheta: NDArray, dvel: NDArray, dt: float, frame: LocalFrame, imu: ImuNoise,
+                 earth_rotation: bool = True) -> tuple[NavState, NDArray, NDArray, NDArray]:
+    """The nominal state one IMU step on (P untouched), the step's mean attitude and specific force, and g."""
+    w_ie = earth_rate_world(frame, earth_rotation)
+    dth = dtheta - s.bg * dt
+    dv = dvel - s.ba * dt
+    g = gravity_world(frame, s.p)
+    C1, v1, p1 = mechanise_step(s.C, s.v, s.p, dth, dv, dt, g, w_ie)
+    C_mid = 0.5 * (s.C + C1)
+    f_w = np.einsum("bij,bj->bi", C_mid, dv) / dt
+    a_a, a_g = np.exp(-dt / imu.tau_accel), np.exp(-dt / imu.tau_gyro)
+    s1 = NavState(C=C1, v=v1, p=p1, ba=a_a * s.ba, bg=a_g * s.bg, cb=s.cb + s.cd * dt, cd=s.cd, P=s.P)
+    return s1, C_mid, f_w, g
+
+
+def inject(s: NavState, dx: NDArray) -> NavState:
+    """The nominal state ⊕ an error-state correction dx (B, 17)."""
+    return replace(s, p=s.p + dx[:, P_], v=s.v + dx[:, V_], C=so3_exp(dx[:, PSI]) @ s.C, ba=s.ba + dx[:, BA],
+                   bg=s.bg + dx[:, BG], cb=s.cb + dx[:, CB], cd=s.cd + dx[:, CD])
+
+
+def pseudorange_rows(s: NavState, sat_w: NDArray, lever_ant: NDArray) -> tuple[NDArray, NDArray]:
+    """Predicted pseudoranges h (B, S) and H (B, S, 17) at satellites ``sat_w`` (B, S, 3) in the world frame."""
+    la = np.einsum("bij,j->bi", s.C, lever_ant)
+    d = sat_w - (s.p + la)[:, None, :]
+    r = np.linalg.norm(d, axis=-1)
+    e = d / r[..., None]
+    H = np.zeros(r.shape + (N,))
+    H[..., P_] = -e
+    H[..., PSI] = np.einsum("bsi,bij->bsj", e, skew(la))
+    H[..., CB] = 1.0
+    return r + s.cb[:, None], H
+
+
+def pixel_rows(s: NavState, landmarks_w: NDArray, K: NDArray, R_cam_to_body: NDArray, lever_cam: NDArray
+               ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Predicted pixels h (B, 2L), H (B, 2L, 17), ∂uv/∂m (B, 2L, 3L) blocks and the camera-frame rays (B, L, 3)."""
+    B = s.C.shape[0]
+    Rc2w = s.C @ R_cam_to_body
+    cam_off = np.einsum("bij,j->bi", s.C, lever_cam)
+    uv, Hp, ray = project_landmarks(s.p, Rc2w, cam_off, landmarks_w, K)  # Hp = ∂uv/∂p (B, L, 2, 3)
+    L = uv.shape[-2]
+    d = landmarks_w - s.p[:, None, :]
+    H = np.zeros((B, L, 2, N))
+    H[..., P_] = Hp
+    H[..., PSI] = -np.einsum("blij,bljk->blik", Hp, skew(d))  # Jπ C_c^bᵀĈᵀ[(m − p)×] = −Hp [d×]
+    Hm = -Hp  # ∂uv/∂m
+    return uv.reshape(B, 2 * L), H.reshape(B, 2 * L, N), Hm, ray
+
+
+def update(s: NavState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray) -> tuple[NavState, NDArray, NDArray]:
+    """Masked batched EKF update (Joseph form): innovations nu (B, M), H (B, M, 17), R (B, M, M).
+
+    Rows off the mask are inert (zero H, zero ν, unit R). Returns the state, the NIS and its dof (B,).
+    """
+    m = np.asarray(mask, bool)
+    mm = m[..., :, None] & m[..., None, :]
+    H = np.where(m[..., None], H, 0.0)
+    nu = np.where(m, nu, 0.0)
+    R = np.where(mm, R, 0.0) + np.eye(m.shape[-1]) * ~m[..., None, :]
+    PHt = s.P @ np.swapaxes(H, -1, -2)
+    S = H @ PHt + R
+    Sinv_nu = np.linalg.solve(S, nu[..., None])[..., 0]
+    nis = np.einsum("bm,bm->b", nu, Sinv_nu)
+    Kt = np.linalg.solve(S, np.swapaxes(PHt, -1, -2))  # (B, M, 17) = Kᵀ
+    K = np.swapaxes(Kt, -1, -2)
+    dx = np.einsum("bnm,bm->bn", K, nu)
+    I_KH = np.eye(N) - K @ H
+    P = I_KH @ s.P @ np.swapaxes(I_KH, -1, -2) + K @ R @ Kt
+    P = 0.5 * (P + np.swapaxes(P, -1, -2))
+    return inject(replace(s, P=P), dx), nis, m.sum(-1)
+
+
+def gravity_magnitude(frame: LocalFrame) -> float:
+    return float(normal_gravity(frame.lat_deg, frame.h))

@@ -1,0 +1,156 @@
+"""The seed-002 EKF core (testbed.navigation.ekf, .run): Jacobians against finite differences through ⊕,
+and Monte Carlo consistency (NEES, NIS) against χ² bands at fixed seeds (NAV_FILTER.md §12)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from test_integrity_core_helpers import make_gnss
+from testbed.flight.kinematic import straight_truth
+from testbed.inertial import body_to_world, local_to_world, so3_log
+from testbed.navigation.ekf import (CB, N, ClockNoise, ImuNoise, NavState, inject,
+                                    nominal_step, pixel_rows, pseudorange_rows, transition)
+from testbed.navigation.run import initial_state, run_ekf
+from testbed.sensors.gnss.errors import receiver_clock
+from testbed.sensors.imu import ImuSettings, sample_imu
+from testbed.world.airport import runway_frame
+
+FRAME = runway_frame()
+IMU = ImuSettings(grade="hg1700")
+NOISE = ImuNoise.from_figures(IMU.figures())
+
+
+def _state(rng, B=3):
+    C = body_to_world(FRAME, np.zeros((B, 3)), np.tile([0.02, -0.03, 0.4, 0.9], (B, 1)) / np.linalg.norm([0.02, -0.03, 0.4, 0.9]))
+    return NavState(C=C, v=rng.normal(0, 50, (B, 3)), p=rng.normal(0, 3000, (B, 3)) + [0, 0, 800],
+                    ba=rng.normal(0, 1e-2, (B, 3)), bg=rng.normal(0, 1e-5, (B, 3)), cb=rng.normal(0, 100, B),
+                    cd=rng.normal(0, 1, B), P=np.broadcast_to(np.eye(N), (B, N, N)).copy())
+
+
+def _minus(a: NavState, b: NavState) -> np.ndarray:
+    """a ⊖ b (B, 17)."""
+    dpsi = so3_log(a.C @ np.swapaxes(b.C, -1, -2))
+    return np.concatenate([a.p - b.p, a.v - b.v, dpsi, a.ba - b.ba, a.bg - b.bg, (a.cb - b.cb)[:, None],
+                           (a.cd - b.cd)[:, None]], -1)
+
+
+def test_pseudorange_and_pixel_jacobians_match_central_differences():
+    """T-JAC-1: every column of H against (h(x ⊕ εeᵢ) − h(x ⊖ εeᵢ)) / 2ε, lever arms included."""
+    rng = np.random.default_rng(0)
+    s = _state(rng)
+    sats = rng.normal(0, 1, (3, 6, 3)) * 2e7
+    lever = np.array([3.0, 0.4, -1.5])
+    lm = np.array([[1500.0, 2000.0, 0.0], [1800.0, 2600.0, 5.0], [1200.0, 2400.0, -3.0]])
+    K = np.array([[2000.0, 0, 960], [0, 2000.0, 540], [0, 0, 1]])
+    Rcb = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    lc = np.array([14.0, 0.0, 1.2])
+    # steps: position/velocity/clock, attitude (a pseudorange is 2e7 m: cancellation sets its step larger)
+    # atol: a difference of two 2e7 m ranges loses 2e7·2.2e-16 m, i.e. 2e-5 per unit at a 2e-4 step
+    for fn, eps_p, eps_a, atol in ((lambda x: pseudorange_rows(x, sats, lever)[:2], 1e-2, 1e-4, 1e-4),
+                                   (lambda x: pixel_rows(x, lm, K, Rcb, lc)[:2], 1e-3, 1e-6, 1e-6)):
+        h, H = fn(s)
+        for i in range(N):
+            eps = eps_a if 6 <= i < 9 else (eps_p if i < 6 or i >= 15 else 1e-4)
+            d = np.zeros((s.p.shape[0], N))
+            d[:, i] = eps
+            hp, _ = fn(inject(s, d))
+            hm, _ = fn(inject(s, -d))
+            fd = (hp - hm) / (2 * eps)
+            np.testing.assert_allclose(H[..., i], fd, rtol=1e-5, atol=atol * np.abs(H).max(), err_msg=f"column {i}")
+
+
+def test_transition_matches_finite_differences_of_the_mechanisation():
+    """T-JAC-2: Φ against (f(x ⊕ εeᵢ) ⊖ f(x ⊖ εeᵢ)) / 2ε for one 120 Hz step of the nominal mechanisation
+    (biases entering through the corrected increments). Φ takes attitude and specific force constant over
+    the step: its neglected terms are O(Δt·|ω|) of each entry (relative ≤ 1e-3 at 120 Hz here)."""
+    rng = np.random.default_rng(1)
+    s = _state(rng, 2)
+    dt = 1 / 120
+    dth = rng.normal(0, 0.2, (2, 3)) * dt
+    dvl = (np.array([0.5, 0.1, -9.8]) + rng.normal(0, 1, (2, 3))) * dt
+    s1, C_mid, f_w, g = nominal_step(s, dth, dvl, dt, FRAME, NOISE)
+    from testbed.inertial import earth_rate_world
+
+    Phi = transition(C_mid, f_w, s.p, dt, earth_rate_world(FRAME), NOISE.tau_gyro, NOISE.tau_accel,
+                     np.linalg.norm(g, axis=-1))
+    for i in range(N):
+        eps = {0: 1e-2, 1: 1e-3, 2: 1e-6, 3: 1e-4, 4: 1e-6, 5: 1e-2, 6: 1e-3}[min(i // 3, 6) if i < 15 else 5]
+        d = np.zeros((2, N))
+        d[:, i] = eps
+        fp = nominal_step(inject(s, d), dth, dvl, dt, FRAME, NOISE)[0]
+        fm = nominal_step(inject(s, -d), dth, dvl, dt, FRAME, NOISE)[0]
+        fd = _minus(fp, fm) / (2 * eps)
+        scale = np.abs(Phi[..., i]).max()
+        np.testing.assert_allclose(Phi[..., i], fd, atol=1e-3 * max(scale, 1e-9) + 1e-9, err_msg=f"column {i}")
+
+
+def _final(B, duration=40.0, seed=0):
+    """A kinematic straight segment of the final with an HG1700 IMU, 7 satellites with a two-state clock."""
+    tr = straight_truth(FRAME, [-8000, -6000, 500], [-8000 + 100 * duration, -6000 + 75 * duration, 500 - 5 * duration],
+                        duration, rate_hz=120.0)
+    imu, _ = sample_imu(tr, IMU, np.random.default_rng(seed), n_trials=B)
+    g1 = tr.decimate(1.0)
+    gnss, rho0, sig = make_gnss(FRAME, g1.pos_enu, 344063.0 + g1.t, None)
+    cb, cd = receiver_clock(np.random.default_rng(seed + 1), g1.t, (B,), bias0_sigma_m=100.0, drift0_sigma_m_s=1.0,
+                            sf_m2_s=ClockNoise.sf, sg_m2_s3=ClockNoise.sg)
+    noise = np.random.default_rng(seed + 2).standard_normal((B,) + rho0.shape) * sig
+    pr = np.where(gnss.visible, rho0 - 1234.5 + cb[..., None] + noise, np.nan)
+    gnss = replace(gnss, t=g1.t, pseudorange=pr)
+    C0 = body_to_world(FRAME, tr.pos_enu[0], tr.q_body_to_enu[0])
+    v0 = local_to_world(FRAME, tr.pos_enu[0], tr.vel_enu[0])
+    f = IMU.figures()
+    s0, _ = initial_state(C0, v0, tr.pos_enu[0], (cb[:, 0], cd[:, 0]),
+                          (np.hypot(f["accel_bias"], f["accel_inrun"]), np.hypot(f["gyro_bias"], f["gyro_inrun"])),
+                          np.random.default_rng(seed + 3), B)
+    return tr, g1, gnss, imu, s0, cb
+
+
+def _nees_blocks(trace, g1, cb) -> dict[str, np.ndarray]:
+    """Mean NEES over the runs per epoch (T,) of position, velocity, attitude (3 dof each) and clock bias (1)."""
+    Ct = body_to_world(FRAME, g1.pos_enu, g1.q_body_to_enu)
+    vt = local_to_world(FRAME, g1.pos_enu, g1.vel_enu)
+    blocks = {"p": (g1.pos_enu - trace.p, slice(0, 3)), "v": (vt - trace.v, slice(3, 6)),
+              "psi": (so3_log(Ct @ np.swapaxes(trace.C, -1, -2)), slice(6, 9)),
+              "cb": ((cb - trace.cb)[..., None], slice(CB, CB + 1))}
+    out = {}
+    for k, (e, sl) in blocks.items():
+        P = trace.P[..., sl, sl]
+        out[k] = np.einsum("bti,bti->bt", e, np.linalg.solve(P, e[..., None])[..., 0]).mean(0)
+    return out
+
+
+@pytest.mark.slow
+def test_nees_and_nis_inside_their_chi2_bands_with_seven_satellites():
+    """T-NEES-1/T-NIS-1 (straight, 7 satellites, 80 runs from the alignment's P₀): the mean NEES of
+    position, velocity and attitude (3 dof each) and of the clock bias (1 dof) is inside its two-sided
+    99 % χ² band at ≥ 95 % of the 41 epochs, and the NIS summed over runs and epochs inside its band."""
+    B = 80
+    tr, g1, gnss, imu, s0, cb = _final(B)
+    trace = run_ekf(s0, imu, FRAME, NOISE, gnss=gnss)
+    for k, m in _nees_blocks(trace, g1, cb).items():
+        d = 1 if k == "cb" else 3
+        lo, hi = stats.chi2.ppf([0.005, 0.995], d * B) / B
+        assert ((m >= lo) & (m <= hi)).mean() >= 0.95, (k, m)
+    dof = trace.dof[:, 1:].sum()
+    lo, hi = stats.chi2.ppf([0.005, 0.995], dof)
+    assert lo <= trace.nis[:, 1:].sum() <= hi
+
+
+def test_the_filter_runs_with_zero_to_three_satellites_and_more_satellites_shrink_the_covariance():
+    """Never four: with 0, 1, 2, 3 satellites the filter gives finite states; the position covariance
+    after 30 s shrinks with each satellite added (trace), and with none it is the inertial drift."""
+    B = 4
+    tr, g1, gnss, imu, s0, cb = _final(B, duration=30.0)
+    traces = []
+    for k in range(4):
+        vis = np.array(gnss.visible)
+        keep = np.cumsum(vis, -1) <= k
+        g = replace(gnss, visible=vis & keep)
+        traces.append(run_ekf(s0, imu, FRAME, NOISE, gnss=g))
+    tr_pos = [np.trace(t.P[:, -1, :3, :3], axis1=-2, axis2=-1).mean() for t in traces]
+    assert all(np.isfinite(t.p).all() for t in traces)
+    assert tr_pos[0] > tr_pos[1] > tr_pos[2] > tr_pos[3], tr_pos
