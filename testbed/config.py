@@ -28,6 +28,7 @@ from testbed.flight.settings import (
 )
 from testbed.integrity.registry import MonitorName
 from testbed.integrity.settings import IntegritySettings
+from testbed.sensors.imu.settings import ImuSettings
 from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir, shipped_or_path
 from testbed.schema import ConfigError, StrictModel, format_validation_error
 from testbed.sensors.faults import Fault
@@ -61,6 +62,8 @@ class ApproachConfig(StrictModel):
     landmarks: LandmarkSettings = LandmarkSettings()
     integrity: IntegritySettings = IntegritySettings()
     va_raim: dict[str, Any] = Field(default_factory=dict, description="VA-RAIM options (VaRaimSettings without integrity)")
+    imu: ImuSettings = Field(default_factory=ImuSettings, description="the IMU (read when a monitor uses it: ekf)")
+    ekf: dict[str, Any] = Field(default_factory=dict, description="ekf monitor options (navigation.monitor.EkfSettings)")
     monitors: list[MonitorName] = Field(default_factory=lambda: list(MONITORS), min_length=1,
                                 description="monitor names (testbed.integrity.registry)")
     faults: list[Fault] = Field(default_factory=list, description="fault schedule ([[faults]] tables)")

@@ -330,6 +330,25 @@ class ImuSamples:
     dt: float = field()
     lever_arm_body: NDArray = field()
     earth_rotation: bool = field()
+    figures: dict = field(default_factory=dict)  # the grade's published error figures (ImuSettings.figures)
+
+
+@dataclass(frozen=True)
+class NavInit:
+    """The alignment pseudo-sensor (NAV_FILTER.md §3): an initial navigation state with its published 1σ.
+
+    t : start time (s).  C : (B..., 3, 3) body → world.  v, p : (B..., 3) world frame, IMU point.
+    clock_bias, clock_drift : (B...) m, m/s.  sigma : (17,) 1σ of position, velocity, attitude
+    (roll/pitch/heading about the world axes), accelerometer and gyro biases, clock bias and drift.
+    """
+
+    t: float
+    C: NDArray
+    v: NDArray
+    p: NDArray
+    clock_bias: NDArray
+    clock_drift: NDArray
+    sigma: NDArray
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,8 @@ from testbed.flight.kinematic import straight_truth
 from testbed.inertial import body_to_world, local_to_world, so3_log
 from testbed.navigation.ekf import (CB, N, ClockNoise, ImuNoise, NavState, inject,
                                     nominal_step, pixel_rows, pseudorange_rows, transition)
-from testbed.navigation.run import initial_state, run_ekf
+from testbed.navigation.run import run_ekf, state_from_init
+from testbed.sensors.imu.alignment import align
 from testbed.sensors.gnss.errors import receiver_clock
 from testbed.sensors.imu import ImuSettings, sample_imu
 from testbed.world.airport import runway_frame
@@ -102,10 +103,8 @@ def _final(B, duration=40.0, seed=0):
     gnss = replace(gnss, t=g1.t, pseudorange=pr)
     C0 = body_to_world(FRAME, tr.pos_enu[0], tr.q_body_to_enu[0])
     v0 = local_to_world(FRAME, tr.pos_enu[0], tr.vel_enu[0])
-    f = IMU.figures()
-    s0, _ = initial_state(C0, v0, tr.pos_enu[0], (cb[:, 0], cd[:, 0]),
-                          (np.hypot(f["accel_bias"], f["accel_inrun"]), np.hypot(f["gyro_bias"], f["gyro_inrun"])),
-                          np.random.default_rng(seed + 3), B)
+    init = align(tr.t[0], C0, v0, tr.pos_enu[0], cb[:, 0], cd[:, 0], IMU.figures(), np.random.default_rng(seed + 3), B)
+    s0 = state_from_init(init)
     return tr, g1, gnss, imu, s0, cb
 
 

@@ -39,7 +39,7 @@ from typing import Any, ClassVar, Mapping, Protocol, runtime_checkable
 
 from testbed.frames import LocalFrame
 from testbed.integrity.settings import IntegritySettings
-from testbed.records import GnssEpochs, MonitorOutput, VisionEpochs
+from testbed.records import GnssEpochs, ImuSamples, MonitorOutput, NavInit, VisionEpochs
 
 #: what a monitor's position estimate refers to (evaluation picks the matching truth)
 ANTENNA = "antenna"
@@ -54,11 +54,15 @@ class Observations:
     """One block of what the sensors report (no truth), batch-first, at the monitor epochs.
 
     gnss : GnssEpochs (B..., T, S).  vision : VisionEpochs at the same epochs, or None
-    when no monitor of the run reads vision.
+    when no monitor of the run reads vision.  imu : the IMU intervals of the block (None
+    unless a monitor reads "imu").  init : the alignment (:class:`~testbed.records.NavInit`),
+    with the first block only.
     """
 
     gnss: GnssEpochs
     vision: VisionEpochs | None = None
+    imu: ImuSamples | None = None
+    init: NavInit | None = None
 
     @property
     def t(self):

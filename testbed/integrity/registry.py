@@ -21,6 +21,7 @@ _SHIPPED = {
     "gps_raim": ("testbed.integrity.raim:build_monitor", frozenset({"gnss"})),
     "va_raim": ("testbed.integrity.va_raim:build_monitor", frozenset({"gnss", "vision"})),
     "pixel": ("testbed.integrity.pixel:build_monitor", frozenset({"gnss", "vision"})),
+    "ekf": ("testbed.navigation.monitor:build_monitor", frozenset({"gnss", "vision", "imu"})),
 }
 _ADDED: dict[str, tuple[Builder, frozenset[str]]] = {}
 
@@ -75,6 +76,10 @@ def monitor_inputs(name: str) -> frozenset[str]:
 
 def reads_vision(names) -> bool:
     return any("vision" in monitor_inputs(n) for n in names)
+
+
+def reads_imu(names) -> bool:
+    return any("imu" in monitor_inputs(n) for n in names)
 
 
 def build_monitor(name: str, context: MonitorContext) -> Monitor:

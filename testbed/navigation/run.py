@@ -1,8 +1,8 @@
 """Driving the EKF core over a flight: predict through the IMU intervals, update at each aiding epoch.
 
-:func:`initial_state` is the alignment pseudo-sensor of NAV_FILTER.md §3 (the start
-pose ⊕ a draw from the published P₀); :func:`run_ekf` returns an :class:`EkfTrace`
-at the GNSS epochs. Batched over trials; GNSS and vision records may or may not
+:func:`state_from_init` starts the filter from the alignment pseudo-sensor
+(:func:`testbed.sensors.imu.alignment.align`); :func:`run_ekf` returns an
+:class:`EkfTrace` at the aiding epochs and the state after them. Batched over trials; GNSS and vision records may or may not
 carry the trial axis.
 """
 
@@ -14,45 +14,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
-from testbed.inertial import so3_exp
-from testbed.navigation.ekf import BA, BG, CB, CD, N, P_, PSI, V_, ClockNoise, ImuNoise, NavState, pixel_rows, \
-    predict, pseudorange_rows, update
-from testbed.records import GnssEpochs, ImuSamples, VisionEpochs
+from testbed.navigation.ekf import N, ClockNoise, ImuNoise, NavState, pixel_rows, predict, pseudorange_rows, update
+from testbed.records import GnssEpochs, ImuSamples, NavInit, VisionEpochs
 
 
-@dataclass(frozen=True)
-class InitSigmas:
-    """The alignment's published 1σ (NAV_FILTER.md §3)."""
-
-    pos_m: float = 3.0
-    vel_m_s: float = 0.1
-    roll_pitch_rad: float = np.radians(0.05)
-    heading_rad: float = np.radians(0.2)
-    clock_bias_m: float = 100.0
-    clock_drift_m_s: float = 1.0
-
-
-def initial_state(C: NDArray, v: NDArray, p: NDArray, clock: tuple[NDArray, NDArray], imu_bias_sigma: tuple[float, float],
-                  rng: np.random.Generator, n_trials: int, sig: InitSigmas = InitSigmas()) -> tuple[NavState, NDArray]:
-    """The true start (C (3, 3) body→world, v, p (3,), clock bias and drift (B,) or scalars) ⊕ ξ, ξ ~ N(0, P₀).
-
-    Returns the state and the drawn ξ (B, 17) (the filter's initial error, for NEES).
-    imu_bias_sigma : (accel, gyro) turn-on 1σ (the biases start at 0 with that uncertainty).
-    """
-    sd = np.zeros(N)
-    sd[P_], sd[V_] = sig.pos_m, sig.vel_m_s
-    # attitude: roll/pitch about the body's horizontal axes, heading about up (world)
-    sd[PSI] = [sig.roll_pitch_rad, sig.roll_pitch_rad, sig.heading_rad]
-    sd[BA], sd[BG] = imu_bias_sigma
-    sd[CB], sd[CD] = sig.clock_bias_m, sig.clock_drift_m_s
-    xi = rng.standard_normal((n_trials, N)) * sd
-    xi[:, BA] = 0.0  # the true biases are the IMU's own draw: the filter starts at zero
-    xi[:, BG] = 0.0
-    cb, cd = (np.broadcast_to(np.asarray(c, float), (n_trials,)) for c in clock)
-    s = NavState(C=so3_exp(-xi[:, PSI]) @ C, v=v - xi[:, V_], p=p - xi[:, P_], ba=np.zeros((n_trials, 3)),
-                 bg=np.zeros((n_trials, 3)), cb=cb - xi[:, CB], cd=cd - xi[:, CD],
-                 P=np.broadcast_to(np.diag(sd**2), (n_trials, N, N)).copy())
-    return s, xi
+def state_from_init(init: NavInit, n_trials: int | None = None) -> NavState:
+    """The filter's state at the alignment: its estimate, biases at zero, P₀ = diag(σ²)."""
+    C = np.asarray(init.C, float)
+    B = C.shape[0] if C.ndim == 3 else (1 if n_trials is None else int(n_trials))
+    bc = lambda a, tail: np.broadcast_to(np.asarray(a, float), (B,) + tail).copy()  # noqa: E731
+    return NavState(C=bc(C, (3, 3)), v=bc(init.v, (3,)), p=bc(init.p, (3,)), ba=np.zeros((B, 3)),
+                    bg=np.zeros((B, 3)), cb=bc(init.clock_bias, ()), cd=bc(init.clock_drift, ()),
+                    P=np.broadcast_to(np.diag(np.asarray(init.sigma, float) ** 2), (B, N, N)).copy())
 
 
 @dataclass(frozen=True)
@@ -75,7 +48,15 @@ class EkfTrace:
 def run_ekf(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None = None,
             vision: VisionEpochs | None = None, clock: ClockNoise = ClockNoise(), t_aid: NDArray | None = None,
             dither_sigma_px: float = 0.0) -> EkfTrace:
-    """Predict through every IMU interval and update at each aiding epoch (GNSS epochs, or ``t_aid``)."""
+    """Predict through the IMU intervals and update at each aiding epoch (GNSS epochs, or ``t_aid``)."""
+    return filter_epochs(s, imu, frame, imu_noise, gnss, vision, clock, t_aid, dither_sigma_px)[0]
+
+
+def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None,
+                  vision: VisionEpochs | None, clock: ClockNoise, t_aid: NDArray | None = None,
+                  dither_sigma_px: float = 0.0, through_end: bool = False) -> tuple[EkfTrace, NavState]:
+    """:func:`run_ekf`, and the state after the last aiding epoch (``through_end``: after every IMU
+    interval given, as a block of a live run needs to hand on)."""
     B = s.p.shape[0]
     t_aid = np.asarray(gnss.t if gnss is not None else t_aid, float)
     T = t_aid.size
@@ -99,8 +80,15 @@ def run_ekf(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise
             out[name].append(getattr(s, name))
         out["nis"].append(nis)
         out["dof"].append(dof)
-    st = {k: np.stack(v, 1) for k, v in out.items()}
-    return EkfTrace(t=t_aid, **st)
+    while through_end and k_imu < imu.t.size:
+        s = predict(s, dth[:, k_imu], dvl[:, k_imu], imu.dt, frame, imu_noise, clock, imu.earth_rotation)
+        k_imu += 1
+    st = {k: (np.stack(v, 1) if v else np.zeros((B, 0) + _SHAPES[k])) for k, v in out.items()}
+    return EkfTrace(t=t_aid, **st), s
+
+
+_SHAPES = {"p": (3,), "v": (3,), "C": (3, 3), "ba": (3,), "bg": (3,), "cb": (), "cd": (), "P": (N, N), "nis": (),
+           "dof": ()}
 
 
 def _at(a: NDArray, k: int, tail: int, B: int) -> NDArray:

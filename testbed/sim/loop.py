@@ -26,13 +26,17 @@ import numpy as np
 from testbed.flight.fly import FlightResult, fly, truth_from_rows
 from testbed.integrity.fde import measurement_label
 from testbed.integrity.monitor import ANTENNA, Observations
-from testbed.records import GnssEpochs, GnssTruth, MonitorOutput, Truth, concat_epochs, take_epochs
+from testbed.inertial import body_to_world, local_to_world
+from testbed.records import GnssEpochs, GnssTruth, ImuSamples, MonitorOutput, Truth, concat_epochs, take_epochs
 from testbed.sensors.faults import GNSS_KINDS
 from testbed.sensors.gnss.almanac import load_constellation
+from testbed.sensors.imu import ImuErrorStream, apply_errors, true_increments
+from testbed.sensors.imu.alignment import align
 from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.vision import detect as vdetect
 from testbed.sim import slicing
+from testbed.schema import ConfigError
 from testbed.sim.setup import RunSetup
 
 INFO, WARN, ERROR = "INFO", "WARN", "ERROR"
@@ -104,6 +108,13 @@ def sensor_seeds(seed: int) -> tuple[np.ndarray, np.ndarray]:
     return g.generate_state(4), v.generate_state(4)
 
 
+def imu_seeds(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seed words of the IMU errors and of the alignment (children 2 and 3: the GNSS and vision streams
+    of :func:`sensor_seeds` are unchanged)."""
+    kids = np.random.SeedSequence(seed).spawn(4)
+    return kids[2].generate_state(4), kids[3].generate_state(4)
+
+
 class _Runner:
     """The observer that turns flight steps into blocks of observations and monitor outputs."""
 
@@ -115,6 +126,18 @@ class _Runner:
         self.v_step = max(1, int(round(1.0 / (setup.vision.rate_hz * dt)))) if setup.uses_vision else self.g_step
         if self.g_step % self.v_step:
             self.v_step = self.g_step  # vision epochs must include the GNSS epochs
+        self.uses_imu = any("imu" in m.inputs for m in setup.monitors)
+        # truth rows are kept at the fastest sensor rate (the IMU's when a monitor reads it)
+        self.r_step = self.v_step
+        if self.uses_imu:
+            self.r_step = max(1, int(round(1.0 / (setup.imu.rate_hz * dt))))
+            if self.v_step % self.r_step or abs(self.r_step * setup.imu.rate_hz * dt - 1.0) > 1e-6:
+                raise ConfigError(setup.approach.source, [
+                    f"imu.rate_hz ({setup.imu.rate_hz:g}): expected a divisor of the flight rate "
+                    f"{1.0 / dt:g} Hz and a multiple of the vision / GNSS rates"])
+        self.imu_stream = None
+        self.imu_prev: Truth | None = None  # the last IMU-rate truth sample of the previous block
+        self.seed_imu, self.seed_align = imu_seeds(seed)
         self.block_steps = max(self.g_step, int(round(block_s / dt / self.g_step)) * self.g_step)
         self.seed_gnss, self.seed_vision = sensor_seeds(seed)
         self.start_utc = cfg.start_time_utc
@@ -143,7 +166,7 @@ class _Runner:
     def on_step(self, k: int, row: tuple) -> None:
         if self.t0 is None:
             self.t0 = row[0]
-        if k % self.v_step == 0:
+        if k % self.r_step == 0:
             self.pending.append(row)
             self.pending_k.append(k)
         if k > 0 and k % self.block_steps == self.block_steps - 1:
@@ -156,7 +179,10 @@ class _Runner:
         rows, ks = self.pending, np.asarray(self.pending_k)
         self.pending, self.pending_k = [], []
         s = self.setup
-        truth_v = truth_from_rows(rows, s.frame, t0=self.t0)
+        truth_r = truth_from_rows(rows, s.frame, t0=self.t0)
+        v_rows = np.flatnonzero(ks % self.v_step == 0)
+        truth_v = truth_r.at_indices(v_rows)
+        ks = ks[v_rows]
         g_sel = np.flatnonzero(ks % self.g_step == 0)
         truth_g = truth_v.at_indices(g_sel)
         block = LoopBlock(t=truth_g.t, truth=truth_g, gnss=None, gnss_truth=None, los_enu=None, antenna_enu=None,
@@ -197,10 +223,11 @@ class _Runner:
             self.parts["vision"].append(block.vision)
             self.parts["vision_truth"].append(block.vision_truth)
             v_at_g = take_epochs(block.vision, g_sel)
+        imu, init = self._imu(truth_r, block) if self.uses_imu else (None, None)
         t_b = time.perf_counter()
         self.timings.sensors += t_b - t_a
         if block.gnss is not None:
-            self._monitors(block, v_at_g)
+            self._monitors(block, v_at_g, imu, init)
         t_c = time.perf_counter()
         self.timings.monitors += t_c - t_b
         self._events(block)
@@ -209,8 +236,30 @@ class _Runner:
         self.timings.logging += time.perf_counter() - t_c
 
     # -- monitors --------------------------------------------------------------
-    def _monitors(self, block: LoopBlock, v_at_g) -> None:
-        obs = Observations(block.gnss, v_at_g)
+    def _imu(self, truth_r: Truth, block: LoopBlock):
+        """The block's IMU intervals (continuing the last block's) and, with the first block, the alignment."""
+        s = self.setup
+        init = None
+        joined = truth_r if self.imu_prev is None else concat_epochs([self.imu_prev, truth_r])
+        t, dth, dvl, dt = true_increments(joined, s.imu)
+        if self.imu_stream is None:
+            self.imu_stream = ImuErrorStream(s.imu, 1.0 / s.imu.rate_hz, np.random.default_rng(self.seed_imu))
+            first = truth_r.at_indices(np.array([0]))
+            C = body_to_world(s.frame, first.pos_enu[0], first.q_body_to_enu[0])
+            v = local_to_world(s.frame, first.pos_enu[0], first.vel_enu[0])
+            cb = float(np.asarray(block.gnss_truth.clock_bias).reshape(-1)[0]) if block.gnss_truth is not None else 0.0
+            init = align(float(first.t[0]), C, v, first.pos_enu[0], cb, 0.0, s.imu.figures(),
+                         np.random.default_rng(self.seed_align))
+        err = self.imu_stream.draw(t.size)
+        d_th, d_v = apply_errors(dth, dvl, self.imu_stream, err)
+        self.imu_prev = truth_r.at_indices(np.array([len(truth_r.t) - 1]))
+        imu = ImuSamples(t=t, dtheta=d_th, dvel=d_v, dt=1.0 / s.imu.rate_hz,
+                         lever_arm_body=np.asarray(s.imu.lever_arm_body_m, float), earth_rotation=s.imu.earth_rotation,
+                         figures=s.imu.figures())
+        return imu, init
+
+    def _monitors(self, block: LoopBlock, v_at_g, imu=None, init=None) -> None:
+        obs = Observations(block.gnss, v_at_g, imu, init)
         cg_enu = self.setup.frame.ecef_to_enu(block.truth.pos_ecef)
         for mon in self.setup.monitors:
             t0 = time.perf_counter()

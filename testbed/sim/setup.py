@@ -39,6 +39,7 @@ class RunSetup:
     integrity: IntegritySettings
     monitors: tuple[Monitor, ...]
     faults: tuple
+    imu: object = None  # ImuSettings (read when a monitor reads "imu")
 
     @property
     def monitor_names(self) -> tuple[str, ...]:
@@ -101,7 +102,7 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
     monitors = build_monitors(approach, frame, monitor_threads)
     return RunSetup(approach=approach, frame=frame, path=path, terrain=terrain, gnss=gnss,
                     antenna=antenna_mount(approach), vision=vision, landmarks=build_landmarks(c.landmarks),
-                    integrity=c.integrity, monitors=monitors, faults=tuple(c.faults))
+                    integrity=c.integrity, monitors=monitors, faults=tuple(c.faults), imu=c.imu)
 
 
 def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = None) -> tuple[Monitor, ...]:
