@@ -211,6 +211,7 @@ class NotVisible(IntEnum):
     TOO_FAR = 5
     TOO_SMALL = 6
     UNHEALTHY = 7
+    EXCLUDED = 8  # above the mask and in view, but not tracked (a cap of the GNSS schedule)
 
 
 @dataclass(frozen=True)

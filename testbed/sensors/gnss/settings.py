@@ -15,6 +15,13 @@ from pydantic import Field, model_validator
 from testbed.schema import StrictModel
 
 
+class SatelliteCap(StrictModel):
+    """From ``from_s`` (s after the approach's start) on, at most ``max_satellites`` are tracked."""
+
+    from_s: float = Field(..., ge=0.0)
+    max_satellites: int = Field(..., ge=0, le=64)
+
+
 class GnssSettings(StrictModel):
     """GPS receiver, constellation and error-model settings."""
 
@@ -41,12 +48,23 @@ class GnssSettings(StrictModel):
     range_rate_sigma_m_s: float = Field(0.05, ge=0.0, description="range-rate (Doppler) noise 1σ (m/s), white")
     clock_model: bool = Field(True, description="two-state receiver clock (bias, drift random walk); "
                                                 "False = zero clock")
+    schedule: list[SatelliteCap] = Field(
+        default_factory=list, description="caps on the satellites tracked over time (the highest kept; the rest "
+                                          "reported EXCLUDED): steeper walls than the terrain model, or a study "
+                                          "of 0-3 satellites")
     clock_bias0_sigma_m: float = Field(100.0, ge=0.0, description="initial receiver clock bias 1σ (m)")
     clock_drift0_sigma_m_s: float = Field(1.0, ge=0.0, description="initial receiver clock drift 1σ (m/s)")
     clock_sf_m2_s: float = Field(
         9.0e-3, ge=0.0, description="clock white-FM spectral density S_f = c²·h0/2 (m²/s); TCXO h0 = 2e-19")
     clock_sg_m2_s3: float = Field(
         3.55e-2, ge=0.0, description="clock random-walk-FM density S_g = c²·2π²·h-2 (m²/s³); TCXO h-2 = 2e-20")
+
+    @model_validator(mode="after")
+    def _schedule_ordered(self):
+        times = [c.from_s for c in self.schedule]
+        if times != sorted(times) or len(set(times)) != len(times):
+            raise ValueError(f"schedule: expected strictly increasing from_s, got {times}")
+        return self
 
     @model_validator(mode="after")
     def _path_needed(self):

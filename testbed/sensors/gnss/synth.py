@@ -41,7 +41,7 @@ from testbed.sensors.gnss.errors import (IONO_FREE_FACTOR, receiver_clock, sigma
 from testbed.sensors.gnss.orbits import Ephemeris, sat_states
 from testbed.sensors.gnss.settings import GnssSettings
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
-from testbed.sensors.gnss.visibility import antenna_state, classify
+from testbed.sensors.gnss.visibility import antenna_state, apply_schedule, classify
 
 _LIGHT_TIME_ITERATIONS = 3
 
@@ -177,6 +177,8 @@ def gnss_geometry(truth: Truth, antenna: Mount, settings: GnssSettings, *, start
 
     def shaped(a: NDArray) -> NDArray:
         return a.reshape(lead + a.shape[1:])
+
+    reason = apply_schedule(shaped(reason), shaped(el), t, settings.schedule).reshape(reason.shape)
 
     return GnssGeometry(t=t, t_gps=t_gps.reshape(lead), prn=np.asarray(eph.prn), eph=eph, antenna=antenna,
                         ant_pos_ecef=ant_pos, ant_vel_ecef=ant_vel, sat_pos_ecef=shaped(sat_pos),

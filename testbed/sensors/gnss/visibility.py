@@ -83,3 +83,20 @@ def classify(los_ecef: NDArray, ant_pos_ecef: NDArray, R_e2n: NDArray, R_b2e: ND
         reason[(reason == 0) & (el_body < np.radians(airframe_mask_deg))] = NotVisible.AIRFRAME
     reason[(reason == 0) & (np.asarray(health)[None, :] != 0)] = NotVisible.UNHEALTHY
     return el, az, el_body, reason
+
+
+def apply_schedule(reason: NDArray, elevation: NDArray, t: NDArray, schedule) -> NDArray:
+    """``reason`` (..., T, S) with the schedule's caps: at each epoch (flight time ``t`` (T,)) the
+    visible satellites beyond the cap in force, lowest elevations first, become EXCLUDED."""
+    if not schedule:
+        return reason
+    t = np.asarray(t, float)
+    starts = np.array([c.from_s for c in schedule])
+    caps = np.array([c.max_satellites for c in schedule])
+    k = np.searchsorted(starts, t, side="right") - 1
+    cap = np.where(k >= 0, caps[np.maximum(k, 0)], np.iinfo(np.int32).max)  # (T,)
+    vis = reason == 0
+    rank = np.argsort(np.argsort(np.where(vis, -elevation, np.inf), axis=-1, kind="stable"), axis=-1, kind="stable")
+    out = reason.copy()
+    out[vis & (rank >= cap[:, None])] = NotVisible.EXCLUDED
+    return out
