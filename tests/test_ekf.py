@@ -201,3 +201,21 @@ def test_vision_rows_alone_keep_the_filter_consistent_and_bound_the_drift():
     drift_vis = np.sqrt(np.mean(np.sum(e**2, -1)))
     drift_ins = np.sqrt(np.mean(np.sum((g1.pos_enu[-1] - ins.p[:, -1]) ** 2, -1)))
     assert drift_vis < drift_ins, (drift_vis, drift_ins)
+
+
+def test_compiled_predict_equals_the_numpy_one():
+    """The kernel the filter runs against the readable numpy predict: 240 steps, relative 1e-10."""
+    from testbed.navigation.ekf import predict, predict_compiled
+
+    rng = np.random.default_rng(9)
+    s = _state(rng, 3)
+    a = b = s
+    clock = ClockNoise()
+    for _ in range(240):
+        dth = rng.normal(0, 0.3, (3, 3)) / 120
+        dvl = (np.array([0.5, 0.1, -9.8]) + rng.normal(0, 1, (3, 3))) / 120
+        a = predict(a, dth, dvl, 1 / 120, FRAME, NOISE, clock)
+        b = predict_compiled(b, dth, dvl, 1 / 120, FRAME, NOISE, clock)
+    for f in ("C", "v", "p", "ba", "bg", "cb", "cd", "P"):
+        np.testing.assert_allclose(getattr(b, f), getattr(a, f), rtol=1e-10, atol=1e-12 * np.abs(getattr(a, f)).max(),
+                                   err_msg=f)

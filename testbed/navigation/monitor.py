@@ -76,6 +76,16 @@ class EkfMonitor:
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision", "imu"})
     reference: ClassVar[str] = REFERENCE_POINT
 
+    def prepare(self) -> None:
+        """Compile the predict kernel (numba caches it beside the package) before the first epoch."""
+        from testbed.navigation import kernels  # noqa: F401  (import compiles nothing; one call does)
+        from testbed.navigation.ekf import predict_compiled
+        from testbed.frames import LocalFrame
+
+        s = state_from_init(_dummy_init())
+        predict_compiled(s, np.zeros((1, 3)), np.zeros((1, 3)), 0.01, LocalFrame(0.0, 0.0, 0.0),
+                         ImuNoise(0.0, 0.0, 0.0, 0.0, 1.0, 1.0), ClockNoise())
+
     def initial_state(self) -> EkfState:
         return EkfState()
 
@@ -134,6 +144,13 @@ class EkfMonitor:
             service_levels=tuple(st.service_levels), n_used=np.zeros(lead + (T,), np.int16),
             excluded=np.full(lead + (T,), -1, np.int16), reason=np.full(lead + (T,), NOT_INITIALISED, np.int8),
             reasons=EKF_REASONS, diagnostics=diag)
+
+
+def _dummy_init():
+    from testbed.records import NavInit
+
+    return NavInit(t=0.0, C=np.eye(3), v=np.zeros(3), p=np.zeros(3), clock_bias=np.zeros(()), clock_drift=np.zeros(()),
+                   sigma=np.ones(17))
 
 
 def build_monitor(context: MonitorContext, options) -> EkfMonitor:

@@ -14,7 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
-from testbed.navigation.ekf import N, ClockNoise, ImuNoise, NavState, pixel_rows, predict, pseudorange_rows, update
+from testbed.navigation.ekf import N, ClockNoise, ImuNoise, NavState, pixel_rows, pseudorange_rows, update
+from testbed.navigation.ekf import predict_compiled as predict
 from testbed.records import GnssEpochs, ImuSamples, NavInit, VisionEpochs
 
 
@@ -65,9 +66,11 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
     dth = np.broadcast_to(imu.dtheta, (B,) + imu.dtheta.shape[-2:])
     dvl = np.broadcast_to(imu.dvel, (B,) + imu.dvel.shape[-2:])
     for k in range(T):
-        while k_imu < imu.t.size and imu.t[k_imu] <= t_aid[k] + 1e-9:
-            s = predict(s, dth[:, k_imu], dvl[:, k_imu], imu.dt, frame, imu_noise, clock, imu.earth_rotation)
-            k_imu += 1
+        k_end = int(np.searchsorted(imu.t, t_aid[k] + 1e-9, side="right"))
+        if k_end > k_imu:  # every IMU interval up to this epoch, in one compiled pass
+            s = predict(s, dth[:, k_imu:k_end], dvl[:, k_imu:k_end], imu.dt, frame, imu_noise, clock,
+                        imu.earth_rotation)
+            k_imu = k_end
         nis = np.zeros(B)
         dof = np.zeros(B, np.int64)
         if gnss is not None:
@@ -80,9 +83,8 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
             out[name].append(getattr(s, name))
         out["nis"].append(nis)
         out["dof"].append(dof)
-    while through_end and k_imu < imu.t.size:
-        s = predict(s, dth[:, k_imu], dvl[:, k_imu], imu.dt, frame, imu_noise, clock, imu.earth_rotation)
-        k_imu += 1
+    if through_end and k_imu < imu.t.size:
+        s = predict(s, dth[:, k_imu:], dvl[:, k_imu:], imu.dt, frame, imu_noise, clock, imu.earth_rotation)
     st = {k: (np.stack(v, 1) if v else np.zeros((B, 0) + _SHAPES[k])) for k, v in out.items()}
     return EkfTrace(t=t_aid, **st), s
 
