@@ -311,7 +311,8 @@ def _toml(v) -> str:
     return json.dumps(v) if isinstance(v, str) else str(v)
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=40, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])  # the same 40 cases on every machine
 @given(key=st.sampled_from(KEYS), value=VALUES)
 def test_fuzzed_approach_values_give_a_clear_error_or_a_valid_run(tmp_path_factory, key, value):
     """Any value at any of these keys: ``check_file`` returns problems that name the key, or none
@@ -382,3 +383,18 @@ def test_new_campaign_options_are_checked(work, capsys):
     code, out = run(capsys, "campaign", spec, "--out", inputs / "o")
     assert code == 2 and "sweep.va_raim_variant.0" in out and "nope" in out, out
     assert not (inputs / "o").exists()
+
+
+def test_a_path_too_steep_to_trim_names_the_speed_and_the_path(tmp_path):
+    """The fuzz found it on a fresh machine: an 8° glide path at 160 kt does not trim; the message names
+    both keys that set the trim condition."""
+    from testbed.api import check_file
+
+    import re
+
+    text = re.sub(r"(?m)^glide_path_deg = .*$", "glide_path_deg = 8.0", BASE)
+    assert "glide_path_deg = 8.0" in text
+    p = tmp_path / "steep.toml"
+    p.write_text(text)
+    problems = check_file(p)
+    assert problems and any("glide_path_deg = 8" in q and "speed_kt" in q for q in problems), problems

@@ -173,8 +173,12 @@ def check_trim(approach: Approach, terrain) -> None:
         fl = plan.flight
         src, key = ((approach.source, "flight.speed_kt") if fl.speed_kt is not None
                     else (approach.aircraft_source, "approach.speed_kt"))
+        v = plan.vertical
+        path = (f"vertical.constraints: a {-ic.flight_path_deg:.1f}° descent" if v.constraints
+                else f"vertical.glide_path_deg = {v.glide_path_deg:g}")
         raise ConfigError(src, [f"{key} = {ic.calibrated_airspeed_kt:g}: the aircraft does not trim at the start "
-                                f"({ic.h:.0f} m, flaps {flaps:g}): {exc}; expected a speed it can fly there"]) from None
+                                f"({ic.h:.0f} m, flaps {flaps:g}, {path}): {exc}; expected a speed it can fly "
+                                f"on that path, or a shallower path"]) from None
 
 
 def check_output_file(path, option: str, suffixes: tuple[str, ...]) -> None:
