@@ -117,6 +117,31 @@ FILE_CASES = [
      "va_raim.linearity_inflation", "nan"),
     ("negative-linearity-inflation", lambda d: approach(d, tail="[va_raim]\nlinearity_inflation = -1.0"),
      "va_raim.linearity_inflation", "-1.0"),
+    # the options of this change: FDE, the pixel monitor, the IMU, the ekf monitor, the GNSS schedule
+    ("fde-three-exclusions", lambda d: approach(d, tail="[integrity]\nfde_max_excluded = 3"),
+     "integrity.fde_max_excluded", "3"),
+    ("unknown-fde-rule", lambda d: approach(d, tail='[integrity]\nfde_rule = "worst"'), "integrity.fde_rule", "worst"),
+    ("unknown-pixel-h1", lambda d: approach(d, tail='[integrity]\npixel_h1 = "axial"'), "integrity.pixel_h1", "axial"),
+    ("zero-landmark-cap", lambda d: approach(d, tail="[integrity]\npixel_max_landmarks = 0"),
+     "integrity.pixel_max_landmarks", "0"),
+    ("imu-rate-not-a-divisor", lambda d: approach(d, top='monitors = ["gps_raim", "ekf"]', tail="[imu]\nrate_hz = 50.0"),
+     "imu.rate_hz", "50"),
+    ("nan-imu-rate", lambda d: approach(d, tail="[imu]\nrate_hz = nan"), "imu.rate_hz", "nan"),
+    ("custom-imu-without-figures", lambda d: approach(d, tail='[imu]\ngrade = "custom"\narw_rad_sqrt_s = 1e-4'),
+     "imu", "custom"),
+    ("negative-scale-factor", lambda d: approach(d, tail="[imu]\nscale_factor_ppm = -5.0"),
+     "imu.scale_factor_ppm", "-5"),
+    ("unknown-ekf-option", lambda d: approach(d, top='monitors = ["gps_raim", "ekf"]', tail="[ekf]\nfoo = 1"),
+     "ekf", "foo"),
+    ("negative-ekf-dither", lambda d: approach(d, top='monitors = ["gps_raim", "ekf"]', tail="[ekf]\ndither_sigma_px = -1.0"),
+     "ekf.dither_sigma_px", "-1"),
+    ("schedule-out-of-order", lambda d: approach(d, tail="[gnss]\nschedule = [{ from_s = 5.0, max_satellites = 2 }, "
+                                                         "{ from_s = 1.0, max_satellites = 3 }]"),
+     "gnss.schedule", "5.0"),
+    ("negative-satellite-cap", lambda d: approach(d, tail="[gnss]\nschedule = [{ from_s = 0.0, max_satellites = -1 }]"),
+     "gnss.schedule.0.max_satellites", "-1"),
+    ("nan-schedule-time", lambda d: approach(d, tail="[gnss]\nschedule = [{ from_s = nan, max_satellites = 2 }]"),
+     "gnss.schedule.0.from_s", "nan"),
 ]
 
 

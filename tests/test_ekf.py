@@ -76,7 +76,7 @@ def test_transition_matches_finite_differences_of_the_mechanisation():
     s1, C_mid, f_w, g = nominal_step(s, dth, dvl, dt, FRAME, NOISE)
     from testbed.inertial import earth_rate_world
 
-    Phi = transition(C_mid, f_w, s.p, dt, earth_rate_world(FRAME), NOISE.tau_gyro, NOISE.tau_accel,
+    Phi = transition(C_mid, f_w, dt, earth_rate_world(FRAME), NOISE.tau_gyro, NOISE.tau_accel,
                      np.linalg.norm(g, axis=-1))
     for i in range(N):
         eps = {0: 1e-2, 1: 1e-3, 2: 1e-6, 3: 1e-4, 4: 1e-6, 5: 1e-2, 6: 1e-3}[min(i // 3, 6) if i < 15 else 5]
@@ -126,7 +126,8 @@ def _nees_blocks(trace, g1, cb) -> dict[str, np.ndarray]:
 def test_nees_and_nis_inside_their_chi2_bands_with_seven_satellites():
     """T-NEES-1/T-NIS-1 (straight, 7 satellites, 80 runs from the alignment's P₀): the mean NEES of
     position, velocity and attitude (3 dof each) and of the clock bias (1 dof) is inside its two-sided
-    99 % χ² band at ≥ 95 % of the 41 epochs, and the NIS summed over runs and epochs inside its band."""
+    99 % χ² band at ≥ 95 % of the 41 epochs, the NIS summed over runs and epochs inside its band, and
+    the innovation test's false alarms at P_FA = 1e-2 inside their binomial interval."""
     B = 80
     tr, g1, gnss, imu, s0, cb = _final(B)
     trace = run_ekf(s0, imu, FRAME, NOISE, gnss=gnss)
@@ -137,6 +138,11 @@ def test_nees_and_nis_inside_their_chi2_bands_with_seven_satellites():
     dof = trace.dof[:, 1:].sum()
     lo, hi = stats.chi2.ppf([0.005, 0.995], dof)
     assert lo <= trace.nis[:, 1:].sum() <= hi
+    # the ekf monitor's innovation test at P_FA = 1e-2: alerts inside the binomial 99 % interval
+    d = trace.dof[:, 1:]
+    alerts = int((trace.nis[:, 1:] > stats.chi2.isf(1e-2, d)).sum())
+    lo, hi = stats.binom.interval(0.99, d.size, 1e-2)
+    assert lo <= alerts <= hi, (alerts, lo, hi, d.size)
 
 
 def test_the_filter_runs_with_zero_to_three_satellites_and_more_satellites_shrink_the_covariance():

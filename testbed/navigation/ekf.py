@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
-from testbed.inertial import earth_rate_world, gravity_world, mechanise_step, normal_gravity, skew, so3_exp
+from testbed.inertial import earth_rate_world, gravity_world, mechanise_step, skew, so3_exp
 from testbed.integrity.pixel_model import project_landmarks
 
 N = 17
@@ -75,15 +75,19 @@ class NavState:
     P: NDArray  # (B, 17, 17)
 
 
-def transition(C: NDArray, f_w: NDArray, p: NDArray, dt: float, w_ie: NDArray, tau_g: float, tau_a: float,
-               g0: NDArray) -> NDArray:
-    """Φ (B, 17, 17) of one step with the specific force f_w (B, 3) and attitude C constant over it."""
+def transition(C: NDArray, f_w: NDArray, dt: float, w_ie: NDArray, tau_g: float, tau_a: float,
+               g0: NDArray | float) -> NDArray:
+    """Φ (B, 17, 17) of one step with the specific force f_w (B, 3) and attitude C constant over it.
+
+    w_ie = 0, τ = inf and g0 = 0 drop the Earth rate, the bias decay and the gravity gradient.
+    """
     B = C.shape[0]
     Phi = np.broadcast_to(np.eye(N), (B, N, N)).copy()
     Fx = skew(f_w)
     W = skew(np.broadcast_to(w_ie, (B, 3)))
     # vertical gravity gradient 2g/R (the horizontal −g/R terms kept too)
     Gam = np.zeros((B, 3, 3))
+    g0 = np.broadcast_to(np.asarray(g0, float), (B,))
     Gam[:, 0, 0] = Gam[:, 1, 1] = -g0 / R_EARTH
     Gam[:, 2, 2] = 2 * g0 / R_EARTH
     Phi[:, P_, V_] = dt * np.eye(3)
@@ -126,7 +130,7 @@ def predict(s: NavState, dtheta: NDArray, dvel: NDArray, dt: float, frame: Local
     """One IMU step for every trial: dtheta, dvel (B, 3) measured increments."""
     w_ie = earth_rate_world(frame, earth_rotation)
     s1, C_mid, f_w, g = nominal_step(s, dtheta, dvel, dt, frame, imu, earth_rotation)
-    Phi = transition(C_mid, f_w, s.p, dt, w_ie, imu.tau_gyro, imu.tau_accel, np.linalg.norm(g, axis=-1))
+    Phi = transition(C_mid, f_w, dt, w_ie, imu.tau_gyro, imu.tau_accel, np.linalg.norm(g, axis=-1))
     Q = process_noise(Phi, s.C, dt, imu, clock)
     P = Phi @ s.P @ np.swapaxes(Phi, -1, -2) + Q
     return replace(s1, P=0.5 * (P + np.swapaxes(P, -1, -2)))
@@ -227,6 +231,3 @@ def update(s: NavState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray) -> t
     P = 0.5 * (P + np.swapaxes(P, -1, -2))
     return inject(replace(s, P=P), dx), nis, m.sum(-1)
 
-
-def gravity_magnitude(frame: LocalFrame) -> float:
-    return float(normal_gravity(frame.lat_deg, frame.h))

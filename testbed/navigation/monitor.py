@@ -28,7 +28,7 @@ from scipy import stats
 
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
-from testbed.navigation.ekf import ImuNoise, NavState
+from testbed.navigation.ekf import ImuNoise, NavState, predict_compiled
 from testbed.navigation.run import ClockNoise, filter_epochs, state_from_init
 from testbed.records import Diagnostics, MonitorOutput, epoch_array
 from testbed.schema import StrictModel
@@ -46,6 +46,8 @@ class EkfSettings(StrictModel):
     vision: bool = Field(True, description="update with the surveyed landmarks' pixels")
     dither_sigma_px: float = Field(0.0, ge=0.0, description="extra pixel 1σ for camera dithering (px); "
                                                             "added to the published dithering's f·σ")
+    landmark_survey_sigma_m: float = Field(0.05, ge=0.0, description="landmark survey error 1σ per axis the filter "
+                                                                     "assumes (m)")
 
 
 @dataclass(frozen=True)
@@ -78,12 +80,8 @@ class EkfMonitor:
 
     def prepare(self) -> None:
         """Compile the predict kernel (numba caches it beside the package) before the first epoch."""
-        from testbed.navigation import kernels  # noqa: F401  (import compiles nothing; one call does)
-        from testbed.navigation.ekf import predict_compiled
-        from testbed.frames import LocalFrame
-
         s = state_from_init(_dummy_init())
-        predict_compiled(s, np.zeros((1, 3)), np.zeros((1, 3)), 0.01, LocalFrame(0.0, 0.0, 0.0),
+        predict_compiled(s, np.zeros((1, 3)), np.zeros((1, 3)), 0.01, self.context.frame,
                          ImuNoise(0.0, 0.0, 0.0, 0.0, 1.0, 1.0), ClockNoise())
 
     def initial_state(self) -> EkfState:
@@ -104,7 +102,8 @@ class EkfMonitor:
             f = float(np.asarray(vis.K)[0, 0])
             dither = float(np.hypot(self.settings.dither_sigma_px, f * np.max(np.asarray(vis.dither_sigma))))
         trace, nav = filter_epochs(nav, obs.imu, self.context.frame, ImuNoise.from_figures(obs.imu.figures), g, vis,
-                                   ClockNoise(), dither_sigma_px=dither, through_end=True)
+                                   ClockNoise(), dither_sigma_px=dither,
+                                   survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True)
         return self._output(trace, lead), EkfState(nav)
 
     def _output(self, tr, lead: tuple) -> MonitorOutput:

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.inertial import skew, so3_exp
+from testbed.navigation.ekf import transition
 
 RTOL = 1e-9
 G0 = 9.80665
@@ -254,25 +255,17 @@ def consistent_tom(traj: Trajectory, n_sat: int, clock_known: bool = False, J: i
         rows.append(H @ Phi)
         if a + 1 < idx.size:
             dt = traj.t[idx[a + 1]] - traj.t[k]
-            Phi = _transition(traj.f[k], C, dt, n, nb, nc, i_c) @ Phi
+            Phi = _transition(traj.f[k], C, dt, n, nb, nc) @ Phi
     return np.vstack(rows), m
 
 
-def _transition(f: NDArray, C: NDArray, dt: float, n: int, nb: int, nc: int, i_c: int) -> NDArray:
-    """The exact piecewise-constant error transition of NAV_FILTER.md §2 (no Earth rate, no gravity gradient)."""
+def _transition(f: NDArray, C: NDArray, dt: float, n: int, nb: int, nc: int) -> NDArray:
+    """The filter's own transition (:func:`.ekf.transition`) without Earth rate, bias decay or gravity
+    gradient, on this model's states (biases and clock only when present), features held."""
+    full = transition(C[None], f[None], dt, np.zeros(3), np.inf, np.inf, 0.0)[0]  # 17 × 17
+    keep = list(range(9)) + (list(range(9, 15)) if nb else []) + ([15, 16] if nc else [])
     Phi = np.eye(n)
-    Fx = skew(f)
-    Phi[0:3, 3:6] = dt * np.eye(3)
-    Phi[0:3, 6:9] = -0.5 * dt**2 * Fx
-    Phi[3:6, 6:9] = -dt * Fx
-    if nb:
-        Phi[0:3, 9:12] = -0.5 * dt**2 * C
-        Phi[3:6, 9:12] = -dt * C
-        Phi[0:3, 12:15] = dt**3 / 6.0 * Fx @ C
-        Phi[3:6, 12:15] = 0.5 * dt**2 * Fx @ C
-        Phi[6:9, 12:15] = -dt * C
-    if nc:
-        Phi[i_c, i_c + 1] = dt
+    Phi[:len(keep), :len(keep)] = full[np.ix_(keep, keep)]
     return Phi
 
 

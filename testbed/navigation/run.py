@@ -48,14 +48,15 @@ class EkfTrace:
 
 def run_ekf(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None = None,
             vision: VisionEpochs | None = None, clock: ClockNoise = ClockNoise(), t_aid: NDArray | None = None,
-            dither_sigma_px: float = 0.0) -> EkfTrace:
+            dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05) -> EkfTrace:
     """Predict through the IMU intervals and update at each aiding epoch (GNSS epochs, or ``t_aid``)."""
-    return filter_epochs(s, imu, frame, imu_noise, gnss, vision, clock, t_aid, dither_sigma_px)[0]
+    return filter_epochs(s, imu, frame, imu_noise, gnss, vision, clock, t_aid, dither_sigma_px, survey_sigma_m)[0]
 
 
 def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None,
                   vision: VisionEpochs | None, clock: ClockNoise, t_aid: NDArray | None = None,
-                  dither_sigma_px: float = 0.0, through_end: bool = False) -> tuple[EkfTrace, NavState]:
+                  dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05,
+                  through_end: bool = False) -> tuple[EkfTrace, NavState]:
     """:func:`run_ekf`, and the state after the last aiding epoch (``through_end``: after every IMU
     interval given, as a block of a live run needs to hand on)."""
     B = s.p.shape[0]
@@ -77,7 +78,7 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
             s, a, b = _gnss_update(s, gnss, k, frame)
             nis, dof = nis + a, dof + b
         if vision is not None:
-            s, a, b = _vision_update(s, vision, k, frame, dither_sigma_px)
+            s, a, b = _vision_update(s, vision, k, frame, dither_sigma_px, survey_sigma_m)
             nis, dof = nis + a, dof + b
         for name in ("p", "v", "C", "ba", "bg", "cb", "cd", "P"):
             out[name].append(getattr(s, name))
@@ -113,7 +114,8 @@ def _gnss_update(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame):
     return update(s, z - h, H, R[..., None] * np.eye(R.shape[-1]), vis & np.isfinite(z))
 
 
-def _vision_update(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dither_sigma_px: float):
+def _vision_update(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dither_sigma_px: float,
+                   survey_sigma_m: float):
     B = s.p.shape[0]
     det = _at(vis.detected, k, 1, B)
     if not det.any():
@@ -125,11 +127,10 @@ def _vision_update(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, di
     L = det.shape[-1]
     sp = _at(vis.sigma_px, k, 1, B)
     var = np.repeat(np.where(det, sp, 1.0) ** 2 + dither_sigma_px**2, 2, axis=-1)
-    R = var[..., None] * np.eye(2 * L)
-    # the landmark survey error (5 cm at kilometres: a small addition, kept for consistency)
-    lpe = 0.05
-    Hm_ = Hm.reshape(B, L, 2, 3)
-    for j in range(L):
-        R[:, 2 * j:2 * j + 2, 2 * j:2 * j + 2] += lpe**2 * Hm_[:, j] @ np.swapaxes(Hm_[:, j], -1, -2)
+    # each landmark's survey error moves its own pixel pair: a 2×2 block per landmark
+    blocks = survey_sigma_m**2 * Hm @ np.swapaxes(Hm, -1, -2)  # (B, L, 2, 2)
+    R = np.zeros((B, L, 2, L, 2))
+    R[:, np.arange(L), :, np.arange(L), :] = np.moveaxis(blocks, 1, 0)
+    R = R.reshape(B, 2 * L, 2 * L) + var[..., None] * np.eye(2 * L)
     m = np.repeat(det, 2, axis=-1) & np.isfinite(uv.reshape(B, 2 * L)) & np.isfinite(h)
     return update(s, np.nan_to_num(uv.reshape(B, 2 * L) - h), np.nan_to_num(H), R, m)

@@ -16,7 +16,7 @@ from testbed.flight.path import ApproachPath
 from testbed.frames import LocalFrame, euler_to_R_body_to_ned
 from testbed.integrity.levels import service_level
 from testbed.integrity.monitor import Monitor, MonitorContext
-from testbed.integrity.registry import build_monitor, reads_vision
+from testbed.integrity.registry import build_monitor, reads_imu, reads_vision
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount
 from testbed.schema import ConfigError, format_validation_error
@@ -99,6 +99,13 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
         raise ConfigError(approach.source, [
             f"vision.rate_hz ({vision.rate_hz}) must be an integer multiple of gnss.rate_hz ({gnss.rate_hz}): "
             "the vision monitors combine both at the GNSS epochs"])
+    if reads_imu(c.monitors):
+        steps = 1.0 / (c.imu.rate_hz * c.flight.dt_s)  # flight steps per IMU interval
+        per_vision = vision.rate_hz / c.imu.rate_hz if reads_vision(c.monitors) else gnss.rate_hz / c.imu.rate_hz
+        if abs(steps - round(steps)) > 1e-6 * steps or round(steps) < 1 or abs(1 / per_vision - round(1 / per_vision)) > 1e-6:
+            raise ConfigError(approach.source, [
+                f"imu.rate_hz = {c.imu.rate_hz:g}: expected a divisor of the flight rate {1.0 / c.flight.dt_s:g} Hz "
+                f"and a multiple of the {'vision' if reads_vision(c.monitors) else 'GNSS'} rate"])
     monitors = build_monitors(approach, frame, monitor_threads)
     return RunSetup(approach=approach, frame=frame, path=path, terrain=terrain, gnss=gnss,
                     antenna=antenna_mount(approach), vision=vision, landmarks=build_landmarks(c.landmarks),

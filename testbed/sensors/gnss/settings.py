@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from testbed.schema import StrictModel
 
@@ -59,12 +59,13 @@ class GnssSettings(StrictModel):
     clock_sg_m2_s3: float = Field(
         3.55e-2, ge=0.0, description="clock random-walk-FM density S_g = c²·2π²·h-2 (m²/s³); TCXO h-2 = 2e-20")
 
-    @model_validator(mode="after")
-    def _schedule_ordered(self):
-        times = [c.from_s for c in self.schedule]
+    @field_validator("schedule")
+    @classmethod
+    def _schedule_ordered(cls, v):
+        times = [c.from_s for c in v]
         if times != sorted(times) or len(set(times)) != len(times):
-            raise ValueError(f"schedule: expected strictly increasing from_s, got {times}")
-        return self
+            raise ValueError(f"expected strictly increasing from_s, got {times}")
+        return v
 
     @model_validator(mode="after")
     def _path_needed(self):
