@@ -64,6 +64,7 @@ class ApproachConfig(StrictModel):
     va_raim: dict[str, Any] = Field(default_factory=dict, description="VA-RAIM options (VaRaimSettings without integrity)")
     imu: ImuSettings = Field(default_factory=ImuSettings, description="the IMU (read when a monitor uses it: ekf)")
     ekf: dict[str, Any] = Field(default_factory=dict, description="ekf monitor options (navigation.monitor.EkfSettings)")
+    dpe: dict[str, Any] = Field(default_factory=dict, description="dpe monitor options (integrity.dpe.monitor.DpeSettings)")
     monitors: list[MonitorName] = Field(default_factory=lambda: list(MONITORS), min_length=1,
                                 description="monitor names (testbed.integrity.registry)")
     faults: list[Fault] = Field(default_factory=list, description="fault schedule ([[faults]] tables)")

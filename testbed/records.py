@@ -282,6 +282,57 @@ class GnssTruth:
 
 
 @dataclass(frozen=True)
+class CorrelatorEpochs:
+    """Correlator outputs per satellite and epoch on a code-delay grid (no truth; DPE.md §2, §8).
+
+    Delays in metres. Satellite k's grid is ``rho_ref[..., k] + delay0_m + j·delay_step_m``,
+    j < M, with rho_ref the channel's scalar pseudorange rounded to the grid (corrected like
+    ``GnssEpochs.pseudorange``). ``stat`` holds Σ_b |y_b(δ_j)|² (``stat_kind`` "pow") or
+    (1/N_b)·Σ_b |y_b(δ_j)| ("mag"), y normalised so the noise has variance R_B(0) and the
+    direct signal peak is A·R_B(0), A² = (C/N0)·T.
+
+    t : (T,) s.  prn : (S,).  sat_pos_ecef : (B..., T, S, 3) m (as GnssEpochs).
+    rho_ref : (B..., T, S) m, NaN where not tracked.  stat : (B..., T, S, M) float32.
+    cn0_est_dbhz : (B..., T, S) the receiver's C/N0 estimate from the correlogram peak.
+    visible : (B..., T, S) bool.  delay0_m, delay_step_m, coherent_s, n_noncoherent,
+    bandwidth_chips (one-sided, in chip rates), stat_kind : constants.  antenna : the mount.
+    """
+
+    t: NDArray = epoch_array(batched=False)
+    prn: NDArray = field()
+    sat_pos_ecef: NDArray = epoch_array(2)
+    rho_ref: NDArray = epoch_array(1)
+    stat: NDArray = epoch_array(2)
+    cn0_est_dbhz: NDArray = epoch_array(1)
+    visible: NDArray = epoch_array(1)
+    delay0_m: float = field()
+    delay_step_m: float = field()
+    coherent_s: float = field()
+    n_noncoherent: int = field()
+    bandwidth_chips: float = field()
+    stat_kind: str = field()
+    antenna: Mount = field()
+
+
+@dataclass(frozen=True)
+class CorrelatorTruth:
+    """Truth side of the correlators (evaluation and tests only; no monitor imports it).
+
+    delay_m : (B..., T, S) true code delay of the direct signal minus rho_ref (m).
+    sis_m : (B..., T, S) signal-in-space error inside it.  fault_m : (B..., T, S) fault bias.
+    cn0_dbhz : (B..., T, S) true C/N0.  echo_delay_m, echo_amplitude : (B..., T, S) the ground
+    echo's excess delay (m) and relative amplitude (0 without one).
+    """
+
+    delay_m: NDArray = epoch_array(1)
+    sis_m: NDArray = epoch_array(1)
+    fault_m: NDArray = epoch_array(1)
+    cn0_dbhz: NDArray = epoch_array(1)
+    echo_delay_m: NDArray = epoch_array(1)
+    echo_amplitude: NDArray = epoch_array(1)
+
+
+@dataclass(frozen=True)
 class VisionEpochs:
     """Camera landmark detections as the vision front end reports them (no truth).
 
@@ -405,6 +456,7 @@ class MonitorOutput:
     fde : what fault exclusion did (:class:`testbed.integrity.fde.FdeRecord`), None when the
         monitor ran without FDE. With FDE, ``alert`` is an alert no exclusion cleared, and
         the position, test and PLs of an excluded epoch are the reduced solve's.
+    dimensions : ("H", "V"), or ("V",) for a vertical-only monitor (HPL NaN by design).
     """
 
     name: str
@@ -424,6 +476,9 @@ class MonitorOutput:
     reasons: tuple[str, ...]
     diagnostics: Diagnostics | None = None
     fde: Diagnostics | None = None
+    #: the position dimensions the protection levels bound: ("H", "V"), or ("V",) for a
+    #: vertical-only monitor (DPE), whose misleading information is counted on V alone
+    dimensions: tuple[str, ...] = ("H", "V")
 
     @property
     def detected(self) -> NDArray:

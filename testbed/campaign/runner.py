@@ -40,7 +40,7 @@ from testbed.integrity.monitor import ANTENNA, Observations, provided_output
 from testbed.integrity.levels import service_level
 from testbed.records import MonitorOutput
 from testbed.schema import ConfigError
-from testbed.sim.evaluate import REGIONS, position_errors, stanford_regions
+from testbed.sim.evaluate import REGIONS, misleading, position_errors, stanford_regions
 
 TABLES = ("trials", "epochs", "hist")
 
@@ -294,7 +294,7 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
     with np.errstate(all="ignore"):
         first_any = np.where(alert.any(-1), t[alert.argmax(-1)], np.nan)
         tta = np.where(detected, t[det.argmax(-1)] - (onset if np.isfinite(onset) else 0.0), np.nan)
-        mi = ((he > hpl) | (ve > vpl)) & ~alert & np.isfinite(hpl) & np.isfinite(vpl)
+        mi = misleading(he, ve, hpl, vpl, alert, out.dimensions)
         hmi = rh["hazardous"] | rv["hazardous"]  # alerted epochs are in their own region
         col = {
             "cell": np.full(n, ctx.cell.index, np.int32), "trial": d.trials.astype(np.int64),

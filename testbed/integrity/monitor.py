@@ -39,7 +39,7 @@ from typing import Any, ClassVar, Mapping, Protocol, runtime_checkable
 
 from testbed.frames import LocalFrame
 from testbed.integrity.settings import IntegritySettings
-from testbed.records import GnssEpochs, ImuSamples, MonitorOutput, NavInit, VisionEpochs
+from testbed.records import CorrelatorEpochs, GnssEpochs, ImuSamples, MonitorOutput, NavInit, VisionEpochs
 
 #: what a monitor's position estimate refers to (evaluation picks the matching truth)
 ANTENNA = "antenna"
@@ -56,13 +56,15 @@ class Observations:
     gnss : GnssEpochs (B..., T, S).  vision : VisionEpochs at the same epochs, or None
     when no monitor of the run reads vision.  imu : the IMU intervals of the block (None
     unless a monitor reads "imu").  init : the alignment (:class:`~testbed.records.NavInit`),
-    with the first block only.
+    with the first block only.  correlators : the correlograms at the GNSS epochs (None unless
+    a monitor reads "correlators").
     """
 
     gnss: GnssEpochs
     vision: VisionEpochs | None = None
     imu: ImuSamples | None = None
     init: NavInit | None = None
+    correlators: CorrelatorEpochs | None = None
 
     @property
     def t(self):

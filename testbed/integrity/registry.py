@@ -22,6 +22,7 @@ _SHIPPED = {
     "va_raim": ("testbed.integrity.va_raim:build_monitor", frozenset({"gnss", "vision"})),
     "pixel": ("testbed.integrity.pixel:build_monitor", frozenset({"gnss", "vision"})),
     "ekf": ("testbed.navigation.monitor:build_monitor", frozenset({"gnss", "vision", "imu"})),
+    "dpe": ("testbed.integrity.dpe.monitor:build_monitor", frozenset({"gnss", "correlators"})),
 }
 _ADDED: dict[str, tuple[Builder, frozenset[str]]] = {}
 
@@ -80,6 +81,10 @@ def reads_vision(names) -> bool:
 
 def reads_imu(names) -> bool:
     return any("imu" in monitor_inputs(n) for n in names)
+
+
+def reads_correlators(names) -> bool:
+    return any("correlators" in monitor_inputs(n) for n in names)
 
 
 def build_monitor(name: str, context: MonitorContext) -> Monitor:

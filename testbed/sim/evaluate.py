@@ -51,6 +51,20 @@ def stanford_regions(err: NDArray, pl: NDArray, al: float, alert: NDArray | None
     }
 
 
+def misleading(he: NDArray, ve: NDArray, hpl: NDArray, vpl: NDArray, alert: NDArray,
+               dimensions: tuple[str, ...] = ("H", "V")) -> NDArray:
+    """Misleading information: an error above its PL, no alert, on the dimensions the monitor bounds.
+
+    A vertical-only monitor (``dimensions`` ("V",), HPL NaN by design) is judged on V alone;
+    one that bounds both needs both PLs finite.
+    """
+    pairs = [(e, p) for d, e, p in (("H", he, hpl), ("V", ve, vpl)) if d in dimensions]
+    with np.errstate(invalid="ignore"):
+        over = np.logical_or.reduce([np.asarray(e) > np.asarray(p) for e, p in pairs])
+    bounded = np.logical_and.reduce([np.isfinite(p) for _, p in pairs])
+    return over & bounded & ~np.asarray(alert, bool)
+
+
 @dataclass(frozen=True)
 class MonitorSummary:
     name: str
@@ -96,7 +110,7 @@ def summarise_monitor(out: MonitorOutput, true_pos_enu: NDArray, *, reference: s
     hal = min(lv.hal for lv in levels)
     val = min(lv.val for lv in levels)
     rh, rv = stanford_regions(he, hpl, hal, alert), stanford_regions(ve, vpl, val, alert)
-    mi = ((he > hpl) | (ve > vpl)) & ~alert & np.isfinite(hpl) & np.isfinite(vpl)
+    mi = misleading(he, ve, hpl, vpl, alert, out.dimensions)
     hmi = rh["hazardous"] | rv["hazardous"]
     t = np.asarray(out.t, float)
     first_alert = float(t[alert][0]) if alert.any() else float("nan")

@@ -32,6 +32,7 @@ from testbed.sensors.faults import GNSS_KINDS
 from testbed.sensors.gnss.almanac import load_constellation
 from testbed.sensors.imu import ImuErrorStream, apply_errors, true_increments
 from testbed.sensors.imu.alignment import align
+from testbed.sensors.gnss.correlators import synthesize_correlators
 from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.vision import detect as vdetect
@@ -60,6 +61,9 @@ class LoopBlock:
     alert_limits: tuple[float, float]
     #: true position of each monitor's reference point (antenna or CG), (T, 3) world frame
     reference_enu: dict[str, np.ndarray] = field(default_factory=dict)
+    #: the correlograms at the GNSS epochs and their truth (when a monitor reads correlators)
+    correlators: object | None = None
+    correlator_truth: object | None = None
     #: (t, monitor name or "" for all, kind) of the events plots mark: "fault onset", "alert",
     #: "alert cleared", "excluded", "unavailable", "available"
     marks: list[tuple[float, str, str]] = field(default_factory=list)
@@ -114,6 +118,11 @@ def imu_seeds(seed: int) -> tuple[np.ndarray, np.ndarray]:
     return kids[2].generate_state(4), kids[3].generate_state(4)
 
 
+def correlator_seed(seed: int) -> np.ndarray:
+    """Seed words of the correlator synthesis (child 4; every other stream is unchanged)."""
+    return np.random.SeedSequence(seed).spawn(5)[4].generate_state(4)
+
+
 class _Runner:
     """The observer that turns flight steps into blocks of observations and monitor outputs."""
 
@@ -130,6 +139,8 @@ class _Runner:
         self.r_step = self.v_step
         if self.uses_imu:  # build_setup checked that the IMU rate divides the flight's and the vision's
             self.r_step = max(1, int(round(1.0 / (setup.imu.rate_hz * dt))))
+        self.uses_correlators = any("correlators" in m.inputs for m in setup.monitors)
+        self.seed_corr = correlator_seed(seed)
         self.imu_stream = None
         self.imu_prev: Truth | None = None  # the last IMU-rate truth sample of the previous block
         self.seed_imu, self.seed_align = imu_seeds(seed)
@@ -201,6 +212,9 @@ class _Runner:
             block.antenna_enu = ant_enu
             self.parts["gnss"].append(block.gnss)
             self.parts["gnss_truth"].append(block.gnss_truth)
+            if self.uses_correlators:  # per-epoch generators: only the new epochs are drawn
+                block.correlators, block.correlator_truth = synthesize_correlators(
+                    block.gnss, block.gnss_truth, truth_g, s.gnss, self.seed_corr, first_epoch=new.start)
         # vision at its own rate (GNSS epochs are a subset)
         v_at_g = None
         if s.uses_vision:
@@ -254,7 +268,7 @@ class _Runner:
         return imu, init
 
     def _monitors(self, block: LoopBlock, v_at_g, imu=None, init=None) -> None:
-        obs = Observations(block.gnss, v_at_g, imu, init)
+        obs = Observations(block.gnss, v_at_g, imu, init, block.correlators)
         cg_enu = self.setup.frame.ecef_to_enu(block.truth.pos_ecef)
         for mon in self.setup.monitors:
             t0 = time.perf_counter()

@@ -16,7 +16,7 @@ from testbed.flight.path import ApproachPath
 from testbed.frames import LocalFrame, euler_to_R_body_to_ned
 from testbed.integrity.levels import service_level
 from testbed.integrity.monitor import Monitor, MonitorContext
-from testbed.integrity.registry import build_monitor, reads_imu, reads_vision
+from testbed.integrity.registry import build_monitor, reads_correlators, reads_imu, reads_vision
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount
 from testbed.schema import ConfigError, format_validation_error
@@ -106,6 +106,12 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
             raise ConfigError(approach.source, [
                 f"imu.rate_hz = {c.imu.rate_hz:g}: expected a divisor of the flight rate {1.0 / c.flight.dt_s:g} Hz "
                 f"and a multiple of the {'vision' if reads_vision(c.monitors) else 'GNSS'} rate"])
+    if reads_correlators(c.monitors):
+        cs = gnss.correlators
+        if cs.coherent_s * cs.n_noncoherent > 1.0 / gnss.rate_hz * (1 + 1e-9):
+            raise ConfigError(approach.source, [
+                f"gnss.correlators: {cs.n_noncoherent} blocks of {cs.coherent_s:g} s (n_noncoherent x coherent_s) "
+                f"do not fit in one epoch of {1.0 / gnss.rate_hz:g} s (gnss.rate_hz = {gnss.rate_hz:g})"])
     monitors = build_monitors(approach, frame, monitor_threads)
     return RunSetup(approach=approach, frame=frame, path=path, terrain=terrain, gnss=gnss,
                     antenna=antenna_mount(approach), vision=vision, landmarks=build_landmarks(c.landmarks),

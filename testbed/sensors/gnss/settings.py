@@ -22,6 +22,54 @@ class SatelliteCap(StrictModel):
     max_satellites: int = Field(..., ge=0, le=64)
 
 
+#: C/N0 (dB-Hz) by elevation (deg) of an airborne L1 C/A antenna: an assumption (DPE.md §2), labelled
+CN0_BY_ELEVATION = {5.0: 38.0, 15.0: 41.0, 30.0: 43.5, 60.0: 45.0, 90.0: 45.5}
+
+
+class CorrelatorSettings(StrictModel):
+    """Correlator outputs on a code-delay grid (``[gnss.correlators]``; DPE.md §2), read by the ``dpe`` monitor."""
+
+    bandwidth_chips: float = Field(1.0, gt=0.0, le=50.0,
+                                   description="one-sided brick-wall front-end bandwidth in chip rates "
+                                               "(1 = 2.046 MHz double-sided)")
+    coherent_s: float = Field(0.02, gt=0.0, le=0.02, description="coherent integration T (s); ≤ one data bit")
+    n_noncoherent: int = Field(50, ge=1, le=1000, description="blocks N_b per epoch (disjoint intervals)")
+    delay_step_m: float = Field(2.0, gt=0.0, le=30.0, description="delay grid spacing Δ (m)")
+    half_window_m: float = Field(1000.0, gt=0.0, le=5000.0, description="delay window ±(m) about the reference")
+    cn0_by_elevation: dict[float, float] = Field(
+        default_factory=lambda: dict(CN0_BY_ELEVATION),
+        description="C/N0 (dB-Hz) at elevations (deg), linear between, held outside")
+    cn0_offset_db: float = Field(0.0, ge=-30.0, le=20.0, description="added to every C/N0 (dB)")
+    synthesis: Literal["fast", "exact"] = Field(
+        "fast", description="'exact': N_b noise draws per satellite (both statistics); 'fast': the power "
+                            "statistic from (2 + echoes) draws of its exact second moments")
+    statistic: Literal["pow", "mag"] = Field(
+        "pow", description="what the receiver reports: Σ_b|y_b|² ('pow', the likelihood's) or "
+                           "(1/N_b)Σ_b|y_b| ('mag', the seed's; needs synthesis = 'exact')")
+    multipath: Literal["off", "ground"] = Field(
+        "off", description="'ground': a specular ground echo, delay 2·h_agl·sin(el), its phase from the path")
+    ground_echo_db: float = Field(-20.0, le=0.0, description="ground echo amplitude relative to the direct (dB)")
+
+    @field_validator("cn0_by_elevation")
+    @classmethod
+    def _table(cls, v):
+        if not v:
+            raise ValueError("expected at least one elevation: C/N0 pair")
+        for el, cn0 in v.items():
+            if not (0.0 <= el <= 90.0 and 10.0 <= cn0 <= 70.0):
+                raise ValueError(f"expected elevations in [0, 90] deg and C/N0 in [10, 70] dB-Hz, got {el}: {cn0}")
+        return dict(sorted(v.items()))
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        if self.statistic == "mag" and self.synthesis != "exact":
+            raise ValueError("statistic: 'mag' needs synthesis = 'exact' (the fast synthesis draws the power)")
+        if self.half_window_m < 10 * self.delay_step_m:
+            raise ValueError(f"half_window_m: expected at least 10 delay steps ({10 * self.delay_step_m:g} m), "
+                             f"got {self.half_window_m:g}")
+        return self
+
+
 class GnssSettings(StrictModel):
     """GPS receiver, constellation and error-model settings."""
 
@@ -52,6 +100,8 @@ class GnssSettings(StrictModel):
         default_factory=list, description="caps on the satellites tracked over time (the highest kept; the rest "
                                           "reported EXCLUDED): steeper walls than the terrain model, or a study "
                                           "of 0-3 satellites")
+    correlators: CorrelatorSettings = Field(default_factory=CorrelatorSettings,
+                                            description="correlator outputs (synthesised when a monitor reads them)")
     clock_bias0_sigma_m: float = Field(100.0, ge=0.0, description="initial receiver clock bias 1σ (m)")
     clock_drift0_sigma_m_s: float = Field(1.0, ge=0.0, description="initial receiver clock drift 1σ (m/s)")
     clock_sf_m2_s: float = Field(

@@ -1,0 +1,242 @@
+"""Seed 004 as a loop monitor (``dpe``): direct position estimation and its vertical protection level.
+
+Per epoch (DPE.md §1, the ``likelihood`` variant, the default):
+
+1. **Initialisation**: the same-epoch GPS-only WLS fix from the scalar pseudoranges, else the
+   previous DPE solution (held: the monitor has no velocity), else ``NO_INIT``. Never truth.
+2. **Manifold and solution** (:mod:`.manifold`, :mod:`.solve`): Λ(ξ) on coarse-to-fine grids,
+   the posterior mean as the solution, the vertical marginal of its error.
+3. **Overbound** (:mod:`.overbound`): the tightest median-centred zero-mean Gaussian CDF
+   overbound σ_ob of the marginal, and its median m.
+4. **VPL = K·σ + |m|**, σ² = σ_ob² + σ²_SIS,U with ``sis = "add"`` (the signal-in-space error
+   is outside the manifold: DPE.md F6), σ = σ_ob with ``sis = "none"``. K is ``k_factor``; without
+   one the VPL is NaN and the epoch ``NOT_CALIBRATED``.
+
+A vertical-only monitor: HPL is NaN, availability is VPL ≤ VAL alone, and ``dimensions`` is
+("V",) so evaluation counts misleading information on the vertical only. DPE has no fault
+detection (alert is always False): it bounds what the manifold sees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import Field
+
+from testbed.correlation import amplitude_sq, crb_delay_sigma
+from testbed.integrity.dpe.manifold import epoch_manifold
+from testbed.integrity.dpe.overbound import gaussian_overbound
+from testbed.integrity.dpe.solve import GridPlan, Status, solve_epoch
+from testbed.integrity.levels import service_level
+from testbed.integrity.monitor import ANTENNA, MonitorContext, Observations
+from testbed.integrity.raim import gps_raim
+from testbed.records import Diagnostics, MonitorOutput, epoch_array
+from testbed.schema import StrictModel
+
+DPE_REASONS: tuple[str, ...] = (
+    "ok",
+    "unavailable: fewer than 4 satellites with correlograms inside their delay windows",
+    "unavailable: no initialisation (no GPS fix and no previous DPE fix)",
+    "unavailable: the likelihood peak is on the grid's edge after the recentrings",
+    "unavailable: K not calibrated (dpe.k_factor unset)",
+    "unavailable: NaN correlator outputs",
+)
+FEW, NO_INIT, PEAK_AT_EDGE, NOT_CALIBRATED, NAN_INPUT = 1, 2, 3, 4, 5
+_STATUS_REASON = {Status.FEW_SATELLITES: FEW, Status.PEAK_AT_EDGE: PEAK_AT_EDGE}
+
+
+class DpeSettings(StrictModel):
+    """Options of the ``dpe`` monitor (``[dpe]`` in an approach file)."""
+
+    variant: Literal["likelihood"] = Field(
+        "likelihood", description="'likelihood': GLRT power manifold, posterior mean, marginal (DPE.md §4)")
+    k_factor: float | None = Field(
+        None, gt=0.0, le=100.0, description="VPL = K·σ + |m|; None: VPL NaN, every epoch NOT_CALIBRATED")
+    sis: Literal["add", "none"] = Field(
+        "add", description="'add': σ² = σ_ob² + σ²_SIS,U (the SIS error is outside the manifold); 'none': σ_ob")
+    sigma_ura_m: float = Field(0.75, ge=0.0, description="σ_URA the monitor assumes for the SIS term (m)")
+    sigma_tropo_zenith_m: float = Field(0.12, ge=0.0, description="residual troposphere at zenith it assumes (m)")
+    coarse_spacing_m: float = Field(30.0, gt=0.0, le=300.0, description="stage-1 grid spacing (m; 9 nodes/axis)")
+    mid_spacing_m: float = Field(6.0, gt=0.0, le=60.0, description="stage-2 grid spacing (m; 9 nodes/axis)")
+    fine_spacing: float = Field(0.55, gt=0.0, le=2.0, description="whitened-grid spacing (CRB sigmas; 17 nodes/axis)")
+    max_recentre: int = Field(3, ge=0, le=10, description="recentrings per stage before PEAK_AT_EDGE")
+
+    def plan(self) -> GridPlan:
+        return GridPlan(coarse_m=self.coarse_spacing_m, mid_m=self.mid_spacing_m, fine_z=self.fine_spacing,
+                        max_recentre=self.max_recentre)
+
+
+@dataclass(frozen=True)
+class DpeDiagnostics(Diagnostics):
+    """The DPE per epoch (B..., T[, ...]); the marginal is what the VPL's σ_ob bounds."""
+
+    sigma_ob: NDArray = epoch_array()
+    median_m: NDArray = epoch_array()
+    sigma_sis_u: NDArray = epoch_array()
+    posterior_sd_u: NDArray = epoch_array()
+    crb_sd_u: NDArray = epoch_array()
+    x_ml: NDArray = epoch_array(1)
+    init_kind: NDArray = epoch_array()  # 0 none, 1 GPS fix, 2 previous DPE fix
+    recentred: NDArray = epoch_array()
+    marginal_offsets: NDArray = epoch_array(1)
+    marginal: NDArray = epoch_array(1)
+    k_factor: float = float("nan")
+
+
+@dataclass(frozen=True)
+class DpeState:
+    """The last DPE fix per trial ((B..., 4) ENU + clock; NaN before the first)."""
+
+    last_fix: NDArray | None = None
+
+
+def _sis_sigma(el: NDArray, st: DpeSettings) -> NDArray:
+    s = np.sin(np.maximum(el, 0.0))
+    tropo = st.sigma_tropo_zenith_m * 1.001 / np.sqrt(0.002001 + s * s)
+    return np.hypot(st.sigma_ura_m, tropo)
+
+
+@dataclass(frozen=True)
+class DpeMonitor:
+    name: str
+    context: MonitorContext
+    settings: DpeSettings
+    inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "correlators"})
+    reference: ClassVar[str] = ANTENNA
+
+    def prepare(self) -> None:
+        """Compile the kernels before the first epoch (numba caches them): GPS RAIM's (the
+        initialisation) and the manifold's, on arrays of the types an epoch uses."""
+        from testbed.integrity.kernels import compile_all
+        from testbed.integrity.kernels.dpe import deposit_marginal, manifold_box, posterior_moments
+
+        compile_all()
+        lam = np.zeros(1)
+        manifold_box(np.zeros(1), np.zeros((1, 4)), np.zeros((1, 8)), np.zeros(1), 1.0, 1, True, lam)
+        posterior_moments(lam, 1.0, 1)
+        deposit_marginal(lam, 1.0, 1, np.zeros(4), 0.0, 1.0, np.zeros(3))
+
+    def initial_state(self) -> DpeState:
+        return DpeState()
+
+    def step(self, obs: Observations, state: DpeState) -> tuple[MonitorOutput, DpeState]:
+        corr = obs.correlators
+        if corr is None:
+            raise ValueError("dpe: the observations carry no correlators (the run did not synthesise them)")
+        g = obs.gnss
+        lead = np.shape(g.pseudorange)[:-2]
+        T, S = np.shape(g.pseudorange)[-2:]
+        c = self.context
+        fix = gps_raim(g, c.frame, c.integrity, name="dpe-init", threads=c.threads)
+        init = np.concatenate([fix.pos_enu, fix.clock[..., None]], -1).reshape((-1, T, 4))
+        B = init.shape[0]
+        last = np.full((B, 4), np.nan) if state.last_fix is None else np.asarray(state.last_fix).reshape(B, 4)
+        sat = np.broadcast_to(np.asarray(corr.sat_pos_ecef), lead + (T, S, 3)).reshape(B, T, S, 3)
+        rho = np.broadcast_to(np.asarray(corr.rho_ref), lead + (T, S)).reshape(B, T, S)
+        stat = np.broadcast_to(np.asarray(corr.stat), lead + (T, S) + corr.stat.shape[-1:]).reshape(B, T, S, -1)
+        vis = np.broadcast_to(np.asarray(corr.visible, bool), lead + (T, S)).reshape(B, T, S)
+        cn0 = np.broadcast_to(np.asarray(corr.cn0_est_dbhz), lead + (T, S)).reshape(B, T, S)
+        res = _Results(B, T, self.settings.plan().bins)
+        for b in range(B):
+            for i in range(T):
+                x0, kind = init[b, i], 1
+                if not np.all(np.isfinite(x0)):
+                    x0, kind = last[b], 2
+                if not np.all(np.isfinite(x0)):
+                    res.reason[b, i] = NO_INIT
+                    continue
+                res.init_kind[b, i] = kind
+                k = np.flatnonzero(vis[b, i] & np.isfinite(rho[b, i]))
+                if not np.all(np.isfinite(stat[b, i, k])) or not np.all(np.isfinite(cn0[b, i, k])):
+                    res.reason[b, i] = NAN_INPUT
+                    continue
+                self._solve(res, b, i, x0, sat[b, i, k], rho[b, i, k], stat[b, i, k], cn0[b, i, k], corr)
+                if res.reason[b, i] == 0:
+                    last[b] = res.x[b, i]
+        out = self._output(res, np.asarray(g.t), lead)
+        return out, DpeState(last.reshape(lead + (4,)) if lead else last[0])
+
+    def _solve(self, res: "_Results", b: int, i: int, x0: NDArray, sat: NDArray, rho: NDArray, stat: NDArray,
+               cn0: NDArray, corr) -> None:
+        fr = self.context.frame
+        mf = epoch_manifold(fr, sat, rho, stat, x0[:3], float(x0[3]), stat_kind=corr.stat_kind,
+                            n_blocks=corr.n_noncoherent, bandwidth_chips=corr.bandwidth_chips,
+                            delay0_m=corr.delay0_m, step_m=corr.delay_step_m)
+        sol = solve_epoch(mf, amplitude_sq(cn0, corr.coherent_s), corr.n_noncoherent, corr.bandwidth_chips,
+                          self.settings.plan())
+        res.recentred[b, i] = sol.recentred
+        if sol.status != Status.OK:
+            res.reason[b, i] = _STATUS_REASON[sol.status]
+            return
+        res.x[b, i] = x0 + sol.x_mean
+        res.x_ml[b, i] = x0 + sol.x_ml
+        res.post_sd_u[b, i] = np.sqrt(sol.cov[2, 2])
+        res.crb_sd_u[b, i] = np.sqrt(sol.J[2, 2])
+        res.offsets[b, i] = sol.offsets
+        res.marginal[b, i] = sol.marginal
+        res.n_used[b, i] = int(sol.used.sum())
+        # the SIS error through the DPE's own weighting: A_w = J Gᵀ W, W = J's delay weights
+        g_used = mf.g[sol.used]
+        el = np.arcsin(np.clip(-g_used[:, 2], -1.0, 1.0))
+        s_sis = _sis_sigma(el, self.settings)
+        w = 1.0 / crb_delay_sigma(amplitude_sq(cn0[sol.used], corr.coherent_s), corr.n_noncoherent,
+                                  corr.bandwidth_chips) ** 2
+        A_u = (sol.J @ (g_used * w[:, None]).T)[2]
+        res.sis_u[b, i] = float(np.sqrt(np.sum((A_u * s_sis) ** 2)))
+
+    def _output(self, res: "_Results", t: NDArray, lead: tuple) -> MonitorOutput:
+        st, ds = self.context.integrity, self.settings
+        ok = res.reason == 0
+        ob = gaussian_overbound(np.where(ok[..., None], res.offsets, np.arange(res.offsets.shape[-1])),
+                                np.where(ok[..., None], res.marginal, 1.0))
+        sigma_ob = np.where(ok, ob.sigma, np.nan)
+        med = np.where(ok, ob.median, np.nan)
+        sigma = np.hypot(sigma_ob, res.sis_u) if ds.sis == "add" else sigma_ob
+        k = np.nan if ds.k_factor is None else ds.k_factor
+        reason = res.reason.copy()
+        if ds.k_factor is None:
+            reason[ok] = NOT_CALIBRATED
+        vpl = np.where(reason == 0, k * sigma + np.abs(med), np.nan)
+        levels = tuple(service_level(s) for s in st.service_levels)
+        val = np.array([lv.val for lv in levels])
+        available = (vpl[..., None] <= val) & (reason == 0)[..., None]
+        shape = lambda a: a.reshape(lead + a.shape[2:]) if lead else a[0]  # noqa: E731
+        diag = DpeDiagnostics(sigma_ob=shape(sigma_ob), median_m=shape(med), sigma_sis_u=shape(res.sis_u),
+                              posterior_sd_u=shape(res.post_sd_u), crb_sd_u=shape(res.crb_sd_u), x_ml=shape(res.x_ml),
+                              init_kind=shape(res.init_kind), recentred=shape(res.recentred),
+                              marginal_offsets=shape(res.offsets), marginal=shape(res.marginal), k_factor=float(k))
+        x = np.where(ok[..., None], res.x, np.nan)
+        nan = np.full(res.reason.shape, np.nan)
+        return MonitorOutput(
+            name=self.name, t=t, pos_enu=shape(x[..., :3]), clock=shape(x[..., 3]), hpl=shape(nan), vpl=shape(vpl),
+            test_stat=shape(sigma_ob), threshold=shape(nan), alert=shape(np.zeros(res.reason.shape, bool)),
+            available=shape(available), service_levels=tuple(st.service_levels), n_used=shape(res.n_used),
+            excluded=shape(np.full(res.reason.shape, -1, np.int16)), reason=shape(reason.astype(np.int8)),
+            reasons=DPE_REASONS, diagnostics=diag, dimensions=("V",))
+
+
+class _Results:
+    """Per (trial, epoch) arrays the epoch loop fills."""
+
+    def __init__(self, B: int, T: int, bins: int) -> None:
+        self.reason = np.zeros((B, T), np.int8)
+        self.init_kind = np.zeros((B, T), np.int8)
+        self.recentred = np.zeros((B, T), np.int16)
+        self.n_used = np.zeros((B, T), np.int16)
+        self.x = np.full((B, T, 4), np.nan)
+        self.x_ml = np.full((B, T, 4), np.nan)
+        self.post_sd_u = np.full((B, T), np.nan)
+        self.crb_sd_u = np.full((B, T), np.nan)
+        self.sis_u = np.full((B, T), np.nan)
+        self.offsets = np.full((B, T, bins), np.nan)
+        self.marginal = np.full((B, T, bins), np.nan)
+
+
+def build_monitor(context: MonitorContext, options) -> DpeMonitor:
+    return DpeMonitor("dpe", context, DpeSettings.model_validate(dict(options)))
+
+
+__all__ = ["DPE_REASONS", "DpeDiagnostics", "DpeMonitor", "DpeSettings", "DpeState", "build_monitor"]
