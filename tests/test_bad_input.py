@@ -142,6 +142,24 @@ FILE_CASES = [
      "gnss.schedule.0.max_satellites", "-1"),
     ("nan-schedule-time", lambda d: approach(d, tail="[gnss]\nschedule = [{ from_s = nan, max_satellites = 2 }]"),
      "gnss.schedule.0.from_s", "nan"),
+    # the DPE's options: the correlators and the dpe monitor
+    ("negative-dpe-k", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]', tail="[dpe]\nk_factor = -1.0"),
+     "dpe.k_factor", "-1"),
+    ("nan-dpe-k", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]', tail="[dpe]\nk_factor = nan"),
+     "dpe.k_factor", "nan"),
+    ("unknown-dpe-option", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]', tail="[dpe]\ngrid = 3"),
+     "dpe", "grid"),
+    ("unknown-dpe-variant", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]', tail='[dpe]\nvariant = "ml"'),
+     "dpe.variant", "ml"),
+    ("mag-statistic-fast", lambda d: approach(d, tail='[gnss.correlators]\nstatistic = "mag"'),
+     "gnss.correlators", "mag"),
+    ("zero-bandwidth", lambda d: approach(d, tail="[gnss.correlators]\nbandwidth_chips = 0.0"),
+     "gnss.correlators.bandwidth_chips", "0"),
+    ("cn0-out-of-range", lambda d: approach(d, tail="[gnss.correlators]\ncn0_by_elevation = { 10.0 = 400.0 }"),
+     "gnss.correlators.cn0_by_elevation", "400"),
+    ("blocks-longer-than-an-epoch", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]',
+                                                       tail="[gnss.correlators]\nn_noncoherent = 100"),
+     "gnss.correlators", "100 blocks"),
 ]
 
 

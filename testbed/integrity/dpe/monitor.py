@@ -130,6 +130,7 @@ class DpeMonitor:
         lead = np.shape(g.pseudorange)[:-2]
         T, S = np.shape(g.pseudorange)[-2:]
         c = self.context
+        state = state if state is not None else DpeState()
         fix = gps_raim(g, c.frame, c.integrity, name="dpe-init", threads=c.threads)
         init = np.concatenate([fix.pos_enu, fix.clock[..., None]], -1).reshape((-1, T, 4))
         B = init.shape[0]

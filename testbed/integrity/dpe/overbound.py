@@ -30,6 +30,8 @@ from scipy.special import ndtr, ndtri
 #: a Gaussian tail short of the curve's tail by at most this fraction of it counts as bounding
 #: (relative, so the far tails, down to 1e-300, still bind)
 TOLERANCE = 1e-12
+#: tails below this are rounding (subnormal floats), not distribution: they bind nothing
+TAIL_FLOOR = 1e-300
 _GROW, _MAX_GROW, _BISECTIONS = 1.5, 200, 48
 
 
@@ -90,27 +92,34 @@ def _prepare(edges: NDArray, m: NDArray, width: NDArray, centre: NDArray) -> _Ce
 
 
 def _margins(c: _Cells, sigma: NDArray) -> NDArray:
+    with np.errstate(invalid="ignore", over="ignore"):  # empty cells (ρ = 0) and points off a cell
+        return _cell_margins(c, sigma)
+
+
+def _cell_margins(c: _Cells, sigma: NDArray) -> NDArray:
     """(..., n) the smallest margin of each cell at σ (both of its sides of 0), tolerance included."""
     s = sigma[..., None]
     lo, hi = c.edges[..., :-1], c.edges[..., 1:]
     rho = c.rho
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         arg = s * rho * np.sqrt(2.0 * np.pi)
-        xs = np.where(arg < 1.0, s * np.sqrt(2.0 * np.log(1.0 / arg)), np.nan)
+        xs = np.where((arg < 1.0) & (arg > 1e-300), s * np.sqrt(2.0 * np.log(1.0 / arg)), np.nan)
     best = np.full(rho.shape, np.inf)
     # left of zero: Φ(x/σ) − [left(lo) + ρ(x − lo)] on [lo, min(hi, 0)]
     a, b = lo, np.minimum(hi, 0.0)
     has = a < 0.0
     for x in (a, b, -xs):
         inside = has & (x >= a) & (x <= b)
-        mg = ndtr(x / s) - (1.0 - TOLERANCE) * (c.left[..., :-1] + rho * (x - lo))
+        tail = c.left[..., :-1] + rho * (x - lo)
+        mg = np.where(tail < TAIL_FLOOR, 0.0, ndtr(x / s) - (1.0 - TOLERANCE) * tail)
         best = np.where(inside, np.minimum(best, mg), best)
     # right of zero: Q(x/σ) − [right(hi) + ρ(hi − x)] on [max(lo, 0), hi]
     a, b = np.maximum(lo, 0.0), hi
     has = hi > 0.0
     for x in (a, b, xs):
         inside = has & (x >= a) & (x <= b)
-        mg = ndtr(-x / s) - (1.0 - TOLERANCE) * (c.right[..., 1:] + rho * (hi - x))
+        tail = c.right[..., 1:] + rho * (hi - x)
+        mg = np.where(tail < TAIL_FLOOR, 0.0, ndtr(-x / s) - (1.0 - TOLERANCE) * tail)
         best = np.where(inside, np.minimum(best, mg), best)
     return best
 
@@ -123,7 +132,7 @@ def _sigma_floor(c: _Cells) -> NDArray:
     """max |e|/Q⁻¹(tail(e)) over the edges with a tail in (0, ½): a σ below it fails at that edge."""
     e = c.edges
     tail = np.where(e < 0.0, c.left, c.right)
-    ok = (e != 0.0) & (tail > 0.0) & (tail < 0.5)
+    ok = (e != 0.0) & (tail > TAIL_FLOOR) & (tail < 0.5)
     with np.errstate(divide="ignore", invalid="ignore"):
         need = np.where(ok, np.abs(e) / -ndtri(np.where(ok, tail, 0.25)), 0.0)  # Q⁻¹(t) = −Φ⁻¹(t), exact for tiny t
     floor = need.max(axis=-1)

@@ -1,0 +1,129 @@
+"""The correlator sensor against what no one here wrote (DPE.md §2, §10 T1-T4, T8).
+
+The band-limited correlation against numerical integration and against a sample-level
+C/A-code simulation (Gold codes from their shift registers, an FFT brick-wall filter);
+the synthesised noise's covariance against R_B with Monte Carlo bounds; the fast
+synthesis against the exact one in distribution; a ground echo's peak against brute force.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from testbed.correlation import CHIP_M, amplitude_sq, correlation, crb_delay_sigma, peak
+from testbed.sensors.gnss.correlators import (_epoch_stat, cn0_at, cn0_estimate, delay_grid, draw_noise,
+                                              noise_spectrum, tabulated_correlation)
+from testbed.sensors.gnss.settings import CorrelatorSettings
+
+
+@pytest.mark.parametrize("b", [0.5, 1.0, 2.0, 8.0])
+def test_the_closed_form_equals_quadrature(b):
+    for x in (0.0, 0.13, 0.5, 0.99, 1.0, 1.37, 2.6):
+        ref = integrate.quad(lambda f: np.sinc(f) ** 2 * np.cos(2 * np.pi * f * x), -b, b, limit=400,
+                             epsabs=1e-14, epsrel=1e-12)[0]
+        assert abs(float(correlation(x * CHIP_M, b)) - ref) <= 1e-12
+
+
+def test_peak_values_and_the_infinite_bandwidth_triangle():
+    # DPE.md §2's table, 5 digits
+    for b, r0 in ((0.5, 0.77370), (1.0, 0.90282), (2.0, 0.94994), (8.0, 0.98734)):
+        assert round(peak(b), 5) == r0
+    x = np.linspace(-1.5, 1.5, 31) * CHIP_M
+    np.testing.assert_allclose(correlation(x, np.inf), np.maximum(1 - np.abs(x) / CHIP_M, 0), atol=1e-15)
+    assert np.max(np.abs(correlation(x, 50.0) - correlation(x, np.inf))) < 0.01
+
+
+def test_the_table_the_sensor_reads_equals_the_closed_form():
+    d = np.random.default_rng(0).uniform(-3000, 3000, 20000)
+    assert np.max(np.abs(tabulated_correlation(d, 1.0) - correlation(d, 1.0))) < 1e-6
+
+
+def _ca_code(prn_taps: tuple[int, int]) -> np.ndarray:
+    """The 1023-chip C/A code from the G1/G2 shift registers (IS-GPS-200 Table 3-Ia phase taps), ±1."""
+    g1, g2 = [1] * 10, [1] * 10
+    out = np.empty(1023)
+    for i in range(1023):
+        out[i] = g1[9] ^ g2[prn_taps[0] - 1] ^ g2[prn_taps[1] - 1]
+        f1 = g1[2] ^ g1[9]
+        f2 = g2[1] ^ g2[2] ^ g2[5] ^ g2[7] ^ g2[8] ^ g2[9]
+        g1, g2 = [f1] + g1[:9], [f2] + g2[:9]
+    return 1.0 - 2.0 * out
+
+
+def test_a_sampled_ca_code_through_a_brick_wall_filter_correlates_like_the_model():
+    """T3: PRN 1 at 16 samples/chip, 1 ms, filtered to ±1.023 MHz, correlated with the unfiltered replica."""
+    code = _ca_code((2, 6))  # PRN 1
+    assert code[:10].tolist() == [-1, -1, 1, 1, -1, 1, 1, 1, 1, 1]  # first chips 1100100000 (octal 1440) -> ±1
+    n = 16
+    s = np.repeat(code, n)
+    f = np.fft.fftfreq(s.size, d=1.0 / n)  # in chip rates
+    filtered = np.fft.ifft(np.fft.fft(s) * (np.abs(f) <= 1.0)).real
+    corr = np.fft.ifft(np.fft.fft(filtered) * np.conj(np.fft.fft(s))).real / s.size  # circular correlation
+    lags = np.arange(-24, 25)  # ±1.5 chip
+    got = corr[lags % s.size]
+    want = correlation(lags / n * CHIP_M, 1.0)
+    assert np.max(np.abs(got - want)) <= 0.005 * want.max()  # the model neglects the code's own spectrum lines
+
+
+def test_noise_has_the_correlation_as_covariance_and_no_pseudo_covariance():
+    cs = CorrelatorSettings()
+    g = delay_grid(cs)
+    spec = noise_spectrum(g.step_m, g.size, 1.0)
+    assert -1e-4 < spec.min_ratio < 0.0  # the embedding's only approximation, clipped
+    N = 4000
+    w = draw_noise(np.random.default_rng(7), spec, (N,))
+    r0 = peak(1.0)
+    for lag in (0, 5, 20, 60, 100, 147, 200, 400):
+        c = np.mean(w[:, 300] * np.conj(w[:, 300 + lag]))
+        assert abs(c.real - float(correlation(lag * g.step_m, 1.0))) <= 4 * r0 / np.sqrt(2 * N)
+        assert abs(np.mean(w[:, 300] * w[:, 300 + lag])) <= 4 * r0 / np.sqrt(N)
+
+
+def _stats(synthesis: str, n: int, alpha: float, seed0: int = 0):
+    cs = CorrelatorSettings(synthesis=synthesis)
+    g = delay_grid(cs)
+    A = np.sqrt(amplitude_sq(np.full(4, 43.0), cs.coherent_s))
+    phase = np.tile(np.linspace(0, 4, cs.n_noncoherent), (4, 1))
+    return np.concatenate([_epoch_stat(np.random.default_rng(seed0 + i), cs, g, A, np.full(4, 3.3), np.full(4, 60.0),
+                                       np.full(4, alpha), phase) for i in range(n)]), g
+
+
+@pytest.mark.parametrize("alpha", [0.0, 0.3])
+def test_fast_synthesis_equals_exact_in_distribution(alpha):
+    exact, g = _stats("exact", 150, alpha)
+    fast, _ = _stats("fast", 150, alpha, seed0=10_000)
+    for j in (500, 502, 530, 560, 700):  # peak, shoulder, slope, edge of the lobe, noise only
+        assert stats.ks_2samp(exact[:, j], fast[:, j]).pvalue > 0.01, j
+        assert abs(exact[:, j].mean() - fast[:, j].mean()) < 4 * exact[:, j].std() / np.sqrt(300)
+
+
+def test_a_ground_echo_moves_the_peak_where_brute_force_puts_it():
+    cs = CorrelatorSettings()
+    g = delay_grid(cs)
+    A = np.full(1, 1e4)  # noise negligible against the signal
+    delay, echo, alpha = np.full(1, 0.0), np.full(1, 0.25 * CHIP_M), np.full(1, 0.5)
+    phase = np.zeros((1, cs.n_noncoherent))  # in phase with the direct signal
+    st = _epoch_stat(np.random.default_rng(0), cs, g, A, delay, echo, alpha, phase)[0]
+    d = g.offsets
+    brute = np.abs(correlation(d, 1.0) + alpha[0] * correlation(d - echo[0], 1.0)) ** 2
+    assert np.argmax(st) == np.argmax(brute)
+    assert d[np.argmax(st)] > 0.0  # an in-phase late echo pulls the peak late
+
+
+def test_cn0_table_and_estimate():
+    cs = CorrelatorSettings()
+    np.testing.assert_allclose(cn0_at(np.radians([5.0, 30.0, 90.0, 2.0]), cs), [38.0, 43.5, 45.5, 38.0])
+    g = delay_grid(cs)
+    A = np.sqrt(amplitude_sq(np.full(200, 45.0), cs.coherent_s))
+    st = _epoch_stat(np.random.default_rng(3), cs, g, A, np.zeros(200), np.zeros(200), np.zeros(200),
+                     np.zeros((200, cs.n_noncoherent)))
+    est = cn0_estimate(st, cs)
+    assert abs(np.median(est) - 45.0) < 0.2
+
+
+def test_crb_matches_the_notes_figures():
+    a2 = amplitude_sq(45.0, 0.02)
+    assert abs(float(crb_delay_sigma(a2, 1, 1.0)) - 4.1) < 0.05
+    assert abs(float(crb_delay_sigma(a2, 50, 1.0)) - 0.58) < 0.01
