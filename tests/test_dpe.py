@@ -13,7 +13,7 @@ from dpe_scene import CLOCK_M, FRAME, TRUTH_ENU, context, scene
 from testbed.correlation import CHIP_M, amplitude_sq, correlation, crb_delay_sigma, peak
 from testbed.integrity.dpe.manifold import EpochManifold, box_nodes, manifold_numpy
 from testbed.integrity.dpe.monitor import NAN_INPUT, NO_INIT, NOT_CALIBRATED, FEW, DpeSettings, DpeMonitor
-from testbed.integrity.kernels.dpe import manifold_box
+from testbed.integrity.kernels.dpe import manifold_box, manifold_box_threads
 from testbed.records import take_epochs
 from testbed.sensors.gnss.correlators import synthesize_correlators
 from testbed.sensors.gnss.settings import CorrelatorSettings, GnssSettings
@@ -54,9 +54,12 @@ def test_compiled_manifold_equals_the_numpy_reference():
         for spacing, n in ((30.0, 9), (6.0, 9), (0.55, 5)):
             c, H = mf.index_units(np.zeros(4), np.eye(4))
             out = np.empty(n ** 4)
-            manifold_box(c, H, mf.table, mf.floor, spacing, n, cubic, out)
+            manifold_box(c, H, mf.poly, mf.floor, spacing, n, cubic, out)
             ref = manifold_numpy(c, H, mf.table, mf.floor, box_nodes(spacing, n), cubic)
             assert np.max(np.abs(out - ref)) <= 1e-12 * np.max(np.abs(ref))
+            threaded = np.empty(n ** 4)
+            manifold_box_threads(c, H, mf.poly, mf.floor, spacing, n, cubic, threaded)
+            np.testing.assert_array_equal(threaded, out)
 
 
 def test_without_noise_the_manifold_peaks_at_the_truth_node():
@@ -64,7 +67,7 @@ def test_without_noise_the_manifold_peaks_at_the_truth_node():
     mf = _noise_free_manifold(offset, np.random.default_rng(1))
     c, H = mf.index_units(np.zeros(4), np.eye(4))
     out = np.empty(9 ** 4)
-    manifold_box(c, H, mf.table, mf.floor, 6.0, 9, True, out)
+    manifold_box(c, H, mf.poly, mf.floor, 6.0, 9, True, out)
     np.testing.assert_allclose(box_nodes(6.0, 9)[np.argmax(out)], -offset)
 
 

@@ -157,6 +157,7 @@ class Scene:
     camera_K: np.ndarray | None
     camera_resolution: tuple[int, int]
     alert_limits: tuple[float, float] = (float("nan"), float("nan"))  # HAL, VAL of the most demanding level
+    vertical_only: tuple[str, ...] = ()  # monitors that bound the vertical only (no HPL): DPE
 
 
 def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
@@ -183,7 +184,8 @@ def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
     return Scene(title=f"{ap.name} ({ap.aircraft.name})", monitors=setup.monitor_names, planned_enu=planned,
                  terrain_mesh=mesh, runway_enu=runway, landmarks_enu=lm_enu,
                  landmark_ids=tuple(str(i) for i in setup.landmarks.id), camera_K=K, camera_resolution=res,
-                 alert_limits=tuple(setup.alert_limits))
+                 alert_limits=tuple(setup.alert_limits),
+                 vertical_only=tuple(m.name for m in setup.monitors if getattr(m, "dimensions", ("H", "V")) == ("V",)))
 
 
 def R_body_to_world(frame: LocalFrame, euler: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:

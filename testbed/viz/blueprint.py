@@ -43,20 +43,30 @@ def _series(name: str, origin: str) -> rrb.TimeSeriesView:
                               plot_legend=rrb.PlotLegend(visible=False))
 
 
-def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
-                      alert_limits: tuple[float, float] = (float("nan"), float("nan")),
-                      play_state: str | None = None) -> rrb.Blueprint:
-    """The layout; ``play_state`` ("following": the cursor at the newest data) for the time panel."""
-    hal, val = alert_limits
-    monitor_tabs = [
-        rrb.Vertical(
-            _series(f"{m}: HPL (blue) vs HAL {hal:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/horizontal"),
+def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool) -> rrb.Vertical:
+    if vertical_only:  # DPE: no HPL and no test; its σ_ob and the density it bounds instead
+        return rrb.Vertical(
             _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/vertical"),
-            _series(f"{m}: test statistic SSE (blue) vs threshold (red). {MARK_KEY}", f"/integrity/{m}/detection"),
+            _series(f"{m}: overbound σ_ob (blue) and median (red) of the vertical error, m", f"/integrity/{m}/overbound"),
+            rrb.BarChartView(name=f"{m}: vertical error density at the cursor epoch (m; it is what σ_ob bounds)",
+                             origin=f"/integrity/{m}/vertical_error_density"),
             name=m,
         )
-        for m in monitors
-    ]
+    return rrb.Vertical(
+        _series(f"{m}: HPL (blue) vs HAL {hal:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/horizontal"),
+        _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/vertical"),
+        _series(f"{m}: test statistic SSE (blue) vs threshold (red). {MARK_KEY}", f"/integrity/{m}/detection"),
+        name=m,
+    )
+
+
+def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
+                      alert_limits: tuple[float, float] = (float("nan"), float("nan")),
+                      play_state: str | None = None, vertical_only: tuple[str, ...] = ()) -> rrb.Blueprint:
+    """The layout; ``play_state`` ("following": the cursor at the newest data) for the time panel;
+    ``vertical_only`` monitors (DPE) get a VPL, overbound and error-density tab."""
+    hal, val = alert_limits
+    monitor_tabs = [_monitor_tab(m, hal, val, m in vertical_only) for m in monitors]
     # the flown trail is one point per epoch: show all of them up to the cursor
     trail = {"world/path/flown": rrb.VisibleTimeRanges(rrb.VisibleTimeRange(
         "sim_time", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()))}

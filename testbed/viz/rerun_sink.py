@@ -142,7 +142,8 @@ class RerunSink:
         self._scene_landmarks = scene.landmarks_enu
         self._scene_runway = scene.runway_enu
         self._K, self._resolution = scene.camera_K, scene.camera_resolution
-        rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu), tuple(scene.alert_limits)),
+        rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu), tuple(scene.alert_limits),
+                                             vertical_only=tuple(scene.vertical_only)),
                            make_active=True, make_default=True)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scene.terrain_mesh is not None:
@@ -311,6 +312,28 @@ class RerunSink:
                                   columns=rr.Scalars.columns(scalars=np.asarray(x, float)))
         self.rec.send_columns(f"sensors/satellites_used/{name}", indexes=tm,
                               columns=rr.Scalars.columns(scalars=np.asarray(out.n_used, float)))
+        self._log_vertical_density(name, out)
+
+    def _log_vertical_density(self, name: str, out) -> None:
+        """A monitor that publishes the vertical error distribution its PL bounds (diagnostics with
+        ``marginal``, ``marginal_offsets``, ``sigma_ob``, ``median_m``: DPE): its overbound over
+        time and, per epoch, the density as a bar chart (m on the abscissa)."""
+        d = out.diagnostics
+        if not all(hasattr(d, f) for f in ("marginal", "marginal_offsets", "sigma_ob", "median_m")):
+            return
+        tm = [rr.TimeColumn("sim_time", duration=out.t)]
+        for suffix, x in (("overbound/sigma_ob", d.sigma_ob), ("overbound/median", d.median_m)):
+            self.rec.send_columns(f"integrity/{name}/{suffix}", indexes=tm,
+                                  columns=rr.Scalars.columns(scalars=np.asarray(x, float)))
+        for i, t in enumerate(np.asarray(out.t, float)):
+            off, mass = np.asarray(d.marginal_offsets[i], float), np.asarray(d.marginal[i], float)
+            if not np.isfinite(mass).all():
+                continue
+            width = float(off[1] - off[0])
+            keep = mass > 1e-6 * mass.max()  # the bars that show
+            self.rec.set_time("sim_time", duration=float(t))
+            self.rec.log(f"integrity/{name}/vertical_error_density",
+                         rr.BarChart(mass[keep] / width, abscissa=off[keep], widths=np.full(int(keep.sum()), width)))
 
     def _log_marks(self, block: "LoopBlock") -> None:
         """Fault onset, alerts and availability changes as markers on each monitor's three panels

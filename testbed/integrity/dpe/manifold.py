@@ -13,12 +13,14 @@ statistic the log-likelihood, maximised over each block's unknown complex amplit
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
 from testbed.correlation import peak
 from testbed.frames import LocalFrame
+from testbed.integrity.kernels.dpe import interval_polynomials
 
 
 @dataclass(frozen=True)
@@ -35,6 +37,11 @@ class EpochManifold:
     floor: NDArray
     delay0_m: float
     step_m: float
+
+    @cached_property
+    def poly(self) -> NDArray:
+        """(S, M, 4) the tables as the kernels read them (Keys' cubic per interval)."""
+        return interval_polynomials(self.table)
 
     def index_units(self, centre: NDArray, axes: NDArray) -> tuple[NDArray, NDArray]:
         """(c, H) of the kernels for candidates ``centre + axes @ z``: delay index = c + H·z."""

@@ -106,17 +106,19 @@ class DpeMonitor:
     settings: DpeSettings
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "correlators"})
     reference: ClassVar[str] = ANTENNA
+    dimensions: ClassVar[tuple[str, ...]] = ("V",)  # its PL bounds the vertical only
 
     def prepare(self) -> None:
         """Compile the kernels before the first epoch (numba caches them): GPS RAIM's (the
         initialisation) and the manifold's, on arrays of the types an epoch uses."""
         from testbed.integrity.kernels import compile_all
-        from testbed.integrity.kernels.dpe import deposit_marginal, manifold_box, posterior_moments
+        from testbed.integrity.kernels.dpe import deposit_marginal, manifold_box, manifold_box_threads, posterior_moments
 
         compile_all()
         lam = np.zeros(1)
-        manifold_box(np.zeros(1), np.zeros((1, 4)), np.zeros((1, 8)), np.zeros(1), 1.0, 1, True, lam)
-        posterior_moments(lam, 1.0, 1)
+        for kernel in (manifold_box, manifold_box_threads):
+            kernel(np.zeros(1), np.zeros((1, 4)), np.zeros((1, 8, 4)), np.zeros(1), 1.0, 1, True, lam)
+        posterior_moments(lam, 1.0, 1, np.zeros(1))
         deposit_marginal(lam, 1.0, 1, np.zeros(4), 0.0, 1.0, np.zeros(3))
 
     def initial_state(self) -> DpeState:
@@ -167,7 +169,7 @@ class DpeMonitor:
                             n_blocks=corr.n_noncoherent, bandwidth_chips=corr.bandwidth_chips,
                             delay0_m=corr.delay0_m, step_m=corr.delay_step_m)
         sol = solve_epoch(mf, amplitude_sq(cn0, corr.coherent_s), corr.n_noncoherent, corr.bandwidth_chips,
-                          self.settings.plan())
+                          self.settings.plan(), threaded=self.context.threads != 1)
         res.recentred[b, i] = sol.recentred
         if sol.status != Status.OK:
             res.reason[b, i] = _STATUS_REASON[sol.status]

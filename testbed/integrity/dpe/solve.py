@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from testbed.correlation import crb_delay_sigma
 from testbed.integrity.dpe.manifold import EpochManifold
-from testbed.integrity.kernels.dpe import deposit_marginal, manifold_box, posterior_moments
+from testbed.integrity.kernels.dpe import deposit_marginal, manifold_box, manifold_box_threads, posterior_moments
 
 
 class Status(IntEnum):
@@ -75,12 +75,14 @@ def _best_node(lam: NDArray, n: int) -> tuple[NDArray, bool]:
     return idx - (n - 1) / 2.0, bool(np.any((idx == 0) | (idx == n - 1)))
 
 
-def _box_search(mf: EpochManifold, centre: NDArray, axes: NDArray, spacing: float, n: int, budget: int, cubic: bool):
+def _box_search(mf: EpochManifold, centre: NDArray, axes: NDArray, spacing: float, n: int, budget: int, cubic: bool,
+                threaded: bool = False):
     """The best node of an n⁴ box about ``centre`` (recentred while on a face): (centre, lam, node, faces, used)."""
     out = np.empty(n ** 4)
+    kernel = manifold_box_threads if threaded else manifold_box
     for used in range(budget + 1):
         c, H = mf.index_units(centre, axes)
-        manifold_box(c, H, mf.table, mf.floor, spacing, n, cubic, out)
+        kernel(c, H, mf.poly, mf.floor, spacing, n, cubic, out)
         node, on_face = _best_node(out, n)
         if not on_face:
             return centre, out, node, False, used
@@ -129,8 +131,12 @@ def crb(g: NDArray, amplitude_sq: NDArray, n_blocks: int, bandwidth_chips: float
 
 
 def solve_epoch(mf: EpochManifold, amplitude_sq: NDArray, n_blocks: int, bandwidth_chips: float,
-                plan: GridPlan = GridPlan()) -> EpochSolution:
-    """The `likelihood` DPE of one epoch about its initialisation (offsets ξ = 0)."""
+                plan: GridPlan = GridPlan(), threaded: bool = False) -> EpochSolution:
+    """The `likelihood` DPE of one epoch about its initialisation (offsets ξ = 0).
+
+    threaded : the fine grid on numba's threads (same numbers; campaigns, which run blocks side by
+    side, keep it off).
+    """
     nan4 = np.full(4, np.nan)
     failed = dict(x_mean=nan4, x_ml=nan4, cov=np.full((4, 4), np.nan), J=np.full((4, 4), np.nan),
                   offsets=np.full(plan.bins, np.nan), marginal=np.full(plan.bins, np.nan))
@@ -152,11 +158,13 @@ def solve_epoch(mf: EpochManifold, amplitude_sq: NDArray, n_blocks: int, bandwid
     J = crb(mf.g, a2, n_blocks, bandwidth_chips)
     L = np.linalg.cholesky(J)
     centre, r3 = _zoom(mf, centre, L, plan)
-    centre, lam, node, edge, r4 = _box_search(mf, centre, L, plan.fine_z, plan.fine_n, plan.max_recentre, True)
+    centre, lam, node, edge, r4 = _box_search(mf, centre, L, plan.fine_z, plan.fine_n, plan.max_recentre, True,
+                                              threaded)
     recentred = r1 + r2 + r3 + r4
     if edge:
         return EpochSolution(Status.PEAK_AT_EDGE, recentred=recentred, used=used, **failed)
-    _, zbar, zz = posterior_moments(lam, plan.fine_z, plan.fine_n)
+    weights = np.empty_like(lam)
+    _, zbar, zz = posterior_moments(lam, plan.fine_z, plan.fine_n, weights)
     x_mean = centre + L @ zbar
     cov = L @ (zz - np.outer(zbar, zbar)) @ L.T
     x_ml = centre + L @ (node * plan.fine_z)
@@ -165,7 +173,7 @@ def solve_epoch(mf: EpochManifold, amplitude_sq: NDArray, n_blocks: int, bandwid
     reach = (plan.fine_n - 1) / 2.0 * plan.fine_z * np.abs(L[2]).sum() + abs(shift)  # the largest |e| on the grid
     width = max(plan.bin_sigma * np.sqrt(J[2, 2]), reach / ((plan.bins - 1) / 2.0 - 1.0))
     bins = np.empty(plan.bins)
-    deposit_marginal(lam, plan.fine_z, plan.fine_n, -L[2].copy(), -shift, width, bins)
+    deposit_marginal(weights, plan.fine_z, plan.fine_n, -L[2].copy(), -shift, width, bins)
     offsets = (np.arange(plan.bins) - (plan.bins - 1) / 2.0) * width
     return EpochSolution(Status.OK, x_mean=x_mean, x_ml=x_ml, cov=cov, J=J, offsets=offsets,
                          marginal=bins / bins.sum(), recentred=recentred, used=used)

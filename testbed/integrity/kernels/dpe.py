@@ -1,10 +1,10 @@
 """Compiled DPE manifold: candidate delays -> correlogram lookups -> likelihood (DPE.md §2-§3).
 
 Per satellite k the candidate ξ (4 offsets) has delay ``c_k + H_k·ξ`` on its correlogram
-(``table[k]``, index units); the manifold is Σ_k f_k(delay). The lookup is Keys' cubic
-convolution (a = −0.5; ``cubic`` False: linear). A delay outside the table's safe range
-reads the satellite's noise floor ``floor[k]`` (no signal there, so it cannot favour a
-candidate). :func:`manifold_numpy` in :mod:`testbed.integrity.dpe.manifold` is the plain
+(``poly[k]``, index units); the manifold is Σ_k f_k(delay). The lookup is Keys' cubic
+convolution (a = −0.5), read from per-interval polynomials; ``cubic`` False: linear.
+A delay outside the table's safe range reads the satellite's noise floor ``floor[k]``
+(no signal there, so it cannot favour a candidate). :func:`manifold_numpy` in :mod:`testbed.integrity.dpe.manifold` is the plain
 reference these kernels equal to rounding.
 """
 
@@ -15,118 +15,136 @@ from numba import njit, prange
 
 
 @njit(cache=True, inline="always")
-def _keys(f, i, t):
-    t2 = t * t
-    t3 = t2 * t
-    wm = -0.5 * t3 + t2 - 0.5 * t
-    w0 = 1.5 * t3 - 2.5 * t2 + 1.0
-    w1 = -1.5 * t3 + 2.0 * t2 + 0.5 * t
-    w2 = 0.5 * t3 - 0.5 * t2
-    return wm * f[i - 1] + w0 * f[i] + w1 * f[i + 1] + w2 * f[i + 2]
-
-
-@njit(cache=True, inline="always")
 def _lookup(f, pos, floor, cubic):
+    """f: (M, 4) the interval polynomials of :func:`interval_polynomials` (Horner in t)."""
     M = f.shape[0]
     if not (pos >= 1.0 and pos < M - 3.0):
         return floor
     i = int(pos)
     t = pos - i
     if cubic:
-        return _keys(f, i, t)
-    return (1.0 - t) * f[i] + t * f[i + 1]
+        return ((f[i, 3] * t + f[i, 2]) * t + f[i, 1]) * t + f[i, 0]
+    return f[i, 0] + t * (f[i + 1, 0] - f[i, 0])
 
 
-@njit(cache=True)
-def manifold_points(c, H, table, floor, X, cubic, out):
-    """out[n] = Σ_k f_k(c_k + H_k·X[n]) for candidates X (N, 4); c, H in index units."""
-    S = c.shape[0]
-    for n in range(X.shape[0]):
-        s = 0.0
-        x0, x1, x2, x3 = X[n, 0], X[n, 1], X[n, 2], X[n, 3]
-        for k in range(S):
-            pos = c[k] + H[k, 0] * x0 + H[k, 1] * x1 + H[k, 2] * x2 + H[k, 3] * x3
-            s += _lookup(table[k], pos, floor[k], cubic)
-        out[n] = s
+def interval_polynomials(table: np.ndarray) -> np.ndarray:
+    """(S, M, 4) Keys' cubic on each interval [j, j + 1] as c0 + c1·t + c2·t² + c3·t³ (one cache line
+    a lookup; c0 = f[j], so the linear lookup reads the same array). Edge intervals copy the edge."""
+    f = np.asarray(table, np.float64)
+    fp = np.concatenate([f[:, :1], f, f[:, -1:], f[:, -1:]], axis=1)  # f[-1], f[0..M-1], f[M], f[M+1]
+    fm, f0, f1, f2 = fp[:, :-3], fp[:, 1:-2], fp[:, 2:-1], fp[:, 3:]
+    return np.ascontiguousarray(np.stack([f0, 0.5 * (f1 - fm), fm - 2.5 * f0 + 2.0 * f1 - 0.5 * f2,
+                                          -0.5 * fm + 1.5 * f0 - 1.5 * f1 + 0.5 * f2], axis=-1))
 
 
-@njit(cache=True)
-def manifold_box(c, H, table, floor, spacing, n, cubic, out):
-    """The manifold on the product grid ξ_a = (i_a − (n−1)/2)·spacing, i_a < n (out: n⁴, C order).
-
-    The per-axis delay increments are summed incrementally (the lookups dominate).
-    """
-    S = c.shape[0]
+@njit(cache=True, inline="always")
+def _box_slab(c, H, poly, floor, spacing, n, cubic, out, i0):
+    """The n³ candidates with first index i0, satellite by satellite (its polynomials stay in the
+    first-level cache), the delay stepped incrementally along each axis."""
     half = (n - 1) / 2.0
-    q = 0
-    for i0 in range(n):
+    n3 = n * n * n
+    for q in range(i0 * n3, (i0 + 1) * n3):
+        out[q] = 0.0
+    for k in range(c.shape[0]):
+        f = poly[k]
+        fl = floor[k]
+        h0, h1, h2, h3 = H[k, 0] * spacing, H[k, 1] * spacing, H[k, 2] * spacing, H[k, 3] * spacing
+        p0 = c[k] - half * (h0 + h1 + h2 + h3) + i0 * h0
+        q = i0 * n3
         for i1 in range(n):
+            p1 = p0 + i1 * h1
             for i2 in range(n):
+                p2 = p1 + i2 * h2
                 for i3 in range(n):
-                    z0, z1, z2, z3 = (i0 - half) * spacing, (i1 - half) * spacing, (i2 - half) * spacing, (i3 - half) * spacing
-                    s = 0.0
-                    for k in range(S):
-                        pos = c[k] + H[k, 0] * z0 + H[k, 1] * z1 + H[k, 2] * z2 + H[k, 3] * z3
-                        s += _lookup(table[k], pos, floor[k], cubic)
-                    out[q] = s
+                    out[q] += _lookup(f, p2 + i3 * h3, fl, cubic)
                     q += 1
 
 
+@njit(cache=True)
+def manifold_box(c, H, poly, floor, spacing, n, cubic, out):
+    """The manifold on the product grid ξ_a = (i_a − (n−1)/2)·spacing, i_a < n (out: n⁴, C order)."""
+    for i0 in range(n):
+        _box_slab(c, H, poly, floor, spacing, n, cubic, out, i0)
+
+
 @njit(cache=True, parallel=True)
-def manifold_boxes(c, H, table, floor, spacing, n, cubic, out):
-    """:func:`manifold_box` for a batch of epochs (E, ...) -> out (E, n⁴), one thread per epoch."""
-    for e in prange(c.shape[0]):
-        manifold_box(c[e], H[e], table[e], floor[e], spacing, n, cubic, out[e])
+def manifold_box_threads(c, H, poly, floor, spacing, n, cubic, out):
+    """:func:`manifold_box` with the first axis's slabs on numba's threads (identical numbers)."""
+    for i0 in prange(n):
+        _box_slab(c, H, poly, floor, spacing, n, cubic, out, i0)
 
 
 @njit(cache=True)
-def posterior_moments(lam, spacing, n):
-    """Weights exp(Λ − max) on the n⁴ box: (Σw, mean (4), second moments (4, 4)) in box units."""
+def posterior_moments(lam, spacing, n, weights):
+    """Weights exp(Λ − max) on the n⁴ box (into ``weights``): (Σw, mean (4), second moments (4, 4)), box units."""
     half = (n - 1) / 2.0
     top = lam.max()
     tot = 0.0
     mean = np.zeros(4)
     sec = np.zeros((4, 4))
-    z = np.zeros(4)
     q = 0
     for i0 in range(n):
+        z0 = (i0 - half) * spacing
         for i1 in range(n):
+            z1 = (i1 - half) * spacing
             for i2 in range(n):
+                z2 = (i2 - half) * spacing
+                # the i3 axis summed first: per (i0, i1, i2) line, Σw, Σw·z3, Σw·z3²
+                s0 = 0.0
+                s1 = 0.0
+                s2 = 0.0
                 for i3 in range(n):
+                    z3 = (i3 - half) * spacing
                     w = np.exp(lam[q] - top)
-                    z[0], z[1], z[2], z[3] = (i0 - half) * spacing, (i1 - half) * spacing, (i2 - half) * spacing, (i3 - half) * spacing
-                    tot += w
-                    for a in range(4):
-                        mean[a] += w * z[a]
-                        for b in range(4):
-                            sec[a, b] += w * z[a] * z[b]
+                    weights[q] = w
+                    s0 += w
+                    s1 += w * z3
+                    s2 += w * z3 * z3
                     q += 1
+                tot += s0
+                mean[0] += s0 * z0
+                mean[1] += s0 * z1
+                mean[2] += s0 * z2
+                mean[3] += s1
+                sec[0, 0] += s0 * z0 * z0
+                sec[0, 1] += s0 * z0 * z1
+                sec[0, 2] += s0 * z0 * z2
+                sec[0, 3] += s1 * z0
+                sec[1, 1] += s0 * z1 * z1
+                sec[1, 2] += s0 * z1 * z2
+                sec[1, 3] += s1 * z1
+                sec[2, 2] += s0 * z2 * z2
+                sec[2, 3] += s1 * z2
+                sec[3, 3] += s2
+    for a in range(4):
+        for b in range(a):
+            sec[a, b] = sec[b, a]
     return tot, mean / tot, sec / tot
 
 
 @njit(cache=True)
-def deposit_marginal(lam, spacing, n, coef, origin, width, bins):
-    """Deposit exp(Λ − max) of the n⁴ box onto ``bins`` (linear shares) along u = coef·z − origin.
+def deposit_marginal(weights, spacing, n, coef, origin, width, bins):
+    """Deposit the box's weights onto ``bins`` (linear shares) along u = coef·z − origin.
 
     Bin j covers the u values centred on (j − (nb − 1)/2)·width.
     """
     half = (n - 1) / 2.0
-    top = lam.max()
     nb = bins.shape[0]
     mid = (nb - 1) / 2.0
     for j in range(nb):
         bins[j] = 0.0
+    step3 = coef[3] * spacing / width
     q = 0
     for i0 in range(n):
         for i1 in range(n):
             for i2 in range(n):
+                u0 = ((coef[0] * (i0 - half) + coef[1] * (i1 - half) + coef[2] * (i2 - half) - coef[3] * half) * spacing
+                      - origin) / width + mid
                 for i3 in range(n):
-                    u = (coef[0] * (i0 - half) + coef[1] * (i1 - half) + coef[2] * (i2 - half)
-                         + coef[3] * (i3 - half)) * spacing - origin
-                    p = u / width + mid
+                    p = u0 + i3 * step3
                     j = int(np.floor(p))
                     f = p - j
-                    w = np.exp(lam[q] - top)
+                    w = weights[q]
                     if j >= 0 and j < nb:
                         bins[j] += w * (1.0 - f)
                     if j + 1 >= 0 and j + 1 < nb:
