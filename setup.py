@@ -16,7 +16,7 @@ setup(
     package_data={
         "testbed": ["data/*.tsv"],
         "testbed._shipped.aircraft": ["*/*.toml", "*/*.xml", "*/**/*.xml"],
-        "testbed._shipped.approaches": ["*.toml", "campaigns/*.toml"],
+        "testbed._shipped.approaches": ["*.toml", "campaigns/*.toml", "calibration/*.json"],
     },
     include_package_data=False,
 )

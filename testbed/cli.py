@@ -78,6 +78,45 @@ def _cmd_observability(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
+    from testbed.campaign.dpe_calibration import calibrate_dpe, write_record
+
+    out = Path(args.out)
+    if out.exists() and out.is_dir():
+        raise ConfigError(out, ["--out: expected a file path for the calibration record, got a folder"])
+    if not out.parent.is_dir():
+        raise ConfigError(out, [f"--out: the folder {out.parent} does not exist"])
+    try:
+        rec = calibrate_dpe(args.approach, sorties=args.sorties, p_hmi=args.p_hmi, seed=args.seed,
+                            progress=lambda m: print(m, flush=True))
+    except ValueError as exc:  # too few epochs for the tail levels, and the like
+        raise ConfigError(Path(args.approach), [f"calibrate-dpe: {exc}"]) from None
+    write_record(rec, out)
+    v = rec["validation"]
+    print(f"K = {rec['k']:.3f} (sigma_z {rec['sigma_z']:.3f}, b_z {rec['b_z']:+.3f}, {rec['k_from']}; "
+          f"{rec['n_calibration']} calibration epochs, deepest tail level {rec['deepest_level']:.1e}) for "
+          f"P_HMI = {rec['p_hmi']:g} per epoch")
+    print(f"held-out: {v['epochs']} epochs, tails {'hold' if v['tails_hold'] else 'DO NOT hold'} at "
+          f"{v['levels_checked']} levels (worst observed/bound {v['worst_ratio']:.2f}), |e| > VPL {v['exceedances']} "
+          f"(allowed {v['allowed']}): {'PASSED' if v['passed'] else 'FAILED'}")
+    print(f"wrote {out}; use it with [dpe] k_factor = \"{out}\"")
+    return 0 if v["passed"] else 1
+
+
+def _in_range(kind, lo, hi):
+    """An argparse type: a ``kind`` number in [lo, hi) (argparse prints the message and exits 2)."""
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            v = None
+        if v is None or not lo <= v < hi:
+            raise argparse.ArgumentTypeError(f"expected a {kind.__name__} in [{lo:g}, {hi:g}), got {text!r}")
+        return v
+
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="testbed", description="GNSS/vision integrity testbed for approaches into ZUNZ")
     sub = p.add_subparsers(dest="command", required=True)
@@ -119,6 +158,17 @@ def build_parser() -> argparse.ArgumentParser:
                                              "one along a racetrack, an RF turn and the straight final (~15 s)")
     o.add_argument("--seed", type=int, default=0, help="seed of the random lines of sight, features and h_V")
     o.set_defaults(func=_cmd_observability)
+
+    k = sub.add_parser("calibrate-dpe", help="fit the dpe monitor's K on fault-free sorties and validate it on "
+                                             "held-out ones (writes a record [dpe] k_factor can name)")
+    k.add_argument("approach", nargs="?", default="zunz-rwy05-dpe", help="approach with the dpe settings to calibrate")
+    k.add_argument("--out", required=True, type=Path, help="the calibration record to write (.json)")
+    k.add_argument("--sorties", type=_in_range(int, 6, 100_000), default=60,
+                   help="sorties per set (calibration and validation; ~150 epochs and ~1.5 s each)")
+    k.add_argument("--p-hmi", type=_in_range(float, 1e-12, 0.01), default=1e-7,
+                   help="per-epoch HMI probability K is for")
+    k.add_argument("--seed", type=int, default=0, help="seed of the sorties' draws")
+    k.set_defaults(func=_cmd_calibrate_dpe)
 
     c = sub.add_parser("check", help="validate approach (or campaign) files and explain every problem")
     c.add_argument("files", nargs="+", type=Path)

@@ -157,6 +157,15 @@ FILE_CASES = [
      "gnss.correlators.bandwidth_chips", "0"),
     ("cn0-out-of-range", lambda d: approach(d, tail="[gnss.correlators]\ncn0_by_elevation = { 10.0 = 400.0 }"),
      "gnss.correlators.cn0_by_elevation", "400"),
+    ("dpe-k-file-missing", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]', tail='[dpe]\nk_factor = "missing.json"'),
+     "dpe.k_factor", "missing.json"),
+    ("dpe-k-file-for-other-settings", lambda d: ((d / "k.json").write_text(
+        '{"k": 5.9, "settings": {"dpe": {"sis": "none"}}, "fingerprint": "x"}'),
+        approach(d, top='monitors = ["gps_raim", "dpe"]', tail='[dpe]\nk_factor = "k.json"'))[1],
+     "dpe.k_factor", "dpe.sis = 'none' there, 'add' here"),
+    ("seed-variant-on-the-power-statistic", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]',
+                                                                tail='[dpe]\nvariant = "seed"\nk_factor = 5.0'),
+     "gnss.correlators.statistic", "'seed' reads 'mag'"),
     ("blocks-longer-than-an-epoch", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]',
                                                        tail="[gnss.correlators]\nn_noncoherent = 100"),
      "gnss.correlators", "100 blocks"),
@@ -413,6 +422,22 @@ def test_an_output_folder_that_is_a_file_is_refused(work, capsys):
         code, out = run(capsys, *argv)
         assert code == 2 and str(f) in out and "is a file" in out, out
         assert f.read_text() == "mine"
+
+
+@pytest.mark.parametrize("argv", [["--sorties", "3"], ["--sorties", "x"], ["--p-hmi", "0.5"], ["--p-hmi", "nan"], []])
+def test_calibrate_dpe_options_are_checked_before_any_work(argv, work, capsys):
+    cwd, _ = work
+    with pytest.raises(SystemExit) as ei:  # argparse: usage message, exit 2 (no --out: required)
+        main(["calibrate-dpe", *argv] + ([] if not argv else ["--out", str(cwd / "k.json")]))
+    assert ei.value.code == 2
+    assert not list(cwd.iterdir())
+
+
+def test_calibrate_dpe_into_a_missing_folder_is_refused(work, capsys):
+    cwd, _ = work
+    code, out = run(capsys, "calibrate-dpe", "--out", cwd / "no" / "k.json")
+    assert code == 2 and "does not exist" in out
+    assert not list(cwd.iterdir())
 
 
 def test_new_campaign_options_are_checked(work, capsys):

@@ -34,7 +34,8 @@ def test_wheel_holds_the_shipped_files_and_no_tests_recordings_or_build_products
     names = zipfile.ZipFile(wheel).namelist()
     shipped = {n.split("testbed/_shipped/", 1)[1] for n in names if n.startswith("testbed/_shipped/")}
     repo = {str(p.relative_to(ROOT)) for d in ("aircraft", "approaches") for p in (ROOT / d).rglob("*.toml")}
-    assert shipped == repo  # every shipped aircraft, approach and campaign spec, and nothing more
+    repo |= {str(p.relative_to(ROOT)) for p in (ROOT / "approaches" / "calibration").glob("*.json")}
+    assert shipped == repo  # every shipped aircraft, approach, campaign spec and calibration record, nothing more
     assert "testbed/data/do229_gps_almanac_24sat.tsv" in names
     bad = [n for n in names if n.startswith("tests/") or "/tests/" in n or "__pycache__" in n
            or n.endswith((".rrd", ".part", ".pyc", ".nbi", ".nbc", ".png", ".parquet"))]

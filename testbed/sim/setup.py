@@ -6,6 +6,7 @@ Nothing here flies or draws random numbers; :mod:`testbed.sim.loop` does.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from pydantic import ValidationError
@@ -112,10 +113,34 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
             raise ConfigError(approach.source, [
                 f"gnss.correlators: {cs.n_noncoherent} blocks of {cs.coherent_s:g} s (n_noncoherent x coherent_s) "
                 f"do not fit in one epoch of {1.0 / gnss.rate_hz:g} s (gnss.rate_hz = {gnss.rate_hz:g})"])
+        variant = c.dpe.get("variant", "likelihood") if "dpe" in c.monitors else None
+        want = {"seed": "mag", "likelihood": "pow"}.get(variant)
+        if want is not None and cs.statistic != want:
+            raise ConfigError(approach.source, [
+                f"gnss.correlators.statistic = {cs.statistic!r}: dpe.variant = {variant!r} reads {want!r}"
+                + (" (and needs synthesis = 'exact')" if want == "mag" else "")])
     monitors = build_monitors(approach, frame, monitor_threads)
     return RunSetup(approach=approach, frame=frame, path=path, terrain=terrain, gnss=gnss,
                     antenna=antenna_mount(approach), vision=vision, landmarks=build_landmarks(c.landmarks),
                     integrity=c.integrity, monitors=monitors, faults=tuple(c.faults), imu=c.imu)
+
+
+def _dpe_k_from_file(approach: Approach) -> float:
+    """``[dpe] k_factor = "file.json"``: K from a `testbed calibrate-dpe` record (relative to the approach
+    file), if it was calibrated for these settings; otherwise a ConfigError naming the key and the file."""
+    from testbed.integrity.dpe.calibration import read_k_file, settings_fingerprint
+    from testbed.integrity.dpe.monitor import DpeSettings
+
+    c = approach.config
+    path = Path(c.dpe["k_factor"])
+    path = path if path.is_absolute() else approach.source.parent / path
+    try:
+        settings = DpeSettings.model_validate({**c.dpe, "k_factor": 1.0})
+        return read_k_file(path, settings_fingerprint(settings, c.gnss.correlators)[1])
+    except ValidationError as exc:
+        raise ConfigError(approach.source, ["dpe." + p for p in format_validation_error(exc)]) from None
+    except ValueError as exc:
+        raise ConfigError(approach.source, [f"dpe.k_factor = {c.dpe['k_factor']!r}: {exc}"]) from None
 
 
 def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = None) -> tuple[Monitor, ...]:
@@ -123,6 +148,8 @@ def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = 
     c = approach.config
     names = tuple(dict.fromkeys(c.monitors))
     options = {n: getattr(c, n) for n in names if isinstance(getattr(c, n, None), dict)}
+    if "dpe" in options and isinstance(options["dpe"].get("k_factor"), str):
+        options["dpe"] = {**options["dpe"], "k_factor": _dpe_k_from_file(approach)}
     ctx = MonitorContext(frame=frame, integrity=c.integrity, options=options, threads=threads)
     out = []
     for name in names:

@@ -29,6 +29,7 @@ from pydantic import Field
 from testbed.correlation import amplitude_sq, crb_delay_sigma
 from testbed.integrity.dpe.manifold import epoch_manifold
 from testbed.integrity.dpe.overbound import gaussian_overbound
+from testbed.integrity.dpe.seed_variant import SPREAD_STEPS, solve_epoch_seed
 from testbed.integrity.dpe.solve import GridPlan, Status, solve_epoch
 from testbed.integrity.levels import service_level
 from testbed.integrity.monitor import ANTENNA, MonitorContext, Observations
@@ -51,10 +52,17 @@ _STATUS_REASON = {Status.FEW_SATELLITES: FEW, Status.PEAK_AT_EDGE: PEAK_AT_EDGE}
 class DpeSettings(StrictModel):
     """Options of the ``dpe`` monitor (``[dpe]`` in an approach file)."""
 
-    variant: Literal["likelihood"] = Field(
-        "likelihood", description="'likelihood': GLRT power manifold, posterior mean, marginal (DPE.md §4)")
+    variant: Literal["likelihood", "seed"] = Field(
+        "likelihood", description="'likelihood': GLRT power manifold, posterior mean, marginal (DPE.md §4); 'seed': "
+                                  "the paper as written (spread grid, magnitude sum, weighted mean, conditional "
+                                  "slice), for reproduction; it needs gnss.correlators.statistic = 'mag'")
+    seed_passes: int = Field(50, ge=1, le=200, description="'seed': mean-shift passes of the weighted mean")
+    seed_power: float = Field(1.0, gt=0.0, le=8.0, description="'seed': f = (mean |y|)^p")
+    seed_mass: Literal["sum", "density"] = Field(
+        "sum", description="'seed': the slice read as masses ('sum', the seed's literal reading) or densities")
     k_factor: float | None = Field(
-        None, gt=0.0, le=100.0, description="VPL = K·σ + |m|; None: VPL NaN, every epoch NOT_CALIBRATED")
+        None, gt=0.0, le=100.0, description="VPL = K·σ + |m|; a number, or in an approach file the path of a "
+                                            "`testbed calibrate-dpe` record; None: VPL NaN, every epoch NOT_CALIBRATED")
     sis: Literal["add", "none"] = Field(
         "add", description="'add': σ² = σ_ob² + σ²_SIS,U (the SIS error is outside the manifold); 'none': σ_ob")
     sigma_ura_m: float = Field(0.75, ge=0.0, description="σ_URA the monitor assumes for the SIS term (m)")
@@ -108,6 +116,10 @@ class DpeMonitor:
     reference: ClassVar[str] = ANTENNA
     dimensions: ClassVar[tuple[str, ...]] = ("V",)  # its PL bounds the vertical only
 
+    @property
+    def seed(self) -> bool:
+        return self.settings.variant == "seed"
+
     def prepare(self) -> None:
         """Compile the kernels before the first epoch (numba caches them): GPS RAIM's (the
         initialisation) and the manifold's, on arrays of the types an epoch uses."""
@@ -142,7 +154,7 @@ class DpeMonitor:
         stat = np.broadcast_to(np.asarray(corr.stat), lead + (T, S) + corr.stat.shape[-1:]).reshape(B, T, S, -1)
         vis = np.broadcast_to(np.asarray(corr.visible, bool), lead + (T, S)).reshape(B, T, S)
         cn0 = np.broadcast_to(np.asarray(corr.cn0_est_dbhz), lead + (T, S)).reshape(B, T, S)
-        res = _Results(B, T, self.settings.plan().bins)
+        res = _Results(B, T, SPREAD_STEPS.size if self.seed else self.settings.plan().bins)
         for b in range(B):
             for i in range(T):
                 x0, kind = init[b, i], 1
@@ -165,9 +177,22 @@ class DpeMonitor:
     def _solve(self, res: "_Results", b: int, i: int, x0: NDArray, sat: NDArray, rho: NDArray, stat: NDArray,
                cn0: NDArray, corr) -> None:
         fr = self.context.frame
+        want = "mag" if self.seed else "pow"
+        if corr.stat_kind != want:
+            raise ValueError(f"dpe: variant {self.settings.variant!r} reads the {want!r} statistic, the correlators "
+                             f"report {corr.stat_kind!r} (gnss.correlators.statistic)")
         mf = epoch_manifold(fr, sat, rho, stat, x0[:3], float(x0[3]), stat_kind=corr.stat_kind,
                             n_blocks=corr.n_noncoherent, bandwidth_chips=corr.bandwidth_chips,
                             delay0_m=corr.delay0_m, step_m=corr.delay_step_m)
+        if self.seed:
+            ss = solve_epoch_seed(mf, self.settings.seed_passes, self.settings.seed_power)
+            res.x[b, i] = x0 + ss.x_mean
+            res.x_ml[b, i] = res.x[b, i]
+            res.offsets[b, i] = -ss.slice_u[::-1]  # error coordinates e = Û − U, ascending
+            res.marginal[b, i] = ss.slice_values[::-1]
+            res.n_used[b, i] = int(ss.used.sum())
+            self._sis(res, b, i, mf.g, ss.used, cn0, corr)
+            return
         sol = solve_epoch(mf, amplitude_sq(cn0, corr.coherent_s), corr.n_noncoherent, corr.bandwidth_chips,
                           self.settings.plan(), threaded=self.context.threads != 1)
         res.recentred[b, i] = sol.recentred
@@ -181,20 +206,24 @@ class DpeMonitor:
         res.offsets[b, i] = sol.offsets
         res.marginal[b, i] = sol.marginal
         res.n_used[b, i] = int(sol.used.sum())
-        # the SIS error through the DPE's own weighting: A_w = J Gᵀ W, W = J's delay weights
-        g_used = mf.g[sol.used]
+        self._sis(res, b, i, mf.g, sol.used, cn0, corr)
+
+    def _sis(self, res: "_Results", b: int, i: int, g: NDArray, used: NDArray, cn0: NDArray, corr) -> None:
+        """σ_SIS,U: the SIS errors through the DPE's own weighting, A_w = J Gᵀ W with the CRB weights."""
+        g_used = g[used]
         el = np.arcsin(np.clip(-g_used[:, 2], -1.0, 1.0))
-        s_sis = _sis_sigma(el, self.settings)
-        w = 1.0 / crb_delay_sigma(amplitude_sq(cn0[sol.used], corr.coherent_s), corr.n_noncoherent,
+        w = 1.0 / crb_delay_sigma(amplitude_sq(cn0[used], corr.coherent_s), corr.n_noncoherent,
                                   corr.bandwidth_chips) ** 2
-        A_u = (sol.J @ (g_used * w[:, None]).T)[2]
-        res.sis_u[b, i] = float(np.sqrt(np.sum((A_u * s_sis) ** 2)))
+        J = np.linalg.inv(g_used.T @ (g_used * w[:, None]))
+        A_u = (J @ (g_used * w[:, None]).T)[2]
+        res.sis_u[b, i] = float(np.sqrt(np.sum((A_u * _sis_sigma(el, self.settings)) ** 2)))
 
     def _output(self, res: "_Results", t: NDArray, lead: tuple) -> MonitorOutput:
         st, ds = self.context.integrity, self.settings
         ok = res.reason == 0
         ob = gaussian_overbound(np.where(ok[..., None], res.offsets, np.arange(res.offsets.shape[-1])),
-                                np.where(ok[..., None], res.marginal, 1.0))
+                                np.where(ok[..., None], res.marginal, 1.0),
+                                mass=self.settings.seed_mass if self.seed else "density")
         sigma_ob = np.where(ok, ob.sigma, np.nan)
         med = np.where(ok, ob.median, np.nan)
         sigma = np.hypot(sigma_ob, res.sis_u) if ds.sis == "add" else sigma_ob

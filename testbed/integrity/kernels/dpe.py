@@ -38,40 +38,72 @@ def interval_polynomials(table: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
-def _box_slab(c, H, poly, floor, spacing, n, cubic, out, i0):
-    """The n³ candidates with first index i0, satellite by satellite (its polynomials stay in the
-    first-level cache), the delay stepped incrementally along each axis."""
-    half = (n - 1) / 2.0
-    n3 = n * n * n
-    for q in range(i0 * n3, (i0 + 1) * n3):
+def _product_slab(c, H, poly, floor, x0, x1, x2, x3, cubic, out, i0):
+    """The candidates of the product grid x0 × x1 × x2 × x3 with first index i0, satellite by
+    satellite (its polynomials stay in the first-level cache)."""
+    n1, n2, n3 = x1.shape[0], x2.shape[0], x3.shape[0]
+    size = n1 * n2 * n3
+    for q in range(i0 * size, (i0 + 1) * size):
         out[q] = 0.0
     for k in range(c.shape[0]):
         f = poly[k]
         fl = floor[k]
-        h0, h1, h2, h3 = H[k, 0] * spacing, H[k, 1] * spacing, H[k, 2] * spacing, H[k, 3] * spacing
-        p0 = c[k] - half * (h0 + h1 + h2 + h3) + i0 * h0
-        q = i0 * n3
-        for i1 in range(n):
-            p1 = p0 + i1 * h1
-            for i2 in range(n):
-                p2 = p1 + i2 * h2
-                for i3 in range(n):
-                    out[q] += _lookup(f, p2 + i3 * h3, fl, cubic)
+        p0 = c[k] + H[k, 0] * x0[i0]
+        q = i0 * size
+        for i1 in range(n1):
+            p1 = p0 + H[k, 1] * x1[i1]
+            for i2 in range(n2):
+                p2 = p1 + H[k, 2] * x2[i2]
+                for i3 in range(n3):
+                    out[q] += _lookup(f, p2 + H[k, 3] * x3[i3], fl, cubic)
                     q += 1
 
 
 @njit(cache=True)
+def manifold_product(c, H, poly, floor, x0, x1, x2, x3, cubic, out):
+    """The manifold on the product grid x0 × x1 × x2 × x3 (any nodes per axis; out C order)."""
+    for i0 in range(x0.shape[0]):
+        _product_slab(c, H, poly, floor, x0, x1, x2, x3, cubic, out, i0)
+
+
+@njit(cache=True)
+def _box_axis(spacing, n):
+    return (np.arange(n) - (n - 1) / 2.0) * spacing
+
+
+@njit(cache=True)
 def manifold_box(c, H, poly, floor, spacing, n, cubic, out):
-    """The manifold on the product grid ξ_a = (i_a − (n−1)/2)·spacing, i_a < n (out: n⁴, C order)."""
-    for i0 in range(n):
-        _box_slab(c, H, poly, floor, spacing, n, cubic, out, i0)
+    """The manifold on the box ξ_a = (i_a − (n−1)/2)·spacing, i_a < n (out: n⁴, C order)."""
+    a = _box_axis(spacing, n)
+    manifold_product(c, H, poly, floor, a, a, a, a, cubic, out)
 
 
 @njit(cache=True, parallel=True)
 def manifold_box_threads(c, H, poly, floor, spacing, n, cubic, out):
     """:func:`manifold_box` with the first axis's slabs on numba's threads (identical numbers)."""
+    a = _box_axis(spacing, n)
     for i0 in prange(n):
-        _box_slab(c, H, poly, floor, spacing, n, cubic, out, i0)
+        _product_slab(c, H, poly, floor, a, a, a, a, cubic, out, i0)
+
+
+@njit(cache=True)
+def weighted_mean_product(values, x0, x1, x2, x3):
+    """Σ v·ξ / Σ v over the product grid (the seed's solution: the manifold as weights)."""
+    tot = 0.0
+    m = np.zeros(4)
+    q = 0
+    for i0 in range(x0.shape[0]):
+        for i1 in range(x1.shape[0]):
+            for i2 in range(x2.shape[0]):
+                for i3 in range(x3.shape[0]):
+                    v = values[q]
+                    tot += v
+                    m[0] += v * x0[i0]
+                    m[1] += v * x1[i1]
+                    m[2] += v * x2[i2]
+                    m[3] += v * x3[i3]
+                    q += 1
+    return m / tot
 
 
 @njit(cache=True)

@@ -1,0 +1,181 @@
+"""K for the DPE's VPL = K·σ + |m| from fault-free normalised errors (DPE.md §6): the statistics.
+
+z_i = (e_i − m_i)/σ_i, e the vertical error of the solution, m and σ the epoch's median and
+overbound (σ with the SIS term when the monitor adds it). Two estimators:
+
+* ``tail`` (the default): b_z = median(z); at 50 log-spaced tail levels per side, from 0.1 down
+  to 100/N_eff, the order statistic z_(i) with its tail replaced by the Clopper-Pearson upper
+  bound U_i (confidence 1 − 0.05/100, for the 100 levels at once); σ_z = max |z_(i) − b_z|/Q⁻¹(U_i);
+  K = σ_z·Q⁻¹(P/2) + |b_z|. The core is left out on purpose. **Assumption**: the tails beyond the
+  deepest level are no heavier than the Gaussian fitted to the measured ones (extrapolation).
+* ``quantile`` (the seed's empirical K): the smallest k with #{|z| > k}/N ≤ P; refused unless
+  N·P ≥ 10 (P = 1e-7 needs N ≥ 1e8).
+
+:func:`validate` checks a K on a held-out set: the fitted N(b_z, σ_z²) tail holds at every level with
+≥ 10 expected exceedances (Clopper-Pearson lower bounds), and the count of |e| > VPL is within its
+one-sided binomial 5 % bound.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import stats
+from scipy.special import ndtri
+
+LEVELS_PER_SIDE = 50
+CONFIDENCE = 1.0 - 0.05 / (2 * LEVELS_PER_SIDE)
+
+
+@dataclass(frozen=True)
+class KFit:
+    """A fitted K: ``k`` for per-epoch probability ``p_hmi``; σ_z, b_z the Gaussian that bounds the
+    measured tails; n samples, n_eff independent ones; the binding tail level (side, probability)."""
+
+    k: float
+    sigma_z: float
+    b_z: float
+    p_hmi: float
+    n: int
+    n_eff: float
+    estimator: str
+    binding_side: str = ""
+    binding_level: float = float("nan")
+
+
+def _clean(z: ArrayLike) -> NDArray:
+    z = np.asarray(z, float).ravel()
+    z = z[np.isfinite(z)]
+    if z.size < 100:
+        raise ValueError(f"K calibration: expected at least 100 finite normalised errors, got {z.size}")
+    return z
+
+
+def _q_inv(p: NDArray) -> NDArray:
+    return -ndtri(np.asarray(p, float))  # Q⁻¹(p), exact for tiny p
+
+
+def fit_k_tail(z: ArrayLike, p_hmi: float, n_eff: float | None = None) -> KFit:
+    """The ``tail`` estimator (module doc)."""
+    z = _clean(z)
+    n = z.size
+    n_eff = float(n if n_eff is None else min(n_eff, n))
+    b = float(np.median(z))
+    deepest = 100.0 / n_eff
+    if deepest >= 0.1:
+        raise ValueError(f"K calibration: N_eff = {n_eff:.0f} leaves no tail levels (need N_eff > 1000)")
+    levels = np.geomspace(0.1, deepest, LEVELS_PER_SIDE)
+    best = (0.0, "", float("nan"))
+    for side, x in (("upper", np.sort(z - b)[::-1]), ("lower", np.sort(b - z)[::-1])):
+        i = np.maximum(np.ceil(levels * n).astype(int), 1)  # exceedances counted at the order statistic
+        count = i * (n_eff / n)  # in independent samples
+        upper = stats.beta.ppf(CONFIDENCE, count + 1.0, n_eff - count)
+        xi = x[i - 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            need = np.where(xi > 0, xi / _q_inv(upper), 0.0)
+        j = int(np.argmax(need))
+        if need[j] > best[0]:
+            best = (float(need[j]), side, float(levels[j]))
+    sigma = best[0]
+    return KFit(k=sigma * float(_q_inv(p_hmi / 2.0)) + abs(b), sigma_z=sigma, b_z=b, p_hmi=p_hmi, n=n, n_eff=n_eff,
+                estimator="tail", binding_side=best[1], binding_level=best[2])
+
+
+def fit_k_quantile(z: ArrayLike, p_hmi: float) -> KFit:
+    """The seed's empirical K: the smallest k with #{|z| > k}/N ≤ P (refused unless N·P ≥ 10)."""
+    z = _clean(z)
+    n = z.size
+    if n * p_hmi < 10:
+        raise ValueError(f"K calibration (quantile): N·P = {n}·{p_hmi:g} = {n * p_hmi:.3g} < 10; an empirical "
+                         f"quantile at P = {p_hmi:g} needs N ≥ {10 / p_hmi:.0e} (use the tail estimator)")
+    a = np.sort(np.abs(z))[::-1]
+    allowed = int(np.floor(n * p_hmi))  # at most this many above k
+    k = float(a[allowed]) if allowed < n else 0.0
+    return KFit(k=k, sigma_z=float("nan"), b_z=0.0, p_hmi=p_hmi, n=n, n_eff=float(n), estimator="quantile")
+
+
+@dataclass(frozen=True)
+class Validation:
+    """A held-out check of a fit: ``tails_hold`` (every level with ≥ 10 expected exceedances),
+    the worst level's observed/bound ratio, and the count of |e| > VPL against its allowed maximum."""
+
+    tails_hold: bool
+    worst_ratio: float
+    levels_checked: int
+    exceedances: int
+    allowed: int
+    epochs: int
+
+    @property
+    def passed(self) -> bool:
+        return self.tails_hold and self.exceedances <= self.allowed
+
+
+def validate(fit: KFit, z: ArrayLike, exceed_vpl: ArrayLike) -> Validation:
+    """Check ``fit`` on held-out ``z`` and the held-out epochs' ``|e| > VPL`` flags (DPE.md §6 (i), (iii))."""
+    z = _clean(z)
+    n = z.size
+    worst, checked, ok = 0.0, 0, True
+    for x in (np.sort(z - fit.b_z)[::-1], np.sort(fit.b_z - z)[::-1]):
+        # the fitted tail at each order statistic; a level counts when it expects ≥ 10 exceedances
+        for i in np.unique(np.geomspace(10, n / 10, 40).astype(int)):
+            p_fit = float(stats.norm.sf(x[i - 1] / fit.sigma_z))
+            if n * p_fit < 10:
+                continue
+            lower = float(stats.beta.ppf(1.0 - CONFIDENCE, i, n - i + 1))  # CP lower bound of the observed tail
+            checked += 1
+            worst = max(worst, lower / p_fit)
+            ok &= lower <= p_fit
+    ex = np.asarray(exceed_vpl, bool).ravel()
+    allowed = int(stats.binom.ppf(0.95, ex.size, fit.p_hmi))
+    return Validation(tails_hold=bool(ok), worst_ratio=worst, levels_checked=checked, exceedances=int(ex.sum()),
+                      allowed=allowed, epochs=int(ex.size))
+
+
+#: correlator settings a K depends on (C/N0 and multipath are strata, not part of the fingerprint)
+_CORRELATOR_KEYS = ("bandwidth_chips", "coherent_s", "n_noncoherent", "delay_step_m", "half_window_m", "synthesis",
+                    "statistic")
+
+
+def settings_fingerprint(dpe_settings, correlators) -> tuple[str, dict]:
+    """(hash, the settings it covers): the DPE options except K, and the correlator settings a K depends on."""
+    cover = {"dpe": dpe_settings.model_dump(mode="json", exclude={"k_factor"}),
+             "correlators": {k: getattr(correlators, k) for k in _CORRELATOR_KEYS}}
+    text = json.dumps(cover, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16], cover
+
+
+def _differences(recorded: dict, current: dict, prefix: str = "") -> list[str]:
+    """Keys of ``recorded`` whose value differs in ``current`` (keys added since are not compared)."""
+    out = []
+    for k, v in recorded.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict) and isinstance(current.get(k), dict):
+            out += _differences(v, current[k], name + ".")
+        elif k not in current or current[k] != v:
+            out.append(f"{name} = {v!r} there, {current.get(k)!r} here")
+    return out
+
+
+def read_k_file(path: Path, settings: dict) -> float:
+    """K from a calibration record, if it was calibrated for these ``settings`` (the cover of
+    :func:`settings_fingerprint`); else ValueError naming every setting that differs."""
+    try:
+        rec = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"file {path}: cannot be read as a calibration record ({exc})") from None
+    if not isinstance(rec, dict) or not isinstance(rec.get("k"), (int, float)) or not isinstance(rec.get("settings"), dict):
+        raise ValueError(f"file {path}: expected a record of `testbed calibrate-dpe` with 'k' and 'settings'")
+    diff = _differences(rec["settings"], json.loads(json.dumps(settings)))
+    if diff:
+        raise ValueError(f"file {path} was calibrated for other settings ({'; '.join(diff)}); calibrate again "
+                         f"(testbed calibrate-dpe) or use the settings it was made for")
+    k = float(rec["k"])
+    if not np.isfinite(k) or k <= 0:
+        raise ValueError(f"file {path}: k = {rec['k']!r}, expected a positive number")
+    return k

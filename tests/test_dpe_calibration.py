@@ -1,0 +1,69 @@
+"""K calibration of the DPE's VPL (DPE.md §6, §10 C1-C3): known σ recovered, the seed's estimator's
+refusal, held-out validation catching an under-calibrated K, and the record the monitor reads."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from testbed.integrity.dpe.calibration import (fit_k_quantile, fit_k_tail, read_k_file, settings_fingerprint,
+                                               validate)
+from testbed.integrity.dpe.monitor import DpeSettings
+from testbed.sensors.gnss.settings import CorrelatorSettings
+
+
+@pytest.mark.parametrize("s", [1.0, 2.5])
+def test_a_known_sigma_is_recovered_from_a_million_samples(s):
+    """C1: z ~ N(0, s²), N = 1e6: σ_z/s in [1.00, 1.05] (the Clopper-Pearson margin makes it conservative)."""
+    z = np.random.default_rng(int(10 * s)).normal(0.0, s, 1_000_000)
+    f = fit_k_tail(z, 1e-7)
+    assert 1.0 <= f.sigma_z / s <= 1.05
+    assert abs(f.k - f.sigma_z * 5.3267 - abs(f.b_z)) < 1e-3  # Q⁻¹(5e-8) = 5.3267
+
+
+def test_an_offset_core_and_heavy_tails():
+    """C2: N(0.3, 1.5²) -> b_z 0.30, σ_z 1.53, K 8.46 (the Gaussian K 8.29); t₅ needs σ_z ≈ 2× its sd."""
+    rng = np.random.default_rng(2)
+    f = fit_k_tail(rng.normal(0.3, 1.5, 1_000_000), 1e-7)
+    assert abs(f.b_z - 0.3) < 0.01 and 1.50 <= f.sigma_z <= 1.56 and 8.2 < f.k < 8.7
+    t5 = rng.standard_t(5, 1_000_000)
+    ft = fit_k_tail(t5, 1e-7)
+    assert ft.sigma_z > 1.9 * t5.std()
+
+
+def test_the_seed_estimator_refuses_too_few_samples_and_matches_the_quantile():
+    """C3: the empirical K needs N·P ≥ 10; with enough, it is the (1 − P) quantile of |z|."""
+    z = np.random.default_rng(3).normal(size=200_000)
+    with pytest.raises(ValueError, match="N·P"):
+        fit_k_quantile(z, 1e-7)
+    f = fit_k_quantile(z, 1e-4)
+    assert abs(f.k - 3.89) < 0.15 and np.mean(np.abs(z) > f.k) <= 1e-4
+
+
+def test_held_out_validation_passes_a_good_k_and_fails_an_under_calibrated_one():
+    rng = np.random.default_rng(4)
+    fit = fit_k_tail(rng.normal(size=50_000), 1e-7)
+    good = rng.normal(size=50_000)
+    assert validate(fit, good, np.zeros(good.size, bool)).passed
+    wide = rng.normal(0.0, 1.4, 50_000)  # the truth is wider than the calibration said
+    v = validate(fit, wide, np.abs(wide) > fit.k)
+    assert not v.tails_hold and not v.passed and v.worst_ratio > 1.0
+
+
+def test_the_record_is_read_only_for_the_settings_it_was_made_for(tmp_path):
+    s, c = DpeSettings(k_factor=1.0), CorrelatorSettings()
+    fp, cover = settings_fingerprint(s, c)
+    p = tmp_path / "k.json"
+    p.write_text(json.dumps({"k": 5.9, "settings": cover, "fingerprint": fp}))
+    assert read_k_file(p, cover) == 5.9
+    other = settings_fingerprint(DpeSettings(k_factor=1.0, sis="none"), CorrelatorSettings(n_noncoherent=20))[1]
+    with pytest.raises(ValueError, match=r"dpe.sis = 'add' there, 'none' here.*n_noncoherent = 50 there, 20 here"):
+        read_k_file(p, other)
+    p.write_text("not json")
+    with pytest.raises(ValueError, match="cannot be read"):
+        read_k_file(p, cover)
+    assert fit_k_tail(np.random.default_rng(0).normal(size=5000), 1e-7).n_eff == 5000
+    with pytest.raises(ValueError, match="N_eff"):
+        fit_k_tail(np.random.default_rng(0).normal(size=900), 1e-7)
