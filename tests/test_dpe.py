@@ -143,6 +143,15 @@ def test_vpl_is_k_sigma_plus_the_median_and_needs_a_k():
     assert np.all(d.sigma_ob > 0.5 * d.crb_sd_u) and np.all(d.sigma_ob < 2.0 * d.crb_sd_u)
 
 
+def test_the_overbound_of_the_marginal_is_close_to_the_posterior_sd():
+    """On DPE.md §4's epoch (8 satellites, 45 dB-Hz, N_b = 50) σ_ob / posterior sd is 1.01-1.04 (the
+    marginal is near Gaussian; the overbound's inflation is small)."""
+    obs, _, _ = scene(20, seed=3)
+    out, _ = monitor().step(obs, None)
+    r = out.diagnostics.sigma_ob / out.diagnostics.posterior_sd_u
+    assert np.all((r >= 1.0) & (r <= 1.06)), r
+
+
 def test_degenerate_inputs_are_unavailable_with_a_reason():
     mon = monitor()
     obs, _, _ = scene(2, seed=1)

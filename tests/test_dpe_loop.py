@@ -4,11 +4,13 @@ and the campaign's clear refusal (campaigns draw no correlators yet)."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 
 from testbed.api import load_approach, run_approach
+from testbed.resources import approaches_dir
 from testbed.viz import readback
 
 
@@ -28,6 +30,8 @@ def test_block_by_block_equals_one_flight_and_the_recording_has_the_dpe_tab(tmp_
     for f in ("pos_enu", "vpl", "test_stat", "clock"):
         np.testing.assert_array_equal(getattr(oa, f), getattr(ob, f), err_msg=f)
     np.testing.assert_array_equal(oa.diagnostics.marginal, ob.diagnostics.marginal)
+    shipped = json.loads((approaches_dir() / "calibration" / "dpe-k.json").read_text())
+    assert oa.diagnostics.k_factor == shipped["k"] and shipped["validation"]["passed"]  # the calibrated K, read
     s = a.summaries["dpe"]
     assert (oa.reason == 0).all() and s.mi_epochs == 0 and s.hmi_epochs == 0
     assert np.all(np.isnan(oa.hpl)) and np.isnan(s.hpl_max)

@@ -61,7 +61,7 @@ def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60,
 
     Returns the calibration record (what ``testbed calibrate-dpe`` writes).
     """
-    from testbed.api import load_approach
+    from testbed.config import load_approach
     from testbed.flight.fly import fly
     from testbed.integrity.dpe.monitor import DpeMonitor, DpeSettings
     from testbed.integrity.monitor import MonitorContext

@@ -36,6 +36,7 @@ from testbed.integrity.monitor import ANTENNA, MonitorContext, Observations
 from testbed.integrity.raim import gps_raim
 from testbed.records import Diagnostics, MonitorOutput, epoch_array
 from testbed.schema import StrictModel
+from testbed.sensors.gnss.errors import sigma_tropo
 
 DPE_REASONS: tuple[str, ...] = (
     "ok",
@@ -102,9 +103,8 @@ class DpeState:
 
 
 def _sis_sigma(el: NDArray, st: DpeSettings) -> NDArray:
-    s = np.sin(np.maximum(el, 0.0))
-    tropo = st.sigma_tropo_zenith_m * 1.001 / np.sqrt(0.002001 + s * s)
-    return np.hypot(st.sigma_ura_m, tropo)
+    """σ_URA ⊕ the residual troposphere at elevations (rad): the seed's SIS terms (INTEGRITY_MATH.md §1)."""
+    return np.hypot(st.sigma_ura_m, sigma_tropo(el, st.sigma_tropo_zenith_m))
 
 
 @dataclass(frozen=True)

@@ -107,7 +107,7 @@ def _quadratic_refine(lam: NDArray, node: NDArray, n: int) -> NDArray:
     return step
 
 
-def _zoom(mf: EpochManifold, centre: NDArray, L: NDArray, plan: GridPlan) -> tuple[NDArray, int]:
+def _zoom(mf: EpochManifold, centre: NDArray, L: NDArray, plan: GridPlan, threaded: bool) -> tuple[NDArray, int]:
     """Whitened 9⁴ grids from the stage-2 resolution down to the fine grid's, ×¼ each (at high C/N0 the
     posterior is far narrower than what a 6 m box resolves, most of all along the U-clock ridge)."""
     reach = plan.mid_m  # what stage 2 leaves, in metres, along any direction
@@ -117,7 +117,7 @@ def _zoom(mf: EpochManifold, centre: NDArray, L: NDArray, plan: GridPlan) -> tup
     used = 0
     while f > 1.0:
         spacing = f * half_fine / ((n - 1) / 2.0)
-        centre, _, node, _, r = _box_search(mf, centre, L, spacing, n, plan.max_recentre, True)
+        centre, _, node, _, r = _box_search(mf, centre, L, spacing, n, plan.max_recentre, True, threaded)
         centre = centre + L @ (node * spacing)
         used += r
         f /= 4.0
@@ -134,7 +134,7 @@ def solve_epoch(mf: EpochManifold, amplitude_sq: NDArray, n_blocks: int, bandwid
                 plan: GridPlan = GridPlan(), threaded: bool = False) -> EpochSolution:
     """The `likelihood` DPE of one epoch about its initialisation (offsets ξ = 0).
 
-    threaded : the fine grid on numba's threads (same numbers; campaigns, which run blocks side by
+    threaded : the grids on numba's threads (same numbers; campaigns, which run blocks side by
     side, keep it off).
     """
     nan4 = np.full(4, np.nan)
@@ -147,17 +147,19 @@ def solve_epoch(mf: EpochManifold, amplitude_sq: NDArray, n_blocks: int, bandwid
         return EpochSolution(Status.FEW_SATELLITES, recentred=0, used=used, **failed)
     mf = EpochManifold(mf.delta0[used], mf.g[used], mf.table[used], mf.floor[used], mf.delay0_m, mf.step_m)
     a2 = np.asarray(amplitude_sq, float)[used]
-    centre, _, node, edge, r1 = _box_search(mf, np.zeros(4), eye, plan.coarse_m, plan.coarse_n, plan.max_recentre, True)
+    centre, _, node, edge, r1 = _box_search(mf, np.zeros(4), eye, plan.coarse_m, plan.coarse_n, plan.max_recentre, True,
+                                            threaded)
     if edge:
         return EpochSolution(Status.PEAK_AT_EDGE, recentred=r1, used=used, **failed)
     centre = centre + node * plan.coarse_m
-    centre, lam, node, edge, r2 = _box_search(mf, centre, eye, plan.mid_m, plan.mid_n, plan.max_recentre, True)
+    centre, lam, node, edge, r2 = _box_search(mf, centre, eye, plan.mid_m, plan.mid_n, plan.max_recentre, True,
+                                              threaded)
     if edge:
         return EpochSolution(Status.PEAK_AT_EDGE, recentred=r1 + r2, used=used, **failed)
     centre = centre + (node + _quadratic_refine(lam, node, plan.mid_n)) * plan.mid_m
     J = crb(mf.g, a2, n_blocks, bandwidth_chips)
     L = np.linalg.cholesky(J)
-    centre, r3 = _zoom(mf, centre, L, plan)
+    centre, r3 = _zoom(mf, centre, L, plan, threaded)
     centre, lam, node, edge, r4 = _box_search(mf, centre, L, plan.fine_z, plan.fine_n, plan.max_recentre, True,
                                               threaded)
     recentred = r1 + r2 + r3 + r4
