@@ -1,5 +1,5 @@
 """The DPE monitor in the loop: testbed fly with correlators, live blocks = one flight, its recording tab,
-and the campaign's clear refusal (campaigns draw no correlators yet)."""
+and a campaign with it."""
 
 from __future__ import annotations
 
@@ -7,7 +7,6 @@ import dataclasses
 import json
 
 import numpy as np
-import pytest
 
 from testbed.api import load_approach, run_approach
 from testbed.resources import approaches_dir
@@ -42,8 +41,46 @@ def test_block_by_block_equals_one_flight_and_the_recording_has_the_dpe_tab(tmp_
     assert "/integrity/dpe/vertical_error_density" in readback.entity_paths(a.rrd_path)
 
 
-def test_a_campaign_with_the_dpe_is_refused_with_a_reason():
-    from testbed.campaign.spec import CampaignSpec
+SPEC = """
+name = "dpe-tiny"
+approaches = ["zunz-rwy05-dpe"]
+monitors = ["gps_raim", "dpe"]
+trials = 4
+block_trials = 2
+chunk_trials = {chunk}
+base_seed = 11
+per_epoch_trials = 2
+duration_s = 25.0
 
-    with pytest.raises(ValueError, match=r"read correlator outputs, which campaigns do not synthesise yet"):
-        CampaignSpec(name="x", approaches=["zunz-rwy05-final"], monitors=["gps_raim", "dpe"], trials=10)
+[[faults]]
+kind = "gps_step"
+magnitudes = [0.0, 60.0]
+onset_s = 10.0
+prn = "random"
+"""
+
+
+def test_a_campaign_runs_the_dpe_beside_gps_raim_on_the_same_fault(tmp_path):
+    """Correlograms synthesised per trial inside the block: chunking does not change a bit; fault-free, the
+    DPE has no misleading epoch; under a 60 m step GPS RAIM alerts while the DPE, which detects nothing,
+    is misled (its VPL is not fault tolerant: the report's per-cell MI/HMI table shows it)."""
+    import pyarrow.parquet as pq
+
+    from testbed.campaign.runner import run_campaign
+
+    outs = []
+    for chunk in (2, 4):
+        spec = tmp_path / f"s{chunk}.toml"
+        spec.write_text(SPEC.format(chunk=chunk))
+        run_campaign(spec, tmp_path / f"out{chunk}", progress=False)
+        outs.append(pq.read_table(tmp_path / f"out{chunk}" / "trials.parquet").to_pandas())
+    a, b = outs
+    assert a.equals(b)
+    dpe, raim = a[a.monitor == "dpe"], a[a.monitor == "gps_raim"]
+    assert (dpe[dpe.cell == 0].mi_epochs == 0).all() and dpe["avail_APV-I"].min() > 0.9
+    assert raim[raim.cell == 1].detected.all() and not dpe.detected.any()
+    assert dpe[dpe.cell == 1].mi_epochs.sum() > 0
+    from testbed.campaign.report import write_report
+
+    report = write_report(tmp_path / "out2").read_text()
+    assert "## Misleading information per cell" in report and "| dpe |" in report

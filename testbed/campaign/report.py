@@ -201,8 +201,8 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
           f"- tables: `cells.parquet`, `trials.parquet` (per trial and monitor), `epochs.parquet` "
           f"(first {man['spec']['per_epoch_trials']} trials per cell), `stanford_hist.parquet`", ""]
     figures: list[tuple[str, str]] = []
-    for section in (_detection_section, _stanford_section, _pl_and_availability_section, _pl_time_section,
-                    _vision_range_section):
+    for section in (_detection_section, _stanford_section, _misleading_section, _pl_and_availability_section,
+                    _pl_time_section, _vision_range_section):
         lines, figs = section(inp)
         md += lines
         figures += figs
@@ -420,6 +420,28 @@ def _pl_and_availability_section(inp: _ReportInputs) -> tuple[list[str], list[tu
             md.append(f"| {g} | {m} | {int(sel.sum())} | {stats3[0]} | {stats3[1]} | "
                       f"{_f(acc[0], '{:.2f}')} / {_f(acc[1], '{:.2f}')} | "
                       + " | ".join(f"{100 * float(np.mean(tc[f'avail_{lv}'][sel])):.1f} %" for lv in levels) + " |")
+    md.append("")
+    return md, []
+
+
+def _misleading_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section: misleading and hazardously misleading epochs per cell and monitor, with the per-epoch
+    HMI rate's binomial interval (a monitor without detection, such as the DPE, shows its faults here)."""
+    tc, cells = inp.tc, {int(c["cell"]): c for c in inp.cells}
+    md = ["## Misleading information per cell", "",
+          "Epochs whose error exceeds the protection level without an alert (MI), and those whose error also "
+          "exceeds the alert limit while the PL is within it (HMI), on the dimensions each monitor bounds "
+          f"(a vertical-only monitor on V); HMI rate per epoch with its {100 * inp.conf:g} % {inp.method} interval.",
+          "", "| cell | fault | size | monitor | epochs | MI | HMI | HMI per epoch | interval |",
+          "|---|---|---|---|---|---|---|---|---|"]
+    for cell in sorted(set(tc["cell"].tolist())):
+        c = cells[int(cell)]
+        for m in sorted(set(tc["monitor"][tc["cell"] == cell].tolist())):
+            sel = (tc["cell"] == cell) & (tc["monitor"] == m)
+            n, mi, hmi = (int(tc[k][sel].sum()) for k in ("epochs", "mi_epochs", "hmi_epochs"))
+            lo, hi = binomial_interval(np.array([hmi]), np.array([n]), inp.conf, inp.method)
+            md.append(f"| {cell} | {c['fault_sweep_kind']} | {c['fault_size']:g} {c['fault_unit']} | {m} | {n} | {mi} | "
+                      f"{hmi} | {hmi / max(n, 1):.2e} | [{float(lo[0]):.2e}, {float(hi[0]):.2e}] |")
     md.append("")
     return md, []
 

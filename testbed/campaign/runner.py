@@ -35,10 +35,10 @@ import pyarrow as pa
 
 from testbed.campaign.sorties import sky_windows, sortie_offsets, window_offsets
 from testbed.campaign.spec import CampaignSpec, Cell, LoadedSpec, expand_cells, resolve_spec
-from testbed.integrity.batching import available_cores
+from testbed.integrity.batching import available_cores, map_trial_chunks
 from testbed.integrity.monitor import ANTENNA, Observations, provided_output
 from testbed.integrity.levels import service_level
-from testbed.records import MonitorOutput
+from testbed.records import MonitorOutput, map_epoch_arrays
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS, misleading, position_errors, stanford_regions
 
@@ -109,6 +109,7 @@ class CellContext:
     val: float
     levels: tuple[str, ...]
     onset_s: float  # nan without fault
+    truth_g: object = None  # Truth at the GNSS epochs (the correlators' ground echo reads AGL and climb)
     sky: np.ndarray | None = None  # (W,) sorted sky windows of the sorties (g_geom stacked); None: fixed start
 
     def gnss_geometry_of(self, windows: np.ndarray | None):
@@ -179,7 +180,7 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                        landmarks=lm, truth_cg_enu=setup.frame.ecef_to_enu(truth.pos_ecef),
                        truth_ant_enu=setup.frame.ecef_to_enu(g_geom.ant_pos_ecef),
                        hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset),
-                       sky=sky)
+                       truth_g=truth, sky=sky)
 
 
 # ----------------------------------------------------------------------------- one block
@@ -202,6 +203,7 @@ class BlockDraw:
     start_offset_s: np.ndarray  # (n,) the sortie's start, s after the approach's start time
     sky_window: np.ndarray  # (n,) int sky window whose geometry it flew in (-1: the fixed start)
     fault_present: np.ndarray  # (n, T) epochs whose observations carry the injected fault (all True: none)
+    correlator_seed: np.random.SeedSequence | None = None  # the block's correlator draws (per trial below it)
 
 
 def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
@@ -212,7 +214,8 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     s = ctx.setup
     i0 = block * spec.block_trials
     n = min(spec.block_trials, spec.trials - i0)
-    ss_g, ss_v, ss_s = block_seed(spec.base_seed, ctx.cell.index, block, spec.common_random_numbers).spawn(3)
+    # children 0-2 as before; child 3 (the correlators) is new and leaves them unchanged
+    ss_g, ss_v, ss_s, ss_c = block_seed(spec.base_seed, ctx.cell.index, block, spec.common_random_numbers).spawn(4)
     faults = list(s.faults)
     trials = np.arange(i0, i0 + n)
     offsets = sortie_offsets(spec, trials)
@@ -235,19 +238,55 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
         hit = np.asarray(vtruth.faulty).any(axis=-2)
         target = np.where(hit.any(-1), hit.argmax(-1), -1)
     return BlockDraw(trials, Observations(gnss, vis), gtruth, vtruth, target, offsets,
-                     np.full(n, -1, np.int64) if windows is None else windows, _fault_present(gnss, gtruth, vis, vtruth))
+                     np.full(n, -1, np.int64) if windows is None else windows, _fault_present(gnss, gtruth, vis, vtruth),
+                     ss_c)
 
 
-def monitor_block(monitors, obs: Observations) -> dict[str, MonitorOutput]:
+def _trial(rec, i: int):
+    """Trial ``i`` of a record with one trial axis (arrays shared by the trials are kept as they are)."""
+    def take(a, meta):
+        return a[i] if meta["batched"] and a.ndim == 2 + meta["tail"] else a
+
+    return map_epoch_arrays(rec, take)
+
+
+def _with_trial_axis(rec):
+    return map_epoch_arrays(rec, lambda a, meta: a[None] if meta["batched"] else a)
+
+
+def correlator_monitor(mon, ctx: "CellContext", d: "BlockDraw") -> MonitorOutput:
+    """A monitor that reads correlators, trial by trial: each trial's correlograms are synthesised,
+    monitored and dropped (a block's would be n·T·S·M floats); the outputs are stacked."""
+    from testbed.sensors.gnss.correlators import synthesize_correlators
+
+    gnss = d.obs.gnss
+    n, T = len(d.trials), len(gnss.t)
+
+    def one(sl: slice) -> MonitorOutput:
+        i = sl.start or 0
+        g, gt = _trial(gnss, i), _trial(d.gnss_truth, i)
+        words = np.random.SeedSequence(d.correlator_seed.entropy,
+                                       spawn_key=d.correlator_seed.spawn_key + (int(d.trials[i]),)).generate_state(4)
+        corr, _ = synthesize_correlators(g, gt, ctx.truth_g, ctx.setup.gnss, words)
+        out, _ = mon.step(Observations(g, correlators=corr), mon.initial_state())
+        return _with_trial_axis(out)
+
+    return map_trial_chunks(one, (n, T), threads=1, chunk_epochs=T)  # one trial a chunk
+
+
+def monitor_block(monitors, obs: Observations, correlators: Callable | None = None) -> dict[str, MonitorOutput]:
     """Every monitor on one block (whole sorties: each from its initial state).
 
     A monitor that computes another on the way (VA-RAIM's step 1 is GPS RAIM) provides
     its output instead of a second solve (:func:`testbed.integrity.monitor.provided_output`);
-    providers run first.
+    providers run first. A monitor reading correlators runs through ``correlators(mon)``.
     """
     order = sorted(monitors, key=lambda m: getattr(m, "provides", None) is None)
     outs: dict[str, MonitorOutput] = {}
     for mon in order:
+        if "correlators" in mon.inputs:
+            outs[mon.name] = correlators(mon)
+            continue
         for prov in order:
             if prov.name in outs:
                 got = provided_output(prov, outs[prov.name], mon)
@@ -262,7 +301,7 @@ def monitor_block(monitors, obs: Observations) -> dict[str, MonitorOutput]:
 def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndarray]]:
     """Draw and monitor the trials of one block; per-trial, per-epoch and histogram columns."""
     d = draw_block(ctx, spec, block)
-    outs = monitor_block(ctx.setup.monitors, d.obs)
+    outs = monitor_block(ctx.setup.monitors, d.obs, lambda mon: correlator_monitor(mon, ctx, d))
     keep_ep = d.trials < spec.per_epoch_trials
     rows, ep, hist = {}, {}, {}
     for mon in ctx.setup.monitors:

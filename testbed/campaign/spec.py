@@ -228,10 +228,6 @@ class CampaignSpec(StrictModel):
         if imu:
             raise ValueError(f"monitors {imu} read IMU data, which campaigns do not draw yet (fly them with "
                              f"testbed fly; campaign support for the seed-002 filter is the next step)")
-        corr = [m for m in self.monitors if "correlators" in monitor_inputs(m)]
-        if corr:
-            raise ValueError(f"monitors {corr} read correlator outputs, which campaigns do not synthesise yet (fly "
-                             f"them with testbed fly; campaign support for the DPE is the next step)")
         if not reads_vision(self.monitors):
             vis = [f.kind for f in self.faults if f.kind in ("pixel_bias", "landmark_moved")]
             if vis:
