@@ -244,3 +244,17 @@ def test_linearised_delays_equal_exact_ranges(delay):
     exact = (np.linalg.norm(c.sat_pos_ecef[0] - FRAME.enu_to_ecef(TRUTH_ENU + xi[:3]), axis=-1) + CLOCK_M + delay
              + xi[3] - c.rho_ref[0])
     assert np.max(np.abs(mf.delta0 + mf.g @ xi - exact)) < 5e-3
+
+
+def test_with_exactly_four_satellites_raim_has_no_redundancy_and_dpe_still_gives_a_vpl():
+    """DPE.md F6: four satellites leave snapshot RAIM no redundancy (no test, no PL); the DPE's VPL stands
+    (it bounds the fault-free error; it detects nothing either way)."""
+    from testbed.integrity.lsq import Reason
+    from testbed.integrity.raim import gps_raim
+
+    obs, _, truth = scene(3, elevations=(70.0, 45.0, 30.0, 15.0), seed=12)
+    raim = gps_raim(obs.gnss, FRAME)
+    assert np.all(raim.reason == Reason.NO_REDUNDANCY) and np.all(np.isnan(raim.vpl))
+    out, _ = monitor().step(obs, monitor().initial_state())
+    assert np.all(out.reason == 0) and np.all(np.isfinite(out.vpl))
+    assert np.all(np.abs(out.pos_enu[:, 2] - truth[:, 2]) < out.vpl)

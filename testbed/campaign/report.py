@@ -345,6 +345,9 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
             ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", fontsize=7,
                     bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
             ax.set_title(f"{m}: {dim} Stanford diagram ({dim}AL {al:g} m)")
+            if total and counts["no_solution"] == total:  # e.g. the DPE: vertical only, HPL NaN by design
+                ax.text(0.5, 0.5, f"{m} gives no {dim}PL\n(it bounds the other dimension only)", ha="center",
+                        va="center", transform=ax.transAxes, fontsize=10)
         name = f"stanford_{m}.png"
         _save(fig, figdir / name)
         figures.append((f"Stanford diagrams, {m}", name))
