@@ -70,8 +70,13 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         print(f"unknown paper {args.paper!r}; expected one of {sorted(PAPERS)}")
         return 2
     out = Path(args.out) if args.out else Path("campaigns") / f"reproduce-{args.paper}"
-    idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
-                                 progress=not args.quiet)
+    if args.paper == "dpe-vertical":
+        from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
+
+        idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet)
+    else:
+        idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
+                                     progress=not args.quiet)
     print(f"reproduction: {idx}")
     return 0
 
@@ -93,9 +98,10 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("dir", help="campaign result folder")
     p.set_defaults(func=_cmd_report)
 
-    p = subparsers.add_parser("reproduce", help="reproduce a seed paper's experiments (va-raim-2015)")
-    p.add_argument("paper", help="va-raim-2015")
-    p.add_argument("--full", action="store_true", help="the paper's scale: 1e5 sorties x 60 s per setting")
+    p = subparsers.add_parser("reproduce", help="reproduce a seed paper's experiments (va-raim-2015, dpe-vertical)")
+    p.add_argument("paper", help="va-raim-2015 | dpe-vertical")
+    p.add_argument("--full", action="store_true", help="the paper's scale: 1e5 sorties x 60 s per setting "
+                                                      "(dpe-vertical: DPE.md's 2000 sorties per cell)")
     p.add_argument("--out", help="result folder (default: campaigns/reproduce-<paper>)")
     p.add_argument("--scheduler", help="Dask scheduler address")
     p.add_argument("--resume", action="store_true")
