@@ -32,7 +32,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def crop_recording(src: Path, dst: Path, t_end_s: float, monitors: list[str], approach) -> None:
+def crop_recording(src: Path, dst: Path, t_end_s: float, monitors: list[str], approach,
+                   vertical_only: tuple[str, ...] = (), active: str | None = None) -> None:
     """Copy ``src`` to ``dst`` keeping static data and the rows up to ``t_end_s`` on ``sim_time``."""
     import pyarrow.compute as pc
     import rerun as rr
@@ -44,7 +45,8 @@ def crop_recording(src: Path, dst: Path, t_end_s: float, monitors: list[str], ap
     rec.set_log_time_enabled(False)
     rec.set_sinks(rr.FileSink(str(dst)))
     # the layout first: a viewer reading the file applies it from the start
-    rec.send_blueprint(default_blueprint(monitors, approach_eye(approach[0]), approach[1], play_state="following"),
+    rec.send_blueprint(default_blueprint(monitors, approach_eye(approach[0]), approach[1], play_state="following",
+                                         vertical_only=vertical_only, active_monitor=active),
                        make_active=True, make_default=True)
     limit = int(round(t_end_s * 1e9))
     for ch in rrc.RrdReader(str(src)).stream():
@@ -120,6 +122,7 @@ def main() -> None:
     ap.add_argument("--at", type=float, default=110.0, help="moment of the recording picture, s (fault at 100 s)")
     ap.add_argument("--out", type=Path, default=ROOT / "testbed" / "data")
     ap.add_argument("--skip-campaign", action="store_true")
+    ap.add_argument("--dpe-only", action="store_true", help="only the DPE picture (zunz-rwy05-dpe, 40 m step at 100 s)")
     args = ap.parse_args()
     if shutil.which("chromium") is None:
         sys.exit("chromium not found: apt-get install -y chromium (and pip install playwright)")
@@ -128,18 +131,26 @@ def main() -> None:
     from testbed.sensors.faults import GpsStep
     from testbed.sim.setup import build_setup, build_scene, load_terrain_for
 
-    approach = load_approach("zunz-rwy05-final")
-    cfg = approach.config.model_copy(update={"faults": [GpsStep(kind="gps_step", prn="random", bias_m=60.0,
-                                                                onset_s=100.0)]})
-    approach = dataclasses.replace(approach, config=cfg)
-    with tempfile.TemporaryDirectory() as tmp:
-        full, cut = Path(tmp) / "full.rrd", Path(tmp) / "cut.rrd"
-        run_approach(approach, seed=0, rrd_path=full)
-        setup = build_setup(approach, load_terrain_for(approach))
-        scene = build_scene(setup)
-        crop_recording(full, cut, args.at, list(setup.monitor_names), (scene.planned_enu, tuple(setup.alert_limits)))
-        screenshot(cut, args.out / "readme-recording.png")
-    print(f"wrote {args.out / 'readme-recording.png'} (the runway-05 final at t = {args.at:g} s)")
+    def picture(name: str, bias_m: float, png: str, active: str | None = None) -> None:
+        approach = load_approach(name)
+        cfg = approach.config.model_copy(update={"faults": [GpsStep(kind="gps_step", prn="random", bias_m=bias_m,
+                                                                    onset_s=100.0)]})
+        approach = dataclasses.replace(approach, config=cfg)
+        with tempfile.TemporaryDirectory() as tmp:
+            full, cut = Path(tmp) / "full.rrd", Path(tmp) / "cut.rrd"
+            run_approach(approach, seed=0, rrd_path=full)
+            setup = build_setup(approach, load_terrain_for(approach))
+            scene = build_scene(setup)
+            crop_recording(full, cut, args.at, list(setup.monitor_names), (scene.planned_enu, tuple(setup.alert_limits)),
+                           tuple(scene.vertical_only), active)
+            screenshot(cut, args.out / png)
+        print(f"wrote {args.out / png} ({name} at t = {args.at:g} s)")
+
+    # the DPE's tab 10 s after a 40 m step: GPS RAIM alerts, the DPE (no detection) is misled
+    picture("zunz-rwy05-dpe", 40.0, "readme-recording-dpe.png", active="dpe")
+    if args.dpe_only:
+        return
+    picture("zunz-rwy05-final", 60.0, "readme-recording.png")
     if not args.skip_campaign:
         from testbed.campaign.reproduce import QUICK_TRIALS, loaded_experiments, write_summary
         from testbed.campaign.runner import run_campaign

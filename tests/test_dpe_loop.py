@@ -39,6 +39,10 @@ def test_block_by_block_equals_one_flight_and_the_recording_has_the_dpe_tab(tmp_
     t, v = readback.scalar_series(a.rrd_path, "integrity/dpe/overbound/sigma_ob")
     np.testing.assert_allclose(v, oa.diagnostics.sigma_ob, rtol=1e-6)
     assert "/integrity/dpe/vertical_error_density" in readback.entity_paths(a.rrd_path)
+    views = {(v["class"], v["origin"]) for v in readback.views(a.rrd_path)}
+    assert ("BarChart", "/integrity/dpe/vertical_error_density") in views
+    assert ("TimeSeries", "/integrity/dpe/overbound") in views
+    assert ("TimeSeries", "/integrity/dpe/horizontal") not in views  # vertical only: no HPL plot
 
 
 SPEC = """

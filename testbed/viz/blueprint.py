@@ -62,9 +62,11 @@ def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool) -> rrb.Ver
 
 def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
                       alert_limits: tuple[float, float] = (float("nan"), float("nan")),
-                      play_state: str | None = None, vertical_only: tuple[str, ...] = ()) -> rrb.Blueprint:
+                      play_state: str | None = None, vertical_only: tuple[str, ...] = (),
+                      active_monitor: str | None = None) -> rrb.Blueprint:
     """The layout; ``play_state`` ("following": the cursor at the newest data) for the time panel;
-    ``vertical_only`` monitors (DPE) get a VPL, overbound and error-density tab."""
+    ``vertical_only`` monitors (DPE) get a VPL, overbound and error-density tab; ``active_monitor``
+    the tab shown first (default: the first monitor's)."""
     hal, val = alert_limits
     monitor_tabs = [_monitor_tab(m, hal, val, m in vertical_only) for m in monitors]
     # the flown trail is one point per epoch: show all of them up to the cursor
@@ -82,7 +84,8 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
         row_shares=[3, 2],
     )
     right = rrb.Vertical(
-        rrb.Tabs(*monitor_tabs) if monitor_tabs else rrb.TextLogView(name="alerts", origin="/alerts"),
+        rrb.Tabs(*monitor_tabs, active_tab=active_monitor) if monitor_tabs
+        else rrb.TextLogView(name="alerts", origin="/alerts"),
         rrb.Horizontal(
             rrb.TimeSeriesView(name="satellites and landmarks in view / in use", origin="/sensors",
                                time_ranges=[WHOLE_FLIGHT], axis_x=WHOLE_AXIS,
