@@ -84,7 +84,8 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
         row_shares=[3, 2],
     )
     right = rrb.Vertical(
-        rrb.Tabs(*monitor_tabs, active_tab=active_monitor) if monitor_tabs
+        rrb.Tabs(*monitor_tabs, active_tab=None if active_monitor is None else list(monitors).index(active_monitor))
+        if monitor_tabs
         else rrb.TextLogView(name="alerts", origin="/alerts"),
         rrb.Horizontal(
             rrb.TimeSeriesView(name="satellites and landmarks in view / in use", origin="/sensors",
