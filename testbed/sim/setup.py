@@ -113,6 +113,10 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
             raise ConfigError(approach.source, [
                 f"gnss.correlators: {cs.n_noncoherent} blocks of {cs.coherent_s:g} s (n_noncoherent x coherent_s) "
                 f"do not fit in one epoch of {1.0 / gnss.rate_hz:g} s (gnss.rate_hz = {gnss.rate_hz:g})"])
+        if gnss.ura_tropo_tau_s is not None:
+            raise ConfigError(approach.source, [
+                f"gnss.ura_tropo_tau_s = {gnss.ura_tropo_tau_s:g}: the correlators draw the SIS error white per "
+                f"epoch (a correlated SIS for the monitors reading correlators is not implemented); remove it"])
         variant = c.dpe.get("variant", "likelihood") if "dpe" in c.monitors else None
         want = {"seed": "mag", "likelihood": "pow"}.get(variant)
         if want is not None and cs.statistic != want:

@@ -45,8 +45,9 @@ DPE_REASONS: tuple[str, ...] = (
     "unavailable: the likelihood peak is on the grid's edge after the recentrings",
     "unavailable: K not calibrated (dpe.k_factor unset)",
     "unavailable: NaN correlator outputs",
+    "unavailable: no Gaussian overbounds the vertical error distribution",
 )
-FEW, NO_INIT, PEAK_AT_EDGE, NOT_CALIBRATED, NAN_INPUT = 1, 2, 3, 4, 5
+FEW, NO_INIT, PEAK_AT_EDGE, NOT_CALIBRATED, NAN_INPUT, INFEASIBLE = 1, 2, 3, 4, 5, 6
 _STATUS_REASON = {Status.FEW_SATELLITES: FEW, Status.PEAK_AT_EDGE: PEAK_AT_EDGE}
 
 
@@ -90,6 +91,7 @@ class DpeDiagnostics(Diagnostics):
     x_ml: NDArray = epoch_array(1)
     init_kind: NDArray = epoch_array()  # 0 none, 1 GPS fix, 2 previous DPE fix
     recentred: NDArray = epoch_array()
+    posterior_face_mass: NDArray = epoch_array()  # the posterior's share on the fine grid's faces (truncation)
     marginal_offsets: NDArray = epoch_array(1)
     marginal: NDArray = epoch_array(1)
     k_factor: float = float("nan")
@@ -202,6 +204,7 @@ class DpeMonitor:
         res.x[b, i] = x0 + sol.x_mean
         res.x_ml[b, i] = x0 + sol.x_ml
         res.post_sd_u[b, i] = np.sqrt(sol.cov[2, 2])
+        res.face_mass[b, i] = sol.face_mass
         res.crb_sd_u[b, i] = np.sqrt(sol.J[2, 2])
         res.offsets[b, i] = sol.offsets
         res.marginal[b, i] = sol.marginal
@@ -224,11 +227,14 @@ class DpeMonitor:
         ob = gaussian_overbound(np.where(ok[..., None], res.offsets, np.arange(res.offsets.shape[-1])),
                                 np.where(ok[..., None], res.marginal, 1.0),
                                 mass=self.settings.seed_mass if self.seed else "density")
+        infeasible = ok & ~np.isfinite(ob.sigma)
+        ok = ok & ~infeasible
         sigma_ob = np.where(ok, ob.sigma, np.nan)
         med = np.where(ok, ob.median, np.nan)
         sigma = np.hypot(sigma_ob, res.sis_u) if ds.sis == "add" else sigma_ob
         k = np.nan if ds.k_factor is None else ds.k_factor
         reason = res.reason.copy()
+        reason[infeasible] = INFEASIBLE
         if ds.k_factor is None:
             reason[ok] = NOT_CALIBRATED
         vpl = np.where(reason == 0, k * sigma + np.abs(med), np.nan)
@@ -239,6 +245,7 @@ class DpeMonitor:
         diag = DpeDiagnostics(sigma_ob=shape(sigma_ob), median_m=shape(med), sigma_sis_u=shape(res.sis_u),
                               posterior_sd_u=shape(res.post_sd_u), crb_sd_u=shape(res.crb_sd_u), x_ml=shape(res.x_ml),
                               init_kind=shape(res.init_kind), recentred=shape(res.recentred),
+                              posterior_face_mass=shape(res.face_mass),
                               marginal_offsets=shape(res.offsets), marginal=shape(res.marginal), k_factor=float(k))
         x = np.where(ok[..., None], res.x, np.nan)
         nan = np.full(res.reason.shape, np.nan)
@@ -263,6 +270,7 @@ class _Results:
         self.post_sd_u = np.full((B, T), np.nan)
         self.crb_sd_u = np.full((B, T), np.nan)
         self.sis_u = np.full((B, T), np.nan)
+        self.face_mass = np.full((B, T), np.nan)
         self.offsets = np.full((B, T, bins), np.nan)
         self.marginal = np.full((B, T, bins), np.nan)
 

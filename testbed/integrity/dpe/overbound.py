@@ -40,7 +40,7 @@ class Overbound:
     """The overbound of each curve (shapes: the batch's).
 
     sigma : the smallest σ of N(0, σ²) that overbounds the median-centred curve (NaN if the
-        curve has no mass).  median : m, the curve's median (offset units).
+        curve has no mass, or no σ was found: the monitor reports the epoch infeasible).  median : m, the curve's median (offset units).
     binding : index of the cell where the bound is tightest at ``sigma``.
     about_solution : whether a zero-mean Gaussian about offset 0 (not the median) could
         overbound the curve at all (only when m = 0).
@@ -164,8 +164,7 @@ def gaussian_overbound(offsets: ArrayLike, values: ArrayLike, *, mass: str = "de
         if not bad.any():
             break
         hi = np.where(bad, hi * _GROW, hi)
-    else:
-        raise ValueError("overbound: no feasible σ found (a curve with an infinite tail?)")
+    empty = empty | ~_feasible(cells, hi)  # none found within 1.5^200 of the floor: reported NaN, not raised
     lo = np.minimum(lo, hi)
     for _ in range(_MAX_GROW):  # the floor is necessary, so at most a rounding step above the answer
         ok = _feasible(cells, lo)

@@ -55,7 +55,8 @@ class EpochSolution:
 
     x_mean, x_ml : (4,) posterior mean / best node.  cov : (4, 4) posterior covariance.
     J : (4, 4) the CRB.  offsets, marginal : (bins,) the vertical error marginal (m, mass).
-    recentred : recentrings used.  used : (S,) satellites kept.
+    recentred : recentrings used.  used : (S,) satellites kept.  face_mass : the posterior's share on
+    the fine grid's boundary faces (large when the posterior is wider than the CRB the grid was cut for).
     """
 
     status: Status
@@ -67,6 +68,7 @@ class EpochSolution:
     marginal: NDArray
     recentred: int
     used: NDArray
+    face_mass: float = float("nan")
 
 
 def _best_node(lam: NDArray, n: int) -> tuple[NDArray, bool]:
@@ -177,5 +179,7 @@ def solve_epoch(mf: EpochManifold, amplitude_sq: NDArray, n_blocks: int, bandwid
     bins = np.empty(plan.bins)
     deposit_marginal(weights, plan.fine_z, plan.fine_n, -L[2].copy(), -shift, width, bins)
     offsets = (np.arange(plan.bins) - (plan.bins - 1) / 2.0) * width
+    w4 = weights.reshape((plan.fine_n,) * 4)
+    face_mass = float(1.0 - w4[1:-1, 1:-1, 1:-1, 1:-1].sum() / w4.sum())
     return EpochSolution(Status.OK, x_mean=x_mean, x_ml=x_ml, cov=cov, J=J, offsets=offsets,
-                         marginal=bins / bins.sum(), recentred=recentred, used=used)
+                         marginal=bins / bins.sum(), recentred=recentred, used=used, face_mass=face_mass)

@@ -62,6 +62,9 @@ class CorrelatorSettings(StrictModel):
 
     @model_validator(mode="after")
     def _consistent(self):
+        if self.synthesis == "fast" and self.n_noncoherent < 20:
+            raise ValueError(f"synthesis: 'fast' draws Σ_b|w_b|² as a Gaussian, valid for n_noncoherent ≥ 20 "
+                             f"(got {self.n_noncoherent}); use synthesis = 'exact'")
         if self.statistic == "mag" and self.synthesis != "exact":
             raise ValueError("statistic: 'mag' needs synthesis = 'exact' (the fast synthesis draws the power)")
         if self.half_window_m < 10 * self.delay_step_m:
