@@ -67,3 +67,22 @@ def test_the_record_is_read_only_for_the_settings_it_was_made_for(tmp_path):
     assert fit_k_tail(np.random.default_rng(0).normal(size=5000), 1e-7).n_eff == 5000
     with pytest.raises(ValueError, match="N_eff"):
         fit_k_tail(np.random.default_rng(0).normal(size=900), 1e-7)
+
+
+def test_calibrate_dpe_end_to_end_even_when_the_approach_names_a_stale_record(tmp_path):
+    """7 + 7 sorties of the shipped DPE approach, whose k_factor names a record made for other settings
+    (the usual state right after a settings change): the calibration ignores it, fits, validates, and
+    its record is readable for the settings it was made for."""
+    from testbed.campaign.dpe_calibration import calibrate_dpe, write_record
+    from testbed.resources import approaches_dir
+
+    text = (approaches_dir() / "zunz-rwy05-dpe.toml").read_text()
+    (tmp_path / "stale.json").write_text(json.dumps({"k": 5.0, "settings": {"dpe": {"sis": "none"}}}))
+    ap = tmp_path / "dpe.toml"
+    ap.write_text(text.replace('k_factor = "calibration/dpe-k.json"', 'k_factor = "stale.json"'))
+    rec = calibrate_dpe(ap, sorties=7)
+    assert rec["n_calibration"] > 1000 and rec["validation"]["epochs"] > 1000
+    assert 4.5 < rec["k"] < 9.0 and 0.8 < rec["sigma_z"] < 1.6
+    write_record(rec, tmp_path / "k.json")
+    s = DpeSettings.model_validate({"k_factor": 1.0, "sis": "add"})
+    assert read_k_file(tmp_path / "k.json", settings_fingerprint(s, CorrelatorSettings())[1]) == rec["k"]

@@ -15,6 +15,7 @@ run extrapolates from shallower tails, and the file says how deep its levels wen
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import json
 from pathlib import Path
@@ -73,6 +74,8 @@ def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60,
         raise ValueError(f"p_hmi: expected a probability below 0.01, got {p_hmi}")
     say = progress or (lambda _: None)
     ap = load_approach(approach)
+    # the K being fitted replaces the approach's (whose record may be for the settings before a change)
+    ap = dataclasses.replace(ap, config=ap.config.model_copy(update={"dpe": {**ap.config.dpe, "k_factor": 1.0}}))
     setup = preflight(ap)
     settings = DpeSettings.model_validate({**ap.config.dpe, "k_factor": 1.0})
     fingerprint, cover = settings_fingerprint(settings, setup.gnss.correlators)

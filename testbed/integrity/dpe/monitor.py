@@ -71,7 +71,8 @@ class DpeSettings(StrictModel):
     sigma_tropo_zenith_m: float = Field(0.12, ge=0.0, description="residual troposphere at zenith it assumes (m)")
     coarse_spacing_m: float = Field(30.0, gt=0.0, le=300.0, description="stage-1 grid spacing (m; 9 nodes/axis)")
     mid_spacing_m: float = Field(6.0, gt=0.0, le=60.0, description="stage-2 grid spacing (m; 9 nodes/axis)")
-    fine_spacing: float = Field(0.55, gt=0.0, le=2.0, description="whitened-grid spacing (CRB sigmas; 17 nodes/axis)")
+    fine_spacing: float = Field(0.6875, gt=0.0, le=2.0,
+                                description="whitened-grid spacing (CRB sigmas; 17 nodes/axis: ±5.5σ)")
     max_recentre: int = Field(3, ge=0, le=10, description="recentrings per stage before PEAK_AT_EDGE")
 
     def plan(self) -> GridPlan:

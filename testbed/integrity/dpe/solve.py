@@ -4,7 +4,8 @@
    on a face, at most 3 times);
 2. 9⁴ at 6 m about it -> the best node + a per-axis quadratic refine;
 3. the whitened grid x = x̂ + L·z, L·Lᵀ = J_CRB (from the receiver's C/N0 estimates),
-   z on 17⁴ nodes at 0.55 (±4.4σ along every principal direction): it follows the
+   z on 17⁴ nodes at 0.6875 (±5.5σ along every principal direction; DPE.md's 0.55, ±4.4σ, left
+   0.1-1 % of the posterior on the grid's faces, cutting the tails the overbound reads): it follows the
    U-clock correlation the box grids would waste candidates on. Recentred on the best node
    while that is on a face (≤ 3 times). When the CRB is much finer than stage 2 resolves
    (high C/N0), whitened 9⁴ grids zoom in first, ×¼ a step (a departure from DPE.md §3,
@@ -42,7 +43,7 @@ class GridPlan:
     coarse_n: int = 9
     mid_m: float = 6.0
     mid_n: int = 9
-    fine_z: float = 0.55
+    fine_z: float = 0.6875
     fine_n: int = 17
     max_recentre: int = 3
     bins: int = 161
