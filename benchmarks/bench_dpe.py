@@ -33,7 +33,7 @@ from dpe_scene import scene  # noqa: E402
 from testbed.integrity.dpe.manifold import box_nodes, epoch_manifold, manifold_numpy  # noqa: E402
 from testbed.integrity.dpe.monitor import DpeMonitor, DpeSettings  # noqa: E402
 from testbed.integrity.kernels.dpe import manifold_box, manifold_box_threads  # noqa: E402
-from testbed.sensors.gnss.correlators import _epoch_stat, delay_grid  # noqa: E402
+from testbed.sensors.gnss.correlators import epoch_statistic, delay_grid  # noqa: E402
 from testbed.sensors.gnss.settings import CorrelatorSettings  # noqa: E402
 
 
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
     for syn in ("fast", "exact"):
         cs = CorrelatorSettings(synthesis=syn)
         rng = np.random.default_rng(0)
-        t_s = _median_time(lambda: _epoch_stat(rng, cs, g, A, np.zeros(8), np.zeros(8), np.zeros(8),
+        t_s = _median_time(lambda: epoch_statistic(rng, cs, g, A, np.zeros(8), np.zeros(8), np.zeros(8),
                                                np.zeros((8, 50))), a.repeats)
         print(f"correlator synthesis, one epoch of 8 satellites x 50 blocks, {syn}: {t_s * 1e3:.2f} ms")
 

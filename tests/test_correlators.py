@@ -13,7 +13,7 @@ import pytest
 from scipy import integrate, stats
 
 from testbed.correlation import CHIP_M, amplitude_sq, correlation, crb_delay_sigma, peak
-from testbed.sensors.gnss.correlators import (_epoch_stat, cn0_at, cn0_estimate, delay_grid, draw_noise,
+from testbed.sensors.gnss.correlators import (epoch_statistic, cn0_at, cn0_estimate, delay_grid, draw_noise,
                                               noise_spectrum, tabulated_correlation)
 from testbed.sensors.gnss.settings import CorrelatorSettings
 
@@ -86,7 +86,7 @@ def _stats(synthesis: str, n: int, alpha: float, seed0: int = 0):
     g = delay_grid(cs)
     A = np.sqrt(amplitude_sq(np.full(4, 43.0), cs.coherent_s))
     phase = np.tile(np.linspace(0, 4, cs.n_noncoherent), (4, 1))
-    return np.concatenate([_epoch_stat(np.random.default_rng(seed0 + i), cs, g, A, np.full(4, 3.3), np.full(4, 60.0),
+    return np.concatenate([epoch_statistic(np.random.default_rng(seed0 + i), cs, g, A, np.full(4, 3.3), np.full(4, 60.0),
                                        np.full(4, alpha), phase) for i in range(n)]), g
 
 
@@ -105,7 +105,7 @@ def test_a_ground_echo_moves_the_peak_where_brute_force_puts_it():
     A = np.full(1, 1e4)  # noise negligible against the signal
     delay, echo, alpha = np.full(1, 0.0), np.full(1, 0.25 * CHIP_M), np.full(1, 0.5)
     phase = np.zeros((1, cs.n_noncoherent))  # in phase with the direct signal
-    st = _epoch_stat(np.random.default_rng(0), cs, g, A, delay, echo, alpha, phase)[0]
+    st = epoch_statistic(np.random.default_rng(0), cs, g, A, delay, echo, alpha, phase)[0]
     d = g.offsets
     brute = np.abs(correlation(d, 1.0) + alpha[0] * correlation(d - echo[0], 1.0)) ** 2
     assert np.argmax(st) == np.argmax(brute)
@@ -117,7 +117,7 @@ def test_cn0_table_and_estimate():
     np.testing.assert_allclose(cn0_at(np.radians([5.0, 30.0, 90.0, 2.0]), cs), [38.0, 43.5, 45.5, 38.0])
     g = delay_grid(cs)
     A = np.sqrt(amplitude_sq(np.full(200, 45.0), cs.coherent_s))
-    st = _epoch_stat(np.random.default_rng(3), cs, g, A, np.zeros(200), np.zeros(200), np.zeros(200),
+    st = epoch_statistic(np.random.default_rng(3), cs, g, A, np.zeros(200), np.zeros(200), np.zeros(200),
                      np.zeros((200, cs.n_noncoherent)))
     est = cn0_estimate(st, cs)
     assert abs(np.median(est) - 45.0) < 0.2

@@ -22,6 +22,13 @@ from testbed.sim.evaluate import misleading, summarise_monitor
 QUIET_SIS = dict(sigma_ura_m=0.0, sigma_tropo_zenith_m=0.0)
 
 
+#: the scene's satellites (dpe_scene: 8 at DPE.md's elevations, azimuths 17° + 45° k)
+SCENE_EL = np.radians([75.0, 55.0, 40.0, 35.0, 25.0, 20.0, 15.0, 10.0])
+SCENE_G = np.column_stack([-np.cos(SCENE_EL) * np.sin(np.radians(np.arange(8) * 45.0 + 17.0)),
+                           -np.cos(SCENE_EL) * np.cos(np.radians(np.arange(8) * 45.0 + 17.0)),
+                           -np.sin(SCENE_EL), np.ones(8)])
+
+
 def monitor(**options) -> DpeMonitor:
     return DpeMonitor("dpe", context(), DpeSettings(**({"k_factor": 5.33} | options)))
 
@@ -82,9 +89,7 @@ def test_the_solution_attains_the_cramer_rao_bound():
     d = out.diagnostics
     # the CRB from the true C/N0 (the monitor used its estimates, within 0.3 dB)
     a2 = amplitude_sq(50.0, 0.02)
-    el = np.radians([75.0, 55.0, 40.0, 35.0, 25.0, 20.0, 15.0, 10.0])
-    az = np.radians(np.arange(8) * 45.0 + 17.0)
-    G = np.column_stack([-np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az), -np.sin(el), np.ones(8)])
+    G = SCENE_G
     J = np.linalg.inv(G.T @ G) * float(crb_delay_sigma(a2, 5, 1.0)) ** 2
     ratio = err.var(axis=0, ddof=0) / np.diag(J)
     lo, hi = stats.chi2.ppf([0.025, 0.975], 200) / 200
@@ -95,12 +100,10 @@ def test_the_solution_attains_the_cramer_rao_bound():
 
 
 def _linear_shift(k: int, bias: float) -> np.ndarray:
-    el = np.radians([75.0, 55.0, 40.0, 35.0, 25.0, 20.0, 15.0, 10.0])
-    az = np.radians(np.arange(8) * 45.0 + 17.0)
-    G = np.column_stack([-np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az), -np.sin(el), np.ones(8)])
     from testbed.sensors.gnss.correlators import cn0_at
 
-    w = 1.0 / crb_delay_sigma(amplitude_sq(cn0_at(el, CorrelatorSettings()) + 15.0, 0.02), 50, 1.0) ** 2
+    G = SCENE_G
+    w = 1.0 / crb_delay_sigma(amplitude_sq(cn0_at(SCENE_EL, CorrelatorSettings()) + 15.0, 0.02), 50, 1.0) ** 2
     A = np.linalg.solve(G.T @ (G * w[:, None]), (G * w[:, None]).T)
     return A[:, k] * bias
 

@@ -45,7 +45,7 @@ def _epoch(case: dict, variant: str, seed: int):
     from testbed.integrity.dpe.overbound import gaussian_overbound
     from testbed.integrity.dpe.seed_variant import solve_epoch_seed
     from testbed.integrity.dpe.solve import solve_epoch
-    from testbed.sensors.gnss.correlators import _epoch_stat, cn0_at, delay_grid
+    from testbed.sensors.gnss.correlators import epoch_statistic, cn0_at, delay_grid
     from testbed.sensors.gnss.settings import CorrelatorSettings
 
     from testbed.frames import LocalFrame
@@ -71,7 +71,7 @@ def _epoch(case: dict, variant: str, seed: int):
     if "echo" in case:
         idx, chips, amp = case["echo"]
         echo_delay[list(idx)], alpha[list(idx)] = chips * CHIP_M, amp
-    stat = _epoch_stat(rng, cs, grid, A, delay, echo_delay, alpha, np.zeros((8, cs.n_noncoherent)))
+    stat = epoch_statistic(rng, cs, grid, A, delay, echo_delay, alpha, np.zeros((8, cs.n_noncoherent)))
     mf = epoch_manifold(frame, sat, rho_ref, stat, truth + OFFSET[:3], OFFSET[3], stat_kind=stat_kind,
                         n_blocks=cs.n_noncoherent, bandwidth_chips=cs.bandwidth_chips, delay0_m=grid.delay0_m,
                         step_m=grid.step_m)

@@ -30,7 +30,7 @@ from testbed.correlation import amplitude_sq, crb_delay_sigma
 from testbed.integrity.dpe.manifold import epoch_manifold
 from testbed.integrity.dpe.overbound import gaussian_overbound
 from testbed.integrity.dpe.seed_variant import SPREAD_STEPS, solve_epoch_seed
-from testbed.integrity.dpe.solve import GridPlan, Status, solve_epoch
+from testbed.integrity.dpe.solve import GridPlan, Status, crb, solve_epoch
 from testbed.integrity.levels import service_level
 from testbed.integrity.monitor import ANTENNA, MonitorContext, Observations
 from testbed.integrity.raim import gps_raim
@@ -216,10 +216,9 @@ class DpeMonitor:
         """σ_SIS,U: the SIS errors through the DPE's own weighting, A_w = J Gᵀ W with the CRB weights."""
         g_used = g[used]
         el = np.arcsin(np.clip(-g_used[:, 2], -1.0, 1.0))
-        w = 1.0 / crb_delay_sigma(amplitude_sq(cn0[used], corr.coherent_s), corr.n_noncoherent,
-                                  corr.bandwidth_chips) ** 2
-        J = np.linalg.inv(g_used.T @ (g_used * w[:, None]))
-        A_u = (J @ (g_used * w[:, None]).T)[2]
+        a2 = amplitude_sq(cn0[used], corr.coherent_s)
+        w = 1.0 / crb_delay_sigma(a2, corr.n_noncoherent, corr.bandwidth_chips) ** 2
+        A_u = (crb(g_used, a2, corr.n_noncoherent, corr.bandwidth_chips) @ (g_used * w[:, None]).T)[2]
         res.sis_u[b, i] = float(np.sqrt(np.sum((A_u * _sis_sigma(el, self.settings)) ** 2)))
 
     def _output(self, res: "_Results", t: NDArray, lead: tuple) -> MonitorOutput:

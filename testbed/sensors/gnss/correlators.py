@@ -140,8 +140,8 @@ def _sqrt_psd(H: NDArray) -> NDArray:
     return Q * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
 
 
-def _epoch_stat(rng: np.random.Generator, settings: CorrelatorSettings, grid: DelayGrid, A: NDArray,
-                delay: NDArray, echo_delay: NDArray, alpha: NDArray, echo_phase: NDArray) -> NDArray:
+def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid: DelayGrid, A: NDArray,
+                    delay: NDArray, echo_delay: NDArray, alpha: NDArray, echo_phase: NDArray) -> NDArray:
     """(S, M) statistic of one epoch's tracked satellites (A, delays, echoes per satellite)."""
     b, n_b = settings.bandwidth_chips, settings.n_noncoherent
     d = grid.offsets[None, :] - delay[:, None]
@@ -216,7 +216,7 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
             continue
         delay[i, k] = clean[i, k] + sis[i, k] - rho_ref[i, k]
         phase = (2.0 * np.pi * (echo_delay[i, k, None] + echo_rate[i, k, None] * t_block) / L1_WAVELENGTH_M + np.pi)
-        stat[i, k] = _epoch_stat(g_noise, cs, grid, A[i, k], delay[i, k], echo_delay[i, k], alpha[i, k], phase)
+        stat[i, k] = epoch_statistic(g_noise, cs, grid, A[i, k], delay[i, k], echo_delay[i, k], alpha[i, k], phase)
     with np.errstate(invalid="ignore"):
         est = np.where(vis, cn0_estimate(np.nan_to_num(stat, nan=0.0), cs), np.nan)
     epochs = CorrelatorEpochs(t=np.asarray(gnss.t), prn=np.asarray(gnss.prn), sat_pos_ecef=np.asarray(gnss.sat_pos_ecef),
