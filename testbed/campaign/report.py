@@ -298,8 +298,6 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
     figdir = inp.figdir
     tc, hist, hal, val = inp.tc, inp.hist, inp.hal, inp.val
     # ---- Stanford diagrams and region counts
-    from matplotlib.colors import LogNorm
-
     from testbed.campaign.runner import hist_edges
 
     monitors = sorted(set(tc["monitor"].tolist()))
@@ -319,35 +317,10 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
                 hc = _cols(hist)
                 hs = (hc["monitor"] == m) & (hc["dim"] == dim)
                 np.add.at(H, (hc["err_bin"][hs], hc["pl_bin"][hs]), hc["count"][hs])
-            if H.sum() > 0:
-                # H is indexed [error bin, PL bin]; pcolormesh wants rows = y (PL)
-                pcm = ax.pcolormesh(edges, edges, H.T, norm=LogNorm(vmin=1, vmax=max(H.max(), 2)), cmap="viridis",
-                                    shading="flat")
-                fig.colorbar(pcm, ax=ax, label="epochs")
             hc = None if hist is None else _cols(hist)
             e95 = hist_quantile(hc, None if hc is None else (hc["monitor"] == m) & (hc["dim"] == dim), 0.95)
             acc_rows.append({"monitor": m, "dim": dim, "e95": e95})
-            lim = (edges[0], edges[-1])
-            ax.plot(lim, lim, "k-", lw=0.8)
-            ax.axhline(al, color="r", lw=0.8)
-            ax.axvline(al, color="r", lw=0.8)
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            ax.set_xlim(1e-2, 1e3)
-            ax.set_ylim(1e-1, 1e4)
-            ax.set_xlabel(f"{dim} position error (m)")
-            ax.set_ylabel(f"{dim}PL (m)")
-            txt = (f"normal {counts['normal']}\nunavailable {counts['unavailable']}\n"
-                   f"misleading {counts['misleading']}\nhazardous (HMI) {counts['hazardous']}\n"
-                   f"unavail.+misleading {counts['unavailable_misleading']}\n"
-                   f"alerted (not plotted) {counts['alerted']}\nno solution {counts['no_solution']}\n"
-                   f"total {total} epochs")
-            ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", fontsize=7,
-                    bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
-            ax.set_title(f"{m}: {dim} Stanford diagram ({dim}AL {al:g} m)")
-            if total and counts["no_solution"] == total:  # e.g. the DPE: vertical only, HPL NaN by design
-                ax.text(0.5, 0.5, f"{m} gives no {dim}PL\n(it bounds the other dimension only)", ha="center",
-                        va="center", transform=ax.transAxes, fontsize=10)
+            stanford_panel(fig, ax, H, edges, counts, total, m, dim, al)
         name = f"stanford_{m}.png"
         _save(fig, figdir / name)
         figures.append((f"Stanford diagrams, {m}", name))
@@ -363,6 +336,40 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
         md.append(f"| {m} | {_f(h, '{:.2f}')} | {_f(v, '{:.2f}')} |")
     md.append("")
     return md, figures
+
+
+def stanford_panel(fig, ax, H: np.ndarray, edges: np.ndarray, counts: dict[str, int], total: int, monitor: str,
+                   dim: str, al: float) -> None:
+    """One Stanford diagram: the (error, PL) histogram ``H`` [error bin, PL bin] on log axes, the alert
+    limit, the y = x line and the region counts."""
+    from matplotlib.colors import LogNorm
+
+    if H.sum() > 0:
+        # H is indexed [error bin, PL bin]; pcolormesh wants rows = y (PL)
+        pcm = ax.pcolormesh(edges, edges, H.T, norm=LogNorm(vmin=1, vmax=max(H.max(), 2)), cmap="viridis",
+                            shading="flat")
+        fig.colorbar(pcm, ax=ax, label="epochs")
+    lim = (edges[0], edges[-1])
+    ax.plot(lim, lim, "k-", lw=0.8)
+    ax.axhline(al, color="r", lw=0.8)
+    ax.axvline(al, color="r", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlim(1e-2, 1e3)
+    ax.set_ylim(1e-1, 1e4)
+    ax.set_xlabel(f"{dim} position error (m)")
+    ax.set_ylabel(f"{dim}PL (m)")
+    txt = (f"normal {counts['normal']}\nunavailable {counts['unavailable']}\n"
+           f"misleading {counts['misleading']}\nhazardous (HMI) {counts['hazardous']}\n"
+           f"unavail.+misleading {counts['unavailable_misleading']}\n"
+           f"alerted (not plotted) {counts['alerted']}\nno solution {counts['no_solution']}\n"
+           f"total {total} epochs")
+    ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", fontsize=7,
+            bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
+    ax.set_title(f"{monitor}: {dim} Stanford diagram ({dim}AL {al:g} m)")
+    if total and counts["no_solution"] == total:  # e.g. the DPE: vertical only, HPL NaN by design
+        ax.text(0.5, 0.5, f"{monitor} gives no {dim}PL\n(it bounds the other dimension only)", ha="center",
+                va="center", transform=ax.transAxes, fontsize=10)
 
 
 def hist_quantile(hist: dict[str, np.ndarray] | None, select: np.ndarray | None, q: float) -> float:

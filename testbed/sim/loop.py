@@ -24,7 +24,6 @@ from typing import Protocol
 import numpy as np
 
 from testbed.flight.fly import FlightResult, fly, truth_from_rows
-from testbed.integrity.fde import measurement_label
 from testbed.integrity.monitor import ANTENNA, Observations
 from testbed.inertial import body_to_world, local_to_world
 from testbed.records import GnssEpochs, GnssTruth, ImuSamples, MonitorOutput, Truth, concat_epochs, take_epochs
@@ -37,9 +36,9 @@ from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.vision import detect as vdetect
 from testbed.sim import slicing
+from testbed.sim.events import EventTracker
 from testbed.sim.setup import RunSetup
 
-INFO, WARN, ERROR = "INFO", "WARN", "ERROR"
 
 
 @dataclass
@@ -160,11 +159,7 @@ class _Runner:
         names = setup.monitor_names
         self.outputs: dict[str, list[MonitorOutput]] = {m: [] for m in names}
         self.states = {m.name: m.initial_state() for m in setup.monitors}  # each monitor's typed state
-        self.prev_alert = {m: False for m in names}
-        self.prev_avail = {m: True for m in names}
-        self.prev_excluded = {m: -1 for m in names}
-        self.onsets = sorted({(f.onset_s, f.kind) for f in setup.faults})
-        self.onset_logged: set = set()
+        self.tracker = EventTracker(names, sorted({(f.onset_s, f.kind) for f in setup.faults}))
         self.events: list[tuple[float, str, str]] = []
         self.timings = Timings()
 
@@ -281,43 +276,7 @@ class _Runner:
 
     # -- events ----------------------------------------------------------------
     def _events(self, block: LoopBlock) -> None:
-        t_end = float(block.t[-1]) if block.t.size else -1.0
-        for onset, kind in self.onsets:
-            if onset <= t_end and (onset, kind) not in self.onset_logged:
-                self.onset_logged.add((onset, kind))
-                block.events.append((onset, WARN, f"[truth] fault injected: {kind} at t = {onset:.1f} s"))
-                block.marks.append((onset, "", "fault onset"))
-        for name, out in block.outputs.items():
-            level0 = out.service_levels[0] if out.service_levels else "?"
-            for i, t in enumerate(out.t):
-                a = bool(out.alert[i])
-                if a and not self.prev_alert[name]:
-                    block.events.append((float(t), ERROR, f"{name}: ALERT test statistic {out.test_stat[i]:.1f} "
-                                                           f"> threshold {out.threshold[i]:.1f}"))
-                    block.marks.append((float(t), name, "alert"))
-                elif not a and self.prev_alert[name]:
-                    block.events.append((float(t), INFO, f"{name}: alert cleared"))
-                    block.marks.append((float(t), name, "alert cleared"))
-                self.prev_alert[name] = a
-                ex = int(out.excluded[i])
-                if ex >= 0 and ex != self.prev_excluded.get(name, -1):
-                    what = measurement_label(ex, block.gnss.prn, None if block.vision is None else block.vision.landmark_id)
-                    block.events.append((float(t), WARN, f"{name}: fault detected, {what} EXCLUDED (test "
-                                                          f"{out.fde.test_stat_all[i]:.1f} > {out.fde.threshold_all[i]:.1f}; "
-                                                          f"without it {out.test_stat[i]:.1f} ≤ {out.threshold[i]:.1f})"))
-                    block.marks.append((float(t), name, "excluded"))
-                elif ex < 0 and self.prev_excluded.get(name, -1) >= 0:
-                    block.events.append((float(t), INFO, f"{name}: exclusion ended"))
-                self.prev_excluded[name] = ex
-                av = bool(out.available[i, 0]) if out.available.ndim == 2 and out.available.shape[1] else True
-                if av != self.prev_avail[name]:
-                    why = out.reasons[out.reason[i]] if out.reason[i] else "PL above alert limit"
-                    block.events.append((float(t), WARN if not av else INFO,
-                                         f"{name}: {level0} {'available' if av else 'UNAVAILABLE (' + why + ')'}"))
-                    block.marks.append((float(t), name, "available" if av else "unavailable"))
-                self.prev_avail[name] = av
-        block.events.sort(key=lambda e: e[0])
-        self.events.extend(block.events)
+        self.events.extend(self.tracker.add(block))
 
 
 def run_loop(setup: RunSetup, *, seed: int = 0, sinks: list[Sink] | None = None, block_s: float = 5.0,

@@ -25,7 +25,8 @@ from typing import Literal
 import numpy as np
 
 from testbed.sensors.gnss.orbits import Ephemeris, from_keplerian
-from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gpst_calendar_to_gps_seconds
+from testbed.sensors.gnss.navfile import read_nav
+from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK
 
 WeekMode = Literal["auto", "periodic", "nearest_rollover"]
 _DO229_FILE = "do229_gps_almanac_24sat.tsv"
@@ -116,71 +117,14 @@ def load_yuma(path: str | Path, t_ref_gps: float, week_mode: WeekMode = "auto") 
                           health=col["health"].astype(int), source=f"YUMA {path.name}").take(order)
 
 
-def _d(s: str) -> float:
-    s = s.strip().replace("D", "E").replace("d", "e")
-    return float(s) if s else 0.0
-
-
 def load_rinex_nav(path: str | Path) -> Ephemeris:
-    """All GPS broadcast records of a RINEX 3.0x navigation file (other systems skipped).
+    """All GPS broadcast records of a RINEX 2.xx/3.xx navigation file (other systems skipped).
 
     Returns every record (several per PRN); call :meth:`Ephemeris.select` to
     keep the one nearest a flight. Full IS-GPS-200 model: Δn, IDOT, the six
-    harmonic terms, af0..af2, TGD are all used.
+    harmonic terms, af0..af2, TGD are all used (:func:`testbed.sensors.gnss.navfile.read_nav`).
     """
-    path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as exc:
-        raise ValueError(f"RINEX nav {path}: cannot read ({exc})") from exc
-    try:
-        end = next(k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER")
-    except StopIteration:
-        raise ValueError(f"RINEX nav {path}: no 'END OF HEADER' line") from None
-    vers = lines[0][:9].strip()
-    if not (lines[0][60:].strip() == "RINEX VERSION / TYPE" and vers.startswith("3") and lines[0][20] == "N"):
-        raise ValueError(f"RINEX nav {path}: expected a RINEX 3.xx navigation file, got first line "
-                         f"{lines[0]!r}")
-    recs = []
-    k = end + 1
-    while k < len(lines):
-        ln = lines[k]
-        if not ln.strip():
-            k += 1
-            continue
-        sys = ln[0]
-        nlines = {"G": 8, "E": 8, "J": 8, "C": 8, "I": 8, "R": 4, "S": 4}.get(sys)
-        if nlines is None:
-            raise ValueError(f"RINEX nav {path}, line {k + 1}: unexpected record start {ln[:10]!r}")
-        if sys == "G":
-            block = lines[k:k + 8]
-            if len(block) < 8:
-                raise ValueError(f"RINEX nav {path}, line {k + 1}: truncated GPS record")
-            try:
-                prn = int(ln[1:3])
-                y, mo, d, h, mi, s = (int(ln[4:8]), int(ln[9:11]), int(ln[12:14]), int(ln[15:17]),
-                                      int(ln[18:20]), int(ln[21:23]))
-                vals = [_d(ln[23 + 19 * j:42 + 19 * j]) for j in range(3)]
-                for b in block[1:]:
-                    vals += [_d(b[4 + 19 * j:23 + 19 * j]) for j in range(4)]
-            except ValueError as exc:
-                raise ValueError(f"RINEX nav {path}, lines {k + 1}-{k + 8}: unreadable GPS record "
-                                 f"({exc})") from exc
-            toc_gps = gpst_calendar_to_gps_seconds(y, mo, d, h, mi, s)
-            recs.append((prn, toc_gps, vals))
-        k += nlines
-    if not recs:
-        raise ValueError(f"RINEX nav {path}: no GPS records")
-    P = np.array([r[2] for r in recs])
-    prn = np.array([r[0] for r in recs])
-    week = P[:, 21].astype(np.int64)
-    toc_sow = np.array([r[1] for r in recs]) - week * SECONDS_PER_WEEK
-    return Ephemeris(prn=prn, health=P[:, 24].astype(np.int64), week=week, toe_sow=P[:, 11], toc_sow=toc_sow,
-                     sqrt_a=P[:, 10], e=P[:, 8], i0=P[:, 15], idot=P[:, 19], omega0=P[:, 13],
-                     omega_dot=P[:, 18], w=P[:, 17], m0=P[:, 6], delta_n=P[:, 5], cuc=P[:, 7],
-                     cus=P[:, 9], crc=P[:, 16], crs=P[:, 4], cic=P[:, 12], cis=P[:, 14], af0=P[:, 0],
-                     af1=P[:, 1], af2=P[:, 2], tgd=P[:, 25], iode=P[:, 3].astype(np.int64),
-                     source=f"RINEX nav {path.name}")
+    return read_nav(path).eph
 
 
 def load_constellation(source: str, path: str | Path | None, t_ref_gps: float,

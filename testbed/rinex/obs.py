@@ -1,0 +1,306 @@
+"""RINEX 2.xx and 3.xx observation files: GPS code, Doppler and C/N0 as arrays over (epoch, satellite).
+
+The reader walks the epoch records once in Python (the record boundaries
+depend on each epoch's satellite count) and parses every measurement field
+of every satellite record in one vectorised pass: the records are padded to
+a fixed width, viewed as a byte matrix and each field column converted with
+numpy. Phase (``L``) observables are not read: no monitor here uses them.
+
+Kept: GPS satellites (system ``G``, or blank in 2.xx), observation types
+whose code starts with C (code), D (Doppler) or S (signal strength), under
+their RINEX 3 names (2.xx ``C1``/``P1``/``P2``/``C2``/``C5``/``D1``/``S1``...
+are renamed, see :data:`V2_NAMES`). Skipped, and counted: other systems'
+measurements, event records (epoch flags 2-5) and cycle-slip records (flag 6).
+Epochs with flag 1 (power failure before the epoch) are kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from testbed.sensors.gnss.rinex_text import RinexText, read_lines, rinex_float
+from testbed.sensors.gnss.timebase import gpst_calendar_to_gps_seconds
+
+#: RINEX 2.xx observation codes -> the RINEX 3 names used here (GPS: P-code on L1/L2 is the W tracking)
+V2_NAMES = {"C1": "C1C", "P1": "C1W", "C2": "C2L", "P2": "C2W", "C5": "C5Q", "D1": "D1C", "D2": "D2W",
+            "D5": "D5Q", "S1": "S1C", "S2": "S2W", "S5": "S5Q"}
+_KEPT_KINDS = ("C", "D", "S")
+_TIME_SYSTEMS = ("GPS", "GAL", "")  # Galileo system time is steered to GPS time (tags usable as GPST)
+
+
+@dataclass(frozen=True)
+class RinexObs:
+    """GPS measurements of an observation file.
+
+    t_tag : (E,) epoch time tags, s since the GPS epoch, in the *receiver's* time scale
+        (true GPS time + the receiver clock offset, as a receiver writes them).
+    prn : (S,) the GPS PRNs observed at least once, sorted.
+    values : observation code (RINEX 3 name, e.g. ``C1C``) -> (E, S) float, NaN where absent.
+    clock_offset_s : (E,) receiver clock offset written on the epoch line (NaN where blank).
+    """
+
+    path: Path
+    version: str
+    t_tag: NDArray
+    prn: NDArray
+    values: dict[str, NDArray]
+    clock_offset_s: NDArray
+    approx_pos_ecef: NDArray
+    interval_s: float | None
+    receiver_type: str
+    comments: tuple[str, ...]
+    skipped: dict[str, int] = field(default_factory=dict)  # what was not used, with counts
+
+    @property
+    def epochs(self) -> int:
+        return int(self.t_tag.size)
+
+
+@dataclass
+class _Records:
+    """Satellite records collected from the epoch walk (one entry per satellite record)."""
+
+    text: list[str] = field(default_factory=list)  # the record (continuation lines joined for 2.xx)
+    sat: list[str] = field(default_factory=list)  # 3-character satellite id
+    epoch: list[int] = field(default_factory=list)
+    line: list[int] = field(default_factory=list)  # 1-based line number of the record's first line
+
+
+def _header_types(text: RinexText) -> dict[str, list[str]]:
+    """Observation types per system letter (2.xx: one list for every system, key '*')."""
+    types: dict[str, list[str]] = {}
+    if text.version.startswith("2"):
+        recs = text.header("# / TYPES OF OBSERV")
+        if not recs:
+            raise text.fail("no '# / TYPES OF OBSERV' header record")
+        try:
+            n = int(recs[0][1][:6])
+        except ValueError:
+            raise text.fail(f"unreadable observation type count {recs[0][1][:6]!r}", recs[0][0]) from None
+        names = [ln[10 + 6 * j:12 + 6 * j].strip() for _, ln in recs for j in range(9)]
+        types["*"] = [c for c in names if c][:n]
+        return types
+    recs = text.header("SYS / # / OBS TYPES")
+    if not recs:
+        raise text.fail("no 'SYS / # / OBS TYPES' header record")
+    sys = None
+    for no, ln in recs:
+        if ln[0] != " ":
+            sys = ln[0]
+            try:
+                int(ln[3:6])
+            except ValueError:
+                raise text.fail(f"unreadable observation type count {ln[3:6]!r}", no) from None
+            types[sys] = []
+        if sys is None:
+            raise text.fail("an observation-type continuation line before its system's line", no)
+        types[sys] += [ln[7 + 4 * j:10 + 4 * j].strip() for j in range(13) if ln[7 + 4 * j:10 + 4 * j].strip()]
+    return types
+
+
+def _time_system(text: RinexText) -> None:
+    recs = text.header("TIME OF FIRST OBS")
+    if recs:
+        no, ln = recs[0]
+        ts = ln[48:51].strip()
+        if ts not in _TIME_SYSTEMS:
+            raise text.fail(f"time system {ts!r}: expected GPS time tags ('GPS', or blank in a GPS file)", no)
+
+
+def _walk_v3(text: RinexText, rec: _Records, skipped: dict[str, int]) -> tuple[list[float], list[float]]:
+    lines, n = text.lines, len(text.lines)
+    t_tag, clock = [], []
+    k = text.header_end + 1
+    while k < n:
+        ln = lines[k]
+        if not ln.strip():
+            k += 1
+            continue
+        if ln[0] != ">":
+            raise text.fail(f"{ln[:40]!r}: expected an epoch record starting with '>'", k + 1)
+        try:
+            flag, nsat = int(ln[31:32] or "0"), int(ln[32:35])
+        except ValueError:
+            raise text.fail(f"unreadable epoch flag / satellite count {ln[29:35]!r}", k + 1) from None
+        if flag > 1:  # event (2-5: header lines follow) or cycle-slip records (6): not measurements here
+            skipped["event records"] = skipped.get("event records", 0) + 1
+            k += nsat + 1
+            continue
+        if k + nsat >= n:
+            raise text.fail(f"epoch announces {nsat} satellites but the file ends after {n - k - 1} more lines "
+                            f"(truncated file?)", k + 1)
+        try:
+            t = gpst_calendar_to_gps_seconds(int(ln[2:6]), int(ln[7:9]), int(ln[10:12]), int(ln[13:15]),
+                                             int(ln[16:18]), float(ln[18:29]))
+            clock.append(float(ln[41:56]) if ln[41:56].strip() else np.nan)
+        except ValueError:
+            raise text.fail(f"unreadable epoch time {ln[:35]!r}; expected '> yyyy mm dd hh mm ss.sssssss'", k + 1) \
+                from None
+        e = len(t_tag)
+        t_tag.append(t)
+        body = lines[k + 1:k + 1 + nsat]
+        rec.text += body
+        rec.sat += [b[:3] for b in body]
+        rec.epoch += [e] * nsat
+        rec.line += range(k + 2, k + 2 + nsat)
+        k += nsat + 1
+    return t_tag, clock
+
+
+def _walk_v2(text: RinexText, n_types: int, rec: _Records, skipped: dict[str, int]) -> tuple[list[float], list[float]]:
+    lines, n = text.lines, len(text.lines)
+    per_sat = -(-n_types // 5)
+    t_tag, clock = [], []
+    k = text.header_end + 1
+    while k < n:
+        ln = lines[k]
+        if not ln.strip():
+            k += 1
+            continue
+        try:
+            flag, nsat = int(ln[28:29] or "0"), int(ln[29:32])
+        except ValueError:
+            raise text.fail(f"{ln[:32]!r}: expected an epoch record (yy mm dd hh mm ss.sssssss flag count)", k + 1) \
+                from None
+        sat_lines = -(-nsat // 12) if flag <= 1 or flag == 6 else 0
+        if flag > 1:
+            skipped["event records"] = skipped.get("event records", 0) + 1
+            k += 1 + nsat if flag < 6 else sat_lines + nsat * per_sat  # 6: cycle-slip records, data layout
+            continue
+        if k + sat_lines - 1 + nsat * per_sat >= n:
+            raise text.fail(f"epoch announces {nsat} satellites but the file ends before their records (truncated "
+                            f"file?)", k + 1)
+        try:
+            yy = int(ln[1:3])
+            t = gpst_calendar_to_gps_seconds(yy + (2000 if yy < 80 else 1900), int(ln[4:6]), int(ln[7:9]),
+                                             int(ln[10:12]), int(ln[13:15]), float(ln[15:26]))
+            clock.append(float(ln[68:80]) if ln[68:80].strip() else np.nan)
+        except ValueError:
+            raise text.fail(f"unreadable epoch time {ln[:26]!r}; expected ' yy mm dd hh mm ss.sssssss'", k + 1) \
+                from None
+        ids = "".join(lines[k + j][32:68].ljust(36) for j in range(sat_lines))
+        sats = [ids[3 * j:3 * j + 3] for j in range(nsat)]
+        e = len(t_tag)
+        t_tag.append(t)
+        first = k + sat_lines
+        for j, sat in enumerate(sats):
+            a = first + j * per_sat
+            rec.text.append("".join(lines[a + i][:80].ljust(80) for i in range(per_sat)))
+            rec.sat.append(sat)
+            rec.epoch.append(e)
+            rec.line.append(a + 1)
+        k = first + nsat * per_sat
+    return t_tag, clock
+
+
+def _field_columns(text: RinexText, types: list[str]) -> dict[str, int]:
+    """Kept observation code -> first column of its F14.3 field in a (joined) satellite record."""
+    out = {}
+    v2 = text.version.startswith("2")
+    for j, code in enumerate(types):
+        name = V2_NAMES.get(code, code) if v2 else code
+        if name[:1] in _KEPT_KINDS and name not in out:
+            out[name] = 80 * (j // 5) + 16 * (j % 5) if v2 else 3 + 16 * j
+    return out
+
+
+def _parse_fields(text: RinexText, records: list[str], lines: NDArray, columns: dict[str, int]) -> dict[str, NDArray]:
+    """Every kept field of every record, parsed in one pass per observation type (NaN where blank)."""
+    if not records:
+        return {c: np.zeros(0) for c in columns}
+    width = max(columns.values()) + 14
+    block = "".join(r[:width].ljust(width) for r in records).encode("latin-1")
+    chars = np.frombuffer(block, np.uint8).reshape(len(records), width)
+    out = {}
+    for code, c0 in columns.items():
+        f = np.ascontiguousarray(chars[:, c0:c0 + 14])
+        blank = (f == 32).all(1)
+        f[blank, 13] = ord("0")
+        try:
+            v = f.view("S14").ravel().astype(np.float64)
+        except ValueError:
+            bad = next(i for i in range(len(records)) if not _is_number(f[i].tobytes()))
+            raise text.fail(f"{code} field {f[bad].tobytes().decode('latin-1')!r}: expected a number (F14.3)",
+                            int(lines[bad]) + c0 // 80) from None
+        v[blank] = np.nan
+        out[code] = v
+    return out
+
+
+def _is_number(s: bytes) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def read_obs(path: str | Path) -> RinexObs:
+    """GPS code / Doppler / C/N0 of a RINEX 2.xx or 3.xx observation file (gzip and Hatanaka too)."""
+    text = read_lines(path, "observation")
+    vers = text.version
+    if vers[:1] not in ("2", "3") or text.file_type != "O":
+        raise text.fail(f"version {vers!r}, file type {text.file_type!r}: expected a RINEX 2.xx or 3.xx "
+                        f"observation file (type 'O')", 1)
+    _time_system(text)
+    types = _header_types(text)
+    v2 = vers.startswith("2")
+    gps_types = types.get("*" if v2 else "G")
+    if not gps_types:
+        raise text.fail(f"no GPS observation types in the header (systems {sorted(types)}): expected GPS "
+                        f"measurements")
+    columns = _field_columns(text, gps_types)
+    if not any(c.startswith("C") for c in columns):
+        raise text.fail(f"GPS observation types {gps_types}: none is a pseudorange (C1C, C1W, C2W... / C1, P1, P2 in "
+                        f"RINEX 2); expected at least one code observation", text.header(
+                            "# / TYPES OF OBSERV" if v2 else "SYS / # / OBS TYPES")[0][0])
+    rec, skipped = _Records(), {}
+    t_tag, clock = _walk_v2(text, len(gps_types), rec, skipped) if v2 else _walk_v3(text, rec, skipped)
+    if not t_tag:
+        raise text.fail("no observation epochs after the header")
+    sys = np.array([s[:1] if s[:1] != " " else "G" for s in rec.sat])
+    for letter in sorted(set(sys.tolist()) - {"G"}):
+        skipped[f"system {letter} satellite records"] = int((sys == letter).sum())
+    gps = np.flatnonzero(sys == "G")
+    line = np.asarray(rec.line)[gps]
+    try:
+        prn_rec = np.array([int(rec.sat[i][1:3]) for i in gps], np.int64)
+    except ValueError:
+        bad = next(i for i in gps if not rec.sat[i][1:3].strip().isdigit())
+        raise text.fail(f"satellite id {rec.sat[bad]!r}: expected a system letter and a 2-digit PRN",
+                        rec.line[bad]) from None
+    vals = _parse_fields(text, [rec.text[i] for i in gps], line, columns)
+    prn = np.unique(prn_rec)
+    col = np.searchsorted(prn, prn_rec)
+    ep = np.asarray(rec.epoch, np.intp)[gps]
+    E, S = len(t_tag), prn.size
+    values = {}
+    for code, v in vals.items():
+        a = np.full((E, S), np.nan)
+        a[ep, col] = v
+        values[code] = a
+    t = np.asarray(t_tag)
+    if np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise text.fail(f"epoch {k + 1} is not after the one before it (time tags must increase)")
+    approx = np.zeros(3)
+    for no, ln in text.header("APPROX POSITION XYZ"):
+        try:
+            approx = np.array([rinex_float(ln[14 * j:14 * j + 14]) for j in range(3)])
+        except ValueError:
+            raise text.fail(f"unreadable APPROX POSITION XYZ {ln[:42]!r}", no) from None
+    interval = None
+    for no, ln in text.header("INTERVAL"):
+        try:
+            interval = float(ln[:10])
+        except ValueError:
+            raise text.fail(f"unreadable INTERVAL {ln[:10]!r}", no) from None
+    rt = text.header("REC # / TYPE / VERS")
+    comments = tuple(ln[:60].rstrip() for _, ln in text.header("COMMENT"))
+    return RinexObs(path=text.path, version=vers, t_tag=t, prn=prn, values=values, clock_offset_s=np.asarray(clock),
+                    approx_pos_ecef=approx, interval_s=interval, receiver_type=rt[0][1][20:40].strip() if rt else "",
+                    comments=comments, skipped=skipped)

@@ -1,0 +1,253 @@
+"""Monitor-ready GPS observations from a RINEX observation file and its navigation file.
+
+What a receiver's code measurement is and what is done to it (IS-GPS-200, the
+RINEX definitions), for a tag t_r in the receiver's time scale:
+
+    P = c·(t_r − t_sv),    t_sv the satellite clock's transmit time
+    transmit time (GPS time)  t_t = t_r − P/c − Δt_sv(t_t)   (Δt_sv: af0..af2 + relativistic term)
+    satellite position        s(t_t) rotated about z by Ω̇e·τ, τ = |s − r|/c  (Earth rotation
+                              during the light time: positions in the ECEF frame of reception)
+    corrected pseudorange     P + c·Δt_sv − c·T_GD − I − T  (T_GD for single-frequency L1 only;
+                              I ionosphere, T troposphere; iono-free: (f1²P1 − f2²P2)/(f1² − f2²), no T_GD)
+
+The receiver clock stays in the corrected pseudorange, as the monitors expect
+(:class:`testbed.records.GnssEpochs`). The rotation, elevation, azimuth and the
+atmosphere need the receiver position: a preliminary unweighted fix per epoch
+(Gauss-Newton from the Earth's centre, light time re-solved each iteration)
+serves them; the monitors then solve their own weighted fix from the result. A
+10 m error in the preliminary fix moves the Sagnac rotation of a satellite by
+< 0.1 mm and the elevations by < 1e-6 rad.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from testbed.frames import C_LIGHT, OMEGA_EARTH, R_ecef_to_enu, ecef_to_geodetic
+from testbed.records import GnssEpochs, Mount, NotVisible
+from testbed.rinex.atmosphere import klobuchar_delay, klobuchar_sigma, saastamoinen_delay
+from testbed.rinex.obs import RinexObs
+from testbed.rinex.settings import RinexSettings
+from testbed.sensors.gnss.errors import F_L1, F_L5, sigma_multipath, sigma_noise, sigma_tropo
+from testbed.sensors.gnss.navfile import MAX_AGE_S, NavData, nearest_records
+from testbed.sensors.gnss.orbits import sat_states
+from testbed.sensors.gnss.rinex_text import RinexError
+from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gps_seconds_to_calendar
+
+F_L2 = 1227.60e6
+FREQUENCY = {"1": F_L1, "2": F_L2, "5": F_L5}
+LAMBDA_L1 = C_LIGHT / F_L1
+#: REC # / TYPE of files `testbed export-rinex` writes: their ranges are iono-free-equivalent
+TESTBED_RECEIVER = "TESTBED SYNTHETIC"
+_FIX_ITERATIONS = 10
+#: RTKLIB 2.4.3 pntpos constants (rtklib.h / pntpos.c) for its single-point variance
+_RTK_ERR, _RTK_ERATIO, _RTK_URA, _RTK_CBIAS = 0.003, 100.0, 2.4, 0.3
+_RTK_ION_OFF, _RTK_TROP_OFF, _RTK_BRDCI, _RTK_SAAS = 5.0, 3.0, 0.5, 0.3
+
+
+@dataclass(frozen=True)
+class Formation:
+    """How the observations were formed (printed in the summary, written beside the table)."""
+
+    l1_code: str
+    second_code: str | None
+    ionosphere: str
+    troposphere: str
+    error_model: str
+    counts: dict[str, int]  # measurement counts by reason (VISIBLE = used)
+    notes: tuple[str, ...]
+    fix_ecef: NDArray  # (E, 3) the preliminary fix per epoch (NaN where none)
+    origin_lat_lon_h: tuple[float, float, float]
+
+
+def _first_present(obs: RinexObs, codes: tuple[str, ...]) -> str | None:
+    return next((c for c in codes if c in obs.values and np.isfinite(obs.values[c]).any()), None)
+
+
+def _resolve(obs: RinexObs, nav: NavData, s: RinexSettings) -> tuple[str, str | None, str, str, list[str]]:
+    notes = []
+    l1 = _first_present(obs, s.l1_codes)
+    if l1 is None:
+        raise RinexError(obs.path, f"no L1 pseudorange: none of {list(s.l1_codes)} is observed (the file has "
+                                   f"{sorted(obs.values)}); expected an L1 code observation ([rinex] l1_codes)")
+    second = _first_present(obs, s.second_codes)
+    synthetic = obs.receiver_type == TESTBED_RECEIVER
+    iono, tropo = s.ionosphere, s.troposphere
+    if iono == "auto":
+        iono = "off" if synthetic else ("iono_free" if second else "klobuchar")
+    if tropo == "auto":
+        tropo = "off" if synthetic else "saastamoinen"
+    if synthetic and (s.ionosphere == "auto" or s.troposphere == "auto"):
+        notes.append("testbed export: ranges are iono-free-equivalent, atmosphere models off (README, RINEX export)")
+    if iono == "iono_free" and second is None:
+        raise RinexError(obs.path, f"[rinex] ionosphere = 'iono_free' needs a second-frequency code, but none of "
+                                   f"{list(s.second_codes)} is observed (the file has {sorted(obs.values)}); expected "
+                                   f"'klobuchar' or 'off' for a single-frequency file")
+    if iono == "klobuchar" and (nav.klobuchar_alpha is None or nav.klobuchar_beta is None):
+        raise RinexError(nav.path, "no Klobuchar coefficients (ION ALPHA / ION BETA in RINEX 2, IONOSPHERIC CORR "
+                                   "GPSA / GPSB in RINEX 3) in the header; the broadcast ionosphere needs them. "
+                                   "Expected them, or [rinex] ionosphere = 'iono_free' or 'off'")
+    return l1, (second if iono == "iono_free" else None), iono, tropo, notes
+
+
+def _span(t: NDArray) -> str:
+    a, b = gps_seconds_to_calendar(float(np.min(t))), gps_seconds_to_calendar(float(np.max(t)))
+    return f"{a:%Y-%m-%d %H:%M} .. {b:%Y-%m-%d %H:%M} GPST (GPS week {int(np.min(t) // SECONDS_PER_WEEK)})"
+
+
+def _rotate_z(v: NDArray, theta: NDArray) -> NDArray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
+
+
+def _preliminary_fix(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -> tuple[NDArray, NDArray]:
+    """Unweighted Gauss-Newton ECEF fix per epoch, light time and Earth rotation re-solved each iteration.
+
+    sat : (E, S, 3) transmit-time positions in the transmit-time ECEF frame.  z : (E, S) corrected ranges.
+    Returns (r (E, 3), receive-frame satellite positions (E, S, 3)); r NaN where fewer than 4 rows.
+    """
+    E = z.shape[0]
+    r, b = np.broadcast_to(r0, (E, 3)).copy(), np.zeros(E)
+    ok = use.sum(1) >= 4
+    zz = np.where(use, z, 0.0)
+    for _ in range(_FIX_ITERATIONS):
+        tau = np.linalg.norm(sat - r[:, None], axis=-1) / C_LIGHT
+        s_rx = _rotate_z(sat, OMEGA_EARTH * tau)
+        d = s_rx - r[:, None]
+        rho = np.linalg.norm(d, axis=-1)
+        G = np.concatenate([-d / rho[..., None], np.ones(rho.shape + (1,))], -1) * use[..., None]
+        res = np.where(use, zz - rho - b[:, None], 0.0)
+        N = np.einsum("esi,esj->eij", G, G)
+        N[~ok] = np.eye(4)
+        dx = np.linalg.solve(N, np.einsum("esi,es->ei", G, res)[..., None])[..., 0]
+        dx[~ok] = 0.0
+        r += dx[:, :3]
+        b += dx[:, 3]
+    r[~ok] = np.nan
+    tau = np.linalg.norm(sat - np.where(ok[:, None], r, r0)[:, None], axis=-1) / C_LIGHT
+    return r, _rotate_z(sat, OMEGA_EARTH * tau)
+
+
+def _filled(r: NDArray) -> NDArray:
+    """Epochs without a fix take the nearest earlier one (else the first later one)."""
+    ok = np.isfinite(r).all(1)
+    idx = np.where(ok, np.arange(r.shape[0]), -1)
+    idx = np.maximum.accumulate(idx)
+    first = int(np.argmax(ok))
+    idx[idx < 0] = first
+    return r[idx]
+
+
+def _sigma(s: RinexSettings, el: NDArray, iono: str, iono_m: NDArray, iono_sig: NDArray, tropo: str,
+           dual_factor: float) -> NDArray:
+    sin_el = np.sin(np.clip(el, 1e-3, None))
+    if s.error_model == "user":
+        return np.sqrt(s.sigma_a_m**2 + (s.sigma_b_m / sin_el) ** 2)
+    if s.error_model == "rtklib":  # pntpos.c varerr() + rescode(): code, URA, code bias, iono, tropo terms
+        var = _RTK_ERATIO**2 * (_RTK_ERR**2 + _RTK_ERR**2 / sin_el) * (9.0 if iono == "iono_free" else 1.0)
+        var = var + _RTK_URA**2 + _RTK_CBIAS**2
+        var = var + {"off": _RTK_ION_OFF**2, "iono_free": 0.0}.get(iono, 0.0) + (
+            (_RTK_BRDCI * iono_m) ** 2 if iono == "klobuchar" else 0.0)
+        var = var + (_RTK_TROP_OFF**2 if tropo == "off" else (_RTK_SAAS / (sin_el + 0.1)) ** 2)
+        return np.sqrt(var)
+    air = dual_factor * np.hypot(sigma_multipath(el), sigma_noise(el))
+    return np.sqrt(s.sigma_ura_m**2 + sigma_tropo(el, s.sigma_tropo_zenith_m) ** 2 + air**2 + iono_sig**2)
+
+
+def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[GnssEpochs, Formation]:
+    """GnssEpochs (the monitors' input; ``t`` from the first tag) and how they were formed."""
+    s = settings
+    l1, second, iono, tropo, notes = _resolve(obs, nav, s)
+    E, S = obs.t_tag.size, obs.prn.size
+    p1 = obs.values[l1]
+    reason = np.full((E, S), NotVisible.NOT_OBSERVED, np.int8)
+    have = np.isfinite(p1) & (p1 > 1e6)  # a code range is > 1000 km; zeros and junk are not measurements
+    if second is not None:
+        p2 = obs.values[second]
+        reason[have & ~np.isfinite(p2)] = NotVisible.NO_SECOND_FREQUENCY
+        have &= np.isfinite(p2)
+    rec = nearest_records(nav.eph, obs.prn, obs.t_tag)
+    reason[have & (rec < 0)] = NotVisible.NO_EPHEMERIS
+    use = have & (rec >= 0)
+    if not use.any():
+        toe = nav.eph.toe_gps
+        raise RinexError(nav.path, f"no broadcast record within {MAX_AGE_S / 3600:.0f} h of any observation: the "
+                                   f"observation file {obs.path.name} spans {_span(obs.t_tag)}, the navigation "
+                                   f"file's records {_span(toe)}; expected a navigation file for the same day")
+    flat = np.flatnonzero(use)
+    eph = nav.eph.take(rec.ravel()[flat])
+    e_idx = flat // S
+    tx = obs.t_tag[e_idx] - p1.ravel()[flat] / C_LIGHT
+    clk = np.zeros_like(tx)
+    for _ in range(2):  # Δt_sv at the transmit time it defines (|Δt_sv| < 1 ms: two passes reach < 1e-15 s)
+        clk = sat_states(eph, tx - clk, per_slot=True)[2]
+    pos, vel, clk, clk_rate = sat_states(eph, tx - clk, per_slot=True)
+    sat = np.full((E, S, 3), np.nan)
+    sat_v = np.full((E, S, 3), np.nan)
+    dts, dts_rate, tgd = np.zeros((E, S)), np.zeros((E, S)), np.zeros((E, S))
+    health = np.zeros((E, S), np.int64)
+    sat.reshape(-1, 3)[flat], sat_v.reshape(-1, 3)[flat] = pos, vel
+    dts.ravel()[flat], dts_rate.ravel()[flat], tgd.ravel()[flat] = clk, clk_rate, eph.tgd
+    health.ravel()[flat] = eph.health
+    reason[use & (health != 0)] = NotVisible.UNHEALTHY
+    use &= health == 0
+    if second is not None:
+        f1, f2 = F_L1, FREQUENCY[second[1]]
+        code = (f1**2 * p1 - f2**2 * obs.values[second]) / (f1**2 - f2**2)
+        dual_factor = float(np.sqrt(f1**4 + f2**4) / (f1**2 - f2**2))
+    else:
+        code = p1 - C_LIGHT * tgd
+        dual_factor = float(np.sqrt(F_L1**4 + F_L5**4) / (F_L1**2 - F_L5**2)) if iono == "off" and \
+            obs.receiver_type == TESTBED_RECEIVER else 1.0
+    z_geo = code + C_LIGHT * dts  # geometric range + receiver clock + atmosphere + errors
+    sat0 = np.where(use[..., None], sat, 0.0)
+    r_fix, _ = _preliminary_fix(sat0, z_geo, use, obs.approx_pos_ecef)
+    if not np.isfinite(r_fix).any():
+        if not np.any(obs.approx_pos_ecef):
+            raise RinexError(obs.path, "no epoch has 4 satellites with ephemerides, and the header has no APPROX "
+                                       "POSITION XYZ: expected at least one epoch with 4 usable satellites")
+        r_fix = np.broadcast_to(obs.approx_pos_ecef, (E, 3)).astype(float)
+    r_ref = _filled(r_fix)
+    lat, lon, h = ecef_to_geodetic(r_ref)
+    # atmosphere (needs elevation from a position; one more fix with it removed gives the final geometry)
+    tau = np.linalg.norm(sat0 - r_ref[:, None], axis=-1) / C_LIGHT
+    s_rx = _rotate_z(sat0, OMEGA_EARTH * tau)
+    los = np.einsum("eij,esj->esi", R_ecef_to_enu(lat, lon), s_rx - r_ref[:, None])
+    el = np.arctan2(los[..., 2], np.hypot(los[..., 0], los[..., 1]))
+    az = np.arctan2(los[..., 0], los[..., 1])
+    latr, lonr = np.radians(lat)[:, None], np.radians(lon)[:, None]
+    iono_m = np.zeros((E, S))
+    iono_sig = np.zeros((E, S))
+    if iono == "klobuchar":
+        tow = np.mod(obs.t_tag, SECONDS_PER_WEEK)[:, None]
+        iono_m = klobuchar_delay(nav.klobuchar_alpha, nav.klobuchar_beta, latr, lonr, np.clip(el, 0, None), az, tow)
+        iono_sig = klobuchar_sigma(latr, lonr, np.clip(el, 0, None), az, iono_m)
+    tropo_m = saastamoinen_delay(latr, h[:, None], el) if tropo == "saastamoinen" else np.zeros((E, S))
+    z = z_geo - iono_m - tropo_m
+    reason[use & (el < np.radians(s.elevation_mask_deg))] = NotVisible.BELOW_MASK
+    use &= el >= np.radians(s.elevation_mask_deg)
+    reason[use] = NotVisible.VISIBLE
+    r2, s_rx = _preliminary_fix(np.where(use[..., None], sat, 0.0), z, use, obs.approx_pos_ecef)
+    r_final = np.where(np.isfinite(r2), r2, r_ref)
+    tau = np.linalg.norm(np.where(use[..., None], sat, 0.0) - r_final[:, None], axis=-1) / C_LIGHT
+    s_rx = _rotate_z(sat, OMEGA_EARTH * tau)
+    v_rx = _rotate_z(sat_v, OMEGA_EARTH * tau)
+    dop = next((obs.values[c] for c in ("D1C", "D1W", "D1X", "D1P") if c in obs.values), np.full((E, S), np.nan))
+    rr = -dop * LAMBDA_L1 + C_LIGHT * dts_rate
+    sigma = _sigma(s, el, iono, iono_m, iono_sig, tropo, dual_factor)
+    first = r2[np.isfinite(r2).all(1)][0] if np.isfinite(r2).any() else r_ref[0]
+    origin = (tuple(float(x) for x in s.origin) if s.origin != "first_fix"
+              else tuple(float(np.asarray(x)) for x in ecef_to_geodetic(first)))
+    epochs = GnssEpochs(t=obs.t_tag - obs.t_tag[0], t_gps=obs.t_tag.copy(), prn=obs.prn.copy(),
+                        sat_pos_ecef=np.where(use[..., None], s_rx, np.nan),
+                        sat_vel_ecef=np.where(use[..., None], v_rx, np.nan),
+                        pseudorange=np.where(use, z, np.nan), range_rate=np.where(use, rr, np.nan),
+                        sigma=np.where(use, sigma, np.nan), visible=use, reason=reason,
+                        antenna=Mount(np.zeros(3)))
+    counts = {NotVisible(k).name: int((reason[np.isfinite(p1)] == k).sum()) for k in np.unique(reason)}
+    return epochs, Formation(l1_code=l1, second_code=second, ionosphere=iono, troposphere=tropo,
+                             error_model=s.error_model, counts=counts, notes=tuple(notes), fix_ecef=r2,
+                             origin_lat_lon_h=origin)

@@ -1,0 +1,160 @@
+"""RINEX 2.xx and 3.xx navigation files: GPS broadcast ephemerides and the Klobuchar coefficients.
+
+Formats (RINEX 2.11 and 3.04 specifications, IGS/RTCM):
+
+* 2.xx GPS (``N``): ``ION ALPHA`` / ``ION BETA`` header records; a record is
+  8 lines, the first ``I2,5I3,F5.1,3D19.12`` (PRN, 2-digit year ... second,
+  af0, af1, af2), the others ``3X,4D19.12``.
+* 3.xx (``N``, GPS or mixed): ``IONOSPHERIC CORR`` records ``GPSA``/``GPSB``;
+  a GPS record is ``A1,I2.2,1X,I4,5(1X,I2.2),3D19.12`` then 7 lines ``4X,4D19.12``.
+  Records of other systems are skipped by their line count.
+
+Broadcast orbit lines (both versions, 4 values each after the first):
+IODE Crs Δn M0 / Cuc e Cus √A / Toe Cic Ω0 Cis / i0 Crc ω Ω̇ / IDOT L2codes week L2P /
+accuracy health TGD IODC / transmission-time fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from testbed.sensors.gnss.orbits import Ephemeris
+from testbed.sensors.gnss.rinex_text import RinexText, read_lines, rinex_float
+from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gpst_calendar_to_gps_seconds
+
+#: lines per record of each system in a RINEX 3 navigation file
+_RECORD_LINES_V3 = {"G": 8, "E": 8, "J": 8, "C": 8, "I": 8, "R": 4, "S": 4}
+
+
+@dataclass(frozen=True)
+class NavData:
+    """What a navigation file gives the pseudorange corrections.
+
+    eph : every GPS record (several per PRN; :func:`nearest_records` picks per epoch).
+    klobuchar_alpha, klobuchar_beta : (4,) broadcast ionosphere coefficients (s, s/semicircle^n),
+        or None when the header has none.
+    """
+
+    eph: Ephemeris
+    klobuchar_alpha: NDArray | None
+    klobuchar_beta: NDArray | None
+    version: str
+    path: Path
+
+
+def _values(text: RinexText, k: int, first_col: int, cont_col: int) -> list[float]:
+    """The 29 numbers of the GPS record starting at line index ``k`` (3 on the first line, 4 on the others)."""
+    block = text.lines[k:k + 8]
+    if len(block) < 8:
+        raise text.fail(f"truncated GPS record ({len(block)} of 8 lines before the end of the file)", k + 1)
+    try:
+        vals = [rinex_float(block[0][first_col + 19 * j:first_col + 19 + 19 * j]) for j in range(3)]
+        for b in block[1:]:
+            vals += [rinex_float(b[cont_col + 19 * j:cont_col + 19 + 19 * j]) for j in range(4)]
+    except ValueError as exc:
+        raise text.fail(f"unreadable GPS record ({exc}); expected D19.12 numbers", k + 1) from None
+    return vals
+
+
+def _iono(text: RinexText) -> tuple[NDArray | None, NDArray | None]:
+    def coeffs(label: str, key: str | None, start: int):
+        for n, ln in text.header(label):
+            if key is None or ln[:4] == key:
+                try:
+                    return np.array([rinex_float(ln[start + 12 * j:start + 12 + 12 * j]) for j in range(4)])
+                except ValueError:
+                    raise text.fail(f"unreadable {label} {key or ''} coefficients {ln[:60]!r}", n) from None
+        return None
+
+    if text.version.startswith("2"):
+        return coeffs("ION ALPHA", None, 2), coeffs("ION BETA", None, 2)
+    return coeffs("IONOSPHERIC CORR", "GPSA", 5), coeffs("IONOSPHERIC CORR", "GPSB", 5)
+
+
+def read_nav(path: str | Path) -> NavData:
+    """All GPS broadcast records and the Klobuchar coefficients of a RINEX 2.xx/3.xx navigation file."""
+    text = read_lines(path, "navigation")
+    vers = text.version
+    if vers[:1] not in ("2", "3") or text.file_type != "N":
+        raise text.fail(f"version {vers!r}, file type {text.file_type!r}: expected a RINEX 2.xx or 3.xx GPS (or "
+                        f"mixed) navigation file (type 'N')", 1)
+    recs: list[tuple[int, float, list[float]]] = []
+    k, n = text.header_end + 1, len(text.lines)
+    v2 = vers.startswith("2")
+    while k < n:
+        ln = text.lines[k]
+        if not ln.strip():
+            k += 1
+            continue
+        try:
+            if v2:
+                prn = int(ln[0:2])
+                y = int(ln[3:5])
+                y += 2000 if y < 80 else 1900
+                mo, d, h, mi = int(ln[6:8]), int(ln[9:11]), int(ln[12:14]), int(ln[15:17])
+                s = float(ln[17:22])
+                first, cont, nlines = 22, 3, 8
+            else:
+                nlines = _RECORD_LINES_V3.get(ln[0])
+                if nlines is None:
+                    raise text.fail(f"unexpected record start {ln[:10]!r}; expected a satellite system letter "
+                                    f"({''.join(_RECORD_LINES_V3)}) and a PRN", k + 1)
+                if ln[0] != "G":
+                    k += nlines
+                    continue
+                prn = int(ln[1:3])
+                y, mo, d, h, mi, s = (int(ln[4:8]), int(ln[9:11]), int(ln[12:14]), int(ln[15:17]),
+                                      int(ln[18:20]), float(ln[21:23]))
+                first, cont = 23, 4
+        except ValueError:
+            raise text.fail(f"unreadable record time {ln[:23]!r}; expected the PRN and the time of clock", k + 1) \
+                from None
+        if not 1 <= prn <= 63:
+            raise text.fail(f"PRN {prn}: expected 1..63", k + 1)
+        recs.append((prn, gpst_calendar_to_gps_seconds(y, mo, d, h, mi, s), _values(text, k, first, cont)))
+        k += nlines
+    if not recs:
+        raise text.fail("no GPS ephemeris records after the header")
+    P = np.array([r[2] for r in recs])
+    prn = np.array([r[0] for r in recs])
+    toc = np.array([r[1] for r in recs])
+    week = P[:, 21].astype(np.int64)
+    # the record's week goes with toe; toc can sit across a week boundary from it
+    toc_sow = toc - week * SECONDS_PER_WEEK
+    eph = Ephemeris(prn=prn, health=P[:, 24].astype(np.int64), week=week, toe_sow=P[:, 11], toc_sow=toc_sow,
+                    sqrt_a=P[:, 10], e=P[:, 8], i0=P[:, 15], idot=P[:, 19], omega0=P[:, 13],
+                    omega_dot=P[:, 18], w=P[:, 17], m0=P[:, 6], delta_n=P[:, 5], cuc=P[:, 7],
+                    cus=P[:, 9], crc=P[:, 16], crs=P[:, 4], cic=P[:, 12], cis=P[:, 14], af0=P[:, 0],
+                    af1=P[:, 1], af2=P[:, 2], tgd=P[:, 25], iode=P[:, 3].astype(np.int64),
+                    source=f"RINEX nav {text.path.name}")
+    alpha, beta = _iono(text)
+    return NavData(eph, alpha, beta, vers, text.path)
+
+
+#: RTKLIB's and the ICD's usual validity of a broadcast record about its toe (s)
+MAX_AGE_S = 7200.0
+
+
+def nearest_records(eph: Ephemeris, prn: NDArray, t_gps: NDArray, max_age_s: float = MAX_AGE_S) -> NDArray:
+    """Index into ``eph`` of the record nearest in toe to each (epoch, PRN), -1 where none is within ``max_age_s``.
+
+    prn : (S,).  t_gps : (E,).  Returns (E, S) int.
+    """
+    out = np.full((t_gps.size, prn.size), -1, np.intp)
+    toe = eph.toe_gps
+    for j, p in enumerate(prn):  # one pass per satellite: O(E log R)
+        idx = np.flatnonzero(eph.prn == p)
+        if idx.size == 0:
+            continue
+        idx = idx[np.argsort(toe[idx], kind="stable")]
+        tt = toe[idx]
+        pos = np.clip(np.searchsorted(tt, t_gps), 1, max(tt.size - 1, 1))
+        lo = np.where(np.abs(t_gps - tt[pos - 1]) <= np.abs(t_gps - tt[np.minimum(pos, tt.size - 1)]), pos - 1,
+                      np.minimum(pos, tt.size - 1)) if tt.size > 1 else np.zeros(t_gps.size, np.intp)
+        ok = np.abs(t_gps - tt[lo]) <= max_age_s
+        out[:, j] = np.where(ok, idx[lo], -1)
+    return out
