@@ -307,7 +307,8 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
     The observations are the ones a ``testbed fly`` run with the same seed sees
     (same generator words), including the approach's GNSS faults. Returns the
     ``(obs_path, nav_path)``; the truth trajectory is written beside them as
-    ``<name>.truth.csv`` (antenna position, for comparison with a solver).
+    ``<name>.truth.csv`` (the true antenna position at the true GPS time of each epoch: a
+    ``testbed monitor --reference`` file).
     """
     import numpy as np
 
@@ -330,11 +331,11 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
                          terrain=setup.terrain, constellation=eph)
     g_seed, _ = sensor_seeds(seed)
     obs, gtruth = sample_gnss(geom, setup.gnss, faults=list(setup.faults), rng=np.random.default_rng(g_seed))
-    paths = write_rinex(obs, geom, out_dir, name=ap.name)
+    paths = write_rinex(obs, geom, out_dir, name=ap.name, clock_bias_m=gtruth.clock_bias)
     lat, lon, h = (np.asarray(v) for v in __import__("testbed.frames", fromlist=["x"]).ecef_to_geodetic(
         gtruth.antenna_pos_ecef))
     np.savetxt(Path(out_dir) / f"{ap.name}.truth.csv",
                np.column_stack([obs.t_gps, gtruth.antenna_pos_ecef, lat, lon, h]), delimiter=",",
-               header="t_gps_s,ant_x_ecef_m,ant_y_ecef_m,ant_z_ecef_m,lat_deg,lon_deg,h_m", comments="",
+               header="t_gps,pos_ecef_x,pos_ecef_y,pos_ecef_z,lat_deg,lon_deg,h_m", comments="",
                fmt="%.6f")
     return paths

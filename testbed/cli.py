@@ -71,6 +71,15 @@ def _cmd_export_rinex(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_monitor(args: argparse.Namespace) -> int:
+    from testbed.rinex.run import monitor_rinex, print_summary
+
+    run = monitor_rinex(args.obs, args.nav, config=args.config, out_dir=args.out, rrd_path=args.rrd,
+                        reference=args.reference, table_format=args.format)
+    print_summary(run)
+    return 0
+
+
 def _cmd_observability(args: argparse.Namespace) -> int:
     from testbed.navigation.observability import format_tables
 
@@ -149,6 +158,18 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="sensor seed (same as testbed fly --seed)")
     r.add_argument("--gust-seed", type=int, help="override the approach's gust seed")
     r.set_defaults(func=_cmd_export_rinex)
+
+    m = sub.add_parser("monitor", help="run GPS RAIM (FDE, protection levels) over a RINEX observation file")
+    m.add_argument("obs", type=Path, help="RINEX 2.xx/3.xx observation file (.gz, .Z and Hatanaka .crx too)")
+    m.add_argument("nav", type=Path, help="RINEX 2.xx/3.xx GPS (or mixed) navigation file of the same day")
+    m.add_argument("--config", type=Path, help="TOML with [rinex] (corrections, error model) and [integrity] tables")
+    m.add_argument("--out", type=Path, help="folder for the per-epoch table, summary.json and (with --reference) "
+                                            "Stanford diagrams")
+    m.add_argument("--rrd", type=Path, help="write a Rerun recording (the flight's layout)")
+    m.add_argument("--reference", type=Path, help="reference trajectory (t_gps, pos_ecef_x/y/z columns; .csv, "
+                                                  ".parquet, .npz): errors, MI/HMI and Stanford diagrams")
+    m.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="per-epoch table format")
+    m.set_defaults(func=_cmd_monitor)
 
     from testbed.campaign.cli_commands import add_campaign_parsers
 

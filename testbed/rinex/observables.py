@@ -43,6 +43,8 @@ LAMBDA_L1 = C_LIGHT / F_L1
 #: REC # / TYPE of files `testbed export-rinex` writes: their ranges are iono-free-equivalent
 TESTBED_RECEIVER = "TESTBED SYNTHETIC"
 _FIX_ITERATIONS = 10
+#: rounds of (delays at the fix, fix without the delays): a 20 m height error -> < 0.1 mm after 3
+_ATMOSPHERE_ROUNDS = 3
 #: RTKLIB 2.4.3 pntpos constants (rtklib.h / pntpos.c) for its single-point variance
 _RTK_ERR, _RTK_ERATIO, _RTK_URA, _RTK_CBIAS = 0.003, 100.0, 2.4, 0.3
 _RTK_ION_OFF, _RTK_TROP_OFF, _RTK_BRDCI, _RTK_SAAS = 5.0, 3.0, 0.5, 0.3
@@ -117,7 +119,7 @@ def _preliminary_fix(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -> tup
         tau = np.linalg.norm(sat - r[:, None], axis=-1) / C_LIGHT
         s_rx = _rotate_z(sat, OMEGA_EARTH * tau)
         d = s_rx - r[:, None]
-        rho = np.linalg.norm(d, axis=-1)
+        rho = np.where(use, np.linalg.norm(d, axis=-1), 1.0)
         G = np.concatenate([-d / rho[..., None], np.ones(rho.shape + (1,))], -1) * use[..., None]
         res = np.where(use, zz - rho - b[:, None], 0.0)
         N = np.einsum("esi,esj->eij", G, G)
@@ -155,6 +157,24 @@ def _sigma(s: RinexSettings, el: NDArray, iono: str, iono_m: NDArray, iono_sig: 
         return np.sqrt(var)
     air = dual_factor * np.hypot(sigma_multipath(el), sigma_noise(el))
     return np.sqrt(s.sigma_ura_m**2 + sigma_tropo(el, s.sigma_tropo_zenith_m) ** 2 + air**2 + iono_sig**2)
+
+
+def _look_and_delays(sat: NDArray, r: NDArray, t_tag: NDArray, iono: str, tropo: str, nav: NavData):
+    """Elevation, azimuth (rad) and the modelled ionosphere (delay, residual 1σ) and troposphere (m) at fix ``r``."""
+    E, S = sat.shape[:2]
+    lat, lon, h = ecef_to_geodetic(r)
+    tau = np.linalg.norm(sat - r[:, None], axis=-1) / C_LIGHT
+    los = np.einsum("eij,esj->esi", R_ecef_to_enu(lat, lon), _rotate_z(sat, OMEGA_EARTH * tau) - r[:, None])
+    el = np.arctan2(los[..., 2], np.hypot(los[..., 0], los[..., 1]))
+    az = np.arctan2(los[..., 0], los[..., 1])
+    latr, lonr = np.radians(lat)[:, None], np.radians(lon)[:, None]
+    iono_m, iono_sig = np.zeros((E, S)), np.zeros((E, S))
+    if iono == "klobuchar":
+        tow = np.mod(t_tag, SECONDS_PER_WEEK)[:, None]
+        iono_m = klobuchar_delay(nav.klobuchar_alpha, nav.klobuchar_beta, latr, lonr, np.clip(el, 0, None), az, tow)
+        iono_sig = klobuchar_sigma(latr, lonr, np.clip(el, 0, None), az, iono_m)
+    tropo_m = saastamoinen_delay(latr, h[:, None], el) if tropo == "saastamoinen" else np.zeros((E, S))
+    return el, az, iono_m, iono_sig, tropo_m
 
 
 def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[GnssEpochs, Formation]:
@@ -211,34 +231,23 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
                                        "POSITION XYZ: expected at least one epoch with 4 usable satellites")
         r_fix = np.broadcast_to(obs.approx_pos_ecef, (E, 3)).astype(float)
     r_ref = _filled(r_fix)
-    lat, lon, h = ecef_to_geodetic(r_ref)
-    # atmosphere (needs elevation from a position; one more fix with it removed gives the final geometry)
-    tau = np.linalg.norm(sat0 - r_ref[:, None], axis=-1) / C_LIGHT
-    s_rx = _rotate_z(sat0, OMEGA_EARTH * tau)
-    los = np.einsum("eij,esj->esi", R_ecef_to_enu(lat, lon), s_rx - r_ref[:, None])
-    el = np.arctan2(los[..., 2], np.hypot(los[..., 0], los[..., 1]))
-    az = np.arctan2(los[..., 0], los[..., 1])
-    latr, lonr = np.radians(lat)[:, None], np.radians(lon)[:, None]
-    iono_m = np.zeros((E, S))
-    iono_sig = np.zeros((E, S))
-    if iono == "klobuchar":
-        tow = np.mod(obs.t_tag, SECONDS_PER_WEEK)[:, None]
-        iono_m = klobuchar_delay(nav.klobuchar_alpha, nav.klobuchar_beta, latr, lonr, np.clip(el, 0, None), az, tow)
-        iono_sig = klobuchar_sigma(latr, lonr, np.clip(el, 0, None), az, iono_m)
-    tropo_m = saastamoinen_delay(latr, h[:, None], el) if tropo == "saastamoinen" else np.zeros((E, S))
-    z = z_geo - iono_m - tropo_m
-    reason[use & (el < np.radians(s.elevation_mask_deg))] = NotVisible.BELOW_MASK
-    use &= el >= np.radians(s.elevation_mask_deg)
+    sat_use = use.copy()
+    for _ in range(_ATMOSPHERE_ROUNDS):  # the delays at the fix, the fix with the delays removed
+        el, az, iono_m, iono_sig, tropo_m = _look_and_delays(sat0, r_ref, obs.t_tag, iono, tropo, nav)
+        sat_use = use & (el >= np.radians(s.elevation_mask_deg))
+        z = z_geo - iono_m - tropo_m
+        r2, _ = _preliminary_fix(np.where(sat_use[..., None], sat, 0.0), z, sat_use, obs.approx_pos_ecef)
+        r_ref = _filled(np.where(np.isfinite(r2), r2, r_ref))
+    reason[use & ~sat_use] = NotVisible.BELOW_MASK
+    use = sat_use
     reason[use] = NotVisible.VISIBLE
-    r2, s_rx = _preliminary_fix(np.where(use[..., None], sat, 0.0), z, use, obs.approx_pos_ecef)
-    r_final = np.where(np.isfinite(r2), r2, r_ref)
-    tau = np.linalg.norm(np.where(use[..., None], sat, 0.0) - r_final[:, None], axis=-1) / C_LIGHT
+    tau = np.linalg.norm(np.where(use[..., None], sat, 0.0) - r_ref[:, None], axis=-1) / C_LIGHT
     s_rx = _rotate_z(sat, OMEGA_EARTH * tau)
     v_rx = _rotate_z(sat_v, OMEGA_EARTH * tau)
     dop = next((obs.values[c] for c in ("D1C", "D1W", "D1X", "D1P") if c in obs.values), np.full((E, S), np.nan))
     rr = -dop * LAMBDA_L1 + C_LIGHT * dts_rate
     sigma = _sigma(s, el, iono, iono_m, iono_sig, tropo, dual_factor)
-    first = r2[np.isfinite(r2).all(1)][0] if np.isfinite(r2).any() else r_ref[0]
+    first = r2[np.isfinite(r2).all(1)][0] if np.isfinite(r2).any() else r_ref[0]  # noqa: F821 (set in the loop)
     origin = (tuple(float(x) for x in s.origin) if s.origin != "first_fix"
               else tuple(float(np.asarray(x)) for x in ecef_to_geodetic(first)))
     epochs = GnssEpochs(t=obs.t_tag - obs.t_tag[0], t_gps=obs.t_tag.copy(), prn=obs.prn.copy(),
@@ -247,7 +256,8 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
                         pseudorange=np.where(use, z, np.nan), range_rate=np.where(use, rr, np.nan),
                         sigma=np.where(use, sigma, np.nan), visible=use, reason=reason,
                         antenna=Mount(np.zeros(3)))
-    counts = {NotVisible(k).name: int((reason[np.isfinite(p1)] == k).sum()) for k in np.unique(reason)}
+    observed = reason[np.isfinite(p1)]
+    counts = {NotVisible(k).name: int((observed == k).sum()) for k in np.unique(observed)}
     return epochs, Formation(l1_code=l1, second_code=second, ionosphere=iono, troposphere=tropo,
                              error_model=s.error_model, counts=counts, notes=tuple(notes), fix_ecef=r2,
                              origin_lat_lon_h=origin)

@@ -226,7 +226,7 @@ class RerunSink:
         los_enu = block.los_enu  # (T, S, 3) unit vectors in the world frame
         reason = np.asarray(g.reason)
         faulty = np.asarray(gt.faulty) if gt is not None else np.zeros(reason.shape, bool)
-        draw = reason != NotVisible.BELOW_MASK
+        draw = (reason != NotVisible.BELOW_MASK) & np.isfinite(los_enu).all(-1)  # a recorded file: no orbit, no ray
         start = np.broadcast_to(block.antenna_enu[:, None, :], los_enu.shape)
         end = start + LOS_LENGTH_M * los_enu
         colour = np.empty(reason.shape + (3,), np.uint8)

@@ -22,10 +22,18 @@ What the observation file holds (and why):
 * ``D1C`` = −(range rate − c·dṫsv)/λ_L1 (Hz; positive when approaching).
 * ``S1C`` = C/N0 (dB-Hz) rising linearly in sin(elevation) between
   ``cn0_horizon_dbhz`` and ``cn0_zenith_dbhz``: a display/weighting value only.
-* Epoch time tags are the true GPS time of the epoch (GPST, the receive time
-  of the synthesis); the receiver clock bias lives in the ranges. RTKLIB
-  forms transmit time as tag − C1C/c and so is off by δt_rx (|c·δt_rx| ~ 100 m
-  → 0.3 µs → < 1 mm of satellite motion along the line of sight).
+* Epoch time tags are the *receiver's* clock time, true GPS time + δt_rx (as an
+  unsteered receiver writes them; ``clock_bias_m`` = c·δt_rx): RTKLIB (and any
+  reader) forms the transmit time as tag − C1C/c − Δt_sv, which is then the true
+  one. (Tags without the clock put the transmit time off by δt_rx, which
+  drifts to ~1 ms over hours: metres of satellite motion, issue 19.) The
+  7-decimal tag (0.1 µs) moves a satellite by < 0.2 mm.
+* Satellite clocks: the almanac's af0/af1 when any is non-zero; the DO-229
+  almanac's are all zero, and then each satellite gets a fixed, realistic
+  clock (af0 uniform in ±0.5 ms, af1 normal with σ 5e-12 s/s, drawn from a
+  generator keyed by the PRN only, so every export of a constellation writes the
+  same clocks). All-zero clocks trip RTKLIB 2.4.3 into de-weighting the first
+  satellite of each epoch (issue 19).
 * No phase observations, so no SYS / PHASE SHIFT or GLONASS header records.
 """
 
@@ -33,6 +41,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -104,9 +113,23 @@ def write_nav(eph: Ephemeris, t_gps_span: tuple[float, float], path: str | Path)
     return path
 
 
-def write_rinex(gnss: GnssEpochs, geometry: GnssGeometry, out_dir: str | Path, *, name: str = "testbed",
-                trial: int = 0, cn0_horizon_dbhz: float = 35.0, cn0_zenith_dbhz: float = 50.0
-                ) -> tuple[Path, Path]:
+#: seed words of the satellite clocks given to a constellation whose almanac has none
+_SAT_CLOCK_WORDS = (0x5A7C10C5, 19)
+
+
+def satellite_clocks(eph: Ephemeris) -> Ephemeris:
+    """``eph`` with realistic satellite clocks when its af0/af1 are all zero (see the module doc), else itself."""
+    if np.any(np.asarray(eph.af0) != 0) or np.any(np.asarray(eph.af1) != 0):
+        return eph
+    prn = np.asarray(eph.prn, np.int64)
+    af0 = np.array([np.random.default_rng([*_SAT_CLOCK_WORDS, int(p)]).uniform(-5e-4, 5e-4) for p in prn])
+    af1 = np.array([np.random.default_rng([*_SAT_CLOCK_WORDS, int(p), 1]).normal(0.0, 5e-12) for p in prn])
+    return replace(eph, af0=af0, af1=af1)
+
+
+def write_rinex(gnss: GnssEpochs, geometry: GnssGeometry, out_dir: str | Path, *, clock_bias_m: NDArray,
+                name: str = "testbed", trial: int = 0, cn0_horizon_dbhz: float = 35.0,
+                cn0_zenith_dbhz: float = 50.0) -> tuple[Path, Path]:
     """Write ``<name>.obs`` (RINEX 3.04 GPS observations) and ``<name>.nav`` into ``out_dir``.
 
     Parameters
@@ -114,6 +137,8 @@ def write_rinex(gnss: GnssEpochs, geometry: GnssGeometry, out_dir: str | Path, *
     gnss : synthesized observations (one trial is exported: ``trial`` of a batch).
     geometry : the :class:`GnssGeometry` they were drawn on (constellation, satellite
         clocks, elevations for C/N0) — the truth-side inputs of the export.
+    clock_bias_m : (T,) or (B, T) the receiver clock c·δt_rx inside the ranges
+        (``GnssTruth.clock_bias``): it goes into the time tags.
 
     Returns
     -------
@@ -128,10 +153,20 @@ def write_rinex(gnss: GnssEpochs, geometry: GnssGeometry, out_dir: str | Path, *
     pr = _pick(gnss.pseudorange, trial, 2)
     rr = _pick(gnss.range_rate, trial, 2)
     vis = _pick(gnss.visible, trial, 2) & np.isfinite(pr)
-    c1c = pr - C_LIGHT * geometry.sat_clock_s
-    d1c = -(rr - C_LIGHT * geometry.sat_clock_rate) / LAMBDA_L1
+    bias = _pick(clock_bias_m, trial, 1)
+    if np.shape(bias) != pr.shape[:1] or not np.isfinite(bias).all():
+        raise ValueError(f"clock_bias_m: expected {pr.shape[0]} finite values (one per epoch), got shape "
+                         f"{np.shape(bias)}")
+    eph = satellite_clocks(geometry.eph)
+    # the drawn clocks on top of the geometry's (which hold the relativistic term) at each transmit time
+    t_tx = np.asarray(geometry.t_gps, float)[:, None] - geometry.geometric_range / C_LIGHT
+    extra = (np.asarray(eph.af0) - np.asarray(geometry.eph.af0)) + (
+        np.asarray(eph.af1) - np.asarray(geometry.eph.af1)) * (t_tx - eph.toc_gps)
+    extra_rate = np.asarray(eph.af1) - np.asarray(geometry.eph.af1)
+    c1c = pr - C_LIGHT * (geometry.sat_clock_s + extra)
+    d1c = -(rr - C_LIGHT * (geometry.sat_clock_rate + extra_rate)) / LAMBDA_L1
     s1c = cn0_from_elevation(geometry.elevation, cn0_horizon_dbhz, cn0_zenith_dbhz)
-    t_gps = np.asarray(gnss.t_gps, float)
+    t_gps = np.asarray(gnss.t_gps, float) + np.asarray(bias, float) / C_LIGHT  # receiver-clock time tags
     c0 = gps_seconds_to_calendar(t_gps[0])
     interval = float(np.median(np.diff(t_gps))) if t_gps.size > 1 else 1.0
     head = [
@@ -146,6 +181,8 @@ def write_rinex(gnss: GnssEpochs, geometry: GnssGeometry, out_dir: str | Path, *
         _hl(f"{0.0:14.4f}{0.0:14.4f}{0.0:14.4f}", "ANTENNA: DELTA H/E/N"),
         _hl(f"G{3:5d} C1C D1C S1C", "SYS / # / OBS TYPES"),
         _hl("DBHZ", "SIGNAL STRENGTH UNIT"),
+        _hl("testbed: C1C is an iono-free-equivalent range (no iono,", "COMMENT"),
+        _hl("tropo delay in it): solve with atmosphere models off", "COMMENT"),
         _hl(f"{interval:10.3f}", "INTERVAL"),
         _hl(f"{c0.year:6d}{c0.month:6d}{c0.day:6d}{c0.hour:6d}{c0.minute:6d}"
             f"{c0.second + c0.microsecond * 1e-6:13.7f}     GPS", "TIME OF FIRST OBS"),
@@ -156,13 +193,16 @@ def write_rinex(gnss: GnssEpochs, geometry: GnssGeometry, out_dir: str | Path, *
     prn = np.asarray(gnss.prn)
     for k in range(t_gps.size):  # text output: one line per measurement, a loop is the honest form
         idx = np.flatnonzero(vis[k])
-        c = gps_seconds_to_calendar(t_gps[k])
+        minute = np.floor(t_gps[k] / 60.0) * 60.0  # the seconds from the float itself: 0.1 µs, not datetime's 1 µs
+        if round(t_gps[k] - minute, 7) >= 60.0:
+            minute += 60.0
+        c = gps_seconds_to_calendar(minute)
         body.append(f"> {c.year:4d} {c.month:02d} {c.day:02d} {c.hour:02d} {c.minute:02d}"
-                    f"{c.second + c.microsecond * 1e-6:11.7f}  0{idx.size:3d}\n")
+                    f"{max(t_gps[k] - minute, 0.0):11.7f}  0{idx.size:3d}\n")
         body += [f"G{int(prn[s]):02d}{c1c[k, s]:14.3f}  {d1c[k, s]:14.3f}  {s1c[k, s]:14.3f}  \n" for s in idx]
     obs_path = out_dir / f"{name}.obs"
     obs_path.write_text("".join(head + body))
-    nav_path = write_nav(geometry.eph, (t_gps[0], t_gps[-1]), out_dir / f"{name}.nav")
+    nav_path = write_nav(eph, (t_gps[0], t_gps[-1]), out_dir / f"{name}.nav")
     return obs_path, nav_path
 
 
