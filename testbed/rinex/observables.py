@@ -42,7 +42,8 @@ FREQUENCY = {"1": F_L1, "2": F_L2, "5": F_L5}
 LAMBDA_L1 = C_LIGHT / F_L1
 #: REC # / TYPE of files `testbed export-rinex` writes: their ranges are iono-free-equivalent
 TESTBED_RECEIVER = "TESTBED SYNTHETIC"
-_FIX_ITERATIONS = 10
+_FIX_ITERATIONS = 12
+_FIX_TOL_M = 1e-4  # the fix's last step (m): far below what the corrections need
 #: rounds of (delays at the fix, fix without the delays): a 20 m height error -> < 0.1 mm after 3
 _ATMOSPHERE_ROUNDS = 3
 #: RTKLIB 2.4.3 pntpos constants (rtklib.h / pntpos.c) for its single-point variance
@@ -105,14 +106,28 @@ def _rotate_z(v: NDArray, theta: NDArray) -> NDArray:
     return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
 
 
-def _preliminary_fix(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -> tuple[NDArray, NDArray]:
+def preliminary_fix(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -> tuple[NDArray, NDArray]:
     """Unweighted Gauss-Newton ECEF fix per epoch, light time and Earth rotation re-solved each iteration.
 
     sat : (E, S, 3) transmit-time positions in the transmit-time ECEF frame.  z : (E, S) corrected ranges.
-    Returns (r (E, 3), receive-frame satellite positions (E, S, 3)); r NaN where fewer than 4 rows.
+    r0 : (3,) or (E, 3) start (the Earth's centre converges in ~6 iterations; a previous fix in 1-2).
+    Returns (r (E, 3), clock (E,) m); NaN where fewer than 4 rows. Compiled (:mod:`testbed.rinex.kernels`).
     """
+    from testbed.rinex.kernels import ecef_fix
+
     E = z.shape[0]
-    r, b = np.broadcast_to(r0, (E, 3)).copy(), np.zeros(E)
+    r0 = np.ascontiguousarray(np.broadcast_to(np.nan_to_num(np.asarray(r0, float)), (E, 3)))
+    r, b = np.empty((E, 3)), np.empty(E)
+    ecef_fix(np.ascontiguousarray(np.nan_to_num(sat)), np.ascontiguousarray(np.nan_to_num(z)),
+             np.ascontiguousarray(use), r0, _FIX_ITERATIONS, _FIX_TOL_M, r, b)
+    return r, b
+
+
+def preliminary_fix_numpy(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -> tuple[NDArray, NDArray]:
+    """The numpy reference of :func:`preliminary_fix` (all epochs iterate until the slowest converges)."""
+    E = z.shape[0]
+    r0 = np.broadcast_to(np.nan_to_num(np.asarray(r0, float)), (E, 3))
+    r, b = r0.copy(), np.zeros(E)
     ok = use.sum(1) >= 4
     zz = np.where(use, z, 0.0)
     for _ in range(_FIX_ITERATIONS):
@@ -128,9 +143,11 @@ def _preliminary_fix(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -> tup
         dx[~ok] = 0.0
         r += dx[:, :3]
         b += dx[:, 3]
+        if np.max(np.abs(dx[:, :3]), initial=0.0) < _FIX_TOL_M:
+            break
     r[~ok] = np.nan
-    tau = np.linalg.norm(sat - np.where(ok[:, None], r, r0)[:, None], axis=-1) / C_LIGHT
-    return r, _rotate_z(sat, OMEGA_EARTH * tau)
+    b[~ok] = np.nan
+    return r, b
 
 
 def _filled(r: NDArray) -> NDArray:
@@ -224,7 +241,7 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
             obs.receiver_type == TESTBED_RECEIVER else 1.0
     z_geo = code + C_LIGHT * dts  # geometric range + receiver clock + atmosphere + errors
     sat0 = np.where(use[..., None], sat, 0.0)
-    r_fix, _ = _preliminary_fix(sat0, z_geo, use, obs.approx_pos_ecef)
+    r_fix, _ = preliminary_fix(sat0, z_geo, use, obs.approx_pos_ecef)
     if not np.isfinite(r_fix).any():
         if not np.any(obs.approx_pos_ecef):
             raise RinexError(obs.path, "no epoch has 4 satellites with ephemerides, and the header has no APPROX "
@@ -236,7 +253,7 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
         el, az, iono_m, iono_sig, tropo_m = _look_and_delays(sat0, r_ref, obs.t_tag, iono, tropo, nav)
         sat_use = use & (el >= np.radians(s.elevation_mask_deg))
         z = z_geo - iono_m - tropo_m
-        r2, _ = _preliminary_fix(np.where(sat_use[..., None], sat, 0.0), z, sat_use, obs.approx_pos_ecef)
+        r2, _ = preliminary_fix(np.where(sat_use[..., None], sat, 0.0), z, sat_use, r_ref)
         r_ref = _filled(np.where(np.isfinite(r2), r2, r_ref))
     reason[use & ~sat_use] = NotVisible.BELOW_MASK
     use = sat_use
