@@ -22,7 +22,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from testbed.sim.loop import LoopResult
 
 __all__ = ["Approach", "FlightResult", "RunResult", "check_file", "fly_approach", "list_approaches",
-           "load_approach", "load_terrain_for", "print_flight_summary", "print_run_summary", "run_approach"]
+           "load_approach", "load_terrain_for", "monitor_rinex", "print_flight_summary", "print_run_summary",
+           "run_approach"]
 
 
 def fly_approach(approach: str | Path | Approach, *, gust_seed: int | None = None,
@@ -38,6 +39,14 @@ def fly_approach(approach: str | Path | Approach, *, gust_seed: int | None = Non
     if truth_path is not None:
         write_truth(result.truth, truth_path)
     return result
+
+
+def monitor_rinex(obs_path: str | Path, nav_path: str | Path, **kw):
+    """``testbed monitor``: GPS RAIM (FDE, PLs) over a RINEX observation file (:func:`testbed.rinex.run.monitor_rinex`;
+    keywords ``config``, ``out_dir``, ``rrd_path``, ``reference``, ``table_format``)."""
+    from testbed.rinex.run import monitor_rinex as run
+
+    return run(obs_path, nav_path, **kw)
 
 
 def is_campaign_file(path: str | Path) -> bool:

@@ -208,6 +208,8 @@ def test_round_trip_equals_the_native_run(tmp_path):
           f"{rel(back.vpl, native.vpl):.1e}, test statistic {rel(back.test_stat, native.test_stat):.1e} relative; "
           f"{int((native.excluded >= 0).sum())} excluded epochs")
     assert dpos.max() < 5e-3
+    # Doppler back to range rate (D1C to 1 mHz: 0.2 mm/s)
+    np.testing.assert_allclose(run.gnss.range_rate, ep.range_rate[:, seen], rtol=0, atol=1e-3)
     np.testing.assert_allclose(back.clock, native.clock, atol=5e-3)
     np.testing.assert_allclose(back.hpl, native.hpl, rtol=1e-4)
     np.testing.assert_allclose(back.vpl, native.vpl, rtol=1e-4)
@@ -270,6 +272,29 @@ def test_monitor_command_writes_only_what_is_asked(tmp_path, monkeypatch, capsys
     paths = entity_paths(out / "r.rrd")
     assert {"/integrity/gps_raim/horizontal/hpl", "/world/gnss/los", "/alerts"} <= paths
     assert has_blueprint(out / "r.rrd")
+
+
+def test_other_systems_are_skipped_and_counted(tmp_path):
+    """A mixed RINEX 3 file: GLONASS and Galileo records are skipped, counted, and change nothing for GPS."""
+    _, _, _, _, obs, nav = synthetic(tmp_path, 20.0)
+    lines = obs.read_text().splitlines()
+    out, n_added = [], 0
+    for ln in lines:
+        if ln.startswith(">"):
+            n = int(ln[32:35])
+            out.append(ln[:32] + f"{n + 2:3d}" + ln[35:])
+            out += ["R05  21000000.000        1000.000          45.000  ",
+                    "E11  23000000.000       -1000.000          44.000  "]
+            n_added += 2
+        else:
+            out.append(ln)
+    mixed = tmp_path / "mixed.obs"
+    mixed.write_text("\n".join(out) + "\n")
+    a, b = read_obs(obs), read_obs(mixed)
+    assert b.skipped == {"system E satellite records": n_added // 2, "system R satellite records": n_added // 2}
+    np.testing.assert_array_equal(a.values["C1C"], b.values["C1C"])
+    run = monitor_rinex(mixed, nav)
+    assert "system R satellite records" in run.obs.skipped
 
 
 def test_not_visible_reasons_are_explicit(tmp_path):

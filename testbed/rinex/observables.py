@@ -218,9 +218,8 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
     eph = nav.eph.take(rec.ravel()[flat])
     e_idx = flat // S
     tx = obs.t_tag[e_idx] - p1.ravel()[flat] / C_LIGHT
-    clk = np.zeros_like(tx)
-    for _ in range(2):  # Δt_sv at the transmit time it defines (|Δt_sv| < 1 ms: two passes reach < 1e-15 s)
-        clk = sat_states(eph, tx - clk, per_slot=True)[2]
+    # Δt_sv at tx instead of at tx − Δt_sv: they differ by Δt_sv times the clock's rate (< 1e-3 s × 1e-9 s/s)
+    clk = sat_states(eph, tx, per_slot=True)[2]
     pos, vel, clk, clk_rate = sat_states(eph, tx - clk, per_slot=True)
     sat = np.full((E, S, 3), np.nan)
     sat_v = np.full((E, S, 3), np.nan)
