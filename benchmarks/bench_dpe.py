@@ -19,15 +19,15 @@ the approach with DPE in the loop ≥ 50× real time.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numba
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from timing import median_time as _median_time  # noqa: E402
 from dpe_scene import scene  # noqa: E402
 
 from testbed.integrity.dpe.manifold import box_nodes, epoch_manifold, manifold_numpy  # noqa: E402
@@ -37,13 +37,6 @@ from testbed.sensors.gnss.correlators import epoch_statistic, delay_grid  # noqa
 from testbed.sensors.gnss.settings import CorrelatorSettings  # noqa: E402
 
 
-def _median_time(fn, repeats: int) -> float:
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
 
 
 def main(argv=None) -> int:

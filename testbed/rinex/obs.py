@@ -241,11 +241,8 @@ def _is_number(s: bytes) -> bool:
 
 def read_obs(path: str | Path) -> RinexObs:
     """GPS code / Doppler / C/N0 of a RINEX 2.xx or 3.xx observation file (gzip and Hatanaka too)."""
-    text = read_lines(path, "observation")
+    text = read_lines(path, "observation", "O")
     vers = text.version
-    if vers[:1] not in ("2", "3") or text.file_type != "O":
-        raise text.fail(f"version {vers!r}, file type {text.file_type!r}: expected a RINEX 2.xx or 3.xx "
-                        f"observation file (type 'O')", 1)
     _time_system(text)
     types = _header_types(text)
     v2 = vers.startswith("2")

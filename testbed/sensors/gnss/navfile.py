@@ -77,11 +77,8 @@ def _iono(text: RinexText) -> tuple[NDArray | None, NDArray | None]:
 
 def read_nav(path: str | Path) -> NavData:
     """All GPS broadcast records and the Klobuchar coefficients of a RINEX 2.xx/3.xx navigation file."""
-    text = read_lines(path, "navigation")
+    text = read_lines(path, "GPS (or mixed) navigation", "N")
     vers = text.version
-    if vers[:1] not in ("2", "3") or text.file_type != "N":
-        raise text.fail(f"version {vers!r}, file type {text.file_type!r}: expected a RINEX 2.xx or 3.xx GPS (or "
-                        f"mixed) navigation file (type 'N')", 1)
     recs: list[tuple[int, float, list[float]]] = []
     k, n = text.header_end + 1, len(text.lines)
     v2 = vers.startswith("2")

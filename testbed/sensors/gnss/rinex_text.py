@@ -60,8 +60,9 @@ def _decompress(path: Path, raw: bytes) -> bytes:
                                f"gzip, Unix compress, zip, bzip2 or Hatanaka-compressed RINEX file") from None
 
 
-def read_lines(path: str | Path, what: str) -> RinexText:
-    """The lines of a (possibly compressed) RINEX file, checked to be text with a complete header.
+def read_lines(path: str | Path, what: str, file_type: str) -> RinexText:
+    """The lines of a (possibly compressed) RINEX 2.xx/3.xx file of ``file_type`` ('O', 'N'), checked to be
+    text with a complete header.
 
     ``what`` names the expected content in messages ("observation", "navigation").
     """
@@ -88,7 +89,11 @@ def read_lines(path: str | Path, what: str) -> RinexText:
     end = next((k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER"), None)
     if end is None:
         raise RinexError(path, f"no 'END OF HEADER' record in {len(lines)} lines (truncated header?)")
-    return RinexText(path, lines, end)
+    text = RinexText(path, lines, end)
+    if text.version[:1] not in ("2", "3") or text.file_type != file_type:
+        raise text.fail(f"version {text.version!r}, file type {text.file_type!r}: expected a RINEX 2.xx or 3.xx "
+                        f"{what} file (type {file_type!r})", 1)
+    return text
 
 
 def rinex_float(field: str) -> float:
