@@ -212,7 +212,7 @@ class NotVisible(IntEnum):
     TOO_SMALL = 6
     UNHEALTHY = 7
     EXCLUDED = 8  # above the mask and in view, but not tracked (a cap of the GNSS schedule)
-    NOT_OBSERVED = 9  # a recorded file (RINEX) has no usable code measurement of it at this epoch
+    NOT_OBSERVED = 9  # no usable code measurement at this epoch (a recorded file's; a correlogram without a peak)
     NO_EPHEMERIS = 10  # no broadcast record within its validity (2 h of toe) in the navigation file
     NO_SECOND_FREQUENCY = 11  # iono-free ranges asked for, but only one frequency was observed
 

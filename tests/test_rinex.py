@@ -270,8 +270,13 @@ def test_monitor_command_writes_only_what_is_asked(tmp_path, monkeypatch, capsys
     from testbed.viz.readback import entity_paths, has_blueprint
 
     paths = entity_paths(out / "r.rrd")
-    assert {"/integrity/gps_raim/horizontal/hpl", "/world/gnss/los", "/alerts"} <= paths
+    assert {"/integrity/gps_raim/horizontal/hpl", "/world/gnss/los", "/alerts", "/integrity/gps_raim/vertical/error",
+            "/world/integrity/gps_raim/protection"} <= paths
     assert has_blueprint(out / "r.rrd")
+    # without a reference: the same layout, no truth, so no error series and no region-coloured volumes
+    assert main(["monitor", str(obs), str(nav), "--rrd", str(tmp_path / "bare.rrd")]) == 0
+    bare = entity_paths(tmp_path / "bare.rrd")
+    assert "/integrity/gps_raim/horizontal/hpl" in bare and "/integrity/gps_raim/vertical/error" not in bare
 
 
 def test_other_systems_are_skipped_and_counted(tmp_path):

@@ -89,6 +89,8 @@ SERIES = {  # entity suffix -> (colour, line name)
     "horizontal/hpl": ((80, 160, 255), "HPL"), "horizontal/hal": ((230, 60, 50), "HAL"),
     "vertical/vpl": ((80, 160, 255), "VPL"), "vertical/val": ((230, 60, 50), "VAL"),
     "detection/test_stat": ((80, 160, 255), "test statistic"), "detection/threshold": ((230, 60, 50), "threshold"),
+    # drawn when the truth (a flight) or a reference trajectory (a recorded file) is known
+    "horizontal/error": ((250, 200, 40), "HPE (error vs truth)"), "vertical/error": ((250, 200, 40), "VPE (error vs truth)"),
 }
 
 
@@ -215,6 +217,7 @@ class RerunSink:
             self._log_vision(block)
         for name, out in block.outputs.items():
             self._log_monitor(name, out, block, times)
+            self._log_errors(name, out, block)
             self._log_protection_in_3d(name, out, block)
         self._log_marks(block)
         for t_ev, level, text in block.events:
@@ -313,6 +316,19 @@ class RerunSink:
         self.rec.send_columns(f"sensors/satellites_used/{name}", indexes=tm,
                               columns=rr.Scalars.columns(scalars=np.asarray(out.n_used, float)))
         self._log_vertical_density(name, out)
+
+    def _log_errors(self, name: str, out, block: "LoopBlock") -> None:
+        """The monitor's horizontal and vertical position errors beside its PLs (when a truth is known)."""
+        from testbed.sim.evaluate import position_errors
+
+        ref = block.reference_enu.get(name)
+        if ref is None:
+            return
+        he, ve = position_errors(out, ref)
+        tm = [rr.TimeColumn("sim_time", duration=out.t)]
+        for suffix, x in (("horizontal/error", he), ("vertical/error", ve)):
+            self.rec.send_columns(f"integrity/{name}/{suffix}", indexes=tm,
+                                  columns=rr.Scalars.columns(scalars=np.asarray(x, float)))
 
     def _log_vertical_density(self, name: str, out) -> None:
         """A monitor that publishes the vertical error distribution its PL bounds (diagnostics with
