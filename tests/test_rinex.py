@@ -267,7 +267,7 @@ def test_monitor_command_writes_only_what_is_asked(tmp_path, monkeypatch, capsys
     assert list(work.iterdir()) == []
     table = np.genfromtxt(out / "epochs-gps_raim.csv", delimiter=",", names=True)
     assert table.size == g.t.size and np.all(np.abs(table["err_u_m"]) < 20)
-    from testbed.viz.readback import entity_paths, has_blueprint
+    from testbed.viz.readback import entity_paths, has_blueprint, scalar_series
 
     paths = entity_paths(out / "r.rrd")
     assert {"/integrity/gps_raim/horizontal/hpl", "/world/gnss/los", "/alerts", "/integrity/gps_raim/vertical/error",
@@ -275,8 +275,11 @@ def test_monitor_command_writes_only_what_is_asked(tmp_path, monkeypatch, capsys
     assert has_blueprint(out / "r.rrd")
     # without a reference: the same layout, no truth, so no error series and no region-coloured volumes
     assert main(["monitor", str(obs), str(nav), "--rrd", str(tmp_path / "bare.rrd")]) == 0
-    bare = entity_paths(tmp_path / "bare.rrd")
-    assert "/integrity/gps_raim/horizontal/hpl" in bare and "/integrity/gps_raim/vertical/error" not in bare
+    t_err, v_err = scalar_series(out / "r.rrd", "/integrity/gps_raim/vertical/error")
+    assert t_err.size == g.t.size and np.nanmax(v_err) < 20.0
+    scalar_series(tmp_path / "bare.rrd", "/integrity/gps_raim/horizontal/hpl")
+    with pytest.raises(KeyError):
+        scalar_series(tmp_path / "bare.rrd", "/integrity/gps_raim/vertical/error")
 
 
 def test_other_systems_are_skipped_and_counted(tmp_path):
