@@ -204,6 +204,9 @@ class BlockDraw:
     sky_window: np.ndarray  # (n,) int sky window whose geometry it flew in (-1: the fixed start)
     fault_present: np.ndarray  # (n, T) epochs whose observations carry the injected fault (all True: none)
     correlator_seed: np.random.SeedSequence | None = None  # the block's correlator draws (per trial below it)
+    #: the modelled observations the correlograms are synthesised from (their channel references); the
+    #: monitors read ``obs.gnss``, which holds the correlograms' code delays when the approach says so
+    correlator_gnss: object = None
 
 
 def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
@@ -237,9 +240,33 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     elif vtruth is not None and np.asarray(vtruth.faulty).any():
         hit = np.asarray(vtruth.faulty).any(axis=-2)
         target = np.where(hit.any(-1), hit.argmax(-1), -1)
+    model_gnss = gnss
+    if s.gnss.correlator_pseudoranges:
+        gnss, gtruth = _correlator_observations(ctx, gnss, gtruth, ss_c, trials)
     return BlockDraw(trials, Observations(gnss, vis), gtruth, vtruth, target, offsets,
                      np.full(n, -1, np.int64) if windows is None else windows, _fault_present(gnss, gtruth, vis, vtruth),
-                     ss_c)
+                     ss_c, model_gnss)
+
+
+def trial_correlator_words(block_seed: np.random.SeedSequence, trial: int) -> np.ndarray:
+    """Seed words of one trial's correlograms (child of the block's correlator seed, keyed by the trial)."""
+    return np.random.SeedSequence(block_seed.entropy, spawn_key=block_seed.spawn_key + (int(trial),)).generate_state(4)
+
+
+def _correlator_observations(ctx: "CellContext", gnss, gtruth, seed: np.random.SeedSequence, trials: np.ndarray):
+    """The block's pseudoranges from each trial's correlograms (``pseudorange_source = "correlator"``)."""
+    from testbed.sensors.gnss.code_tracking import correlator_pseudoranges
+    from testbed.sensors.gnss.correlators import synthesize_correlators
+
+    parts = []
+    for i, trial in enumerate(trials):
+        g, gt = _trial(gnss, i), _trial(gtruth, i)
+        corr, _ = synthesize_correlators(g, gt, ctx.truth_g, ctx.setup.gnss, trial_correlator_words(seed, trial))
+        parts.append(correlator_pseudoranges(g, gt, corr, ctx.setup.gnss))
+    fields = ("pseudorange", "sigma", "visible", "reason", "range_rate")
+    gnss = replace(gnss, **{f: np.stack([np.broadcast_to(getattr(p[0], f), np.shape(p[0].pseudorange)) for p in parts])
+                            for f in fields})
+    return gnss, replace(gtruth, noise=np.stack([p[1].noise for p in parts]))
 
 
 def _trial(rec, i: int):
@@ -260,15 +287,15 @@ def correlator_monitor(mon, ctx: "CellContext", d: "BlockDraw") -> MonitorOutput
     from testbed.sensors.gnss.correlators import synthesize_correlators
 
     gnss = d.obs.gnss
+    model = d.correlator_gnss if d.correlator_gnss is not None else gnss
     n, T = len(d.trials), len(gnss.t)
 
     def one(sl: slice) -> MonitorOutput:
         i = sl.start or 0
-        g, gt = _trial(gnss, i), _trial(d.gnss_truth, i)
-        words = np.random.SeedSequence(d.correlator_seed.entropy,
-                                       spawn_key=d.correlator_seed.spawn_key + (int(d.trials[i]),)).generate_state(4)
-        corr, _ = synthesize_correlators(g, gt, ctx.truth_g, ctx.setup.gnss, words)
-        out, _ = mon.step(Observations(g, correlators=corr), mon.initial_state())
+        gt = _trial(d.gnss_truth, i)
+        words = trial_correlator_words(d.correlator_seed, d.trials[i])
+        corr, _ = synthesize_correlators(_trial(model, i), gt, ctx.truth_g, ctx.setup.gnss, words)
+        out, _ = mon.step(Observations(_trial(gnss, i), correlators=corr), mon.initial_state())
         return _with_trial_axis(out)
 
     return map_trial_chunks(one, (n, T), threads=1, chunk_epochs=T)  # one trial a chunk

@@ -31,6 +31,7 @@ from testbed.sensors.faults import GNSS_KINDS
 from testbed.sensors.gnss.almanac import load_constellation
 from testbed.sensors.imu import ImuErrorStream, apply_errors, true_increments
 from testbed.sensors.imu.alignment import align
+from testbed.sensors.gnss.code_tracking import correlator_pseudoranges
 from testbed.sensors.gnss.correlators import synthesize_correlators
 from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
@@ -138,7 +139,7 @@ class _Runner:
         self.r_step = self.v_step
         if self.uses_imu:  # build_setup checked that the IMU rate divides the flight's and the vision's
             self.r_step = max(1, int(round(1.0 / (setup.imu.rate_hz * dt))))
-        self.uses_correlators = any("correlators" in m.inputs for m in setup.monitors)
+        self.uses_correlators = any("correlators" in m.inputs for m in setup.monitors) or setup.gnss.correlator_pseudoranges
         self.seed_corr = correlator_seed(seed)
         self.imu_stream = None
         self.imu_prev: Truth | None = None  # the last IMU-rate truth sample of the previous block
@@ -205,11 +206,14 @@ class _Runner:
             los = sat_enu - ant_enu[:, None, :]
             block.los_enu = los / np.linalg.norm(los, axis=-1, keepdims=True)
             block.antenna_enu = ant_enu
-            self.parts["gnss"].append(block.gnss)
-            self.parts["gnss_truth"].append(block.gnss_truth)
             if self.uses_correlators:  # per-epoch generators: only the new epochs are drawn
                 block.correlators, block.correlator_truth = synthesize_correlators(
                     block.gnss, block.gnss_truth, truth_g, s.gnss, self.seed_corr, first_epoch=new.start)
+                if s.gnss.correlator_pseudoranges:  # every monitor reads the correlograms' code delays
+                    block.gnss, block.gnss_truth = correlator_pseudoranges(block.gnss, block.gnss_truth,
+                                                                           block.correlators, s.gnss)
+            self.parts["gnss"].append(block.gnss)
+            self.parts["gnss_truth"].append(block.gnss_truth)
         # vision at its own rate (GNSS epochs are a subset)
         v_at_g = None
         if s.uses_vision:

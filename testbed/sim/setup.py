@@ -107,7 +107,7 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
             raise ConfigError(approach.source, [
                 f"imu.rate_hz = {c.imu.rate_hz:g}: expected a divisor of the flight rate {1.0 / c.flight.dt_s:g} Hz "
                 f"and a multiple of the {'vision' if reads_vision(c.monitors) else 'GNSS'} rate"])
-    if reads_correlators(c.monitors):
+    if reads_correlators(c.monitors) or gnss.correlator_pseudoranges:
         cs = gnss.correlators
         if cs.coherent_s * cs.n_noncoherent > 1.0 / gnss.rate_hz * (1 + 1e-9):
             raise ConfigError(approach.source, [

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.correlation import CHIP_M, amplitude_sq, crb_delay_sigma
-from testbed.records import CorrelatorEpochs, GnssEpochs, NotVisible
+from testbed.records import CorrelatorEpochs, GnssEpochs, GnssTruth, NotVisible
 from testbed.sensors.gnss.errors import sigma_multipath, sigma_tropo
 from testbed.sensors.gnss.settings import GnssSettings
 
@@ -56,18 +56,24 @@ def code_sigma(corr: CorrelatorEpochs, elevation: NDArray, settings: GnssSetting
     return np.sqrt(sis2 + code**2 + sigma_multipath(elevation) ** 2)
 
 
-def correlator_pseudoranges(gnss: GnssEpochs, corr: CorrelatorEpochs, elevation: NDArray,
-                            settings: GnssSettings) -> GnssEpochs:
-    """``gnss`` (one trial) with its pseudoranges and sigmas taken from the correlograms ``corr``.
+def correlator_pseudoranges(gnss: GnssEpochs, gnss_truth: GnssTruth, corr: CorrelatorEpochs,
+                            settings: GnssSettings) -> tuple[GnssEpochs, GnssTruth]:
+    """``gnss`` (one trial) with its pseudoranges and sigmas taken from the correlograms ``corr``,
+    and its truth with ``noise`` the error they carry (pseudorange − range − clock − fault).
 
     A channel whose correlogram has no peak inside the search window (or a NaN) is
     dropped (not visible); everything else (geometry, range rates) is kept.
     """
+    elevation = np.asarray(gnss_truth.elevation, float)
     delay = peak_delays(corr)
     pr = np.asarray(corr.rho_ref, float) + delay
     sigma = code_sigma(corr, elevation, settings)
     ok = np.asarray(gnss.visible, bool) & np.isfinite(pr) & np.isfinite(sigma)
     lost = np.asarray(gnss.visible, bool) & ~ok
-    return replace(gnss, pseudorange=np.where(ok, pr, np.nan), sigma=np.where(ok, sigma, np.nan), visible=ok,
-                   range_rate=np.where(ok, gnss.range_rate, np.nan),
-                   reason=np.where(lost, NotVisible.NOT_OBSERVED, gnss.reason).astype(np.int8))
+    pr = np.where(ok, pr, np.nan)
+    noise = pr - np.asarray(gnss_truth.geometric_range) - np.asarray(gnss_truth.clock_bias)[..., None] - np.asarray(
+        gnss_truth.fault_bias)
+    return (replace(gnss, pseudorange=pr, sigma=np.where(ok, sigma, np.nan), visible=ok,
+                    range_rate=np.where(ok, gnss.range_rate, np.nan),
+                    reason=np.where(lost, NotVisible.NOT_OBSERVED, gnss.reason).astype(np.int8)),
+            replace(gnss_truth, noise=np.where(ok, noise, 0.0)))

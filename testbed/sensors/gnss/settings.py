@@ -49,6 +49,11 @@ class CorrelatorSettings(StrictModel):
     multipath: Literal["off", "ground"] = Field(
         "off", description="'ground': a specular ground echo, delay 2·h_agl·sin(el), its phase from the path")
     ground_echo_db: float = Field(-20.0, le=0.0, description="ground echo amplitude relative to the direct (dB)")
+    pseudorange_source: Literal["model", "correlator"] = Field(
+        "model", description="the pseudoranges every monitor reads: 'model' = the seed's error model drawn "
+                             "directly; 'correlator' = each channel's correlogram peak (the DPE's signal: its SIS, "
+                             "noise, code fault and echo), σ from the Cramér-Rao bound at the estimated C/N0 "
+                             "(testbed.sensors.gnss.code_tracking)")
 
     @field_validator("cn0_by_elevation")
     @classmethod
@@ -119,6 +124,11 @@ class GnssSettings(StrictModel):
         if times != sorted(times) or len(set(times)) != len(times):
             raise ValueError(f"expected strictly increasing from_s, got {times}")
         return v
+
+    @property
+    def correlator_pseudoranges(self) -> bool:
+        """True when the pseudoranges come from the correlograms (which must then be synthesised)."""
+        return self.correlators.pseudorange_source == "correlator"
 
     @model_validator(mode="after")
     def _path_needed(self):
