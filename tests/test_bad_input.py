@@ -191,6 +191,12 @@ FILE_CASES = [
     ("blocks-longer-than-an-epoch", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]',
                                                        tail="[gnss.correlators]\nn_noncoherent = 100"),
      "gnss.correlators", "100 blocks"),
+    ("unknown-pseudorange-source", lambda d: approach(d, tail='[gnss.correlators]\npseudorange_source = "dll"'),
+     "gnss.correlators.pseudorange_source", "dll"),
+    # correlator pseudoranges need correlograms that fit an epoch, even with no monitor reading them
+    ("correlator-pseudoranges-with-long-blocks", lambda d: approach(
+        d, tail='[gnss.correlators]\npseudorange_source = "correlator"\nn_noncoherent = 100'),
+     "gnss.correlators", "100 blocks"),
 ]
 
 
