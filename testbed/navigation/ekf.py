@@ -193,6 +193,32 @@ def pseudorange_rows(s: NavState, sat_w: NDArray, lever_ant: NDArray) -> tuple[N
     return r + s.cb[:, None], H
 
 
+def range_rate_rows(s: NavState, sat_w: NDArray, sat_v_w: NDArray, lever_ant: NDArray, omega_b: NDArray
+                    ) -> tuple[NDArray, NDArray]:
+    """Predicted range rates h (B, S) and H (B, S, 17): satellites at ``sat_w`` moving at ``sat_v_w`` (B, S, 3),
+    world frame (Earth-fixed, as the filter's velocity), the antenna at p + C·l moving at v + C(ω × l).
+
+    h = e·(v_s − v_a) + ċ with e the unit line of sight. Columns: velocity −eᵀ; clock drift 1;
+    position −(v_s − v_a)⊥ᵀ/r (the line of sight turning, ~4e-5 per m; ⊥: across e); attitude
+    eᵀ[a×] + (v_s − v_a)⊥ᵀ[Ĉl×]/r with a = C(ω × l) (C = exp(ψ×)Ĉ: the antenna's velocity and, through its
+    position, the line of sight); gyro bias −eᵀĈ[l×] (ω = ω_measured − b_g). ``omega_b`` (B, 3): the body rate.
+    """
+    la = np.einsum("bij,j->bi", s.C, lever_ant)
+    a = np.einsum("bij,bj->bi", s.C, np.cross(omega_b, lever_ant))
+    d = sat_w - (s.p + la)[:, None, :]
+    r = np.linalg.norm(d, axis=-1)
+    e = d / r[..., None]
+    dv = sat_v_w - (s.v + a)[:, None, :]
+    H = np.zeros(r.shape + (N,))
+    H[..., V_] = -e
+    H[..., CD] = 1.0
+    turn = (dv - np.einsum("bsi,bsi->bs", dv, e)[..., None] * e) / r[..., None]  # ∂h/∂(antenna position)
+    H[..., P_] = -turn
+    H[..., PSI] = np.einsum("bsi,bij->bsj", e, skew(a)) + np.einsum("bsi,bij->bsj", turn, skew(la))
+    H[..., BG] = -np.einsum("bsi,bij->bsj", e, s.C @ skew(np.broadcast_to(lever_ant, a.shape)))
+    return np.einsum("bsi,bsi->bs", e, dv) + s.cd[:, None], H
+
+
 def pixel_rows(s: NavState, landmarks_w: NDArray, K: NDArray, R_cam_to_body: NDArray, lever_cam: NDArray
                ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """Predicted pixels h (B, 2L), H (B, 2L, 17), ∂uv/∂m (B, 2L, 3L) blocks and the camera-frame rays (B, L, 3)."""

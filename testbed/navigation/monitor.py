@@ -48,6 +48,10 @@ class EkfSettings(StrictModel):
                                                             "added to the published dithering's f·σ")
     landmark_survey_sigma_m: float = Field(0.05, ge=0.0, description="landmark survey error 1σ per axis the filter "
                                                                      "assumes (m)")
+    range_rate: bool = Field(True, description="a range-rate (Doppler) row beside each pseudorange row")
+    range_rate_sigma_m_s: float = Field(0.05, gt=0.0, le=100.0, description="the range-rate 1σ the filter assumes "
+                                                                           "(m/s; the sensor's default "
+                                                                           "gnss.range_rate_sigma_m_s)")
 
 
 @dataclass(frozen=True)
@@ -103,7 +107,9 @@ class EkfMonitor:
             dither = float(np.hypot(self.settings.dither_sigma_px, f * np.max(np.asarray(vis.dither_sigma))))
         trace, nav = filter_epochs(nav, obs.imu, self.context.frame, ImuNoise.from_figures(obs.imu.figures), g, vis,
                                    ClockNoise(), dither_sigma_px=dither,
-                                   survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True)
+                                   survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True,
+                                   range_rate_sigma_m_s=self.settings.range_rate_sigma_m_s if self.settings.range_rate
+                                   else None)
         return self._output(trace, lead), EkfState(nav)
 
     def _output(self, tr, lead: tuple) -> MonitorOutput:

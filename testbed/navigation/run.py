@@ -14,7 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
-from testbed.navigation.ekf import N, ClockNoise, ImuNoise, NavState, pixel_rows, pseudorange_rows, update
+from testbed.navigation.ekf import (N, ClockNoise, ImuNoise, NavState, pixel_rows, pseudorange_rows,
+                                    range_rate_rows, update)
 from testbed.navigation.ekf import predict_compiled as predict
 from testbed.records import GnssEpochs, ImuSamples, NavInit, VisionEpochs
 
@@ -48,17 +49,20 @@ class EkfTrace:
 
 def run_ekf(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None = None,
             vision: VisionEpochs | None = None, clock: ClockNoise = ClockNoise(), t_aid: NDArray | None = None,
-            dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05) -> EkfTrace:
+            dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05,
+            range_rate_sigma_m_s: float | None = None) -> EkfTrace:
     """Predict through the IMU intervals and update at each aiding epoch (GNSS epochs, or ``t_aid``)."""
-    return filter_epochs(s, imu, frame, imu_noise, gnss, vision, clock, t_aid, dither_sigma_px, survey_sigma_m)[0]
+    return filter_epochs(s, imu, frame, imu_noise, gnss, vision, clock, t_aid, dither_sigma_px, survey_sigma_m,
+                         range_rate_sigma_m_s=range_rate_sigma_m_s)[0]
 
 
 def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None,
                   vision: VisionEpochs | None, clock: ClockNoise, t_aid: NDArray | None = None,
                   dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05,
-                  through_end: bool = False) -> tuple[EkfTrace, NavState]:
+                  through_end: bool = False, range_rate_sigma_m_s: float | None = None) -> tuple[EkfTrace, NavState]:
     """:func:`run_ekf`, and the state after the last aiding epoch (``through_end``: after every IMU
-    interval given, as a block of a live run needs to hand on)."""
+    interval given, as a block of a live run needs to hand on). ``range_rate_sigma_m_s``: also a
+    range-rate row per satellite with that 1σ (None: pseudoranges only)."""
     B = s.p.shape[0]
     t_aid = np.asarray(gnss.t if gnss is not None else t_aid, float)
     T = t_aid.size
@@ -75,7 +79,9 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
         nis = np.zeros(B)
         dof = np.zeros(B, np.int64)
         if gnss is not None:
-            s, a, b = _gnss_update(s, gnss, k, frame)
+            # the body rate the antenna's lever arm turns with: the last IMU interval's, bias-corrected
+            omega = dth[:, k_end - 1] / imu.dt - s.bg if k_end > 0 else np.zeros((B, 3))
+            s, a, b = _gnss_update(s, gnss, k, frame, omega, range_rate_sigma_m_s)
             nis, dof = nis + a, dof + b
         if vision is not None:
             s, a, b = _vision_update(s, vision, k, frame, dither_sigma_px, survey_sigma_m)
@@ -101,17 +107,26 @@ def _at(a: NDArray, k: int, tail: int, B: int) -> NDArray:
     return np.broadcast_to(x, (B,) + x.shape[x.ndim - tail:])
 
 
-def _gnss_update(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame):
+def _gnss_update(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame, omega_b: NDArray,
+                 range_rate_sigma_m_s: float | None):
+    """One update with every visible satellite's pseudorange (and range rate) row."""
     B = s.p.shape[0]
     vis = _at(g.visible, k, 1, B)
     if not vis.any():
         return s, np.zeros(B), np.zeros(B, np.int64)
+    lever = np.asarray(g.antenna.lever_arm_body, float)
     z = _at(g.pseudorange, k, 1, B)
     sat_w = frame.ecef_to_enu(_at(g.sat_pos_ecef, k, 2, B))
     sig = _at(g.sigma, k, 1, B)
-    h, H = pseudorange_rows(s, sat_w, np.asarray(g.antenna.lever_arm_body, float))
-    R = np.where(vis, sig, 1.0) ** 2
-    return update(s, z - h, H, R[..., None] * np.eye(R.shape[-1]), vis & np.isfinite(z))
+    h, H = pseudorange_rows(s, sat_w, lever)
+    nu, var, mask = z - h, np.where(vis, sig, 1.0) ** 2, vis & np.isfinite(z)
+    if range_rate_sigma_m_s is not None:
+        zr = _at(g.range_rate, k, 1, B)
+        hr, Hr = range_rate_rows(s, sat_w, frame.vec_ecef_to_enu(_at(g.sat_vel_ecef, k, 2, B)), lever, omega_b)
+        nu, H = np.concatenate([nu, zr - hr], -1), np.concatenate([H, Hr], -2)
+        var = np.concatenate([var, np.full(var.shape, range_rate_sigma_m_s**2)], -1)
+        mask = np.concatenate([mask, vis & np.isfinite(zr)], -1)
+    return update(s, np.where(mask, nu, 0.0), np.nan_to_num(H), var[..., None] * np.eye(var.shape[-1]), mask)
 
 
 def _vision_update(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dither_sigma_px: float,
