@@ -88,3 +88,20 @@ def test_a_campaign_runs_the_dpe_beside_gps_raim_on_the_same_fault(tmp_path):
 
     report = write_report(tmp_path / "out2").read_text()
     assert "## Misleading information per cell" in report and "| dpe |" in report
+    # paired on the same epochs: A only − B only = A's available epochs − B's, sortie by sortie
+    d_s, r_s = dpe.sort_values(["cell", "trial"]), raim.sort_values(["cell", "trial"])
+    T = int(a.epochs.iloc[0])
+    for lv in ("APV-I", "APV-II"):
+        diff = d_s[f"avail_only_vs_gps_raim_{lv}"].to_numpy() - r_s[f"avail_only_vs_dpe_{lv}"].to_numpy()
+        np.testing.assert_array_equal(diff, np.round(d_s[f"avail_{lv}"].to_numpy() * T)
+                                      - np.round(r_s[f"avail_{lv}"].to_numpy() * T))
+    assert (a.four_sat_epochs >= 0).all()
+    assert "## The monitors paired on the same epochs" in report and "McNemar" in report
+
+
+def test_mcnemar_exact_p_against_closed_forms():
+    from testbed.campaign.report import mcnemar_p
+
+    assert mcnemar_p(0, 5) == 2 * 0.5**5  # all 5 discordant one way
+    assert mcnemar_p(3, 3) == 1.0 and mcnemar_p(0, 0) == 1.0
+    assert abs(mcnemar_p(2, 10) - 2 * sum(__import__("math").comb(12, k) for k in range(3)) / 2**12) < 1e-15

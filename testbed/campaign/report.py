@@ -202,7 +202,7 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
           f"(first {man['spec']['per_epoch_trials']} trials per cell), `stanford_hist.parquet`", ""]
     figures: list[tuple[str, str]] = []
     for section in (_detection_section, _stanford_section, _misleading_section, _pl_and_availability_section,
-                    _pl_time_section, _vision_range_section):
+                    _paired_section, _pl_time_section, _vision_range_section):
         lines, figs = section(inp)
         md += lines
         figures += figs
@@ -454,6 +454,72 @@ def _misleading_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, 
                       f"{hmi} | {hmi / max(n, 1):.2e} | [{float(lo[0]):.2e}, {float(hi[0]):.2e}] |")
     md.append("")
     return md, []
+
+
+def mcnemar_p(a_only: int, b_only: int) -> float:
+    """Exact two-sided McNemar p-value: the discordant counts against Binomial(a_only + b_only, 1/2)."""
+    from scipy import stats
+
+    n = a_only + b_only
+    return 1.0 if n == 0 else float(min(1.0, 2.0 * stats.binom.cdf(min(a_only, b_only), n, 0.5)))
+
+
+def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section: the monitors paired on the same epochs — availability (McNemar over epochs, and a sign test
+    over sorties, which are independent where epochs are not), the VPL ratio, and the epochs with exactly
+    four satellites (no redundancy for snapshot RAIM) counted apart."""
+    tc = inp.tc
+    monitors = sorted(set(tc["monitor"].tolist()))
+    levels = [c[len("avail_only_vs_" + monitors[0] + "_"):] for c in tc if c.startswith(f"avail_only_vs_{monitors[0]}_")]
+    if len(monitors) < 2 or not levels:
+        return [], []
+    level = levels[-1]  # the most demanding listed
+    md = [f"## The monitors paired on the same epochs ({level})", "",
+          "Availability at the same epochs and signals: epochs where only one is available, the exact McNemar "
+          "test on them (epochs within a sortie are correlated, so its p is optimistic), and a sign test over "
+          "sorties (independent: the sorties where one is available more often than the other); then the "
+          "epochs with exactly four satellites, where snapshot RAIM has no redundancy, counted apart.", "",
+          "| monitor A | monitor B | epochs | A only | B only | McNemar p | sorties A > B | A < B | sign test p "
+          "| 4-satellite epochs | A available there | B available there |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for i, a in enumerate(monitors):
+        for b in monitors[i + 1:]:
+            sa, sb = tc["monitor"] == a, tc["monitor"] == b
+            ka = np.lexsort((tc["trial"][sa], tc["cell"][sa]))
+            kb = np.lexsort((tc["trial"][sb], tc["cell"][sb]))
+            a_only = tc[f"avail_only_vs_{b}_{level}"][sa][ka]
+            b_only = tc[f"avail_only_vs_{a}_{level}"][sb][kb]
+            n_ep = int(tc["epochs"][sa].sum())
+            more, less = int((a_only > b_only).sum()), int((a_only < b_only).sum())
+            four = int(tc["four_sat_epochs"][sa].sum())
+            fa, fb = int(tc[f"four_sat_avail_{level}"][sa].sum()), int(tc[f"four_sat_avail_{level}"][sb].sum())
+            md.append(f"| {a} | {b} | {n_ep} | {int(a_only.sum())} | {int(b_only.sum())} | "
+                      f"{mcnemar_p(int(a_only.sum()), int(b_only.sum())):.2g} | {more} | {less} | "
+                      f"{mcnemar_p(more, less):.2g} | {four} | {fa} | {fb} |")
+    md.append("")
+    ep = inp.epochs
+    if ep is not None and ep.num_rows:
+        e = _cols(ep, ["cell", "trial", "t", "monitor", "vpl"])
+        md += ["VPL ratio on the per-epoch trials' epochs where both give a VPL:", "",
+               "| monitor A | monitor B | epochs | VPL_A / VPL_B median | 5 % | 95 % |", "|---|---|---|---|---|---|"]
+        for i, a in enumerate(monitors):
+            for b in monitors[i + 1:]:
+                va = _keyed(e, a)
+                vb = _keyed(e, b)
+                keys = sorted(set(va) & set(vb))
+                r = np.array([va[k] / vb[k] for k in keys])
+                r = r[np.isfinite(r)]
+                if r.size:
+                    q = np.percentile(r, [50, 5, 95])
+                    md.append(f"| {a} | {b} | {r.size} | {q[0]:.3f} | {q[1]:.3f} | {q[2]:.3f} |")
+        md.append("")
+    return md, []
+
+
+def _keyed(e: dict, monitor: str) -> dict:
+    sel = e["monitor"] == monitor
+    return {(int(c), int(tr), round(float(t), 6)): float(v)
+            for c, tr, t, v in zip(e["cell"][sel], e["trial"][sel], e["t"][sel], e["vpl"][sel])}
 
 
 def _median_p95_max(x: np.ndarray) -> tuple[float, float, float]:

@@ -336,6 +336,7 @@ def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndar
         ref = ctx.truth_ant_enu if mon.reference == ANTENNA else ctx.truth_cg_enu
         he, ve = position_errors(out, ref)  # (n, T)
         rows[mon.name] = _trial_columns(ctx, d, out, he, ve)
+        rows[mon.name].update(_paired_columns(ctx, d, out, outs))
         hist.update(_stanford_counts(mon.name, out, he, ve))
         if keep_ep.any():
             ep[mon.name] = _epoch_columns(ctx, d, np.flatnonzero(keep_ep), out, he, ve)
@@ -381,6 +382,23 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
         extra = getattr(out.diagnostics, "trial_columns", None)  # a monitor's own table columns
         if extra is not None:
             col.update(extra(d.vision_truth))
+    return col
+
+
+def _paired_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, outs: dict[str, MonitorOutput]) -> dict:
+    """Per trial, against every monitor of the run (the same epochs, the same signals): the epochs this one
+    is available and the other not, per service level (``avail_only_vs_<other>_<level>``; the report's
+    McNemar test); and the epochs with exactly four satellites in use-able view, where snapshot RAIM has
+    no redundancy (``four_sat_epochs``, ``four_sat_avail_<level>``)."""
+    n_sat = np.asarray(d.obs.gnss.visible, bool).sum(-1)  # (n, T)
+    four = n_sat == 4
+    mine = np.asarray(out.available, bool)
+    col = {"four_sat_epochs": four.sum(-1).astype(np.int32)}
+    for k, lv in enumerate(ctx.levels):
+        col[f"four_sat_avail_{lv}"] = (mine[..., k] & four).sum(-1).astype(np.int32)
+        for name, other in outs.items():
+            theirs = np.asarray(other.available, bool)[..., k]
+            col[f"avail_only_vs_{name}_{lv}"] = (mine[..., k] & ~theirs).sum(-1).astype(np.int32)
     return col
 
 
