@@ -20,9 +20,7 @@ median epochs/s of both and their ratio.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -41,13 +39,8 @@ from testbed.integrity.va_raim import VaRaimSettings, va_raim  # noqa: E402
 # ----------------------------------------------------------------------------- benchmark
 
 
-def _median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from timing import median_time as _median_time  # noqa: E402
 
 
 def main(argv=None) -> None:

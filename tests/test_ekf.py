@@ -146,6 +146,18 @@ def _nees_blocks(trace, g1, cb) -> dict[str, np.ndarray]:
     return out
 
 
+def _assert_consistent(trace, g1, cb, B: int) -> None:
+    """The mean NEES blocks inside their two-sided 99 % χ² bands at ≥ 95 % of epochs; the NIS summed over
+    runs and epochs (after the first) inside its band."""
+    for k, m in _nees_blocks(trace, g1, cb).items():
+        d = 1 if k == "cb" else 3
+        lo, hi = stats.chi2.ppf([0.005, 0.995], d * B) / B
+        assert ((m >= lo) & (m <= hi)).mean() >= 0.95, (k, m)
+    dof = trace.dof[:, 1:].sum()
+    lo, hi = stats.chi2.ppf([0.005, 0.995], dof)
+    assert lo <= trace.nis[:, 1:].sum() <= hi
+
+
 @pytest.mark.slow
 def test_nees_and_nis_inside_their_chi2_bands_with_seven_satellites():
     """T-NEES-1/T-NIS-1 (straight, 7 satellites, 80 runs from the alignment's P₀): the mean NEES of
@@ -155,13 +167,7 @@ def test_nees_and_nis_inside_their_chi2_bands_with_seven_satellites():
     B = 80
     tr, g1, gnss, imu, s0, cb, cd = _final(B)
     trace = run_ekf(s0, imu, FRAME, NOISE, gnss=gnss)
-    for k, m in _nees_blocks(trace, g1, cb).items():
-        d = 1 if k == "cb" else 3
-        lo, hi = stats.chi2.ppf([0.005, 0.995], d * B) / B
-        assert ((m >= lo) & (m <= hi)).mean() >= 0.95, (k, m)
-    dof = trace.dof[:, 1:].sum()
-    lo, hi = stats.chi2.ppf([0.005, 0.995], dof)
-    assert lo <= trace.nis[:, 1:].sum() <= hi
+    _assert_consistent(trace, g1, cb, B)
     # the ekf monitor's innovation test at P_FA = 1e-2: alerts inside the binomial 99 % interval
     d = trace.dof[:, 1:]
     alerts = int((trace.nis[:, 1:] > stats.chi2.isf(1e-2, d)).sum())
@@ -178,13 +184,7 @@ def test_range_rate_rows_keep_the_filter_consistent_and_sharpen_the_velocity():
     tr, g1, gnss, imu, s0, cb, cd = _final(B)
     g_rr = _with_range_rates(gnss, g1, cd, seed=21, sigma=0.05)
     trace = run_ekf(s0, imu, FRAME, NOISE, gnss=g_rr, range_rate_sigma_m_s=0.05)
-    for k, m in _nees_blocks(trace, g1, cb).items():
-        d = 1 if k == "cb" else 3
-        lo, hi = stats.chi2.ppf([0.005, 0.995], d * B) / B
-        assert ((m >= lo) & (m <= hi)).mean() >= 0.95, (k, m)
-    dof = trace.dof[:, 1:].sum()
-    lo, hi = stats.chi2.ppf([0.005, 0.995], dof)
-    assert lo <= trace.nis[:, 1:].sum() <= hi
+    _assert_consistent(trace, g1, cb, B)
     assert np.all(trace.dof[:, 1:] == 2 * gnss.visible[1:].sum(-1))  # both rows for every satellite
     plain = run_ekf(s0, imu, FRAME, NOISE, gnss=gnss)
     sv_rr = np.sqrt(np.trace(trace.P[:, -1, 3:6, 3:6], axis1=-2, axis2=-1)).mean()
