@@ -473,29 +473,18 @@ def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]
     levels = [c[len("avail_only_vs_" + monitors[0] + "_"):] for c in tc if c.startswith(f"avail_only_vs_{monitors[0]}_")]
     if len(monitors) < 2 or not levels:
         return [], []
-    level = levels[-1]  # the most demanding listed
-    md = [f"## The monitors paired on the same epochs ({level})", "",
+    md = ["## The monitors paired on the same epochs", "",
           "Availability at the same epochs and signals: epochs where only one is available, the exact McNemar "
           "test on them (epochs within a sortie are correlated, so its p is optimistic), and a sign test over "
           "sorties (independent: the sorties where one is available more often than the other); then the "
           "epochs with exactly four satellites, where snapshot RAIM has no redundancy, counted apart.", "",
-          "| monitor A | monitor B | epochs | A only | B only | McNemar p | sorties A > B | A < B | sign test p "
-          "| 4-satellite epochs | A available there | B available there |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for i, a in enumerate(monitors):
-        for b in monitors[i + 1:]:
-            sa, sb = tc["monitor"] == a, tc["monitor"] == b
-            ka = np.lexsort((tc["trial"][sa], tc["cell"][sa]))
-            kb = np.lexsort((tc["trial"][sb], tc["cell"][sb]))
-            a_only = tc[f"avail_only_vs_{b}_{level}"][sa][ka]
-            b_only = tc[f"avail_only_vs_{a}_{level}"][sb][kb]
-            n_ep = int(tc["epochs"][sa].sum())
-            more, less = int((a_only > b_only).sum()), int((a_only < b_only).sum())
-            four = int(tc["four_sat_epochs"][sa].sum())
-            fa, fb = int(tc[f"four_sat_avail_{level}"][sa].sum()), int(tc[f"four_sat_avail_{level}"][sb].sum())
-            md.append(f"| {a} | {b} | {n_ep} | {int(a_only.sum())} | {int(b_only.sum())} | "
-                      f"{mcnemar_p(int(a_only.sum()), int(b_only.sum())):.2g} | {more} | {less} | "
-                      f"{mcnemar_p(more, less):.2g} | {four} | {fa} | {fb} |")
+          "| level | monitor A | monitor B | epochs | A only | B only | McNemar p | sorties A > B | A < B | sign test "
+          "p | 4-satellite epochs | A available there | B available there |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    pairs = [(a, b) for i, a in enumerate(monitors) for b in monitors[i + 1:]]
+    for level in levels:
+        for a, b in pairs:
+            md.append(_paired_row(tc, level, a, b))
     md.append("")
     ep = inp.epochs
     if ep is not None and ep.num_rows:
@@ -514,6 +503,20 @@ def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]
                     md.append(f"| {a} | {b} | {r.size} | {q[0]:.3f} | {q[1]:.3f} | {q[2]:.3f} |")
         md.append("")
     return md, []
+
+
+def _paired_row(tc: dict, level: str, a: str, b: str) -> str:
+    """One row of the paired table: monitors ``a`` and ``b`` at ``level`` (trials matched by cell and trial)."""
+    sa, sb = tc["monitor"] == a, tc["monitor"] == b
+    ka = np.lexsort((tc["trial"][sa], tc["cell"][sa]))
+    kb = np.lexsort((tc["trial"][sb], tc["cell"][sb]))
+    a_only = tc[f"avail_only_vs_{b}_{level}"][sa][ka]
+    b_only = tc[f"avail_only_vs_{a}_{level}"][sb][kb]
+    more, less = int((a_only > b_only).sum()), int((a_only < b_only).sum())
+    fa, fb = int(tc[f"four_sat_avail_{level}"][sa].sum()), int(tc[f"four_sat_avail_{level}"][sb].sum())
+    return (f"| {level} | {a} | {b} | {int(tc['epochs'][sa].sum())} | {int(a_only.sum())} | {int(b_only.sum())} | "
+            f"{mcnemar_p(int(a_only.sum()), int(b_only.sum())):.2g} | {more} | {less} | {mcnemar_p(more, less):.2g} | "
+            f"{int(tc['four_sat_epochs'][sa].sum())} | {fa} | {fb} |")
 
 
 def _keyed(e: dict, monitor: str) -> dict:
