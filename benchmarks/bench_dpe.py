@@ -19,6 +19,7 @@ the approach with DPE in the loop ≥ 50× real time.
 from __future__ import annotations
 
 import argparse
+import statistics
 import sys
 from pathlib import Path
 
@@ -75,6 +76,19 @@ def main(argv=None) -> int:
     t_e = _median_time(lambda: mon.step(obs, mon.initial_state()), a.repeats) / a.epochs
     print(f"one epoch, 8 satellites (GPS init, coarse-to-fine grids, posterior, marginal, overbound): "
           f"{t_e * 1e3:.2f} ms  (target <= 5 ms)")
+    # the posterior's moments and marginal on threads against the serial kernels, alternating
+    import testbed.integrity.dpe.solve as solve
+    from testbed.integrity.kernels import dpe as kd
+
+    times = {"threaded": [], "serial": []}
+    for _ in range(a.repeats):
+        for mode in times:
+            solve.posterior_moments_threads = kd.posterior_moments_threads if mode == "threaded" else kd.posterior_moments
+            solve.deposit_marginal_threads = kd.deposit_marginal_threads if mode == "threaded" else kd.deposit_marginal
+            times[mode].append(_median_time(lambda: mon.step(obs, mon.initial_state()), 1) / a.epochs)
+    solve.posterior_moments_threads, solve.deposit_marginal_threads = kd.posterior_moments_threads, kd.deposit_marginal_threads
+    print("  posterior kernels, alternating: " + ", ".join(
+        f"{m} {statistics.median(v) * 1e3:.2f} ms ({min(v) * 1e3:.2f}-{max(v) * 1e3:.2f})" for m, v in times.items()))
 
     g = delay_grid(CorrelatorSettings())
     A = np.sqrt(10 ** 4.4 * 0.02) * np.ones(8)

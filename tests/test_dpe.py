@@ -261,3 +261,40 @@ def test_with_exactly_four_satellites_raim_has_no_redundancy_and_dpe_still_gives
     out, _ = monitor().step(obs, monitor().initial_state())
     assert np.all(out.reason == 0) and np.all(np.isfinite(out.vpl))
     assert np.all(np.abs(out.pos_enu[:, 2] - truth[:, 2]) < out.vpl)
+
+
+def test_threaded_posterior_kernels_equal_the_serial_ones():
+    """The posterior's moments and the vertical marginal on numba's threads: the serial kernels' numbers to
+    round-off (1e-13 relative), the same for any thread count."""
+    import numba
+
+    from testbed.integrity.kernels.dpe import (deposit_marginal, deposit_marginal_threads, posterior_moments,
+                                               posterior_moments_threads)
+
+    rng = np.random.default_rng(3)
+    n = 17
+    z = (np.indices((n,) * 4).reshape(4, -1).T - (n - 1) / 2) * 0.6875
+    lam = -0.5 * np.einsum("qi,ij,qj->q", z, np.array([[1.0, 0.3, 0, 0], [0.3, 1.2, 0, 0.1], [0, 0, 0.8, 0],
+                                                        [0, 0.1, 0, 1.1]]), z) + rng.normal(0, 0.01, n**4)
+    w1, w2 = np.empty(n**4), np.empty(n**4)
+    a = posterior_moments(lam, 0.6875, n, w1)
+    b = posterior_moments_threads(lam, 0.6875, n, w2)
+    np.testing.assert_array_equal(w1, w2)
+    np.testing.assert_allclose(b[0], a[0], rtol=1e-13)
+    np.testing.assert_allclose(b[1], a[1], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(b[2], a[2], rtol=1e-12, atol=1e-14)
+    coef = np.array([0.2, -0.1, 1.3, 0.05])
+    m1, m2 = np.empty(161), np.empty(161)
+    deposit_marginal(w1, 0.6875, n, coef, 0.3, 0.25, m1)
+    deposit_marginal_threads(w1, 0.6875, n, coef, 0.3, 0.25, m2)
+    np.testing.assert_allclose(m2, m1, rtol=1e-12, atol=1e-15 * m1.max())
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        m3 = np.empty(161)
+        deposit_marginal_threads(w1, 0.6875, n, coef, 0.3, 0.25, m3)
+        c = posterior_moments_threads(lam, 0.6875, n, np.empty(n**4))
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(m3, m2)  # not the thread count's
+    np.testing.assert_array_equal(c[1], b[1])

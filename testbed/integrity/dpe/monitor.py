@@ -127,7 +127,8 @@ class DpeMonitor:
         """Compile the kernels before the first epoch (numba caches them): GPS RAIM's (the
         initialisation) and the manifold's, on arrays of the types an epoch uses."""
         from testbed.integrity.kernels import compile_all
-        from testbed.integrity.kernels.dpe import deposit_marginal, manifold_box, manifold_box_threads, posterior_moments
+        from testbed.integrity.kernels.dpe import (deposit_marginal, deposit_marginal_threads, manifold_box,
+                                                 manifold_box_threads, posterior_moments, posterior_moments_threads)
 
         compile_all()
         lam = np.zeros(1)
@@ -135,6 +136,8 @@ class DpeMonitor:
             kernel(np.zeros(1), np.zeros((1, 4)), np.zeros((1, 8, 4)), np.zeros(1), 1.0, 1, True, lam)
         posterior_moments(lam, 1.0, 1, np.zeros(1))
         deposit_marginal(lam, 1.0, 1, np.zeros(4), 0.0, 1.0, np.zeros(3))
+        posterior_moments_threads(lam, 1.0, 1, np.zeros(1))
+        deposit_marginal_threads(lam, 1.0, 1, np.zeros(4), 0.0, 1.0, np.zeros(3))
 
     def initial_state(self) -> DpeState:
         return DpeState()

@@ -26,7 +26,8 @@ from numpy.typing import NDArray
 
 from testbed.correlation import crb_delay_sigma
 from testbed.integrity.dpe.manifold import EpochManifold
-from testbed.integrity.kernels.dpe import deposit_marginal, manifold_box, manifold_box_threads, posterior_moments
+from testbed.integrity.kernels.dpe import (deposit_marginal, deposit_marginal_threads, manifold_box,
+                                         manifold_box_threads, posterior_moments, posterior_moments_threads)
 
 
 class Status(IntEnum):
@@ -169,7 +170,8 @@ def solve_epoch(mf: EpochManifold, amplitude_sq: NDArray, n_blocks: int, bandwid
     if edge:
         return EpochSolution(Status.PEAK_AT_EDGE, recentred=recentred, used=used, **failed)
     weights = np.empty_like(lam)
-    _, zbar, zz = posterior_moments(lam, plan.fine_z, plan.fine_n, weights)
+    moments = posterior_moments_threads if threaded else posterior_moments
+    _, zbar, zz = moments(lam, plan.fine_z, plan.fine_n, weights)
     x_mean = centre + L @ zbar
     cov = L @ (zz - np.outer(zbar, zbar)) @ L.T
     x_ml = centre + L @ (node * plan.fine_z)
@@ -178,7 +180,8 @@ def solve_epoch(mf: EpochManifold, amplitude_sq: NDArray, n_blocks: int, bandwid
     reach = (plan.fine_n - 1) / 2.0 * plan.fine_z * np.abs(L[2]).sum() + abs(shift)  # the largest |e| on the grid
     width = max(plan.bin_sigma * np.sqrt(J[2, 2]), reach / ((plan.bins - 1) / 2.0 - 1.0))
     bins = np.empty(plan.bins)
-    deposit_marginal(weights, plan.fine_z, plan.fine_n, -L[2].copy(), -shift, width, bins)
+    (deposit_marginal_threads if threaded else deposit_marginal)(weights, plan.fine_z, plan.fine_n, -L[2].copy(),
+                                                                 -shift, width, bins)
     offsets = (np.arange(plan.bins) - (plan.bins - 1) / 2.0) * width
     w4 = weights.reshape((plan.fine_n,) * 4)
     face_mass = float(1.0 - w4[1:-1, 1:-1, 1:-1, 1:-1].sum() / w4.sum())

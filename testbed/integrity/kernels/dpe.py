@@ -182,3 +182,96 @@ def deposit_marginal(weights, spacing, n, coef, origin, width, bins):
                     if j + 1 >= 0 and j + 1 < nb:
                         bins[j + 1] += w * f
                     q += 1
+
+
+@njit(cache=True, parallel=True)
+def posterior_moments_threads(lam, spacing, n, weights):
+    """:func:`posterior_moments` with the first axis's slabs on numba's threads.
+
+    Each slab's sums are formed in the serial order and the slabs added in index order, so the
+    numbers do not depend on the thread count (they differ from the serial kernel's by round-off only).
+    """
+    half = (n - 1) / 2.0
+    top = lam.max()
+    part = np.zeros((n, 1 + 4 + 16))  # per slab: Σw, Σw·z (4), Σw·z zᵀ (4×4)
+    per_slab = n * n * n
+    for i0 in prange(n):
+        z0 = (i0 - half) * spacing
+        q = i0 * per_slab
+        acc = part[i0]
+        for i1 in range(n):
+            z1 = (i1 - half) * spacing
+            for i2 in range(n):
+                z2 = (i2 - half) * spacing
+                s0 = 0.0
+                s1 = 0.0
+                s2 = 0.0
+                for i3 in range(n):
+                    z3 = (i3 - half) * spacing
+                    w = np.exp(lam[q] - top)
+                    weights[q] = w
+                    s0 += w
+                    s1 += w * z3
+                    s2 += w * z3 * z3
+                    q += 1
+                acc[0] += s0
+                acc[1] += s0 * z0
+                acc[2] += s0 * z1
+                acc[3] += s0 * z2
+                acc[4] += s1
+                acc[5] += s0 * z0 * z0
+                acc[6] += s0 * z0 * z1
+                acc[7] += s0 * z0 * z2
+                acc[8] += s1 * z0
+                acc[10] += s0 * z1 * z1
+                acc[11] += s0 * z1 * z2
+                acc[12] += s1 * z1
+                acc[15] += s0 * z2 * z2
+                acc[16] += s1 * z2
+                acc[20] += s2
+    tot = 0.0
+    mean = np.zeros(4)
+    sec = np.zeros((4, 4))
+    for i0 in range(n):
+        tot += part[i0, 0]
+        for a in range(4):
+            mean[a] += part[i0, 1 + a]
+            for b in range(a, 4):
+                sec[a, b] += part[i0, 5 + 4 * a + b]
+    for a in range(4):
+        for b in range(a):
+            sec[a, b] = sec[b, a]
+    return tot, mean / tot, sec / tot
+
+
+@njit(cache=True, parallel=True)
+def deposit_marginal_threads(weights, spacing, n, coef, origin, width, bins):
+    """:func:`deposit_marginal` with the first axis's slabs on numba's threads (per-slab bins added in order)."""
+    half = (n - 1) / 2.0
+    nb = bins.shape[0]
+    mid = (nb - 1) / 2.0
+    part = np.zeros((n, nb))
+    step3 = coef[3] * spacing / width
+    per_slab = n * n * n
+    for i0 in prange(n):
+        q = i0 * per_slab
+        row = part[i0]
+        for i1 in range(n):
+            for i2 in range(n):
+                u0 = ((coef[0] * (i0 - half) + coef[1] * (i1 - half) + coef[2] * (i2 - half) - coef[3] * half)
+                      * spacing - origin) / width + mid
+                for i3 in range(n):
+                    p = u0 + i3 * step3
+                    j = int(np.floor(p))
+                    f = p - j
+                    w = weights[q]
+                    if j >= 0 and j < nb:
+                        row[j] += w * (1.0 - f)
+                    if j + 1 >= 0 and j + 1 < nb:
+                        row[j + 1] += w * f
+                    q += 1
+    for j in range(nb):
+        s = 0.0
+        for i0 in range(n):
+            s += part[i0, j]
+        bins[j] = s
