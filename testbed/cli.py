@@ -167,7 +167,9 @@ def build_parser() -> argparse.ArgumentParser:
                                             "Stanford diagrams")
     m.add_argument("--rrd", type=Path, help="write a Rerun recording (the flight's layout)")
     m.add_argument("--reference", type=Path, help="reference trajectory (t_gps, pos_ecef_x/y/z columns; .csv, "
-                                                  ".parquet, .npz): errors, MI/HMI and Stanford diagrams")
+                                                  ".parquet, .npz), or 'marker': the header's APPROX POSITION XYZ "
+                                                  "as a static one (a surveyed station); gives errors, MI/HMI and "
+                                                  "Stanford diagrams")
     m.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="per-epoch table format")
     m.set_defaults(func=_cmd_monitor)
 

@@ -104,6 +104,17 @@ def test_real_receiver_file_lands_on_the_marker():
     assert run.obs.skipped == {"event records": 3}
 
 
+def test_the_surveyed_marker_as_a_static_reference(tmp_path):
+    """``--reference marker``: the station's APPROX POSITION XYZ as truth. Every epoch bounded (MI 0, HMI 0),
+    HPE95 1.8 m / VPE95 3.5 m measured; Stanford diagrams written. A file without a marker position: exit 2."""
+    run = monitor_rinex(GSI_OBS, GSI_NAV, reference="marker", out_dir=tmp_path / "out")
+    s = run.summaries["gps_raim"]
+    assert s.mi_epochs == 0 and s.hmi_epochs == 0 and s.hpe95 < 3.0 and s.vpe95 < 5.0
+    assert (tmp_path / "out" / "stanford-gps_raim.png").stat().st_size > 10_000
+    _, _, _, _, obs, nav = synthetic(tmp_path, 10.0)  # testbed exports write APPROX POSITION 0 0 0
+    assert main(["monitor", str(obs), str(nav), "--reference", "marker"]) == 2
+
+
 def test_reader_agrees_with_georinex_convbin_and_compression(tmp_path):
     georinex = pytest.importorskip("georinex")
     ours = read_obs(GSI_OBS)

@@ -93,6 +93,18 @@ def read_reference(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return t, pos
 
 
+#: ``--reference marker``: the header's APPROX POSITION XYZ as a static reference (a surveyed station)
+MARKER = "marker"
+
+
+def _marker_reference(obs: RinexObs) -> tuple[np.ndarray, np.ndarray]:
+    if not np.any(obs.approx_pos_ecef):
+        raise ConfigError(obs.path, ["--reference marker: the header has no APPROX POSITION XYZ (or it is 0 0 0); "
+                                     "expected a surveyed marker position, or give a reference trajectory file"])
+    t = np.array([obs.t_tag[0] - 1.0, obs.t_tag[-1] + 1.0])
+    return t, np.tile(obs.approx_pos_ecef, (2, 1))
+
+
 def _reference_at(t_ref: np.ndarray, pos_ref: np.ndarray, t_true: np.ndarray, path) -> np.ndarray:
     """The reference interpolated (linearly) to the epochs' true GPS times; an error if it does not cover them."""
     if t_true.min() < t_ref[0] - 1e-3 or t_true.max() > t_ref[-1] + 1e-3:
@@ -118,10 +130,15 @@ def monitor_rinex(obs_path: str | Path, nav_path: str | Path, *, config: str | P
     """Run the monitors over a RINEX observation file (see the module doc). Raises ConfigError on bad input."""
     cfg = config if isinstance(config, MonitorFileConfig) else load_config(config)
     _check_outputs(out_dir, rrd_path, table_format)
-    ref = read_reference(reference) if reference is not None else None
+    marker = reference is not None and str(reference) == MARKER
+    ref = read_reference(reference) if reference is not None and not marker else None
     tm: dict[str, float] = {}
     t0 = time.perf_counter()
     obs = read_obs(obs_path)
+    if marker:
+        ref = _marker_reference(obs)
+    if ref is not None:  # before any work: the reference must cover the file (tags ± 10 ms of receiver clock)
+        _reference_at(*ref, np.r_[obs.t_tag[0] - 0.01, obs.t_tag[-1] + 0.01], reference)
     nav = read_nav(nav_path)
     tm["read"] = time.perf_counter() - t0
     t1 = time.perf_counter()
