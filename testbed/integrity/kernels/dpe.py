@@ -106,133 +106,52 @@ def weighted_mean_product(values, x0, x1, x2, x3):
     return m / tot
 
 
-@njit(cache=True)
-def posterior_moments(lam, spacing, n, weights):
-    """Weights exp(Λ − max) on the n⁴ box (into ``weights``): (Σw, mean (4), second moments (4, 4)), box units."""
+@njit(cache=True, nogil=True, inline="always")
+def _moment_slab(lam, spacing, n, weights, top, i0, acc):
+    """Slab i0 of the posterior's sums into ``acc``: Σw, Σw·z (4), the upper triangle of Σw·z zᵀ (4×4)."""
     half = (n - 1) / 2.0
-    top = lam.max()
+    z0 = (i0 - half) * spacing
+    q = i0 * n * n * n
+    for i1 in range(n):
+        z1 = (i1 - half) * spacing
+        for i2 in range(n):
+            z2 = (i2 - half) * spacing
+            # the i3 axis summed first: per (i0, i1, i2) line, Σw, Σw·z3, Σw·z3²
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            for i3 in range(n):
+                z3 = (i3 - half) * spacing
+                w = np.exp(lam[q] - top)
+                weights[q] = w
+                s0 += w
+                s1 += w * z3
+                s2 += w * z3 * z3
+                q += 1
+            acc[0] += s0
+            acc[1] += s0 * z0
+            acc[2] += s0 * z1
+            acc[3] += s0 * z2
+            acc[4] += s1
+            acc[5] += s0 * z0 * z0
+            acc[6] += s0 * z0 * z1
+            acc[7] += s0 * z0 * z2
+            acc[8] += s1 * z0
+            acc[10] += s0 * z1 * z1
+            acc[11] += s0 * z1 * z2
+            acc[12] += s1 * z1
+            acc[15] += s0 * z2 * z2
+            acc[16] += s1 * z2
+            acc[20] += s2
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _moments_from_slabs(part):
+    """Slab sums added in index order: (Σw, mean (4), second moments (4, 4)), box units."""
     tot = 0.0
     mean = np.zeros(4)
     sec = np.zeros((4, 4))
-    q = 0
-    for i0 in range(n):
-        z0 = (i0 - half) * spacing
-        for i1 in range(n):
-            z1 = (i1 - half) * spacing
-            for i2 in range(n):
-                z2 = (i2 - half) * spacing
-                # the i3 axis summed first: per (i0, i1, i2) line, Σw, Σw·z3, Σw·z3²
-                s0 = 0.0
-                s1 = 0.0
-                s2 = 0.0
-                for i3 in range(n):
-                    z3 = (i3 - half) * spacing
-                    w = np.exp(lam[q] - top)
-                    weights[q] = w
-                    s0 += w
-                    s1 += w * z3
-                    s2 += w * z3 * z3
-                    q += 1
-                tot += s0
-                mean[0] += s0 * z0
-                mean[1] += s0 * z1
-                mean[2] += s0 * z2
-                mean[3] += s1
-                sec[0, 0] += s0 * z0 * z0
-                sec[0, 1] += s0 * z0 * z1
-                sec[0, 2] += s0 * z0 * z2
-                sec[0, 3] += s1 * z0
-                sec[1, 1] += s0 * z1 * z1
-                sec[1, 2] += s0 * z1 * z2
-                sec[1, 3] += s1 * z1
-                sec[2, 2] += s0 * z2 * z2
-                sec[2, 3] += s1 * z2
-                sec[3, 3] += s2
-    for a in range(4):
-        for b in range(a):
-            sec[a, b] = sec[b, a]
-    return tot, mean / tot, sec / tot
-
-
-@njit(cache=True)
-def deposit_marginal(weights, spacing, n, coef, origin, width, bins):
-    """Deposit the box's weights onto ``bins`` (linear shares) along u = coef·z − origin.
-
-    Bin j covers the u values centred on (j − (nb − 1)/2)·width.
-    """
-    half = (n - 1) / 2.0
-    nb = bins.shape[0]
-    mid = (nb - 1) / 2.0
-    for j in range(nb):
-        bins[j] = 0.0
-    step3 = coef[3] * spacing / width
-    q = 0
-    for i0 in range(n):
-        for i1 in range(n):
-            for i2 in range(n):
-                u0 = ((coef[0] * (i0 - half) + coef[1] * (i1 - half) + coef[2] * (i2 - half) - coef[3] * half) * spacing
-                      - origin) / width + mid
-                for i3 in range(n):
-                    p = u0 + i3 * step3
-                    j = int(np.floor(p))
-                    f = p - j
-                    w = weights[q]
-                    if j >= 0 and j < nb:
-                        bins[j] += w * (1.0 - f)
-                    if j + 1 >= 0 and j + 1 < nb:
-                        bins[j + 1] += w * f
-                    q += 1
-
-
-@njit(cache=True, parallel=True)
-def posterior_moments_threads(lam, spacing, n, weights):
-    """:func:`posterior_moments` with the first axis's slabs on numba's threads.
-
-    Each slab's sums are formed in the serial order and the slabs added in index order, so the
-    numbers do not depend on the thread count (they differ from the serial kernel's by round-off only).
-    """
-    half = (n - 1) / 2.0
-    top = lam.max()
-    part = np.zeros((n, 1 + 4 + 16))  # per slab: Σw, Σw·z (4), Σw·z zᵀ (4×4)
-    per_slab = n * n * n
-    for i0 in prange(n):
-        z0 = (i0 - half) * spacing
-        q = i0 * per_slab
-        acc = part[i0]
-        for i1 in range(n):
-            z1 = (i1 - half) * spacing
-            for i2 in range(n):
-                z2 = (i2 - half) * spacing
-                s0 = 0.0
-                s1 = 0.0
-                s2 = 0.0
-                for i3 in range(n):
-                    z3 = (i3 - half) * spacing
-                    w = np.exp(lam[q] - top)
-                    weights[q] = w
-                    s0 += w
-                    s1 += w * z3
-                    s2 += w * z3 * z3
-                    q += 1
-                acc[0] += s0
-                acc[1] += s0 * z0
-                acc[2] += s0 * z1
-                acc[3] += s0 * z2
-                acc[4] += s1
-                acc[5] += s0 * z0 * z0
-                acc[6] += s0 * z0 * z1
-                acc[7] += s0 * z0 * z2
-                acc[8] += s1 * z0
-                acc[10] += s0 * z1 * z1
-                acc[11] += s0 * z1 * z2
-                acc[12] += s1 * z1
-                acc[15] += s0 * z2 * z2
-                acc[16] += s1 * z2
-                acc[20] += s2
-    tot = 0.0
-    mean = np.zeros(4)
-    sec = np.zeros((4, 4))
-    for i0 in range(n):
+    for i0 in range(part.shape[0]):
         tot += part[i0, 0]
         for a in range(4):
             mean[a] += part[i0, 1 + a]
@@ -244,34 +163,80 @@ def posterior_moments_threads(lam, spacing, n, weights):
     return tot, mean / tot, sec / tot
 
 
+@njit(cache=True)
+def posterior_moments(lam, spacing, n, weights):
+    """Weights exp(Λ − max) on the n⁴ box (into ``weights``): (Σw, mean (4), second moments (4, 4)), box units.
+
+    Summed slab by slab (first axis) and the slabs added in order, as :func:`posterior_moments_threads`
+    does on threads: the two give the same numbers, bit for bit.
+    """
+    top = lam.max()
+    part = np.zeros((n, 21))
+    for i0 in range(n):
+        _moment_slab(lam, spacing, n, weights, top, i0, part[i0])
+    return _moments_from_slabs(part)
+
+
 @njit(cache=True, parallel=True)
-def deposit_marginal_threads(weights, spacing, n, coef, origin, width, bins):
-    """:func:`deposit_marginal` with the first axis's slabs on numba's threads (per-slab bins added in order)."""
-    half = (n - 1) / 2.0
-    nb = bins.shape[0]
-    mid = (nb - 1) / 2.0
-    part = np.zeros((n, nb))
-    step3 = coef[3] * spacing / width
-    per_slab = n * n * n
+def posterior_moments_threads(lam, spacing, n, weights):
+    """:func:`posterior_moments` with the slabs on numba's threads (the same numbers for any thread count)."""
+    top = lam.max()
+    part = np.zeros((n, 21))
     for i0 in prange(n):
-        q = i0 * per_slab
-        row = part[i0]
-        for i1 in range(n):
-            for i2 in range(n):
-                u0 = ((coef[0] * (i0 - half) + coef[1] * (i1 - half) + coef[2] * (i2 - half) - coef[3] * half)
-                      * spacing - origin) / width + mid
-                for i3 in range(n):
-                    p = u0 + i3 * step3
-                    j = int(np.floor(p))
-                    f = p - j
-                    w = weights[q]
-                    if j >= 0 and j < nb:
-                        row[j] += w * (1.0 - f)
-                    if j + 1 >= 0 and j + 1 < nb:
-                        row[j + 1] += w * f
-                    q += 1
-    for j in range(nb):
+        _moment_slab(lam, spacing, n, weights, top, i0, part[i0])
+    return _moments_from_slabs(part)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _deposit_slab(weights, spacing, n, coef, origin, width, i0, row):
+    """Slab i0's weights onto ``row`` (linear shares) along u = coef·z − origin."""
+    half = (n - 1) / 2.0
+    nb = row.shape[0]
+    mid = (nb - 1) / 2.0
+    step3 = coef[3] * spacing / width
+    q = i0 * n * n * n
+    for i1 in range(n):
+        for i2 in range(n):
+            u0 = ((coef[0] * (i0 - half) + coef[1] * (i1 - half) + coef[2] * (i2 - half) - coef[3] * half) * spacing
+                  - origin) / width + mid
+            for i3 in range(n):
+                p = u0 + i3 * step3
+                j = int(np.floor(p))
+                f = p - j
+                w = weights[q]
+                if j >= 0 and j < nb:
+                    row[j] += w * (1.0 - f)
+                if j + 1 >= 0 and j + 1 < nb:
+                    row[j + 1] += w * f
+                q += 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _bins_from_slabs(part, bins):
+    for j in range(bins.shape[0]):
         s = 0.0
-        for i0 in range(n):
+        for i0 in range(part.shape[0]):
             s += part[i0, j]
         bins[j] = s
+
+
+@njit(cache=True)
+def deposit_marginal(weights, spacing, n, coef, origin, width, bins):
+    """Deposit the box's weights onto ``bins`` (linear shares) along u = coef·z − origin.
+
+    Bin j covers the u values centred on (j − (nb − 1)/2)·width. Slab by slab, the slabs' bins added in
+    order (as :func:`deposit_marginal_threads`: the same numbers, bit for bit).
+    """
+    part = np.zeros((n, bins.shape[0]))
+    for i0 in range(n):
+        _deposit_slab(weights, spacing, n, coef, origin, width, i0, part[i0])
+    _bins_from_slabs(part, bins)
+
+
+@njit(cache=True, parallel=True)
+def deposit_marginal_threads(weights, spacing, n, coef, origin, width, bins):
+    """:func:`deposit_marginal` with the slabs on numba's threads (the same numbers for any thread count)."""
+    part = np.zeros((n, bins.shape[0]))
+    for i0 in prange(n):
+        _deposit_slab(weights, spacing, n, coef, origin, width, i0, part[i0])
+    _bins_from_slabs(part, bins)
