@@ -105,3 +105,26 @@ def test_mcnemar_exact_p_against_closed_forms():
     assert mcnemar_p(0, 5) == 2 * 0.5**5  # all 5 discordant one way
     assert mcnemar_p(3, 3) == 1.0 and mcnemar_p(0, 0) == 1.0
     assert abs(mcnemar_p(2, 10) - 2 * sum(__import__("math").comb(12, k) for k in range(3)) / 2**12) < 1e-15
+
+
+def test_the_multipath_strength_axis_sets_the_correlators_echo(tmp_path):
+    """``sweep.multipath_echo_db``: one cell per value, the correlators' ground echo on at that amplitude
+    ('off': none), recorded in the cells table; a bad value is refused naming the key."""
+    from testbed.campaign.spec import expand_cells, load_spec
+    from testbed.schema import ConfigError
+
+    spec = tmp_path / "mp.toml"
+    spec.write_text(SPEC.format(chunk=2).replace("magnitudes = [0.0, 60.0]", "magnitudes = [0.0]")
+                    + '\n[sweep]\nmultipath_echo_db = ["off", -20.0, -6.0]\n')
+    cells = expand_cells(load_spec(spec))
+    assert [c.params["multipath_echo_db"] for c in cells][1:] == [-20.0, -6.0]
+    assert np.isnan(cells[0].params["multipath_echo_db"])
+    got = [(c.approach.config.gnss.correlators.multipath, c.approach.config.gnss.correlators.ground_echo_db)
+           for c in cells]
+    assert got[0][0] == "off" and got[1] == ("ground", -20.0) and got[2] == ("ground", -6.0)
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SPEC.format(chunk=2) + '\n[sweep]\nmultipath_echo_db = [3.0]\n')
+    import pytest
+
+    with pytest.raises(ConfigError, match="multipath_echo_db"):
+        load_spec(bad)

@@ -105,6 +105,9 @@ class Sweep(StrictModel):
     calibration: list[Literal["gps", "none"]] = Field(default_factory=list, description="VA-RAIM calibration modes")
     va_raim_variant: list[Literal["gated", "seed"]] = Field(default_factory=list,
                                                             description="VA-RAIM variants (testbed default 'gated')")
+    multipath_echo_db: list[float | Literal["off"]] = Field(
+        default_factory=list, description="the correlators' ground multipath: 'off', or the specular echo's amplitude "
+                                          "relative to the direct signal (dB, ≤ 0): the multipath strength axis")
 
     @field_validator("start_time_utc")
     @classmethod
@@ -113,6 +116,14 @@ class Sweep(StrictModel):
             if t.tzinfo is None:
                 raise ValueError("expected UTC times with an offset, e.g. 2026-03-01T04:00:00Z")
         return [t.astimezone(dt.timezone.utc) for t in v]
+
+    @field_validator("multipath_echo_db")
+    @classmethod
+    def _echo(cls, v):
+        bad = [x for x in v if x != "off" and not (isinstance(x, (int, float)) and x <= 0.0 and x == x)]
+        if bad:
+            raise ValueError(f"expected 'off' or echo amplitudes ≤ 0 dB, got {bad}")
+        return v
 
     @field_validator("camera_dpi", "detection_sigma_px", "lpe_sigma_m")
     @classmethod
@@ -364,6 +375,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
         ("landmark_set", list(enumerate(sw.landmark_sets)) or [None]),
         ("calibration", sw.calibration or [None]),
         ("va_raim_variant", sw.va_raim_variant or [None]),
+        ("multipath_echo_db", sw.multipath_echo_db or [None]),
     ]
     names = [a for a, _ in axes]
     cells: list[Cell] = []
@@ -397,6 +409,11 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 d.setdefault("va_raim", {})["calibration"] = c["calibration"]
             if c["va_raim_variant"] is not None:
                 d.setdefault("va_raim", {})["variant"] = c["va_raim_variant"]
+            if c["multipath_echo_db"] is not None:
+                corr = d.setdefault("gnss", {}).setdefault("correlators", {})
+                corr["multipath"] = "off" if c["multipath_echo_db"] == "off" else "ground"
+                if c["multipath_echo_db"] != "off":
+                    corr["ground_echo_db"] = float(c["multipath_echo_db"])
             if reads_vision(spec.monitors):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
@@ -419,6 +436,8 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 "landmark_set": -1 if c["landmark_set"] is None else int(c["landmark_set"][0]),
                 "calibration": str(cfg.va_raim.get("calibration", "gps")),
                 "va_raim_variant": str(cfg.va_raim.get("variant", "gated")),
+                "multipath_echo_db": (float(cfg.gnss.correlators.ground_echo_db)
+                                      if cfg.gnss.correlators.multipath == "ground" else float("nan")),
                 "hal": min(service_level(n).hal for n in cfg.integrity.service_levels),
                 "val": min(service_level(n).val for n in cfg.integrity.service_levels),
             }
@@ -447,7 +466,8 @@ def _describe(name: str, c: dict) -> str:
     parts = [name]
     fk, fam, mag = c["fault"]
     parts.append(f"faults.{fk} {fam.kind} {mag:g}")
-    for k in ("start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant"):
+    for k in ("start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant",
+              "multipath_echo_db"):
         if c[k] is not None:
             parts.append(f"{k}={c[k]}")
     if c["landmark_set"] is not None:
