@@ -323,6 +323,15 @@ def test_campaign_inputs_are_checked_before_any_work(work, capsys):
     code, out = run(capsys, "campaign", spec, "--out", inputs / "o2", "--scheduler", "tcp://127.0.0.1:9", "--quiet")
     assert code == 2 and "--scheduler" in out and "tcp://127.0.0.1:9" in out, out
     assert not (inputs / "o1").exists() and not (inputs / "o2").exists()
+    for text, key, value in (('segment = "middle"\n', "segment", "middle"),
+                             ('segment = "last"\n', "segment", "duration_s"),
+                             ('[sweep]\nmultipath_echo_db = [6.0]\n', "sweep.multipath_echo_db", "6"),
+                             ('[sweep]\nmultipath_echo_db = ["on"]\n', "sweep.multipath_echo_db", "on")):
+        bad = inputs / "bad-axis.toml"
+        bad.write_text(SPEC.replace("duration_s", "# duration_s") + text if "duration_s" in value else SPEC + text)
+        code, out = run(capsys, "campaign", bad, "--out", inputs / "o3")
+        assert code == 2 and key in out and value in out and str(bad) in out, (text, out)
+        assert not (inputs / "o3").exists()
 
 
 def test_report_on_a_bad_folder_is_a_message(work, capsys):

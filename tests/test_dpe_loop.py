@@ -128,3 +128,22 @@ def test_the_multipath_strength_axis_sets_the_correlators_echo(tmp_path):
 
     with pytest.raises(ConfigError, match="multipath_echo_db"):
         load_spec(bad)
+
+
+def test_a_campaign_can_fly_the_last_segment_of_the_final(tmp_path):
+    """``segment = "last"``: the sorties fly the last duration_s down to the threshold, their time from 0 (the
+    height above ground falls to the threshold's ~15 m; the first segment starts ~700 m up)."""
+    from testbed.campaign.runner import cell_context
+    from testbed.campaign.spec import expand_cells, load_spec
+
+    spec = tmp_path / "last.toml"
+    text = SPEC.format(chunk=2).replace("duration_s = 25.0", 'duration_s = 25.0\nsegment = "last"')
+    spec.write_text(text)
+    loaded = load_spec(spec)
+    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
+    t, agl = ctx.truth_g.t, ctx.truth_g.agl
+    assert t[0] == 0.0 and abs(t[-1] - 25.0) < 1.0 and agl[-1] < 30.0 and agl[0] < 150.0
+    first = tmp_path / "first.toml"
+    first.write_text(SPEC.format(chunk=2))
+    lf = load_spec(first)
+    assert cell_context(expand_cells(lf)[0], lf.spec).truth_g.agl[0] > 500.0

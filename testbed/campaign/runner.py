@@ -134,6 +134,7 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
 
     c = cell.config
     duration_s = None if spec is None else spec.duration_s
+    segment = "first" if spec is None else spec.segment
     terrain = _terrain(cell)
     setup = build_setup(cell.approach, terrain, monitor_threads=1)  # blocks run side by side instead
     fkey = _flight_key(cell)
@@ -143,11 +144,14 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
 
     def truth_g():
         tr = flown_truth(cell).decimate(setup.gnss.rate_hz)
-        if duration_s is not None:
+        if duration_s is not None and segment == "last":  # the last duration_s, its time from 0
+            tr = tr.at_indices(np.flatnonzero(tr.t >= tr.t[-1] - duration_s - 1e-9))
+            tr = replace(tr, t=tr.t - tr.t[0])
+        elif duration_s is not None:
             tr = tr.at_indices(np.flatnonzero(tr.t <= duration_s + 1e-9))
         return tr
 
-    tkey = ("truth_g", fkey, setup.gnss.rate_hz, duration_s)
+    tkey = ("truth_g", fkey, setup.gnss.rate_hz, duration_s, segment)
     truth = _cached(tkey, truth_g)
     gkey = ("gnss_geom", tkey, c.start_time_utc.isoformat(), json.dumps(c.gnss.model_dump(mode="json"), sort_keys=True),
             json.dumps(c.aircraft and cell.approach.aircraft.antenna_lever_arm_m),

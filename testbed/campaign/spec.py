@@ -216,7 +216,11 @@ class CampaignSpec(StrictModel):
     chunk_trials: int = Field(1000, ge=1, description="trials per stored chunk/task (a multiple of block_trials)")
     common_random_numbers: bool = Field(False, description="same noise draws in every cell (smoother sweeps)")
     per_epoch_trials: int = Field(20, ge=0, description="store per-epoch records for the first N trials of each cell")
-    duration_s: float | None = Field(None, gt=0, description="use only the first duration_s of each flight")
+    duration_s: float | None = Field(None, gt=0, description="use only duration_s of each flight (see segment)")
+    segment: Literal["first", "last"] = Field(
+        "first", description="which duration_s of each flight the sorties fly: the first (from the approach's start) "
+                             "or the last (down to the threshold: where a ground echo reaches the correlators); a "
+                             "segment's time starts at 0 (fault onsets count from it)")
     faults: list[FaultSweep] = Field(default_factory=lambda: [FaultSweep(kind="none")], min_length=1,
                                      description="fault families; [{kind = \"none\"}] for fault-free trials only")
     sweep: Sweep = Field(default_factory=Sweep)
@@ -225,6 +229,8 @@ class CampaignSpec(StrictModel):
 
     @model_validator(mode="after")
     def _chunks(self):
+        if self.segment == "last" and self.duration_s is None:
+            raise ValueError("segment = 'last': expected duration_s (the length of the last segment)")
         so = self.sorties
         if so.start != "fixed" and so.sortie_s is None and self.duration_s is None:
             raise ValueError(f"sorties.sortie_s: expected the sortie length in s (or duration_s) with "
