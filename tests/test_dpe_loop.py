@@ -92,11 +92,13 @@ def test_a_campaign_runs_the_dpe_beside_gps_raim_on_the_same_fault(tmp_path):
     d_s, r_s = dpe.sort_values(["cell", "trial"]), raim.sort_values(["cell", "trial"])
     T = int(a.epochs.iloc[0])
     for lv in ("APV-I", "APV-II"):
-        diff = d_s[f"avail_only_vs_gps_raim_{lv}"].to_numpy() - r_s[f"avail_only_vs_dpe_{lv}"].to_numpy()
+        diff = d_s[f"only_available_vs_gps_raim_{lv}"].to_numpy() - r_s[f"only_available_vs_dpe_{lv}"].to_numpy()
         np.testing.assert_array_equal(diff, np.round(d_s[f"avail_{lv}"].to_numpy() * T)
                                       - np.round(r_s[f"avail_{lv}"].to_numpy() * T))
     assert (a.four_sat_epochs >= 0).all()
     assert "## The monitors paired on the same epochs" in report and "McNemar" in report
+    pl_table = report.split("## Protection levels")[1].split("\n## ")[0]
+    assert "only_available" not in pl_table and "APV-II |" in pl_table  # levels only, not the pairing counts
 
 
 def test_mcnemar_exact_p_against_closed_forms():

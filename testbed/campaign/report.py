@@ -470,7 +470,7 @@ def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]
     four satellites (no redundancy for snapshot RAIM) counted apart."""
     tc = inp.tc
     monitors = sorted(set(tc["monitor"].tolist()))
-    levels = [c[len("avail_only_vs_" + monitors[0] + "_"):] for c in tc if c.startswith(f"avail_only_vs_{monitors[0]}_")]
+    levels = [c[len("only_available_vs_" + monitors[0] + "_"):] for c in tc if c.startswith(f"only_available_vs_{monitors[0]}_")]
     if len(monitors) < 2 or not levels:
         return [], []
     md = ["## The monitors paired on the same epochs", "",
@@ -510,8 +510,8 @@ def _paired_row(tc: dict, level: str, a: str, b: str) -> str:
     sa, sb = tc["monitor"] == a, tc["monitor"] == b
     ka = np.lexsort((tc["trial"][sa], tc["cell"][sa]))
     kb = np.lexsort((tc["trial"][sb], tc["cell"][sb]))
-    a_only = tc[f"avail_only_vs_{b}_{level}"][sa][ka]
-    b_only = tc[f"avail_only_vs_{a}_{level}"][sb][kb]
+    a_only = tc[f"only_available_vs_{b}_{level}"][sa][ka]
+    b_only = tc[f"only_available_vs_{a}_{level}"][sb][kb]
     more, less = int((a_only > b_only).sum()), int((a_only < b_only).sum())
     fa, fb = int(tc[f"four_sat_avail_{level}"][sa].sum()), int(tc[f"four_sat_avail_{level}"][sb].sum())
     return (f"| {level} | {a} | {b} | {int(tc['epochs'][sa].sum())} | {int(a_only.sum())} | {int(b_only.sum())} | "

@@ -391,7 +391,7 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
 
 def _paired_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, outs: dict[str, MonitorOutput]) -> dict:
     """Per trial, against every monitor of the run (the same epochs, the same signals): the epochs this one
-    is available and the other not, per service level (``avail_only_vs_<other>_<level>``; the report's
+    is available and the other not, per service level (``only_available_vs_<other>_<level>``; the report's
     McNemar test); and the epochs with exactly four satellites in use-able view, where snapshot RAIM has
     no redundancy (``four_sat_epochs``, ``four_sat_avail_<level>``)."""
     n_sat = np.asarray(d.obs.gnss.visible, bool).sum(-1)  # (n, T)
@@ -402,7 +402,7 @@ def _paired_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, outs: di
         col[f"four_sat_avail_{lv}"] = (mine[..., k] & four).sum(-1).astype(np.int32)
         for name, other in outs.items():
             theirs = np.asarray(other.available, bool)[..., k]
-            col[f"avail_only_vs_{name}_{lv}"] = (mine[..., k] & ~theirs).sum(-1).astype(np.int32)
+            col[f"only_available_vs_{name}_{lv}"] = (mine[..., k] & ~theirs).sum(-1).astype(np.int32)
     return col
 
 
