@@ -82,7 +82,8 @@ def test_sorties_one_repeat_apart_share_a_sky_that_matches_their_own_to_the_boun
     g = ctx.gnss_geometry_of(w)
     np.testing.assert_array_equal(g.sat_pos_ecef[0], g.sat_pos_ecef[1])
     s = ctx.setup
-    truth = runner._cached(("truth_g", runner._flight_key(cell), s.gnss.rate_hz, spec.duration_s), lambda: None)
+    truth = runner._cached(("truth_g", runner._flight_key(cell), s.gnss.rate_hz, spec.duration_s, spec.segment),
+                           lambda: None)
     own = gnss_geometry(truth, s.antenna, s.gnss, start_utc=cell.config.start_time_utc, terrain=runner._terrain(cell),
                         constellation=ctx.g_geom.eph, offsets_s=sortie_offsets(spec, [1436]))  # one almanac, propagated
     up = g.visible[1] & own.visible[0]

@@ -137,8 +137,8 @@ def monitor_rinex(obs_path: str | Path, nav_path: str | Path, *, config: str | P
     obs = read_obs(obs_path)
     if marker:
         ref = _marker_reference(obs)
-    if ref is not None:  # before any work: the reference must cover the file (tags ± 10 ms of receiver clock)
-        _reference_at(*ref, np.r_[obs.t_tag[0] - 0.01, obs.t_tag[-1] + 0.01], reference)
+    if ref is not None:  # before any work: the reference must cover the file's time tags
+        _reference_at(*ref, obs.t_tag[[0, -1]], reference)
     nav = read_nav(nav_path)
     tm["read"] = time.perf_counter() - t0
     t1 = time.perf_counter()
