@@ -31,15 +31,15 @@ from testbed.records import GnssEpochs, Mount, NotVisible
 from testbed.rinex.atmosphere import klobuchar_delay, klobuchar_sigma, saastamoinen_delay
 from testbed.rinex.obs import RinexObs
 from testbed.rinex.settings import RinexSettings
-from testbed.sensors.gnss.errors import F_L1, F_L5, sigma_multipath, sigma_noise, sigma_tropo
+from testbed.correlation import L1_WAVELENGTH_M
+from testbed.sensors.gnss.errors import F_L1, F_L2, F_L5, IONO_FREE_FACTOR, sigma_multipath, sigma_noise, sigma_tropo
 from testbed.sensors.gnss.navfile import MAX_AGE_S, NavData, nearest_records
 from testbed.sensors.gnss.orbits import sat_states
+from testbed.sensors.gnss.synth import rotate_z
 from testbed.sensors.gnss.rinex_text import RinexError
 from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gps_seconds_to_calendar
 
-F_L2 = 1227.60e6
 FREQUENCY = {"1": F_L1, "2": F_L2, "5": F_L5}
-LAMBDA_L1 = C_LIGHT / F_L1
 #: REC # / TYPE of files `testbed export-rinex` writes: their ranges are iono-free-equivalent
 TESTBED_RECEIVER = "TESTBED SYNTHETIC"
 _FIX_ITERATIONS = 12
@@ -101,11 +101,6 @@ def _span(t: NDArray) -> str:
     return f"{a:%Y-%m-%d %H:%M} .. {b:%Y-%m-%d %H:%M} GPST (GPS week {int(np.min(t) // SECONDS_PER_WEEK)})"
 
 
-def _rotate_z(v: NDArray, theta: NDArray) -> NDArray:
-    c, s = np.cos(theta), np.sin(theta)
-    return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
-
-
 def preliminary_fix(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -> tuple[NDArray, NDArray]:
     """Unweighted Gauss-Newton ECEF fix per epoch, light time and Earth rotation re-solved each iteration.
 
@@ -132,7 +127,7 @@ def preliminary_fix_numpy(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -
     zz = np.where(use, z, 0.0)
     for _ in range(_FIX_ITERATIONS):
         tau = np.linalg.norm(sat - r[:, None], axis=-1) / C_LIGHT
-        s_rx = _rotate_z(sat, OMEGA_EARTH * tau)
+        s_rx = rotate_z(sat, OMEGA_EARTH * tau)
         d = s_rx - r[:, None]
         rho = np.where(use, np.linalg.norm(d, axis=-1), 1.0)
         G = np.concatenate([-d / rho[..., None], np.ones(rho.shape + (1,))], -1) * use[..., None]
@@ -150,7 +145,7 @@ def preliminary_fix_numpy(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -
     return r, b
 
 
-def _filled(r: NDArray) -> NDArray:
+def hold_last_fix(r: NDArray) -> NDArray:
     """Epochs without a fix take the nearest earlier one (else the first later one)."""
     ok = np.isfinite(r).all(1)
     idx = np.where(ok, np.arange(r.shape[0]), -1)
@@ -181,7 +176,7 @@ def _look_and_delays(sat: NDArray, r: NDArray, t_tag: NDArray, iono: str, tropo:
     E, S = sat.shape[:2]
     lat, lon, h = ecef_to_geodetic(r)
     tau = np.linalg.norm(sat - r[:, None], axis=-1) / C_LIGHT
-    los = np.einsum("eij,esj->esi", R_ecef_to_enu(lat, lon), _rotate_z(sat, OMEGA_EARTH * tau) - r[:, None])
+    los = np.einsum("eij,esj->esi", R_ecef_to_enu(lat, lon), rotate_z(sat, OMEGA_EARTH * tau) - r[:, None])
     el = np.arctan2(los[..., 2], np.hypot(los[..., 0], los[..., 1]))
     az = np.arctan2(los[..., 0], los[..., 1])
     latr, lonr = np.radians(lat)[:, None], np.radians(lon)[:, None]
@@ -236,8 +231,7 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
         dual_factor = float(np.sqrt(f1**4 + f2**4) / (f1**2 - f2**2))
     else:
         code = p1 - C_LIGHT * tgd
-        dual_factor = float(np.sqrt(F_L1**4 + F_L5**4) / (F_L1**2 - F_L5**2)) if iono == "off" and \
-            obs.receiver_type == TESTBED_RECEIVER else 1.0
+        dual_factor = IONO_FREE_FACTOR if iono == "off" and obs.receiver_type == TESTBED_RECEIVER else 1.0
     z_geo = code + C_LIGHT * dts  # geometric range + receiver clock + atmosphere + errors
     sat0 = np.where(use[..., None], sat, 0.0)
     r_fix, _ = preliminary_fix(sat0, z_geo, use, obs.approx_pos_ecef)
@@ -246,22 +240,22 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
             raise RinexError(obs.path, "no epoch has 4 satellites with ephemerides, and the header has no APPROX "
                                        "POSITION XYZ: expected at least one epoch with 4 usable satellites")
         r_fix = np.broadcast_to(obs.approx_pos_ecef, (E, 3)).astype(float)
-    r_ref = _filled(r_fix)
+    r_ref = hold_last_fix(r_fix)
     sat_use = use.copy()
     for _ in range(_ATMOSPHERE_ROUNDS):  # the delays at the fix, the fix with the delays removed
         el, az, iono_m, iono_sig, tropo_m = _look_and_delays(sat0, r_ref, obs.t_tag, iono, tropo, nav)
         sat_use = use & (el >= np.radians(s.elevation_mask_deg))
         z = z_geo - iono_m - tropo_m
         r2, _ = preliminary_fix(np.where(sat_use[..., None], sat, 0.0), z, sat_use, r_ref)
-        r_ref = _filled(np.where(np.isfinite(r2), r2, r_ref))
+        r_ref = hold_last_fix(np.where(np.isfinite(r2), r2, r_ref))
     reason[use & ~sat_use] = NotVisible.BELOW_MASK
     use = sat_use
     reason[use] = NotVisible.VISIBLE
     tau = np.linalg.norm(np.where(use[..., None], sat, 0.0) - r_ref[:, None], axis=-1) / C_LIGHT
-    s_rx = _rotate_z(sat, OMEGA_EARTH * tau)
-    v_rx = _rotate_z(sat_v, OMEGA_EARTH * tau)
+    s_rx = rotate_z(sat, OMEGA_EARTH * tau)
+    v_rx = rotate_z(sat_v, OMEGA_EARTH * tau)
     dop = next((obs.values[c] for c in ("D1C", "D1W", "D1X", "D1P") if c in obs.values), np.full((E, S), np.nan))
-    rr = -dop * LAMBDA_L1 + C_LIGHT * dts_rate
+    rr = -dop * L1_WAVELENGTH_M + C_LIGHT * dts_rate
     sigma = _sigma(s, el, iono, iono_m, iono_sig, tropo, dual_factor)
     first = r2[np.isfinite(r2).all(1)][0] if np.isfinite(r2).any() else r_ref[0]  # noqa: F821 (set in the loop)
     origin = (tuple(float(x) for x in s.origin) if s.origin != "first_fix"

@@ -16,6 +16,7 @@ import numpy as np
 
 from testbed.integrity.levels import service_level
 from testbed.records import take_epochs
+from testbed.rinex.observables import hold_last_fix
 from testbed.rinex.run import RinexRun, geometry_enu
 from testbed.sim.events import EventTracker
 from testbed.sim.loop import LoopBlock
@@ -36,12 +37,9 @@ class _Track:
 
 
 def _track(run: RinexRun, ant_enu: np.ndarray) -> _Track:
+    """The drawn track: epochs without a fix hold the last one (the sink needs finite poses)."""
     ok = np.isfinite(ant_enu).all(-1)
-    pos = ant_enu.copy()
-    if ok.any() and not ok.all():  # epochs without a fix: hold the last one (the sink needs finite poses)
-        idx = np.maximum.accumulate(np.where(ok, np.arange(ok.size), -1))
-        idx[idx < 0] = int(np.argmax(ok))
-        pos = pos[idx]
+    pos = hold_last_fix(ant_enu) if ok.any() else ant_enu
     lat, lon, _ = run.frame.enu_to_geodetic(pos)
     q = np.tile([0.0, 0.0, 0.0, 1.0], (pos.shape[0], 1))
     return _Track(pos, q, np.asarray(lat), np.asarray(lon))

@@ -14,6 +14,7 @@ from scipy.signal import lfilter
 
 F_L1 = 1575.42e6  # Hz
 F_L5 = 1176.45e6  # Hz
+F_L2 = 1227.60e6  # Hz
 #: σ-multiplier of the iono-free L1/L5 combination: sqrt(f1⁴ + f5⁴) / (f1² − f5²) ≈ 2.59.
 IONO_FREE_FACTOR = float(np.sqrt(F_L1**4 + F_L5**4) / (F_L1**2 - F_L5**2))
 SIGMA_URA_M = 0.75

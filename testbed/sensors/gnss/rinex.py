@@ -48,14 +48,14 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from testbed.correlation import L1_WAVELENGTH_M
 from testbed.frames import C_LIGHT
 from testbed.records import GnssEpochs
-from testbed.sensors.gnss.errors import F_L1
 from testbed.sensors.gnss.orbits import Ephemeris
 from testbed.sensors.gnss.synth import GnssGeometry
 from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gps_seconds_to_calendar, gps_seconds_to_utc, leap_seconds
 
-LAMBDA_L1 = C_LIGHT / F_L1
+LAMBDA_L1 = L1_WAVELENGTH_M
 _TOE_GRID_S = 7200.0
 
 

@@ -107,7 +107,7 @@ _PER_START = ("t_gps", "sat_pos_ecef", "sat_vel_ecef", "sat_clock_s", "sat_clock
               "geometric_range_rate", "elevation", "azimuth", "elevation_body", "reason", "visible")
 
 
-def _rotate_z(v: NDArray, theta: NDArray) -> NDArray:
+def rotate_z(v: NDArray, theta: NDArray) -> NDArray:
     """Components in the frame rotated by +θ about z (the Earth-fixed frame θ/Ω̇e later)."""
     c, s = np.cos(theta), np.sin(theta)
     return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
@@ -128,11 +128,11 @@ def signal_geometry(eph: Ephemeris, t_gps: NDArray, ant_pos_ecef: NDArray, ant_v
     tau = np.full((t_gps.size, len(eph)), 0.075)  # ~ 20 000 km / c
     for _ in range(_LIGHT_TIME_ITERATIONS):
         pos, vel, clk, clk_rate = sat_states(eph, t_gps[:, None] - tau, per_slot=True)
-        pos_r = _rotate_z(pos, OMEGA_EARTH * tau)
+        pos_r = rotate_z(pos, OMEGA_EARTH * tau)
         tau = np.linalg.norm(pos_r - ant_pos_ecef[:, None, :], axis=-1) / C_LIGHT
     pos, vel, clk, clk_rate = sat_states(eph, t_gps[:, None] - tau, per_slot=True)
-    sat_pos = _rotate_z(pos, OMEGA_EARTH * tau)
-    sat_vel = _rotate_z(vel, OMEGA_EARTH * tau)
+    sat_pos = rotate_z(pos, OMEGA_EARTH * tau)
+    sat_vel = rotate_z(vel, OMEGA_EARTH * tau)
     d = sat_pos - ant_pos_ecef[:, None, :]
     rng_m = np.linalg.norm(d, axis=-1)
     rate = np.einsum("tsi,tsi->ts", d / rng_m[..., None], sat_vel - ant_vel_ecef[:, None, :])
