@@ -1,5 +1,5 @@
 """The seed-002 filter in the loop: the ekf monitor through testbed fly, live blocks = one flight,
-its recording tab, and the campaign's clear refusal (it draws no IMU data yet)."""
+its recording tab, and in campaigns (each trial its own IMU and alignment)."""
 
 from __future__ import annotations
 
@@ -42,18 +42,54 @@ def test_same_seed_same_filter_output():
     np.testing.assert_array_equal(a.outputs["ekf"].pos_enu, b.outputs["ekf"].pos_enu)
 
 
-def test_a_campaign_with_the_filter_is_refused_with_a_reason(tmp_path):
-    from testbed.campaign.spec import CampaignSpec
+EKF_SPEC = """
+name = "ekf-tiny"
+approaches = ["zunz-rwy05-ekf"]
+monitors = ["gps_raim", "ekf"]
+trials = 6
+block_trials = 3
+chunk_trials = {chunk}
+base_seed = 12
+per_epoch_trials = 3
+duration_s = 40.0
 
-    with pytest.raises(ValueError, match=r"read IMU data, which campaigns do not draw yet"):
-        CampaignSpec(name="x", approaches=["zunz-rwy05-final"], monitors=["gps_raim", "ekf"], trials=10)
+[[faults]]
+kind = "gps_step"
+magnitudes = [0.0, 30.0]
+onset_s = 20.0
+prn = "random"
+"""
+
+
+def test_a_campaign_runs_the_filter_with_its_imus_and_alignments(tmp_path):
+    """Campaign trials draw their own IMU and alignment (children of the block seed): chunking does not change
+    a bit; fault-free the filter raises no alert and is not misled; a 30 m step on a random satellite from
+    20 s (8 satellites, then 3 from 30 s) is detected in every sortie and never misleads it."""
+    import pyarrow.parquet as pq
+
+    from testbed.campaign.runner import run_campaign
+
+    outs = []
+    for chunk in (3, 6):
+        spec = tmp_path / f"s{chunk}.toml"
+        spec.write_text(EKF_SPEC.format(chunk=chunk))
+        run_campaign(spec, tmp_path / f"out{chunk}", progress=False)
+        outs.append(pq.read_table(tmp_path / f"out{chunk}" / "trials.parquet").to_pandas())
+    a, b = outs
+    assert a.equals(b)
+    ekf = a[a.monitor == "ekf"]
+    ff, step = ekf[ekf.cell == 0], ekf[ekf.cell == 1]
+    assert not ff.detected.any() and (ff.mi_epochs == 0).all() and (ff["avail_APV-I"] == 1.0).all()
+    assert step.detected.all() and (step.mi_epochs == 0).all() and (step.hmi_epochs == 0).all()
+    assert ekf.max_hpl.nunique() > 1  # each trial its own IMU and alignment
 
 
 def test_with_one_to_three_satellites_the_filter_navigates_where_snapshot_raim_cannot():
     """zunz-rwy05-ekf: 8 satellites for 30 s, then 3, 2, 1. GPS RAIM and VA-RAIM are available only
-    before the caps (≤ 21 % of the final); the filter is available at APV-I on ≥ 95 % of the epochs
-    with its error inside its PLs throughout (measured with range-rate rows: 100 %, HPL ≤ 19.8 m, HPE95
-    5.8 m; without them 25.7 m and 2.3 m on this seed)."""
+    before the caps (≤ 21 % of the final); the filter with its default solution-separation PLs (a sub-filter
+    without each satellite and each landmark) is available at APV-I on ≥ 95 % of the epochs with its error
+    inside its PLs throughout and no false alert (measured: 100 %, HPL ≤ 28.6 m, VPL ≤ 14.2 m after the
+    first minute, HPE95 5.8 m)."""
     run = run_approach("zunz-rwy05-ekf", seed=0, rrd_path=None)
     s = run.summaries
     for m in ("gps_raim", "va_raim"):
@@ -61,6 +97,8 @@ def test_with_one_to_three_satellites_the_filter_navigates_where_snapshot_raim_c
     assert s["ekf"].availability["APV-I"] >= 0.95
     assert s["ekf"].mi_epochs == 0 and s["ekf"].hmi_epochs == 0
     assert s["ekf"].hpe95 < 10.0
+    o = run.outputs["ekf"]
+    assert not o.alert.any() and (o.diagnostics.n_modes >= 5).all()
     n_sat = np.asarray(run.loop.gnss.visible).sum(-1)
     t = run.loop.gnss.t
     assert n_sat[t >= 100].max() == 1 and n_sat[(t >= 30) & (t < 70)].max() == 3

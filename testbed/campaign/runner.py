@@ -111,6 +111,10 @@ class CellContext:
     onset_s: float  # nan without fault
     truth_g: object = None  # Truth at the GNSS epochs (the correlators' ground echo reads AGL and climb)
     sky: np.ndarray | None = None  # (W,) sorted sky windows of the sorties (g_geom stacked); None: fixed start
+    #: the error-free IMU increments (t, Δθ, Δv, Δt) along the segment, and its first pose (C, v, p):
+    #: only when a monitor reads the IMU (the seed-002 filter)
+    imu_increments: tuple | None = None
+    imu_start: tuple | None = None
 
     def gnss_geometry_of(self, windows: np.ndarray | None):
         """The GNSS geometry of trials flying in sky ``windows`` (n,) (None: the fixed start)."""
@@ -153,6 +157,10 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
 
     tkey = ("truth_g", fkey, setup.gnss.rate_hz, duration_s, segment)
     truth = _cached(tkey, truth_g)
+    imu_inc = imu_start = None
+    if any("imu" in m.inputs for m in setup.monitors):
+        ikey = ("imu_truth", tkey, json.dumps(setup.imu.model_dump(mode="json"), sort_keys=True))
+        imu_inc, imu_start = _cached(ikey, lambda: _imu_segment(flown_truth(cell), truth, setup, duration_s, segment))
     gkey = ("gnss_geom", tkey, c.start_time_utc.isoformat(), json.dumps(c.gnss.model_dump(mode="json"), sort_keys=True),
             json.dumps(c.aircraft and cell.approach.aircraft.antenna_lever_arm_m),
             None if sky is None else (spec.sorties.window_s, sky.tobytes()))
@@ -184,7 +192,29 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                        landmarks=lm, truth_cg_enu=setup.frame.ecef_to_enu(truth.pos_ecef),
                        truth_ant_enu=setup.frame.ecef_to_enu(g_geom.ant_pos_ecef),
                        hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset),
-                       truth_g=truth, sky=sky)
+                       truth_g=truth, sky=sky, imu_increments=imu_inc, imu_start=imu_start)
+
+
+def _imu_segment(flown, truth_g, setup, duration_s: float | None, segment: str):
+    """The error-free IMU increments over the GNSS epochs' segment of the flight (its time as theirs) and the
+    segment's first pose: the full-rate truth from the segment's first GNSS epoch on."""
+    from testbed.inertial import body_to_world, local_to_world
+    from testbed.sensors.imu import true_increments
+
+    t = np.asarray(flown.t, float)
+    if duration_s is not None and segment == "last":
+        t0 = float(t[np.flatnonzero(t >= t[-1] - duration_s - 1e-9)[0]])  # = truth_g's first epoch before the shift
+        tr = flown.at_indices(np.flatnonzero(t >= t0 - 1e-9))
+        tr = replace(tr, t=np.asarray(tr.t) - t0)
+    elif duration_s is not None:
+        tr = flown.at_indices(np.flatnonzero(t <= duration_s + 1e-9))
+    else:
+        tr = flown
+    inc = true_increments(tr, setup.imu)
+    p0 = np.asarray(tr.pos_enu[0], float)
+    start = (float(tr.t[0]), body_to_world(setup.frame, p0, np.asarray(tr.q_body_to_enu[0], float)),
+             local_to_world(setup.frame, p0, np.asarray(tr.vel_enu[0], float)), p0)
+    return inc, start
 
 
 # ----------------------------------------------------------------------------- one block
@@ -221,8 +251,9 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     s = ctx.setup
     i0 = block * spec.block_trials
     n = min(spec.block_trials, spec.trials - i0)
-    # children 0-2 as before; child 3 (the correlators) is new and leaves them unchanged
-    ss_g, ss_v, ss_s, ss_c = block_seed(spec.base_seed, ctx.cell.index, block, spec.common_random_numbers).spawn(4)
+    # children 0-2 as before; children 3 (the correlators), 4 and 5 (IMU errors, alignment) leave them unchanged
+    ss_g, ss_v, ss_s, ss_c, ss_i, ss_a = block_seed(spec.base_seed, ctx.cell.index, block,
+                                                    spec.common_random_numbers).spawn(6)
     faults = list(s.faults)
     trials = np.arange(i0, i0 + n)
     offsets = sortie_offsets(spec, trials)
@@ -247,9 +278,29 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     model_gnss = gnss
     if s.gnss.correlator_pseudoranges:
         gnss, gtruth = _correlator_observations(ctx, gnss, gtruth, ss_c, trials)
-    return BlockDraw(trials, Observations(gnss, vis), gtruth, vtruth, target, offsets,
+    imu, init = _imu_draw(ctx, gtruth, ss_i, ss_a, n) if ctx.imu_increments is not None else (None, None)
+    return BlockDraw(trials, Observations(gnss, vis, imu, init), gtruth, vtruth, target, offsets,
                      np.full(n, -1, np.int64) if windows is None else windows, _fault_present(gnss, gtruth, vis, vtruth),
                      ss_c, model_gnss)
+
+
+def _imu_draw(ctx: CellContext, gtruth, seed_imu: np.random.SeedSequence, seed_align: np.random.SeedSequence,
+              n: int):
+    """The block's IMUs (one per trial, along the shared trajectory) and their alignments (each trial's
+    receiver clock at the start), as the loop draws them for one flight."""
+    from testbed.records import ImuSamples
+    from testbed.sensors.imu import ImuErrorStream, apply_errors
+    from testbed.sensors.imu.alignment import align
+
+    s = ctx.setup.imu
+    t, dth, dvl, dt = ctx.imu_increments
+    stream = ImuErrorStream(s, dt, np.random.default_rng(seed_imu), n)
+    d_th, d_v = apply_errors(dth, dvl, stream, stream.draw(t.size))
+    imu = ImuSamples(t=t, dtheta=d_th, dvel=d_v, dt=dt, lever_arm_body=np.asarray(s.lever_arm_body_m, float),
+                     earth_rotation=s.earth_rotation, figures=s.figures())
+    t0, C, v, p = ctx.imu_start
+    cb = np.broadcast_to(np.asarray(gtruth.clock_bias, float), (n, len(ctx.t)))[:, 0]
+    return imu, align(t0, C, v, p, cb, 0.0, s.figures(), np.random.default_rng(seed_align), n)
 
 
 def trial_correlator_words(block_seed: np.random.SeedSequence, trial: int) -> np.ndarray:

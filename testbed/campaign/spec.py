@@ -37,7 +37,7 @@ from pydantic import Field, field_validator, model_validator
 
 from testbed.config import Approach, ApproachConfig, load_approach, read_toml, validate
 from testbed.integrity.levels import service_level
-from testbed.integrity.registry import MonitorName, monitor_inputs, reads_vision
+from testbed.integrity.registry import MonitorName, reads_vision
 from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, StrictModel
 from testbed.sensors.vision.settings import LandmarkSet
@@ -241,10 +241,6 @@ class CampaignSpec(StrictModel):
         if self.chunk_trials % self.block_trials:
             raise ValueError(f"chunk_trials ({self.chunk_trials}) must be a multiple of block_trials "
                              f"({self.block_trials})")
-        imu = [m for m in self.monitors if "imu" in monitor_inputs(m)]
-        if imu:
-            raise ValueError(f"monitors {imu} read IMU data, which campaigns do not draw yet (fly them with "
-                             f"testbed fly; campaign support for the seed-002 filter is the next step)")
         if not reads_vision(self.monitors):
             vis = [f.kind for f in self.faults if f.kind in ("pixel_bias", "landmark_moved")]
             if vis:

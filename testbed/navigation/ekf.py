@@ -137,10 +137,12 @@ def predict(s: NavState, dtheta: NDArray, dvel: NDArray, dt: float, frame: Local
 
 
 def predict_compiled(s: NavState, dtheta: NDArray, dvel: NDArray, dt: float, frame: LocalFrame, imu: ImuNoise,
-                     clock: ClockNoise, earth_rotation: bool = True) -> NavState:
+                     clock: ClockNoise, earth_rotation: bool = True, transition: NDArray | None = None
+                     ) -> NavState:
     """:func:`predict` through K IMU steps by the compiled kernel (:mod:`.kernels`; equal to round-off, tested).
 
     dtheta, dvel : (B, 3) one step, or (B, K, 3) K steps in order.
+    transition : (B, 17, 17), multiplied in place by the K steps' transitions (``Φ_K ⋯ Φ_1 · transition``).
     """
     from testbed.navigation.kernels import predict_batch
 
@@ -152,10 +154,14 @@ def predict_compiled(s: NavState, dtheta: NDArray, dvel: NDArray, dt: float, fra
     if dth.ndim == 2:
         dth, dvl = dth[:, None], dvl[:, None]
     R, o = np.ascontiguousarray(frame.R, float), np.ascontiguousarray(frame.origin_ecef, float)
+    accumulate = transition is not None
+    Phi = np.array(transition, float) if accumulate else np.zeros((1, N, N))
     for k in range(dth.shape[1]):
         predict_batch(out.C, out.v, out.p, out.ba, out.bg, out.cb, out.cd, out.P, dth[:, k], dvl[:, k], float(dt), R,
                       o, w_ie, E, imu.arw, imu.vrw, imu.gyro_inrun, imu.accel_inrun, imu.tau_gyro, imu.tau_accel,
-                      clock.sf, clock.sg)
+                      clock.sf, clock.sg, Phi, accumulate)
+    if accumulate:
+        transition[...] = Phi
     return out
 
 
@@ -240,12 +246,19 @@ def update(s: NavState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray) -> t
 
     Rows off the mask are inert (zero H, zero ν, unit R). Returns the state, the NIS and its dof (B,).
     """
+    dx, P, nis, dof = gain_update(s.P, nu, H, R, mask)
+    return inject(replace(s, P=P), dx), nis, dof
+
+
+def gain_update(P: NDArray, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray
+                ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """The linear step of :func:`update`: the correction dx (B, 17), P after, the NIS and its dof (B,)."""
     m = np.asarray(mask, bool)
     mm = m[..., :, None] & m[..., None, :]
     H = np.where(m[..., None], H, 0.0)
     nu = np.where(m, nu, 0.0)
     R = np.where(mm, R, 0.0) + np.eye(m.shape[-1]) * ~m[..., None, :]
-    PHt = s.P @ np.swapaxes(H, -1, -2)
+    PHt = P @ np.swapaxes(H, -1, -2)
     S = H @ PHt + R
     Sinv_nu = np.linalg.solve(S, nu[..., None])[..., 0]
     nis = np.einsum("bm,bm->b", nu, Sinv_nu)
@@ -253,7 +266,6 @@ def update(s: NavState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray) -> t
     K = np.swapaxes(Kt, -1, -2)
     dx = np.einsum("bnm,bm->bn", K, nu)
     I_KH = np.eye(N) - K @ H
-    P = I_KH @ s.P @ np.swapaxes(I_KH, -1, -2) + K @ R @ Kt
-    P = 0.5 * (P + np.swapaxes(P, -1, -2))
-    return inject(replace(s, P=P), dx), nis, m.sum(-1)
+    P = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ R @ Kt
+    return dx, 0.5 * (P + np.swapaxes(P, -1, -2)), nis, m.sum(-1)
 

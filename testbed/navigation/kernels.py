@@ -64,8 +64,9 @@ def _gravity(p, R, origin, out):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def predict_batch(C, v, p, ba, bg, cb, cd, P, dtheta, dvel, dt, R, origin, w_ie, E, arw, vrw, sg_in, sa_in,
-                  tau_g, tau_a, clk_sf, clk_sg):
-    """One IMU step of every trial, in place (arrays (B, ...) as :class:`.ekf.NavState`)."""
+                  tau_g, tau_a, clk_sf, clk_sg, Phi_acc, accumulate):
+    """One IMU step of every trial, in place (arrays (B, ...) as :class:`.ekf.NavState`); with ``accumulate``,
+    also ``Phi_acc[b] ← Φ Phi_acc[b]`` (the transition over several steps, for the sub-filter bank)."""
     B = C.shape[0]
     n = 17
     a_a, a_g = np.exp(-dt / tau_a), np.exp(-dt / tau_g)
@@ -165,6 +166,8 @@ def predict_batch(C, v, p, ba, bg, cb, cd, P, dtheta, dvel, dt, R, origin, w_ie,
         for i in range(n):
             for j in range(n):
                 P[b, i, j] = 0.5 * (PP[i, j] + PP[j, i])
+        if accumulate:
+            Phi_acc[b] = Phi @ Phi_acc[b]
         for i in range(3):
             p[b, i] = p[b, i] + 0.5 * (v[b, i] + v1[i]) * dt
             v[b, i] = v1[i]

@@ -7,12 +7,15 @@ whatever satellites and surveyed landmarks are in view — 0 to 3 satellites
 included. Its output per GNSS epoch:
 
 * position and clock of the IMU point (the CG with the default zero lever arm);
-* the **innovation χ² test**: NIS of all rows used at the epoch against
-  χ²⁻¹(1 − P_FA; rows) (no test at a dead-reckoning epoch);
-* **covariance protection levels** ``HPL = K_ff √λ_max(P_EN)``, ``VPL = K_ff σ_U``
-  with ``K_ff = Φ⁻¹(1 − P_ff/2)``: the fault-free bound only, **not fault tolerant**
-  (a satellite fault the test misses is not in them; NAV_FILTER.md §7's solution
-  separation is the next step), and they grow along unobservable directions;
+* the **tests** (NAV_FILTER.md §7), P_FA split equally between those enabled: the
+  innovation χ² test (NIS of all rows used at the epoch against χ²⁻¹(1 − share; rows)),
+  the windowed test (the NIS summed over the last ``window_s``, for slow ramps), and
+  with ``pl_variant = "ss"`` the solution-separation test (:mod:`.separation`);
+  ``test_stat`` is the NIS, ``alert`` any of them;
+* **protection levels**: ``ss`` (default) the solution-separation PLs, which bound the
+  error under a fault of any one satellite or of the vision rows as a whole; ``covariance``
+  ``HPL = K_ff √λ_max(P_EN)``, ``VPL = K_ff σ_U`` with ``K_ff = Φ⁻¹(1 − P_ff/2)``: the
+  fault-free bound only, **not fault tolerant**;
 * availability per service level on those PLs.
 """
 
@@ -30,6 +33,7 @@ from testbed.integrity.levels import availability, service_level
 from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
 from testbed.navigation.ekf import ImuNoise, NavState, predict_compiled
 from testbed.navigation.run import ClockNoise, filter_epochs, state_from_init
+from testbed.navigation.separation import Bank, separation
 from testbed.records import Diagnostics, MonitorOutput, epoch_array
 from testbed.schema import StrictModel
 
@@ -41,8 +45,17 @@ NOT_INITIALISED = 1
 class EkfSettings(StrictModel):
     """Options of the ``ekf`` monitor (``[ekf]`` in an approach file)."""
 
-    pl_variant: Literal["covariance"] = Field(
-        "covariance", description="protection levels: 'covariance' = K_ff·σ (fault-free only, not fault tolerant)")
+    pl_variant: Literal["ss", "covariance"] = Field(
+        "ss", description="protection levels: 'ss' = solution separation over sub-filters without each satellite "
+                          "and without the vision rows (fault tolerant; NAV_FILTER.md §7.3); 'covariance' = K_ff·σ "
+                          "(fault-free only, not fault tolerant)")
+    ss_vision: Literal["landmark", "camera"] = Field(
+        "landmark", description="solution separation's vision fault modes: 'landmark' = a sub-filter without each "
+                                "landmark (a misidentified landmark, the pixel monitor's threat); 'camera' = one "
+                                "without every vision row (also a camera-wide fault; with one satellite its "
+                                "sub-filter is GNSS/INS dead reckoning)")
+    window_s: float = Field(10.0, ge=0.0, le=600.0, description="the windowed χ² test's span (s): the NIS summed "
+                                                                 "over the epochs of the last window_s; 0 = off")
     vision: bool = Field(True, description="update with the surveyed landmarks' pixels")
     dither_sigma_px: float = Field(0.0, ge=0.0, description="extra pixel 1σ for camera dithering (px); "
                                                             "added to the published dithering's f·σ")
@@ -64,14 +77,21 @@ class EkfDiagnostics(Diagnostics):
     accel_bias: NDArray = epoch_array(1)
     gyro_bias: NDArray = epoch_array(1)
     clock_drift: NDArray = epoch_array()
+    window_stat: NDArray = epoch_array()
+    window_threshold: NDArray = epoch_array()
+    ss_ratio: NDArray = epoch_array()
+    n_modes: NDArray = epoch_array()
     k_ff: float = 0.0
 
 
 @dataclass(frozen=True)
 class EkfState:
-    """The filter's carry between blocks: None before the alignment."""
+    """The filter's carry between blocks: None before the alignment; the sub-filter bank (ss); the last
+    epochs' NIS and dof within the window (their times (W,), values (B, W))."""
 
     nav: NavState | None = None
+    bank: Bank | None = None
+    window: tuple[NDArray, NDArray, NDArray] | None = None
 
 
 @dataclass(frozen=True)
@@ -95,39 +115,59 @@ class EkfMonitor:
         g = obs.gnss
         lead = np.shape(g.pseudorange)[:-2]
         T = len(g.t)
-        nav = state.nav
+        nav, bank = state.nav, state.bank
         if nav is None and obs.init is not None:
             nav = state_from_init(obs.init, None if not lead else lead[0])
+            if self.settings.pl_variant == "ss":
+                bank = Bank.empty(nav.p.shape[0], np.shape(g.prn)[0], self.settings.ss_vision == "landmark")
         if nav is None or obs.imu is None:
-            return self._unavailable(g.t, lead, T), EkfState(nav)
+            return self._unavailable(g.t, lead, T), EkfState(nav, bank, state.window)
         vis = obs.vision if self.settings.vision else None
         dither = 0.0
         if vis is not None:
             f = float(np.asarray(vis.K)[0, 0])
             dither = float(np.hypot(self.settings.dither_sigma_px, f * np.max(np.asarray(vis.dither_sigma))))
-        trace, nav = filter_epochs(nav, obs.imu, self.context.frame, ImuNoise.from_figures(obs.imu.figures), g, vis,
-                                   ClockNoise(), dither_sigma_px=dither,
-                                   survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True,
-                                   range_rate_sigma_m_s=self.settings.range_rate_sigma_m_s if self.settings.range_rate
-                                   else None)
-        return self._output(trace, lead), EkfState(nav)
+        trace, nav, bank = filter_epochs(
+            nav, obs.imu, self.context.frame, ImuNoise.from_figures(obs.imu.figures), g, vis, ClockNoise(),
+            dither_sigma_px=dither, survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True,
+            range_rate_sigma_m_s=self.settings.range_rate_sigma_m_s if self.settings.range_rate else None, bank=bank)
+        out, window = self._output(trace, bank, lead, state.window)
+        return out, EkfState(nav, bank, window)
 
-    def _output(self, tr, lead: tuple) -> MonitorOutput:
+    def _test_share(self) -> float:
+        """P_FA split equally between the enabled tests (a union bound keeps their joint rate within P_FA)."""
+        n = 1 + (self.settings.window_s > 0) + (self.settings.pl_variant == "ss")
+        return self.context.integrity.p_fa / n
+
+    def _output(self, tr, bank: Bank | None, lead: tuple, window) -> tuple[MonitorOutput, tuple]:
         st = self.context.integrity
+        share = self._test_share()
         k_ff = float(stats.norm.isf(st.p_ff / 2))
         P = tr.P
         sig = np.sqrt(np.maximum(np.diagonal(P[..., :3, :3], axis1=-2, axis2=-1), 0.0))
-        lam = np.linalg.eigvalsh(P[..., :2, :2])[..., -1]
-        hpl, vpl = k_ff * np.sqrt(np.maximum(lam, 0.0)), k_ff * sig[..., 2]
-        dof = tr.dof
+        nis_raw, dof = tr.nis, tr.dof
         with np.errstate(invalid="ignore"):
-            thr = np.where(dof > 0, stats.chi2.isf(st.p_fa, np.maximum(dof, 1)), np.nan)
-            nis = np.where(dof > 0, tr.nis, np.nan)
+            thr = np.where(dof > 0, stats.chi2.isf(share, np.maximum(dof, 1)), np.nan)
+            nis = np.where(dof > 0, nis_raw, np.nan)
             alert = nis > thr
+        w_stat, w_thr, window = windowed_chi2(tr.t, nis_raw, dof, window, self.settings.window_s, share)
+        with np.errstate(invalid="ignore"):
+            alert |= w_stat > w_thr
+        if bank is not None:
+            sep = separation(tr.P[..., :3, :3], tr.sub_dp, tr.sub_Pp, share, st.p_md, st.p_ff)
+            hpl, vpl = np.hypot(sep.pl_enu[..., 0], sep.pl_enu[..., 1]), sep.pl_enu[..., 2]
+            alert |= sep.ratio > 1.0
+            ratio, n_modes = sep.ratio, sep.n_modes
+        else:
+            lam = np.linalg.eigvalsh(P[..., :2, :2])[..., -1]
+            hpl, vpl = k_ff * np.sqrt(np.maximum(lam, 0.0)), k_ff * sig[..., 2]
+            ratio, n_modes = np.full(hpl.shape, np.nan), np.zeros(hpl.shape, np.int64)
         levels = tuple(service_level(s) for s in st.service_levels)
         shape = lambda a: a.reshape(lead + a.shape[1:]) if lead else a[0]  # noqa: E731
         diag = EkfDiagnostics(sigma_enu=shape(sig), nis=shape(nis), dof=shape(dof), accel_bias=shape(tr.ba),
-                              gyro_bias=shape(tr.bg), clock_drift=shape(tr.cd), k_ff=k_ff)
+                              gyro_bias=shape(tr.bg), clock_drift=shape(tr.cd), window_stat=shape(w_stat),
+                              window_threshold=shape(w_thr), ss_ratio=shape(ratio), n_modes=shape(n_modes),
+                              k_ff=k_ff)
         hpl, vpl = shape(hpl), shape(vpl)
         T = tr.t.size
         return MonitorOutput(
@@ -135,20 +175,44 @@ class EkfMonitor:
             test_stat=shape(nis), threshold=shape(thr), alert=shape(alert), available=availability(hpl, vpl, levels),
             service_levels=tuple(st.service_levels), n_used=shape(dof).astype(np.int16),
             excluded=np.full(lead + (T,), -1, np.int16), reason=np.zeros(lead + (T,), np.int8), reasons=EKF_REASONS,
-            diagnostics=diag)
+            diagnostics=diag), window
 
     def _unavailable(self, t: NDArray, lead: tuple, T: int) -> MonitorOutput:
         st = self.context.integrity
         nan = np.full(lead + (T,), np.nan)
         z = lambda *tail: np.full(lead + (T,) + tail, np.nan)  # noqa: E731
         diag = EkfDiagnostics(sigma_enu=z(3), nis=nan, dof=np.zeros(lead + (T,), np.int64), accel_bias=z(3),
-                              gyro_bias=z(3), clock_drift=nan, k_ff=float(stats.norm.isf(st.p_ff / 2)))
+                              gyro_bias=z(3), clock_drift=nan, window_stat=nan, window_threshold=nan, ss_ratio=nan,
+                              n_modes=np.zeros(lead + (T,), np.int64), k_ff=float(stats.norm.isf(st.p_ff / 2)))
         return MonitorOutput(
             name=self.name, t=np.asarray(t), pos_enu=z(3), clock=nan, hpl=nan, vpl=nan, test_stat=nan, threshold=nan,
             alert=np.zeros(lead + (T,), bool), available=np.zeros(lead + (T, len(st.service_levels)), bool),
             service_levels=tuple(st.service_levels), n_used=np.zeros(lead + (T,), np.int16),
             excluded=np.full(lead + (T,), -1, np.int16), reason=np.full(lead + (T,), NOT_INITIALISED, np.int8),
             reasons=EKF_REASONS, diagnostics=diag)
+
+
+def windowed_chi2(t: NDArray, nis: NDArray, dof: NDArray, carry, span: float, p_fa: float):
+    """The windowed test (NAV_FILTER.md §7.2): ``Q_k = Σ q_i`` over the epochs in (t_k − span, t_k] against
+    χ²⁻¹(1 − p_fa; Σ m_i), carried across blocks. Returns the statistic and threshold (B, T) and the carry
+    (the last span's times (W,), NIS and dof (B, W)). Each sum is over its own slice, so where the blocks
+    split the flight does not change a bit."""
+    B, T = nis.shape
+    if span <= 0:
+        return np.full((B, T), np.nan), np.full((B, T), np.nan), None
+    t_w, n_w, d_w = carry if carry is not None else (np.zeros(0), np.zeros((B, 0)), np.zeros((B, 0), np.int64))
+    t_all = np.concatenate([t_w, t])
+    n_all, d_all = np.concatenate([n_w, nis], 1), np.concatenate([d_w, dof], 1)
+    q, m = np.empty((B, T)), np.empty((B, T), np.int64)
+    for k in range(T):
+        i = t_w.size + k
+        j = int(np.searchsorted(t_all, t_all[i] - span + 1e-6, side="left"))
+        q[:, k], m[:, k] = n_all[:, j:i + 1].sum(-1), d_all[:, j:i + 1].sum(-1)
+    with np.errstate(invalid="ignore"):
+        thr = np.where(m > 0, stats.chi2.isf(p_fa, np.maximum(m, 1)), np.nan)
+        q = np.where(m > 0, q, np.nan)
+    keep = t_all > t_all[-1] - span + 1e-6 if t_all.size else np.zeros(0, bool)
+    return q, thr, (t_all[keep], n_all[:, keep], d_all[:, keep])
 
 
 def _dummy_init():
@@ -162,4 +226,4 @@ def build_monitor(context: MonitorContext, options) -> EkfMonitor:
     return EkfMonitor("ekf", context, EkfSettings.model_validate(dict(options)))
 
 
-__all__ = ["EKF_REASONS", "EkfMonitor", "EkfSettings", "EkfState", "build_monitor"]
+__all__ = ["EKF_REASONS", "EkfMonitor", "EkfSettings", "EkfState", "build_monitor", "windowed_chi2"]

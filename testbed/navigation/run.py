@@ -8,15 +8,18 @@ carry the trial axis.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
-from testbed.navigation.ekf import (N, ClockNoise, ImuNoise, NavState, pixel_rows, pseudorange_rows,
-                                    range_rate_rows, update)
+from testbed.navigation.ekf import (N, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows,
+                                    pseudorange_rows, range_rate_rows)
 from testbed.navigation.ekf import predict_compiled as predict
+from testbed.navigation.separation import Bank, spawn, stack_subs
+from testbed.navigation.separation import settle as settle_subs
+from testbed.navigation.separation import update as update_subs
 from testbed.records import GnssEpochs, ImuSamples, NavInit, VisionEpochs
 
 
@@ -45,6 +48,8 @@ class EkfTrace:
     P: NDArray  # (B, T, 17, 17)
     nis: NDArray  # (B, T)
     dof: NDArray  # (B, T)
+    sub_dp: NDArray | None = None  # solution-separation sub-filters' position offsets (R, T, 3)
+    sub_Pp: NDArray | None = None  # and position covariance blocks (R, T, 3, 3)
 
 
 def run_ekf(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None = None,
@@ -59,41 +64,98 @@ def run_ekf(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise
 def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None,
                   vision: VisionEpochs | None, clock: ClockNoise, t_aid: NDArray | None = None,
                   dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05,
-                  through_end: bool = False, range_rate_sigma_m_s: float | None = None) -> tuple[EkfTrace, NavState]:
+                  through_end: bool = False, range_rate_sigma_m_s: float | None = None,
+                  bank: Bank | None = None) -> tuple[EkfTrace, NavState, Bank | None]:
     """:func:`run_ekf`, and the state after the last aiding epoch (``through_end``: after every IMU
     interval given, as a block of a live run needs to hand on). ``range_rate_sigma_m_s``: also a
-    range-rate row per satellite with that 1σ (None: pseudoranges only)."""
+    range-rate row per satellite with that 1σ (None: pseudoranges only).
+
+    ``bank``: also run the solution-separation sub-filters (:mod:`.separation`), spawning one per
+    measurement mode at its first use; the trace then holds their position offsets and blocks, and the
+    grown bank is returned (None in, None out).
+    """
     B = s.p.shape[0]
     t_aid = np.asarray(gnss.t if gnss is not None else t_aid, float)
     T = t_aid.size
     out = {k: [] for k in ("p", "v", "C", "ba", "bg", "cb", "cd", "P", "nis", "dof")}
+    sub_dp, sub_Pp = [], []
     k_imu = 0
-    dth = np.broadcast_to(imu.dtheta, (B,) + imu.dtheta.shape[-2:])
-    dvl = np.broadcast_to(imu.dvel, (B,) + imu.dvel.shape[-2:])
     for k in range(T):
         k_end = int(np.searchsorted(imu.t, t_aid[k] + 1e-9, side="right"))
         if k_end > k_imu:  # every IMU interval up to this epoch, in one compiled pass
-            s = predict(s, dth[:, k_imu:k_end], dvl[:, k_imu:k_end], imu.dt, frame, imu_noise, clock,
-                        imu.earth_rotation)
+            s, bank = _predict(s, bank, imu, k_imu, k_end, frame, imu_noise, clock)
             k_imu = k_end
+        if bank is not None:  # (a block that ended between epochs left the sub-filters' last step pending)
+            bank = spawn(settle_subs(bank, s.P), s.P, _modes_in_use(gnss, vision, k, bank))
         nis = np.zeros(B)
         dof = np.zeros(B, np.int64)
+        stages = []
         if gnss is not None:
             # the body rate the antenna's lever arm turns with: the last IMU interval's, bias-corrected
-            omega = dth[:, k_end - 1] / imu.dt - s.bg if k_end > 0 else np.zeros((B, 3))
-            s, a, b = _gnss_update(s, gnss, k, frame, omega, range_rate_sigma_m_s)
-            nis, dof = nis + a, dof + b
+            omega = _imu_block(imu.dtheta, B, k_end - 1, k_end)[:, 0] / imu.dt - s.bg if k_end > 0 else np.zeros((B, 3))
+            stages.append(lambda s: _gnss_rows(s, gnss, k, frame, omega, range_rate_sigma_m_s))
         if vision is not None:
-            s, a, b = _vision_update(s, vision, k, frame, dither_sigma_px, survey_sigma_m)
+            stages.append(lambda s: _vision_rows(s, vision, k, frame, dither_sigma_px, survey_sigma_m))
+        for rows_of in stages:  # sequential updates, each linearised at the state the last one left
+            rows = rows_of(s)
+            if rows is None:
+                continue
+            nu, H, R, mask, row_sat, row_landmark = rows
+            dx, P, a, b = gain_update(s.P, nu, H, R, mask)
+            s = inject(replace(s, P=P), dx)
+            if bank is not None:
+                row_mode = row_sat if row_landmark is None else bank.vision_modes(row_landmark)
+                bank = update_subs(bank, nu, H, R, mask, row_mode, dx)
             nis, dof = nis + a, dof + b
         for name in ("p", "v", "C", "ba", "bg", "cb", "cd", "P"):
             out[name].append(getattr(s, name))
         out["nis"].append(nis)
         out["dof"].append(dof)
+        if bank is not None:
+            sub_dp.append(bank.dx[:, :3])
+            sub_Pp.append(bank.P[:, :3, :3])
     if through_end and k_imu < imu.t.size:
-        s = predict(s, dth[:, k_imu:], dvl[:, k_imu:], imu.dt, frame, imu_noise, clock, imu.earth_rotation)
+        s, bank = _predict(s, bank, imu, k_imu, None, frame, imu_noise, clock, settle=False)
     st = {k: (np.stack(v, 1) if v else np.zeros((B, 0) + _SHAPES[k])) for k, v in out.items()}
-    return EkfTrace(t=t_aid, **st), s
+    subs = {}
+    if bank is not None:
+        subs = dict(zip(("sub_dp", "sub_Pp"), stack_subs(sub_dp, sub_Pp, st["P"][..., :3, :3], B) if T else
+                        (np.zeros((0, 0, 3)), np.zeros((0, 0, 3, 3)))))
+    return EkfTrace(t=t_aid, **st, **subs), s, bank
+
+
+def _predict(s: NavState, bank: Bank | None, imu: ImuSamples, k0: int, k1: int | None, frame: LocalFrame,
+             imu_noise: ImuNoise, clock: ClockNoise, settle: bool = True) -> tuple[NavState, Bank | None]:
+    """The mains through IMU intervals k0:k1, and the sub-filters through the same transition and noise
+    (``settle``; else the transition so far is kept pending in the bank for the next call to finish)."""
+    B = s.p.shape[0]
+    dth, dvl = _imu_block(imu.dtheta, B, k0, k1), _imu_block(imu.dvel, B, k0, k1)
+    if bank is None or not bank.trial.size:
+        return predict(s, dth, dvl, imu.dt, frame, imu_noise, clock, imu.earth_rotation), bank
+    Phi, P_before = bank.pending if bank.pending is not None else (np.broadcast_to(np.eye(N), (B, N, N)).copy(), s.P)
+    s1 = predict(s, dth, dvl, imu.dt, frame, imu_noise, clock, imu.earth_rotation, transition=Phi)
+    bank = replace(bank, pending=(Phi, P_before))
+    return s1, (settle_subs(bank, s1.P) if settle else bank)
+
+
+def _imu_block(a: NDArray, B: int, k0: int, k1: int | None) -> NDArray:
+    """IMU increments k0:k1 of (K, 3) or (B, K, 3) records, for every trial (B, K', 3)."""
+    a = np.asarray(a)[..., k0:k1, :]
+    return np.broadcast_to(a, (B,) + a.shape[-2:])
+
+
+def _modes_in_use(gnss: GnssEpochs | None, vision: VisionEpochs | None, k: int, bank: Bank) -> NDArray:
+    """The measurement modes any trial uses at epoch k: satellite slots, and the detected landmarks' (or the
+    camera's) vision modes."""
+    B = bank.n_trials
+    modes = [np.zeros(0, int)]
+    if gnss is not None:
+        used = _at(gnss.visible, k, 1, B) & np.isfinite(_at(gnss.pseudorange, k, 1, B))
+        modes.append(np.flatnonzero(used.any(0)))
+    if vision is not None:
+        seen = np.flatnonzero(_at(vision.detected, k, 1, B).any(0))
+        modes.append(np.unique(bank.vision_modes(seen)))
+    return np.concatenate(modes)
 
 
 _SHAPES = {"p": (3,), "v": (3,), "C": (3, 3), "ba": (3,), "bg": (3,), "cb": (), "cd": (), "P": (N, N), "nis": (),
@@ -107,40 +169,50 @@ def _at(a: NDArray, k: int, tail: int, B: int) -> NDArray:
     return np.broadcast_to(x, (B,) + x.shape[x.ndim - tail:])
 
 
-def _gnss_update(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame, omega_b: NDArray,
-                 range_rate_sigma_m_s: float | None):
-    """One update with every visible satellite's pseudorange (and range rate) row."""
+def _gnss_rows(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame, omega_b: NDArray,
+               range_rate_sigma_m_s: float | None):
+    """The pseudorange (and range-rate) rows of the satellites any trial sees at epoch k — ν, H, R, mask, each
+    row's satellite slot and None (no landmark) — or None when none is visible. (Only those slots: the
+    update's cost grows with the cube of the rows.)"""
     B = s.p.shape[0]
     vis = _at(g.visible, k, 1, B)
-    if not vis.any():
-        return s, np.zeros(B), np.zeros(B, np.int64)
+    slot = np.flatnonzero(vis.any(0))
+    if not slot.size:
+        return None
+    vis = vis[:, slot]
     lever = np.asarray(g.antenna.lever_arm_body, float)
-    z = _at(g.pseudorange, k, 1, B)
-    sat_w = frame.ecef_to_enu(_at(g.sat_pos_ecef, k, 2, B))
-    sig = _at(g.sigma, k, 1, B)
+    z = _at(g.pseudorange, k, 1, B)[:, slot]
+    sat_w = frame.ecef_to_enu(_at(g.sat_pos_ecef, k, 2, B)[:, slot])
+    sig = _at(g.sigma, k, 1, B)[:, slot]
     h, H = pseudorange_rows(s, sat_w, lever)
     nu, var, mask = z - h, np.where(vis, sig, 1.0) ** 2, vis & np.isfinite(z)
     if range_rate_sigma_m_s is not None:
-        zr = _at(g.range_rate, k, 1, B)
-        hr, Hr = range_rate_rows(s, sat_w, frame.vec_ecef_to_enu(_at(g.sat_vel_ecef, k, 2, B)), lever, omega_b)
+        zr = _at(g.range_rate, k, 1, B)[:, slot]
+        sat_v = frame.vec_ecef_to_enu(_at(g.sat_vel_ecef, k, 2, B)[:, slot])
+        hr, Hr = range_rate_rows(s, sat_w, sat_v, lever, omega_b)
         nu, H = np.concatenate([nu, zr - hr], -1), np.concatenate([H, Hr], -2)
         var = np.concatenate([var, np.full(var.shape, range_rate_sigma_m_s**2)], -1)
         mask = np.concatenate([mask, vis & np.isfinite(zr)], -1)
-    return update(s, np.where(mask, nu, 0.0), np.nan_to_num(H), var[..., None] * np.eye(var.shape[-1]), mask)
+        slot = np.concatenate([slot, slot])
+    return np.where(mask, nu, 0.0), np.nan_to_num(H), var[..., None] * np.eye(var.shape[-1]), mask, slot, None
 
 
-def _vision_update(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dither_sigma_px: float,
-                   survey_sigma_m: float):
+def _vision_rows(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dither_sigma_px: float,
+                 survey_sigma_m: float):
+    """Two pixel rows per landmark any trial detects at epoch k (ν, H, R, mask, None (no satellite) and each
+    row's landmark index), or None."""
     B = s.p.shape[0]
     det = _at(vis.detected, k, 1, B)
-    if not det.any():
-        return s, np.zeros(B), np.zeros(B, np.int64)
-    uv = _at(vis.pixel_uv, k, 2, B)
-    lm = frame.ecef_to_enu(np.asarray(vis.landmark_pos_ecef, float))
+    seen = np.flatnonzero(det.any(0))
+    if not seen.size:
+        return None
+    det = det[:, seen]
+    uv = _at(vis.pixel_uv, k, 2, B)[:, seen]
+    lm = frame.ecef_to_enu(np.asarray(vis.landmark_pos_ecef, float)[..., seen, :])
     h, H, Hm, _ = pixel_rows(s, lm, np.asarray(vis.K, float), vis.camera.R_sensor_to_body,
                              np.asarray(vis.camera.lever_arm_body, float))
-    L = det.shape[-1]
-    sp = _at(vis.sigma_px, k, 1, B)
+    L = seen.size
+    sp = _at(vis.sigma_px, k, 1, B)[:, seen]
     var = np.repeat(np.where(det, sp, 1.0) ** 2 + dither_sigma_px**2, 2, axis=-1)
     # each landmark's survey error moves its own pixel pair: a 2×2 block per landmark
     blocks = survey_sigma_m**2 * Hm @ np.swapaxes(Hm, -1, -2)  # (B, L, 2, 2)
@@ -148,4 +220,4 @@ def _vision_update(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, di
     R[:, np.arange(L), :, np.arange(L), :] = np.moveaxis(blocks, 1, 0)
     R = R.reshape(B, 2 * L, 2 * L) + var[..., None] * np.eye(2 * L)
     m = np.repeat(det, 2, axis=-1) & np.isfinite(uv.reshape(B, 2 * L)) & np.isfinite(h)
-    return update(s, np.nan_to_num(uv.reshape(B, 2 * L) - h), np.nan_to_num(H), R, m)
+    return np.nan_to_num(uv.reshape(B, 2 * L) - h), np.nan_to_num(H), R, m, None, np.repeat(seen, 2)

@@ -1,0 +1,140 @@
+"""Solution separation for the seed-002 filter (testbed.navigation.separation, NAV_FILTER.md §7.3):
+the linearised sub-filter bank against independently run filters, the separations' distribution against
+N(0, P_i − P₀) over Monte Carlo runs, detection of a satellite step, the PLs bounding the faulted error,
+and the windowed test catching a ramp the snapshot test lets through."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from test_ekf import FRAME, NOISE, _final
+from testbed.navigation.ekf import ClockNoise
+from testbed.navigation.run import filter_epochs
+from testbed.navigation.separation import Bank, separation
+
+
+def _run(s0, imu, gnss, bank=True):
+    b = Bank.empty(s0.p.shape[0], np.shape(gnss.prn)[0]) if bank else None
+    return filter_epochs(s0, imu, FRAME, NOISE, gnss, None, ClockNoise(), bank=b)
+
+
+def test_each_sub_filter_is_the_filter_without_its_satellite():
+    """The bank's sub-filter without slot j (linearised about the main) against an EKF run on its own with slot
+    j removed: positions within 2 % of σ_Δ and the position covariance within 0.5 % (off-diagonal: 1e-5 of its largest entry) at every epoch (measured:
+    about 0.1 % and 1e-5; the gap is the linearisation about the main's trajectory), and P_i − P₀ positive
+    semi-definite throughout."""
+    B = 6
+    tr, g1, gnss, imu, s0, cb, cd = _final(B, duration=30.0, seed=4)
+    trace, _, bank = _run(s0, imu, gnss)
+    slots = np.flatnonzero(np.asarray(gnss.visible).any(0))
+    assert sorted(bank.modes.tolist()) == sorted(slots.tolist())
+    for i, j in enumerate(bank.modes):
+        alone = filter_epochs(s0, imu, FRAME, NOISE, replace(gnss, visible=np.asarray(gnss.visible) &
+                                                             (np.arange(gnss.prn.size) != j)), None, ClockNoise())[0]
+        rows = slice(i * B, (i + 1) * B)
+        p_sub = trace.p + trace.sub_dp[rows]
+        D = trace.sub_Pp[rows] - trace.P[..., :3, :3]
+        sig_d = np.sqrt(np.diagonal(D, axis1=-2, axis2=-1))
+        assert np.all(np.linalg.eigvalsh(D) > -1e-9 * np.abs(D).max())
+        np.testing.assert_array_less(np.abs(p_sub - alone.p)[:, 1:], 0.02 * sig_d[:, 1:] + 1e-9)
+        np.testing.assert_allclose(trace.sub_Pp[rows], alone.P[..., :3, :3], rtol=5e-3, atol=1e-5 * np.abs(alone.P[..., :3, :3]).max())
+
+
+@pytest.mark.slow
+def test_separations_are_distributed_as_their_covariance_says():
+    """200 fault-free runs, 7 satellites: at the last epoch, per mode and axis, Σ_runs (Δ/σ_Δ)² inside the
+    two-sided 99.9 % χ²(200) band (21 cells; Bonferroni would allow one outside at 2 %: none may be), and the
+    separation test at P_FA = 1e-2 raises alerts at the epochs' rate inside the binomial 99 % interval of one
+    epoch per run."""
+    B = 200
+    tr, g1, gnss, imu, s0, cb, cd = _final(B, duration=30.0, seed=7)
+    trace, _, bank = _run(s0, imu, gnss)
+    M = bank.modes.size
+    dp = trace.sub_dp[:, -1].reshape(M, B, 3)
+    var_d = (np.diagonal(trace.sub_Pp[:, -1], axis1=-2, axis2=-1).reshape(M, B, 3)
+             - np.diagonal(trace.P[:, -1, :3, :3], axis1=-2, axis2=-1))
+    q = (dp**2 / var_d).sum(1)  # (M, 3)
+    lo, hi = stats.chi2.ppf([0.0005, 0.9995], B)
+    assert np.all((q > lo) & (q < hi)), q
+    sep = separation(trace.P[..., :3, :3], trace.sub_dp, trace.sub_Pp, 1e-2, 1e-3, 1e-7)
+    alerts = int((sep.ratio[:, -1] > 1).sum())
+    lo, hi = stats.binom.interval(0.99, B, 1e-2)
+    assert alerts <= hi, (alerts, hi)
+
+
+def test_a_satellite_step_is_detected_by_its_mode_and_the_pls_bound_the_error():
+    """A 25 m step on the highest satellite's pseudorange from 15 s: the separation test alerts within 3 s on
+    every run, the largest separation is that satellite's mode, and the faulted main filter's error stays
+    inside the PLs at every epoch before the alert (no hazardous misleading information)."""
+    B = 20
+    tr, g1, gnss, imu, s0, cb, cd = _final(B, duration=30.0, seed=5)
+    slot = int(np.flatnonzero(np.asarray(gnss.visible).any(0))[0])
+    bias = np.zeros(gnss.pseudorange.shape)
+    bias[:, g1.t >= 15.0, slot] = 25.0
+    faulty = replace(gnss, pseudorange=gnss.pseudorange + bias)
+    trace, _, bank = _run(s0, imu, faulty)
+    sep = separation(trace.P[..., :3, :3], trace.sub_dp, trace.sub_Pp, 1e-5, 1e-3, 1e-7)
+    alert = sep.ratio > 1
+    onset = int(np.searchsorted(g1.t, 15.0))
+    assert not alert[:, :onset].any()
+    first = onset + np.argmax(alert[:, onset:], axis=1)
+    assert alert[:, onset:].any(1).all() and np.all(g1.t[first] <= 18.0), g1.t[first]
+    # the faulted satellite's mode carries the largest normalised separation at the alert
+    M = bank.modes.size
+    var_d = (np.diagonal(trace.sub_Pp, axis1=-2, axis2=-1).reshape(M, B, -1, 3)
+             - np.diagonal(trace.P[..., :3, :3], axis1=-2, axis2=-1))
+    z = np.abs(trace.sub_dp.reshape(M, B, -1, 3)) / np.sqrt(np.maximum(var_d, 1e-30))
+    at = z[:, np.arange(B), first].max(-1)  # (M, B)
+    assert np.all(bank.modes[np.argmax(at, 0)] == slot)
+    err = g1.pos_enu - trace.p
+    for b in range(B):
+        k = slice(0, first[b])  # the epochs without an alert
+        assert np.all(np.hypot(err[b, k, 0], err[b, k, 1]) <= np.hypot(sep.pl_enu[b, k, 0], sep.pl_enu[b, k, 1]))
+        assert np.all(np.abs(err[b, k, 2]) <= sep.pl_enu[b, k, 2])
+
+
+def test_the_windowed_test_sums_its_span_and_blocks_do_not_change_it():
+    """Q_k against a brute-force sum over (t_k − 10 s, t_k]; split into blocks of 7 epochs, bit-identical."""
+    from testbed.navigation.monitor import windowed_chi2
+
+    rng = np.random.default_rng(0)
+    t = np.arange(40.0)
+    dof = rng.integers(0, 9, (3, 40))
+    nis = rng.chisquare(np.maximum(dof, 1)) * (dof > 0)
+    q, thr, _ = windowed_chi2(t, nis, dof, None, 10.0, 1e-3)
+    for k in range(40):
+        j = max(0, k - 9)
+        np.testing.assert_allclose(q[:, k], np.where(dof[:, j:k + 1].sum(1) > 0, nis[:, j:k + 1].sum(1), np.nan))
+        np.testing.assert_allclose(thr[:, k], stats.chi2.isf(1e-3, np.maximum(dof[:, j:k + 1].sum(1), 1)))
+    carry, parts = None, []
+    for a in range(0, 40, 7):
+        qa, _, carry = windowed_chi2(t[a:a + 7], nis[:, a:a + 7], dof[:, a:a + 7], carry, 10.0, 1e-3)
+        parts.append(qa)
+    np.testing.assert_array_equal(np.concatenate(parts, 1), q)
+
+
+def test_the_windowed_test_catches_a_ramp_before_the_snapshot_test():
+    """A 0.5 m/s ramp on the highest satellite from 5 s: the windowed test (10 s) alerts first on most runs —
+    the filter absorbs a slow ramp into its clock and position, so each epoch's innovation stays small while
+    their sum over the window grows. Both tests at P_FA/2 = 5e-6."""
+    from testbed.navigation.monitor import windowed_chi2
+
+    B = 20
+    tr, g1, gnss, imu, s0, cb, cd = _final(B, duration=40.0, seed=6)
+    slot = int(np.flatnonzero(np.asarray(gnss.visible).any(0))[0])
+    bias = np.zeros(gnss.pseudorange.shape)
+    bias[:, :, slot] = 0.5 * np.maximum(g1.t - 5.0, 0.0)
+    trace, _, _ = _run(s0, imu, replace(gnss, pseudorange=gnss.pseudorange + bias), bank=False)
+    snap = trace.nis > stats.chi2.isf(5e-6, np.maximum(trace.dof, 1))
+    q, thr, _ = windowed_chi2(g1.t, trace.nis, trace.dof, None, 10.0, 5e-6)
+    win = q > thr
+    never = g1.t.size
+    t_snap = np.where(snap.any(1), snap.argmax(1), never)
+    t_win = np.where(win.any(1), win.argmax(1), never)
+    print(f"\nfirst alert (s after the onset): window {np.median(t_win) - 5:.0f}, snapshot {np.median(t_snap) - 5:.0f}")
+    assert not win[:, :5].any() and not snap[:, :5].any()
+    assert (t_win < t_snap).mean() >= 0.75 and (t_win <= t_snap).all()
