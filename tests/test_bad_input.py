@@ -335,7 +335,9 @@ def test_campaign_inputs_are_checked_before_any_work(work, capsys):
     for text, key, value in (('segment = "middle"\n', "segment", "middle"),
                              ('segment = "last"\n', "segment", "duration_s"),
                              ('[sweep]\nmultipath_echo_db = [6.0]\n', "sweep.multipath_echo_db", "6"),
-                             ('[sweep]\nmultipath_echo_db = ["on"]\n', "sweep.multipath_echo_db", "on")):
+                             ('[sweep]\nmultipath_echo_db = ["on"]\n', "sweep.multipath_echo_db", "on"),
+                             ('[sweep]\nmax_satellites = [-1]\n', "sweep.max_satellites", "-1"),
+                             ('[sweep]\nmax_satellites = [2.5]\n', "sweep.max_satellites", "2.5")):
         bad = inputs / "bad-axis.toml"
         bad.write_text(SPEC.replace("duration_s", "# duration_s") + text if "duration_s" in value else SPEC + text)
         code, out = run(capsys, "campaign", bad, "--out", inputs / "o3")

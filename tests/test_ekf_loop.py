@@ -34,6 +34,11 @@ def test_block_by_block_equals_one_flight_and_the_filter_tracks(tmp_path):
     assert (oa.reason == 0).all() and np.isfinite(oa.hpl).all()
     t, v = readback.scalar_series(a.rrd_path, "integrity/ekf/horizontal/hpl")
     np.testing.assert_allclose(v, oa.hpl, rtol=1e-6)
+    # its tests, each over its threshold, on one panel of its tab
+    t, v = readback.scalar_series(a.rrd_path, "integrity/ekf/tests/separation")
+    np.testing.assert_allclose(v, oa.diagnostics.ss_ratio, rtol=1e-6)
+    views = {(w["class"], w["origin"]) for w in readback.views(a.rrd_path)}
+    assert ("TimeSeries", "/integrity/ekf/tests") in views and ("TimeSeries", "/integrity/gps_raim/detection") in views
 
 
 def test_same_seed_same_filter_output():
@@ -122,3 +127,23 @@ def test_the_schedule_keeps_the_highest_satellites_and_rejects_disorder():
         assert set(np.flatnonzero(out[k] == NotVisible.EXCLUDED)) == set(vis) - want
     with pytest.raises(ValueError, match="strictly increasing from_s"):
         GnssSettings(schedule=[{"from_s": 5.0, "max_satellites": 2}, {"from_s": 1.0, "max_satellites": 3}])
+
+
+def test_the_satellites_in_view_axis_caps_the_tracked_satellites(tmp_path):
+    """[sweep] max_satellites replaces the approach's schedule per cell: the cells table records the cap, the
+    epochs table's satellites used by GPS RAIM never exceed it, and the filter's PLs grow as satellites go."""
+    import pyarrow.parquet as pq
+
+    from testbed.campaign.runner import run_campaign
+
+    spec = tmp_path / "s.toml"
+    spec.write_text(EKF_SPEC.format(chunk=3).replace("trials = 6", "trials = 3").replace("40.0", "20.0")
+                    .replace("magnitudes = [0.0, 30.0]", "magnitudes = [0.0]") + "\n[sweep]\nmax_satellites = [1, 5]\n")
+    run_campaign(spec, tmp_path / "out", progress=False)
+    cells = pq.read_table(tmp_path / "out" / "cells.parquet").to_pandas()
+    assert cells.max_satellites.tolist() == [1, 5]
+    t = pq.read_table(tmp_path / "out" / "trials.parquet").to_pandas()
+    ekf = t[t.monitor == "ekf"].groupby("cell").max_hpl.median()
+    assert ekf[0] > ekf[1]
+    raim = t[t.monitor == "gps_raim"]
+    assert (raim[raim.cell == 0]["avail_APV-I"] == 0).all()  # one satellite: no snapshot fix

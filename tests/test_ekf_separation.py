@@ -45,14 +45,25 @@ def test_each_sub_filter_is_the_filter_without_its_satellite():
 
 
 @pytest.mark.slow
-def test_separations_are_distributed_as_their_covariance_says():
-    """200 fault-free runs, 7 satellites: at the last epoch, per mode and axis, Σ_runs (Δ/σ_Δ)² inside the
-    two-sided 99.9 % χ²(200) band (21 cells; Bonferroni would allow one outside at 2 %: none may be), and the
-    separation test at P_FA = 1e-2 raises alerts at the epochs' rate inside the binomial 99 % interval of one
-    epoch per run."""
+def test_separations_and_tests_are_distributed_as_their_covariance_says():
+    """200 fault-free runs, 7 satellites (T-INT-1, T-INT-4): at the last epoch, per mode and axis,
+    Σ_runs (Δ/σ_Δ)² inside the two-sided 99.9 % χ²(200) band (21 cells; none may be outside); at
+    P_FA = 1e-2 each, the innovation test's alerts over the 5800 epochs after the first inside the binomial
+    99 % interval, the windowed test's over non-overlapping 10 s windows (independent: 600) inside theirs,
+    and the separation test's at the last epoch no more than its binomial bound (its K_fa splits P_FA over
+    modes and axes, so it sits below)."""
+    from testbed.navigation.monitor import windowed_chi2
+
     B = 200
     tr, g1, gnss, imu, s0, cb, cd = _final(B, duration=30.0, seed=7)
     trace, _, bank = _run(s0, imu, gnss)
+    q = trace.nis[:, 1:] > stats.chi2.isf(1e-2, np.maximum(trace.dof[:, 1:], 1))
+    lo, hi = stats.binom.interval(0.99, q.size, 1e-2)
+    assert lo <= q.sum() <= hi, (q.sum(), lo, hi)
+    w, thr, _ = windowed_chi2(g1.t, trace.nis, trace.dof, None, 10.0, 1e-2)
+    ends = np.flatnonzero((g1.t % 10.0 == 9.0))  # windows (t − 10, t] that do not overlap
+    lo, hi = stats.binom.interval(0.99, B * ends.size, 1e-2)
+    assert lo <= (w[:, ends] > thr[:, ends]).sum() <= hi
     M = bank.modes.size
     dp = trace.sub_dp[:, -1].reshape(M, B, 3)
     var_d = (np.diagonal(trace.sub_Pp[:, -1], axis1=-2, axis2=-1).reshape(M, B, 3)
@@ -64,6 +75,42 @@ def test_separations_are_distributed_as_their_covariance_says():
     alerts = int((sep.ratio[:, -1] > 1).sum())
     lo, hi = stats.binom.interval(0.99, B, 1e-2)
     assert alerts <= hi, (alerts, hi)
+
+
+def test_the_innovation_test_detects_a_step_as_the_noncentral_chi2_predicts():
+    """T-INT-2: a step b on one satellite's pseudorange at epoch k shifts that epoch's innovation by b eⱼ,
+    so its NIS is non-central χ²(m, λ = b² (S⁻¹)ⱼⱼ) with S = HP⁻Hᵀ + R from the filter just before. Over
+    400 runs, the detections at P_FA = 1e-3 at the onset epoch inside the 99 % interval of the
+    Poisson-binomial with those per-run probabilities (normal approximation)."""
+    from testbed.navigation.ekf import pseudorange_rows
+
+    B, b_m = 400, 6.0
+    tr, g1, gnss, imu, s0, cb, cd = _final(B, duration=16.0, seed=9)
+    k = 15
+    slot = int(np.flatnonzero(np.asarray(gnss.visible)[k])[2])
+    bias = np.zeros(gnss.pseudorange.shape)
+    bias[:, k:, slot] = b_m
+    trace, _, _ = _run(s0, imu, replace(gnss, pseudorange=gnss.pseudorange + bias), bank=False)
+    thr = stats.chi2.isf(1e-3, trace.dof[:, k])
+    detected = int((trace.nis[:, k] > thr).sum())
+    # the filter just before the onset epoch: the first k epochs and the IMU up to epoch k
+    from testbed.navigation.run import _at
+    keep = np.asarray(imu.t) <= g1.t[k] + 1e-9
+    imu_k = replace(imu, t=imu.t[keep], dtheta=imu.dtheta[:, keep], dvel=imu.dvel[:, keep])
+    g_k = replace(gnss, t=gnss.t[:k], pseudorange=gnss.pseudorange[:, :k], sat_pos_ecef=gnss.sat_pos_ecef[:k],
+                  sat_vel_ecef=gnss.sat_vel_ecef[:k], range_rate=gnss.range_rate[:k], sigma=gnss.sigma[:k],
+                  visible=gnss.visible[:k], reason=gnss.reason[:k], t_gps=gnss.t_gps[:k])
+    _, s_minus, _ = filter_epochs(s0, imu_k, FRAME, NOISE, g_k, None, ClockNoise(), through_end=True)
+    vis = np.asarray(gnss.visible)[k]
+    sat_w = FRAME.ecef_to_enu(_at(gnss.sat_pos_ecef, k, 2, B)[:, vis])
+    _, H = pseudorange_rows(s_minus, sat_w, np.asarray(gnss.antenna.lever_arm_body, float))
+    S = H @ s_minus.P @ np.swapaxes(H, -1, -2) + np.asarray(gnss.sigma)[k][vis] ** 2 * np.eye(vis.sum())
+    j = int(np.flatnonzero(np.flatnonzero(vis) == slot)[0])
+    lam = b_m**2 * np.linalg.inv(S)[:, j, j]
+    p = stats.ncx2.sf(thr, trace.dof[:, k], lam)
+    mean, sd = p.sum(), np.sqrt((p * (1 - p)).sum())
+    print(f"\ndetections {detected} of {B}, predicted {mean:.1f} ± {sd:.1f} (λ median {np.median(lam):.1f})")
+    assert abs(detected - mean) <= 2.58 * sd + 1
 
 
 def test_a_satellite_step_is_detected_by_its_mode_and_the_pls_bound_the_error():

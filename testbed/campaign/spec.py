@@ -108,6 +108,9 @@ class Sweep(StrictModel):
     multipath_echo_db: list[float | Literal["off"]] = Field(
         default_factory=list, description="the correlators' ground multipath: 'off', or the specular echo's amplitude "
                                           "relative to the direct signal (dB, ≤ 0): the multipath strength axis")
+    max_satellites: list[int] = Field(
+        default_factory=list, description="satellites tracked at most, for the whole sortie (replaces the approach's "
+                                          "[gnss] schedule; which ones: its [gnss] keep): the satellites-in-view axis")
 
     @field_validator("start_time_utc")
     @classmethod
@@ -123,6 +126,14 @@ class Sweep(StrictModel):
         bad = [x for x in v if x != "off" and not (isinstance(x, (int, float)) and x <= 0.0 and x == x)]
         if bad:
             raise ValueError(f"expected 'off' or echo amplitudes ≤ 0 dB, got {bad}")
+        return v
+
+    @field_validator("max_satellites")
+    @classmethod
+    def _caps(cls, v):
+        bad = [x for x in v if x < 0]
+        if bad:
+            raise ValueError(f"expected satellite counts >= 0, got {bad}")
         return v
 
     @field_validator("camera_dpi", "detection_sigma_px", "lpe_sigma_m")
@@ -378,6 +389,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
         ("calibration", sw.calibration or [None]),
         ("va_raim_variant", sw.va_raim_variant or [None]),
         ("multipath_echo_db", sw.multipath_echo_db or [None]),
+        ("max_satellites", sw.max_satellites or [None]),
     ]
     names = [a for a, _ in axes]
     cells: list[Cell] = []
@@ -416,6 +428,8 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 corr["multipath"] = "off" if c["multipath_echo_db"] == "off" else "ground"
                 if c["multipath_echo_db"] != "off":
                     corr["ground_echo_db"] = float(c["multipath_echo_db"])
+            if c["max_satellites"] is not None:
+                d.setdefault("gnss", {})["schedule"] = [{"from_s": 0.0, "max_satellites": int(c["max_satellites"])}]
             if reads_vision(spec.monitors):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
@@ -440,6 +454,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 "va_raim_variant": str(cfg.va_raim.get("variant", "gated")),
                 "multipath_echo_db": (float(cfg.gnss.correlators.ground_echo_db)
                                       if cfg.gnss.correlators.multipath == "ground" else float("nan")),
+                "max_satellites": -1 if c["max_satellites"] is None else int(c["max_satellites"]),
                 "hal": min(service_level(n).hal for n in cfg.integrity.service_levels),
                 "val": min(service_level(n).val for n in cfg.integrity.service_levels),
             }
@@ -469,7 +484,7 @@ def _describe(name: str, c: dict) -> str:
     fk, fam, mag = c["fault"]
     parts.append(f"faults.{fk} {fam.kind} {mag:g}")
     for k in ("start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant",
-              "multipath_echo_db"):
+              "multipath_echo_db", "max_satellites"):
         if c[k] is not None:
             parts.append(f"{k}={c[k]}")
     if c["landmark_set"] is not None:

@@ -16,6 +16,51 @@ _A, _F, _M = 6378137.0, 1.0 / 298.257223563, 0.00344978650684
 _R_EARTH = 6_371_000.0
 
 
+def _transition_pattern() -> tuple[np.ndarray, np.ndarray]:
+    """Where Φ (:func:`.ekf.transition`) can be non-zero, as CSR row pointers and columns: 99 of 289
+    entries, so the covariance sandwich costs a third of the dense one."""
+    m = np.eye(17, dtype=bool)
+    m[0:3, 3:6] |= np.eye(3, dtype=bool)  # p ← v dt
+    m[0:3, 6:15] = True  # p ← ψ, b_a, b_g
+    m[3:6, 0:3] |= np.eye(3, dtype=bool)  # v ← p (gravity gradient, diagonal)
+    m[3:6, 3:15] = True  # v ← v (Coriolis), ψ, b_a, b_g
+    m[6:9, 6:9] = True  # ψ ← ψ (Earth rate)
+    m[6:9, 12:15] = True  # ψ ← b_g
+    m[15, 16] = True  # clock bias ← drift
+    rows, cols = np.nonzero(m)
+    return np.searchsorted(rows, np.arange(18)).astype(np.int64), cols.astype(np.int64)
+
+
+_PTR, _COLS = _transition_pattern()
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _phi_left(Phi, M, out):
+    """out = Φ M over Φ's pattern."""
+    n = M.shape[0]
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for q in range(_PTR[i], _PTR[i + 1]):
+                c = _COLS[q]
+                acc += Phi[i, c] * M[c, j]
+            out[i, j] = acc
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _times_phi_t_symmetric(A, Phi, out):
+    """out = A Φᵀ, known symmetric (A = Φ M with M symmetric): the upper triangle, mirrored."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(i, n):
+            acc = 0.0
+            for q in range(_PTR[j], _PTR[j + 1]):
+                c = _COLS[q]
+                acc += A[i, c] * Phi[j, c]
+            out[i, j] = acc
+            out[j, i] = acc
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _exp(phi, out):
     a2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
@@ -41,24 +86,23 @@ def _exp(phi, out):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _gravity(p, R, origin, out):
     """Normal gravity in the world frame at world position p (testbed.inertial.gravity_world)."""
-    e = np.empty(3)
-    for i in range(3):
-        e[i] = origin[i] + R[0, i] * p[0] + R[1, i] * p[1] + R[2, i] * p[2]
+    e0 = origin[0] + R[0, 0] * p[0] + R[1, 0] * p[1] + R[2, 0] * p[2]
+    e1 = origin[1] + R[0, 1] * p[0] + R[1, 1] * p[1] + R[2, 1] * p[2]
+    e2 = origin[2] + R[0, 2] * p[0] + R[1, 2] * p[1] + R[2, 2] * p[2]
     b = _A * (1.0 - _F)
     ep2 = (_A * _A - b * b) / (b * b)
-    r = np.hypot(e[0], e[1])
-    u = np.arctan2(e[2] * _A, r * b)
-    lat = np.arctan2(e[2] + ep2 * b * np.sin(u) ** 3, r - _E2 * _A * np.cos(u) ** 3)
-    lon = np.arctan2(e[1], e[0])
+    r = np.hypot(e0, e1)
+    u = np.arctan2(e2 * _A, r * b)
+    lat = np.arctan2(e2 + ep2 * b * np.sin(u) ** 3, r - _E2 * _A * np.cos(u) ** 3)
     sl, cl = np.sin(lat), np.cos(lat)
     n = _A / np.sqrt(1.0 - _E2 * sl * sl)
-    h = r * cl + e[2] * sl - n * (1.0 - _E2 * sl * sl)
+    h = r * cl + e2 * sl - n * (1.0 - _E2 * sl * sl)
     s2 = sl * sl
     g0 = _GE * (1.0 + _K * s2) / np.sqrt(1.0 - _E2 * s2)
     g = g0 * (1.0 - 2.0 / _A * (1.0 + _F + _M - 2.0 * _F * s2) * h + 3.0 / (_A * _A) * h * h)
-    up = np.array([cl * np.cos(lon), cl * np.sin(lon), sl])
+    u0, u1 = cl * e0 / r, cl * e1 / r  # cos φ (cos λ, sin λ)
     for i in range(3):
-        out[i] = -g * (R[i, 0] * up[0] + R[i, 1] * up[1] + R[i, 2] * up[2])
+        out[i] = -g * (R[i, 0] * u0 + R[i, 1] * u1 + R[i, 2] * sl)
     return g
 
 
@@ -74,12 +118,20 @@ def predict_batch(C, v, p, ba, bg, cb, cd, P, dtheta, dvel, dt, R, origin, w_ie,
     Qc = np.zeros((n, n))
     G = np.empty((n, n))
     tmp = np.empty((n, n))
+    PP = np.empty((n, n))
     Ed = np.empty((3, 3))
     C1 = np.empty((3, 3))
     Cm = np.empty((3, 3))
     g = np.empty(3)
     dth = np.empty(3)
     dv = np.empty(3)
+    f = np.empty(3)
+    cor = np.empty(3)
+    v1 = np.empty(3)
+    Fx = np.zeros((3, 3))
+    FxC = np.empty((3, 3))
+    CCt = np.empty((3, 3))
+    W = np.array([[0.0, -w_ie[2], w_ie[1]], [w_ie[2], 0.0, -w_ie[0]], [-w_ie[1], w_ie[0], 0.0]])
     for b in range(B):
         for i in range(3):
             dth[i] = dtheta[b, i] - bg[b, i] * dt
@@ -99,12 +151,9 @@ def predict_batch(C, v, p, ba, bg, cb, cd, P, dtheta, dvel, dt, R, origin, w_ie,
         for i in range(3):
             for j in range(3):
                 Cm[i, j] = 0.5 * (C[b, i, j] + C1[i, j])
-        f = np.empty(3)
-        cor = np.empty(3)
         cor[0] = w_ie[1] * v[b, 2] - w_ie[2] * v[b, 1]
         cor[1] = w_ie[2] * v[b, 0] - w_ie[0] * v[b, 2]
         cor[2] = w_ie[0] * v[b, 1] - w_ie[1] * v[b, 0]
-        v1 = np.empty(3)
         for i in range(3):
             f[i] = (Cm[i, 0] * dv[0] + Cm[i, 1] * dv[1] + Cm[i, 2] * dv[2]) / dt
             v1[i] = v[b, i] + f[i] * dt + (g[i] - 2.0 * cor[i]) * dt
@@ -112,9 +161,10 @@ def predict_batch(C, v, p, ba, bg, cb, cd, P, dtheta, dvel, dt, R, origin, w_ie,
         Phi[:, :] = 0.0
         for i in range(n):
             Phi[i, i] = 1.0
-        Fx = np.array([[0.0, -f[2], f[1]], [f[2], 0.0, -f[0]], [-f[1], f[0], 0.0]])
-        W = np.array([[0.0, -w_ie[2], w_ie[1]], [w_ie[2], 0.0, -w_ie[0]], [-w_ie[1], w_ie[0], 0.0]])
-        FxC = Fx @ Cm
+        Fx[0, 1], Fx[0, 2], Fx[1, 0], Fx[1, 2], Fx[2, 0], Fx[2, 1] = -f[2], f[1], f[2], -f[0], -f[1], f[0]
+        for i in range(3):
+            for j in range(3):
+                FxC[i, j] = Fx[i, 0] * Cm[0, j] + Fx[i, 1] * Cm[1, j] + Fx[i, 2] * Cm[2, j]
         for i in range(3):
             Phi[i, 3 + i] = dt
             for j in range(3):
@@ -135,7 +185,6 @@ def predict_batch(C, v, p, ba, bg, cb, cd, P, dtheta, dvel, dt, R, origin, w_ie,
         Phi[15, 16] = dt
         # continuous noise (G Q_c Gᵀ), with the step's start attitude
         Qc[:, :] = 0.0
-        CCt = np.zeros((3, 3))
         for i in range(3):
             for j in range(3):
                 acc = 0.0
@@ -148,26 +197,23 @@ def predict_batch(C, v, p, ba, bg, cb, cd, P, dtheta, dvel, dt, R, origin, w_ie,
                 Qc[6 + i, 6 + j] = arw * arw * CCt[i, j]
             Qc[9 + i, 9 + i] = 2.0 * sa_in * sa_in / tau_a
             Qc[12 + i, 12 + i] = 2.0 * sg_in * sg_in / tau_g
-        # Q = ½(Φ Qc Φᵀ + Qc) dt, the clock's exactly; P = Φ P Φᵀ + Q
-        G[:, :] = Phi @ Qc
-        tmp[:, :] = G @ Phi.T
-        Pb = P[b]
-        PP = Phi @ Pb @ Phi.T
+        # Q = ½(Φ Qc Φᵀ + Qc) dt, the clock's exactly: P ← Φ(P + ½Qc dt)Φᵀ + ½Qc dt + Q_clock, one
+        # sandwich over Φ's pattern (Qc has no clock rows, so neither has its part of Q)
         for i in range(n):
             for j in range(n):
-                q = 0.5 * (tmp[i, j] + Qc[i, j]) * dt
-                if i >= 15 or j >= 15:
-                    q = 0.0
-                PP[i, j] += q
-        PP[15, 15] += clk_sf * dt + clk_sg * dt ** 3 / 3.0
-        PP[15, 16] += clk_sg * dt * dt / 2.0
-        PP[16, 15] += clk_sg * dt * dt / 2.0
-        PP[16, 16] += clk_sg * dt
+                G[i, j] = P[b, i, j] + 0.5 * dt * Qc[i, j]
+        _phi_left(Phi, G, tmp)
+        _times_phi_t_symmetric(tmp, Phi, PP)
         for i in range(n):
             for j in range(n):
-                P[b, i, j] = 0.5 * (PP[i, j] + PP[j, i])
+                P[b, i, j] = PP[i, j] + 0.5 * dt * Qc[i, j]
+        P[b, 15, 15] += clk_sf * dt + clk_sg * dt ** 3 / 3.0
+        P[b, 15, 16] += clk_sg * dt * dt / 2.0
+        P[b, 16, 15] += clk_sg * dt * dt / 2.0
+        P[b, 16, 16] += clk_sg * dt
         if accumulate:
-            Phi_acc[b] = Phi @ Phi_acc[b]
+            _phi_left(Phi, Phi_acc[b], tmp)
+            Phi_acc[b] = tmp
         for i in range(3):
             p[b, i] = p[b, i] + 0.5 * (v[b, i] + v1[i]) * dt
             v[b, i] = v1[i]

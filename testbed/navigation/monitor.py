@@ -101,6 +101,7 @@ class EkfMonitor:
     settings: EkfSettings
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision", "imu"})
     reference: ClassVar[str] = REFERENCE_POINT
+    several_tests: ClassVar[bool] = True  # its alert is the innovation, windowed and separation tests
 
     def prepare(self) -> None:
         """Compile the predict kernel (numba caches it beside the package) before the first epoch."""

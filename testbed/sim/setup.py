@@ -189,6 +189,7 @@ class Scene:
     camera_resolution: tuple[int, int]
     alert_limits: tuple[float, float] = (float("nan"), float("nan"))  # HAL, VAL of the most demanding level
     vertical_only: tuple[str, ...] = ()  # monitors that bound the vertical only (no HPL): DPE
+    several_tests: tuple[str, ...] = ()  # monitors whose alert is several tests (the seed-002 filter)
 
 
 def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
@@ -216,7 +217,8 @@ def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
                  terrain_mesh=mesh, runway_enu=runway, landmarks_enu=lm_enu,
                  landmark_ids=tuple(str(i) for i in setup.landmarks.id), camera_K=K, camera_resolution=res,
                  alert_limits=tuple(setup.alert_limits),
-                 vertical_only=tuple(m.name for m in setup.monitors if getattr(m, "dimensions", ("H", "V")) == ("V",)))
+                 vertical_only=tuple(m.name for m in setup.monitors if getattr(m, "dimensions", ("H", "V")) == ("V",)),
+                 several_tests=tuple(m.name for m in setup.monitors if getattr(m, "several_tests", False)))
 
 
 def R_body_to_world(frame: LocalFrame, euler: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:

@@ -43,7 +43,7 @@ def _series(name: str, origin: str) -> rrb.TimeSeriesView:
                               plot_legend=rrb.PlotLegend(visible=False))
 
 
-def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool) -> rrb.Vertical:
+def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool, several_tests: bool = False) -> rrb.Vertical:
     if vertical_only:  # DPE: no HPL and no test; its σ_ob and the density it bounds instead
         return rrb.Vertical(
             _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/vertical"),
@@ -52,10 +52,14 @@ def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool) -> rrb.Ver
                              origin=f"/integrity/{m}/vertical_error_density"),
             name=m,
         )
+    tests = (_series(f"{m}: each test over its threshold: innovation NIS (blue), windowed NIS (green), solution "
+                     f"separation max |Δ|/T (orange); an alert above 1 (red)", f"/integrity/{m}/tests")
+             if several_tests else
+             _series(f"{m}: test statistic SSE (blue) vs threshold (red). {MARK_KEY}", f"/integrity/{m}/detection"))
     return rrb.Vertical(
         _series(f"{m}: HPL (blue) vs HAL {hal:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/horizontal"),
         _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/vertical"),
-        _series(f"{m}: test statistic SSE (blue) vs threshold (red). {MARK_KEY}", f"/integrity/{m}/detection"),
+        tests,
         name=m,
     )
 
@@ -63,12 +67,13 @@ def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool) -> rrb.Ver
 def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
                       alert_limits: tuple[float, float] = (float("nan"), float("nan")),
                       play_state: str | None = None, vertical_only: tuple[str, ...] = (),
-                      active_monitor: str | None = None) -> rrb.Blueprint:
+                      active_monitor: str | None = None, several_tests: tuple[str, ...] = ()) -> rrb.Blueprint:
     """The layout; ``play_state`` ("following": the cursor at the newest data) for the time panel;
     ``vertical_only`` monitors (DPE) get a VPL, overbound and error-density tab; ``active_monitor``
-    the tab shown first (default: the first monitor's)."""
+    the tab shown first (default: the first monitor's); ``several_tests`` monitors (the seed-002 filter) a
+    panel of their tests, each over its threshold, instead of the single test's."""
     hal, val = alert_limits
-    monitor_tabs = [_monitor_tab(m, hal, val, m in vertical_only) for m in monitors]
+    monitor_tabs = [_monitor_tab(m, hal, val, m in vertical_only, m in several_tests) for m in monitors]
     # the flown trail is one point per epoch: show all of them up to the cursor
     trail = {"world/path/flown": rrb.VisibleTimeRanges(rrb.VisibleTimeRange(
         "sim_time", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()))}

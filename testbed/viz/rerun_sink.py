@@ -91,6 +91,10 @@ SERIES = {  # entity suffix -> (colour, line name)
     "detection/test_stat": ((80, 160, 255), "test statistic"), "detection/threshold": ((230, 60, 50), "threshold"),
     # drawn when the truth (a flight) or a reference trajectory (a recorded file) is known
     "horizontal/error": ((250, 200, 40), "HPE (error vs truth)"), "vertical/error": ((250, 200, 40), "VPE (error vs truth)"),
+    # a monitor with several tests (the seed-002 filter): each over its threshold, alert above 1
+    "tests/innovation": ((80, 160, 255), "innovation NIS / threshold"),
+    "tests/windowed": ((60, 200, 120), "windowed NIS / threshold"),
+    "tests/separation": ((250, 150, 40), "separation max |Δ|/T"), "tests/limit": ((230, 60, 50), "alert limit 1"),
 }
 
 
@@ -145,7 +149,8 @@ class RerunSink:
         self._scene_runway = scene.runway_enu
         self._K, self._resolution = scene.camera_K, scene.camera_resolution
         rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu), tuple(scene.alert_limits),
-                                             vertical_only=tuple(scene.vertical_only)),
+                                             vertical_only=tuple(scene.vertical_only),
+                                             several_tests=tuple(scene.several_tests)),
                            make_active=True, make_default=True)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scene.terrain_mesh is not None:
@@ -315,7 +320,22 @@ class RerunSink:
                                   columns=rr.Scalars.columns(scalars=np.asarray(x, float)))
         self.rec.send_columns(f"sensors/satellites_used/{name}", indexes=tm,
                               columns=rr.Scalars.columns(scalars=np.asarray(out.n_used, float)))
+        self._log_normalised_tests(name, out)
         self._log_vertical_density(name, out)
+
+    def _log_normalised_tests(self, name: str, out) -> None:
+        """A monitor with several tests (diagnostics with ``window_stat``, ``window_threshold``, ``ss_ratio``:
+        the seed-002 filter): each statistic over its threshold on one panel, the alert line at 1."""
+        d = out.diagnostics
+        if not all(hasattr(d, f) for f in ("window_stat", "window_threshold", "ss_ratio")):
+            return
+        tm = [rr.TimeColumn("sim_time", duration=out.t)]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            vals = {"tests/innovation": np.asarray(out.test_stat, float) / np.asarray(out.threshold, float),
+                    "tests/windowed": np.asarray(d.window_stat, float) / np.asarray(d.window_threshold, float),
+                    "tests/separation": np.asarray(d.ss_ratio, float), "tests/limit": np.ones(out.t.size)}
+        for suffix, x in vals.items():
+            self.rec.send_columns(f"integrity/{name}/{suffix}", indexes=tm, columns=rr.Scalars.columns(scalars=x))
 
     def _log_errors(self, name: str, out, block: "LoopBlock") -> None:
         """The monitor's horizontal and vertical position errors beside its PLs (when a truth is known)."""
