@@ -185,3 +185,59 @@ def test_the_windowed_test_catches_a_ramp_before_the_snapshot_test():
     print(f"\nfirst alert (s after the onset): window {np.median(t_win) - 5:.0f}, snapshot {np.median(t_snap) - 5:.0f}")
     assert not win[:, :5].any() and not snap[:, :5].any()
     assert (t_win < t_snap).mean() >= 0.75 and (t_win <= t_snap).all()
+
+
+@pytest.mark.slow
+def test_nees_on_the_approach_over_200_sorties():
+    """T-NEES-3 on the shipped zunz-rwy05-ekf (JSBSim's flight, the sensor layer's GNSS with range rates and
+    camera, an HG1700 IMU, each sortie its own draws; the first 40 s: 8 satellites, then 3): the mean
+    position NEES over 200 sorties inside its two-sided 99 % χ²(600)/200 band at ≥ 95 % of the epochs, and
+    no alert at the default P_FA."""
+    from testbed.campaign.runner import cell_context, draw_block
+    from testbed.campaign.spec import CampaignSpec, expand_cells, resolve_spec
+    from testbed.resources import campaigns_dir
+
+    spec = CampaignSpec.model_validate({"name": "nees", "approaches": ["zunz-rwy05-ekf"], "monitors": ["ekf"],
+                                        "trials": 200, "block_trials": 200, "chunk_trials": 200, "base_seed": 3,
+                                        "per_epoch_trials": 0, "duration_s": 40.0, "faults": [{"kind": "none"}]})
+    loaded = resolve_spec(spec, campaigns_dir() / "nees.toml")
+    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
+    d = draw_block(ctx, loaded.spec, 0)
+    mon = ctx.setup.monitors[0]
+    out, _ = mon.step(d.obs, mon.initial_state())
+    e = ctx.truth_cg_enu - out.pos_enu  # the IMU at the CG (zero lever arm)
+    nees = np.einsum("bti,bti->bt", e, np.linalg.solve(out.diagnostics.cov_enu, e[..., None])[..., 0]).mean(0)
+    lo, hi = stats.chi2.ppf([0.005, 0.995], 3 * 200) / 200
+    inside = (nees >= lo) & (nees <= hi)
+    print(f"\nposition NEES inside [{lo:.2f}, {hi:.2f}] at {inside.mean():.0%} of epochs (median {np.median(nees):.2f})")
+    assert inside.mean() >= 0.95
+    assert not out.alert.any()
+
+
+def test_innovations_are_white(monkeypatch):
+    """T-NIS-1: 100 runs, 7 satellites, 40 s: each satellite's standardised pseudorange innovation has sample
+    autocorrelation at lags 1–5 (pooled over runs) inside ±2.58/√(MT) (35 values; one outside allowed)."""
+    import testbed.navigation.run as run
+
+    seen = []
+    real = run.gain_update
+
+    def spy(P, nu, H, R, mask):
+        S = H @ P @ np.swapaxes(H, -1, -2) + R
+        seen.append(np.where(mask, nu / np.sqrt(np.diagonal(S, axis1=-2, axis2=-1)), np.nan))
+        return real(P, nu, H, R, mask)
+
+    monkeypatch.setattr(run, "gain_update", spy)
+    B = 100
+    tr, g1, gnss, imu, s0, cb, cd = _final(B, duration=40.0, seed=12)
+    _run(s0, imu, gnss, bank=False)
+    z = np.stack(seen[5:], 1)  # (B, T, 7) after the alignment transient
+    assert np.isfinite(z).all()
+    M, T = z.shape[:2]
+    # (no de-meaning: zero mean under H0, and a per-run mean would bias every lag by −1/T)
+    bound = 2.58 / np.sqrt(M * T)
+    rho = np.array([[np.sum(z[:, :-k, j] * z[:, k:, j]) / np.sqrt(np.sum(z[:, :-k, j] ** 2) * np.sum(z[:, k:, j] ** 2))
+                     for j in range(z.shape[-1])] for k in range(1, 6)])
+    print(f"\nlag 1-5 autocorrelation: max |ρ| {np.abs(rho).max():.3f} against ±{bound:.3f}; mean per lag "
+          f"{np.round(rho.mean(1), 3)}")
+    assert (np.abs(rho) > bound).sum() <= 1

@@ -128,15 +128,7 @@ class Sweep(StrictModel):
             raise ValueError(f"expected 'off' or echo amplitudes ≤ 0 dB, got {bad}")
         return v
 
-    @field_validator("max_satellites")
-    @classmethod
-    def _caps(cls, v):
-        bad = [x for x in v if x < 0]
-        if bad:
-            raise ValueError(f"expected satellite counts >= 0, got {bad}")
-        return v
-
-    @field_validator("camera_dpi", "detection_sigma_px", "lpe_sigma_m")
+    @field_validator("camera_dpi", "detection_sigma_px", "lpe_sigma_m", "max_satellites")
     @classmethod
     def _nonneg(cls, v):
         bad = [x for x in v if x < 0]

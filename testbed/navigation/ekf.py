@@ -18,8 +18,9 @@ drift — and the covariance P of the 17 error states ``[δp, δv, δψ, δb_a, 
   error in R; Joseph-form covariance update, masked rows inert; the normalised
   innovation squared (NIS) and its dof per epoch are kept for the integrity test.
 
-Not yet here (NAV_FILTER.md §6 onwards): unsurveyed features with delayed
-initialisation, range-rate rows, the integrity layer and the monitor contract.
+Range-rate rows are here too; the integrity layer is :mod:`.separation` and
+:mod:`.monitor`. Not yet (NAV_FILTER.md §6): unsurveyed features with delayed
+initialisation.
 """
 
 from __future__ import annotations

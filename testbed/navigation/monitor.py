@@ -72,6 +72,7 @@ class EkfDiagnostics(Diagnostics):
     """The filter at its GNSS epochs (B..., T[, ...])."""
 
     sigma_enu: NDArray = epoch_array(1)
+    cov_enu: NDArray = epoch_array(2)  # the position covariance (B..., T, 3, 3), m²
     nis: NDArray = epoch_array()
     dof: NDArray = epoch_array()
     accel_bias: NDArray = epoch_array(1)
@@ -165,7 +166,7 @@ class EkfMonitor:
             ratio, n_modes = np.full(hpl.shape, np.nan), np.zeros(hpl.shape, np.int64)
         levels = tuple(service_level(s) for s in st.service_levels)
         shape = lambda a: a.reshape(lead + a.shape[1:]) if lead else a[0]  # noqa: E731
-        diag = EkfDiagnostics(sigma_enu=shape(sig), nis=shape(nis), dof=shape(dof), accel_bias=shape(tr.ba),
+        diag = EkfDiagnostics(sigma_enu=shape(sig), cov_enu=shape(P[..., :3, :3]), nis=shape(nis), dof=shape(dof), accel_bias=shape(tr.ba),
                               gyro_bias=shape(tr.bg), clock_drift=shape(tr.cd), window_stat=shape(w_stat),
                               window_threshold=shape(w_thr), ss_ratio=shape(ratio), n_modes=shape(n_modes),
                               k_ff=k_ff)
@@ -182,7 +183,7 @@ class EkfMonitor:
         st = self.context.integrity
         nan = np.full(lead + (T,), np.nan)
         z = lambda *tail: np.full(lead + (T,) + tail, np.nan)  # noqa: E731
-        diag = EkfDiagnostics(sigma_enu=z(3), nis=nan, dof=np.zeros(lead + (T,), np.int64), accel_bias=z(3),
+        diag = EkfDiagnostics(sigma_enu=z(3), cov_enu=z(3, 3), nis=nan, dof=np.zeros(lead + (T,), np.int64), accel_bias=z(3),
                               gyro_bias=z(3), clock_drift=nan, window_stat=nan, window_threshold=nan, ss_ratio=nan,
                               n_modes=np.zeros(lead + (T,), np.int64), k_ff=float(stats.norm.isf(st.p_ff / 2)))
         return MonitorOutput(
