@@ -147,3 +147,22 @@ def test_the_satellites_in_view_axis_caps_the_tracked_satellites(tmp_path):
     assert ekf[0] > ekf[1]
     raim = t[t.monitor == "gps_raim"]
     assert (raim[raim.cell == 0]["avail_APV-I"] == 0).all()  # one satellite: no snapshot fix
+
+
+@pytest.mark.parametrize("segment", ["first", "last"])
+def test_the_imu_segment_starts_at_the_cells_first_gnss_epoch(segment):
+    """The filter's IMU increments and first pose start where the cell's GNSS epochs start, for both segments
+    (a duration that is not a whole number of GNSS intervals: the full-rate and 1 Hz records end apart)."""
+    from testbed.campaign.runner import cell_context
+    from testbed.campaign.spec import CampaignSpec, expand_cells, resolve_spec
+    from testbed.resources import campaigns_dir
+
+    spec = CampaignSpec.model_validate({"name": "seg", "approaches": ["zunz-rwy05-ekf"], "monitors": ["ekf"],
+                                        "trials": 1, "base_seed": 1, "per_epoch_trials": 0, "duration_s": 20.37,
+                                        "segment": segment, "faults": [{"kind": "none"}]})
+    loaded = resolve_spec(spec, campaigns_dir() / "seg.toml")
+    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
+    t_imu = ctx.imu_increments[0]
+    assert ctx.t[0] == 0.0 and ctx.imu_start[0] == 0.0
+    assert t_imu[0] >= 0.0 and t_imu[-1] >= ctx.t[-1] - 1e-9
+    np.testing.assert_allclose(ctx.imu_start[3], ctx.truth_cg_enu[0], atol=1e-6)

@@ -148,19 +148,14 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
 
     def truth_g():
         tr = flown_truth(cell).decimate(setup.gnss.rate_hz)
-        if duration_s is not None and segment == "last":  # the last duration_s, its time from 0
-            tr = tr.at_indices(np.flatnonzero(tr.t >= tr.t[-1] - duration_s - 1e-9))
-            tr = replace(tr, t=tr.t - tr.t[0])
-        elif duration_s is not None:
-            tr = tr.at_indices(np.flatnonzero(tr.t <= duration_s + 1e-9))
-        return tr
+        return _segment(tr, duration_s, segment, _segment_start(tr.t, duration_s, segment))
 
     tkey = ("truth_g", fkey, setup.gnss.rate_hz, duration_s, segment)
     truth = _cached(tkey, truth_g)
     imu_inc = imu_start = None
     if any("imu" in m.inputs for m in setup.monitors):
         ikey = ("imu_truth", tkey, json.dumps(setup.imu.model_dump(mode="json"), sort_keys=True))
-        imu_inc, imu_start = _cached(ikey, lambda: _imu_segment(flown_truth(cell), truth, setup, duration_s, segment))
+        imu_inc, imu_start = _cached(ikey, lambda: _imu_segment(flown_truth(cell), setup, duration_s, segment))
     gkey = ("gnss_geom", tkey, c.start_time_utc.isoformat(), json.dumps(c.gnss.model_dump(mode="json"), sort_keys=True),
             json.dumps(c.aircraft and cell.approach.aircraft.antenna_lever_arm_m),
             None if sky is None else (spec.sorties.window_s, sky.tobytes()))
@@ -195,21 +190,33 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                        truth_g=truth, sky=sky, imu_increments=imu_inc, imu_start=imu_start)
 
 
-def _imu_segment(flown, truth_g, setup, duration_s: float | None, segment: str):
-    """The error-free IMU increments over the GNSS epochs' segment of the flight (its time as theirs) and the
-    segment's first pose: the full-rate truth from the segment's first GNSS epoch on."""
+def _segment_start(t_gnss: np.ndarray, duration_s: float | None, segment: str) -> float:
+    """Where the cell's segment starts on the flight's clock: its first GNSS epoch (0 but for ``"last"``)."""
+    if duration_s is None or segment != "last":
+        return 0.0
+    return float(t_gnss[np.flatnonzero(t_gnss >= t_gnss[-1] - duration_s - 1e-9)[0]])
+
+
+def _segment(tr, duration_s: float | None, segment: str, t0: float):
+    """The part of a truth record (any rate) the cell flies: the first ``duration_s``, or from ``t0`` on
+    (``"last"``) with its time from there, so GNSS-rate and full-rate records start at the same epoch."""
+    if duration_s is None:
+        return tr
+    t = np.asarray(tr.t, float)
+    if segment == "last":
+        tr = tr.at_indices(np.flatnonzero(t >= t0 - 1e-9))
+        return replace(tr, t=np.asarray(tr.t) - t0)
+    return tr.at_indices(np.flatnonzero(t <= duration_s + 1e-9))
+
+
+def _imu_segment(flown, setup, duration_s: float | None, segment: str):
+    """The error-free IMU increments over the cell's segment (its time as the GNSS epochs') and the segment's
+    first pose: the full-rate truth from the segment's first GNSS epoch on."""
     from testbed.inertial import body_to_world, local_to_world
     from testbed.sensors.imu import true_increments
 
-    t = np.asarray(flown.t, float)
-    if duration_s is not None and segment == "last":
-        t0 = float(t[np.flatnonzero(t >= t[-1] - duration_s - 1e-9)[0]])  # = truth_g's first epoch before the shift
-        tr = flown.at_indices(np.flatnonzero(t >= t0 - 1e-9))
-        tr = replace(tr, t=np.asarray(tr.t) - t0)
-    elif duration_s is not None:
-        tr = flown.at_indices(np.flatnonzero(t <= duration_s + 1e-9))
-    else:
-        tr = flown
+    t0 = _segment_start(flown.decimate(setup.gnss.rate_hz).t, duration_s, segment)
+    tr = _segment(flown, duration_s, segment, t0)
     inc = true_increments(tr, setup.imu)
     p0 = np.asarray(tr.pos_enu[0], float)
     start = (float(tr.t[0]), body_to_world(setup.frame, p0, np.asarray(tr.q_body_to_enu[0], float)),

@@ -86,7 +86,7 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
             s, bank = _predict(s, bank, imu, k_imu, k_end, frame, imu_noise, clock)
             k_imu = k_end
         if bank is not None:  # (a block that ended between epochs left the sub-filters' last step pending)
-            bank = spawn(settle_subs(bank, s.P), s.P, _modes_in_use(gnss, vision, k, bank))
+            bank = settle_subs(bank, s.P)
         nis = np.zeros(B)
         dof = np.zeros(B, np.int64)
         stages = []
@@ -101,10 +101,12 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
             if rows is None:
                 continue
             nu, H, R, mask, row_sat, row_landmark = rows
+            if bank is not None:  # a mode first used now: its sub-filter is the mains as they stand (exact)
+                row_mode = row_sat if row_landmark is None else bank.vision_modes(row_landmark)
+                bank = spawn(bank, s.P, row_mode[mask.any(0)])
             dx, P, a, b = gain_update(s.P, nu, H, R, mask)
             s = inject(replace(s, P=P), dx)
             if bank is not None:
-                row_mode = row_sat if row_landmark is None else bank.vision_modes(row_landmark)
                 bank = update_subs(bank, nu, H, R, mask, row_mode, dx)
             nis, dof = nis + a, dof + b
         for name in ("p", "v", "C", "ba", "bg", "cb", "cd", "P"):
@@ -142,20 +144,6 @@ def _imu_block(a: NDArray, B: int, k0: int, k1: int | None) -> NDArray:
     """IMU increments k0:k1 of (K, 3) or (B, K, 3) records, for every trial (B, K', 3)."""
     a = np.asarray(a)[..., k0:k1, :]
     return np.broadcast_to(a, (B,) + a.shape[-2:])
-
-
-def _modes_in_use(gnss: GnssEpochs | None, vision: VisionEpochs | None, k: int, bank: Bank) -> NDArray:
-    """The measurement modes any trial uses at epoch k: satellite slots, and the detected landmarks' (or the
-    camera's) vision modes."""
-    B = bank.n_trials
-    modes = [np.zeros(0, int)]
-    if gnss is not None:
-        used = _at(gnss.visible, k, 1, B) & np.isfinite(_at(gnss.pseudorange, k, 1, B))
-        modes.append(np.flatnonzero(used.any(0)))
-    if vision is not None:
-        seen = np.flatnonzero(_at(vision.detected, k, 1, B).any(0))
-        modes.append(np.unique(bank.vision_modes(seen)))
-    return np.concatenate(modes)
 
 
 _SHAPES = {"p": (3,), "v": (3,), "C": (3, 3), "ba": (3,), "bg": (3,), "cb": (), "cd": (), "P": (N, N), "nis": (),

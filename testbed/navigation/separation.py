@@ -19,7 +19,7 @@ test raised false alarms at 1/10 of its budget's threshold. Each sub-filter cost
 epoch, not per IMU step.
 
 **Lazy spawning is exact.** A mode's sub-filter is spawned as a copy of the mains (δ = 0, P = P₀) just before the
-first epoch at which any trial uses that mode's measurements: up to then the main filter *is* the filter without
+first update in which any trial uses that mode's measurements: up to then the main filter *is* the filter without
 them. Only the modes a flight actually sees cost anything, and for a trial that never uses a mode its sub-filter
 repeats the main bit for bit (P_i − P₀ stays exactly 0: the difference is what is propagated).
 
@@ -124,7 +124,6 @@ class Separation:
     pl_enu: NDArray  # per-axis PL (B, T, 3)
     ratio: NDArray  # max_iq |Δ_iq| / T_iq (B, T); > 1 is the separation test's alert
     n_modes: NDArray  # modes with a non-zero separation (B, T)
-    k_fa: NDArray  # (B, T)
 
 
 def stack_subs(dp: list[NDArray], Pp: list[NDArray], P_main: NDArray, B: int) -> tuple[NDArray, NDArray]:
@@ -147,7 +146,7 @@ def separation(P_main: NDArray, sub_dp: NDArray, sub_Pp: NDArray, p_fa_share: fl
     var0 = np.maximum(np.diagonal(P_main, axis1=-2, axis2=-1), 0.0)
     k_ff = stats.norm.isf(p_ff / 2)
     if M == 0:
-        return Separation(k_ff * np.sqrt(var0), np.zeros((B, T)), np.zeros((B, T), np.int64), np.full((B, T), np.nan))
+        return Separation(k_ff * np.sqrt(var0), np.zeros((B, T)), np.zeros((B, T), np.int64))
     var_i = np.diagonal(sub_Pp, axis1=-2, axis2=-1).reshape(M, B, T, 3)
     var_d = np.maximum(var_i - var0, 0.0)
     active = var_d.sum(-1) > 0.0  # (M, B, T): the mode's measurements have reached the main filter
@@ -160,7 +159,7 @@ def separation(P_main: NDArray, sub_dp: NDArray, sub_Pp: NDArray, p_fa_share: fl
     r = np.where(active[..., None], r, 0.0)
     k_md = stats.norm.isf(p_md / 2)
     bound = np.where(active[..., None], thr + k_md * np.sqrt(np.maximum(var_i, 0.0)), 0.0)
-    return Separation(np.maximum(k_ff * np.sqrt(var0), bound.max(0)), r.max(axis=(0, -1)), n_modes, k_fa)
+    return Separation(np.maximum(k_ff * np.sqrt(var0), bound.max(0)), r.max(axis=(0, -1)), n_modes)
 
 
 __all__ = ["Bank", "Separation", "propagate", "separation", "settle", "spawn", "stack_subs", "update"]
