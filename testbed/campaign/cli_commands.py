@@ -74,6 +74,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
 
         idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet)
+    elif args.paper == "won-2013":
+        from testbed.campaign.reproduce_won import reproduce_won_2013
+
+        idx = reproduce_won_2013(out, trials=200 if args.full else 50, progress=not args.quiet)
     else:
         idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
                                      progress=not args.quiet)
@@ -98,10 +102,12 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("dir", help="campaign result folder")
     p.set_defaults(func=_cmd_report)
 
-    p = subparsers.add_parser("reproduce", help="reproduce a seed paper's experiments (va-raim-2015, dpe-vertical)")
-    p.add_argument("paper", help="va-raim-2015 | dpe-vertical")
+    p = subparsers.add_parser("reproduce", help="reproduce a seed paper's experiments "
+                                                      "(va-raim-2015, won-2013, dpe-vertical)")
+    p.add_argument("paper", help="va-raim-2015 | won-2013 | dpe-vertical")
     p.add_argument("--full", action="store_true", help="the paper's scale: 1e5 sorties x 60 s per setting "
-                                                      "(dpe-vertical: DPE.md's 2000 sorties per cell)")
+                                                      "(dpe-vertical: DPE.md's 2000 sorties per cell; "
+                                                      "won-2013: 200 runs per case, else 50)")
     p.add_argument("--out", help="result folder (default: campaigns/reproduce-<paper>)")
     p.add_argument("--scheduler", help="Dask scheduler address")
     p.add_argument("--resume", action="store_true")

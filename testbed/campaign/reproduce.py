@@ -82,7 +82,7 @@ from testbed.campaign.spec import CampaignSpec, LoadedSpec, resolve_spec
 from testbed.campaign.report import _f
 from testbed.config import approaches_dir
 
-PAPERS = ("va-raim-2015", "dpe-vertical")
+PAPERS = ("va-raim-2015", "won-2013", "dpe-vertical")
 #: The angular-precision sweep: the 720-dpi camera's focal length (992 px), then long-focus
 #: cameras up to 1e5 px (a 2° field of view on a 3500 px sensor).
 FOCAL_SWEEP_PX = (992.0, 3000.0, 1e4, 3e4, 1e5)

@@ -19,8 +19,8 @@ drift — and the covariance P of the 17 error states ``[δp, δv, δψ, δb_a, 
   innovation squared (NIS) and its dof per epoch are kept for the integrity test.
 
 Range-rate rows are here too; the integrity layer is :mod:`.separation` and
-:mod:`.monitor`. Not yet (NAV_FILTER.md §6): unsurveyed features with delayed
-initialisation.
+:mod:`.monitor`; unsurveyed features (SLAM states with delayed initialisation) are
+:mod:`.slam`.
 """
 
 from __future__ import annotations
@@ -253,7 +253,8 @@ def update(s: NavState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray) -> t
 
 def gain_update(P: NDArray, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray
                 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """The linear step of :func:`update`: the correction dx (B, 17), P after, the NIS and its dof (B,)."""
+    """The linear step of :func:`update`: the correction dx (B, n), P after, the NIS and its dof (B,) (any
+    state size n: the core's 17, or with :mod:`.slam`'s static block)."""
     m = np.asarray(mask, bool)
     mm = m[..., :, None] & m[..., None, :]
     H = np.where(m[..., None], H, 0.0)
@@ -266,7 +267,7 @@ def gain_update(P: NDArray, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray
     Kt = np.linalg.solve(S, np.swapaxes(PHt, -1, -2))  # (B, M, 17) = Kᵀ
     K = np.swapaxes(Kt, -1, -2)
     dx = np.einsum("bnm,bm->bn", K, nu)
-    I_KH = np.eye(N) - K @ H
+    I_KH = np.eye(P.shape[-1]) - K @ H
     P = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ R @ Kt
     return dx, 0.5 * (P + np.swapaxes(P, -1, -2)), nis, m.sum(-1)
 

@@ -93,7 +93,7 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
         if gnss is not None:
             # the body rate the antenna's lever arm turns with: the last IMU interval's, bias-corrected
             omega = _imu_block(imu.dtheta, B, k_end - 1, k_end)[:, 0] / imu.dt - s.bg if k_end > 0 else np.zeros((B, 3))
-            stages.append(lambda s: _gnss_rows(s, gnss, k, frame, omega, range_rate_sigma_m_s))
+            stages.append(lambda s: gnss_rows(s, gnss, k, frame, omega, range_rate_sigma_m_s))
         if vision is not None:
             stages.append(lambda s: _vision_rows(s, vision, k, frame, dither_sigma_px, survey_sigma_m))
         for rows_of in stages:  # sequential updates, each linearised at the state the last one left
@@ -157,7 +157,7 @@ def _at(a: NDArray, k: int, tail: int, B: int) -> NDArray:
     return np.broadcast_to(x, (B,) + x.shape[x.ndim - tail:])
 
 
-def _gnss_rows(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame, omega_b: NDArray,
+def gnss_rows(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame, omega_b: NDArray,
                range_rate_sigma_m_s: float | None):
     """The pseudorange (and range-rate) rows of the satellites any trial sees at epoch k — ν, H, R, mask, each
     row's satellite slot and None (no landmark) — or None when none is visible. (Only those slots: the

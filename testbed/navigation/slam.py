@@ -1,0 +1,386 @@
+"""Unsurveyed ground features in the seed-002 filter: SLAM states with delayed initialisation by
+stochastic cloning (NAV_FILTER.md §6), batched over trials.
+
+The error state grows a *static block* after the 17 core states: J feature slots (δm, 3 each) and K pose
+clones (δp, δψ of the IMU, 6 each), fixed in size; a free slot's rows and columns of P are zero, which makes
+it inert in every predict and update (its gain rows are zero) at no bookkeeping cost.
+
+* **Predict**: the static block does not move, so over an aiding interval with the core's transition Φ
+  (accumulated by the compiled predict) ``P_cs ← Φ P_cs`` and ``P_ss`` stays — exact.
+* **Clone** at a feature's first sighting (a free clone slot; the feature entering the image first): the
+  clone's error is a copy of the core's δp, δψ, so its rows of P are theirs (exact).
+* **Triangulate** when the bearing from the clone and the current bearing are ``parallax_deg`` apart: the
+  point nearest both rays in the least-squares sense, ``m = (Σ Pᵢ)⁻¹ Σ Pᵢ cᵢ`` with ``Pᵢ = I − dᵢdᵢᵀ``
+  (for two rays, the midpoint of their common perpendicular). The feature's error is the linear map of the
+  two poses' errors and the two pixels' noise, ``δm = A_c δclone + A_x δx + A_z n``, so its block of P is
+  ``A P Aᵀ + A_z R A_zᵀ`` and its cross-covariance ``A P`` (exact to first order). The two pixels are spent
+  on the initialisation and never used again. No parallax after ``max_wait_frames``: discarded.
+* **Update**: two pixel rows per feature in a slot, ``∂uv/∂δm = −∂uv/∂δp``.
+* **Marginalise** a feature unseen for ``lost_frames`` frames: its rows and columns set to zero (exact).
+
+Departures from the note: the triangulation is the closed-form two-ray point, not midpoint then
+Gauss–Newton over stored bearings (only the clone's pose is in the state, so only its bearing can be
+used consistently); no first-estimate Jacobians (``fej``); no solution-separation sub-filters with
+features (the bank is 17-state).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from testbed.frames import LocalFrame
+from testbed.inertial import skew, so3_exp
+from testbed.navigation.ekf import N, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows
+from testbed.navigation.ekf import predict_compiled as predict
+from testbed.navigation.run import gnss_rows
+from testbed.records import GnssEpochs, ImuSamples
+from testbed.sensors.vision.features import FeatureTracks
+
+#: the core states a clone copies: δp, δψ
+_POSE = np.r_[0:3, 6:9]
+
+
+@dataclass(frozen=True)
+class FeatureSettings:
+    """The SLAM front of the filter (NAV_FILTER.md §6 defaults)."""
+
+    slots: int = 7
+    clones: int = 2
+    parallax_deg: float = 3.0
+    max_wait_frames: int = 30
+    lost_frames: int = 5
+
+    def __post_init__(self) -> None:
+        if self.slots < 1 or self.clones < 1 or not 0 < self.parallax_deg < 90 or self.max_wait_frames < 1 \
+                or self.lost_frames < 0:
+            raise ValueError(f"FeatureSettings: expected slots, clones, max_wait_frames ≥ 1, parallax_deg in "
+                             f"(0, 90), lost_frames ≥ 0; got {self}")
+
+    def size(self) -> int:
+        """The error-state dimension with the static block."""
+        return N + 3 * self.slots + 6 * self.clones
+
+
+@dataclass(frozen=True)
+class SlamState:
+    """The core nominal state (its ``P`` unused), the full covariance and the slots (B trials)."""
+
+    nav: NavState
+    P: NDArray  # (B, n, n)
+    f_id: NDArray  # (B, J) feature id in slot j, −1: free
+    f_m: NDArray  # (B, J, 3) its estimated position (world)
+    f_lost: NDArray  # (B, J) frames since last seen
+    c_id: NDArray  # (B, K) feature a clone waits to triangulate, −1: free
+    c_p: NDArray  # (B, K, 3) the cloned IMU position
+    c_C: NDArray  # (B, K, 3, 3) and attitude
+    c_uv: NDArray  # (B, K, 2) the first pixel
+    c_age: NDArray  # (B, K) frames since the clone
+
+    def core(self) -> NavState:
+        return replace(self.nav, P=np.ascontiguousarray(self.P[:, :N, :N]))
+
+
+def feature_cols(j: int) -> slice:
+    return slice(N + 3 * j, N + 3 * j + 3)
+
+
+def clone_cols(cfg: FeatureSettings, k: int) -> slice:
+    o = N + 3 * cfg.slots + 6 * k
+    return slice(o, o + 6)
+
+
+def start(nav: NavState, cfg: FeatureSettings) -> SlamState:
+    """The filter with empty slots (its core covariance ``nav.P``)."""
+    B, n = nav.p.shape[0], cfg.size()
+    P = np.zeros((B, n, n))
+    P[:, :N, :N] = nav.P
+    J, K = cfg.slots, cfg.clones
+    return SlamState(nav=nav, P=P, f_id=np.full((B, J), -1), f_m=np.zeros((B, J, 3)), f_lost=np.zeros((B, J), int),
+                     c_id=np.full((B, K), -1), c_p=np.zeros((B, K, 3)), c_C=np.broadcast_to(np.eye(3), (B, K, 3, 3)).copy(),
+                     c_uv=np.zeros((B, K, 2)), c_age=np.zeros((B, K), int))
+
+
+def predict_static(s: SlamState, dtheta: NDArray, dvel: NDArray, dt: float, frame: LocalFrame, imu: ImuNoise,
+                   clock: ClockNoise, earth_rotation: bool = True) -> SlamState:
+    """Through K IMU steps (dtheta, dvel (B, K, 3)): the core by the compiled predict, the static block's
+    cross-covariance by the accumulated transition."""
+    B = s.P.shape[0]
+    Phi = np.broadcast_to(np.eye(N), (B, N, N)).copy()
+    nav = predict(s.core(), dtheta, dvel, dt, frame, imu, clock, earth_rotation, transition=Phi)
+    P = s.P.copy()
+    P[:, :N, :N] = nav.P
+    P[:, :N, N:] = Phi @ s.P[:, :N, N:]
+    P[:, N:, :N] = np.swapaxes(P[:, :N, N:], -1, -2)
+    return replace(s, nav=nav, P=P)
+
+
+def apply_update(s: SlamState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray
+                 ) -> tuple[SlamState, NDArray, NDArray]:
+    """One masked batched update with rows over the full state (H (B, M, n)); the NIS and its dof."""
+    dx, P, nis, dof = gain_update(s.P, nu, H, R, mask)
+    return inject_static(replace(s, nav=inject(s.nav, dx[:, :N]), P=P), dx), nis, dof
+
+
+def inject_static(s: SlamState, dx: NDArray) -> SlamState:
+    """The static block's share of a correction dx (B, n) (free slots get exactly 0: their P rows are 0)."""
+    J = s.f_id.shape[1]
+    f_m = s.f_m + dx[:, N:N + 3 * J].reshape(s.f_m.shape)
+    dc = dx[:, N + 3 * J:].reshape(s.c_p.shape[:2] + (6,))
+    return replace(s, f_m=f_m, c_p=s.c_p + dc[..., :3], c_C=so3_exp(dc[..., 3:]) @ s.c_C)
+
+
+def widen(H: NDArray, n: int) -> NDArray:
+    """Core rows (B, M, 17) as rows over the full state (B, M, n)."""
+    out = np.zeros(H.shape[:-1] + (n,))
+    out[..., :N] = H
+    return out
+
+
+def _lookup(tracks: FeatureTracks, k: int, ids: NDArray) -> NDArray:
+    """The pixels (B, X, 2) of features ``ids`` (B, X) at epoch k (NaN where not in view, and for −1)."""
+    row = tracks.ids[k]
+    uv = np.full(ids.shape + (2,), np.nan)
+    if not row.size:
+        return uv
+    order = np.argsort(row, kind="stable")
+    srt = row[order]
+    pos = np.clip(np.searchsorted(srt, ids), 0, row.size - 1)
+    hit = (ids >= 0) & (srt[pos] == ids)
+    got = tracks.uv[np.arange(ids.shape[0])[:, None], k, order[pos]]
+    return np.where(hit[..., None], got, np.nan)
+
+
+def feature_rows(s: SlamState, tracks: FeatureTracks, k: int, n: int, dither_sigma_px: float = 0.0):
+    """Two pixel rows per feature in a slot seen at epoch k: ν, H (B, 2J, n), R, mask — or None."""
+    uv = _lookup(tracks, k, s.f_id)
+    seen = np.isfinite(uv).all(-1)
+    if not seen.any():
+        return None
+    B, J = s.f_id.shape
+    h, Hc, Hm, ray = pixel_rows(s.nav, s.f_m, tracks.K, tracks.camera.R_sensor_to_body,
+                                np.asarray(tracks.camera.lever_arm_body, float))
+    H = widen(Hc, n)
+    for j in range(J):
+        H[:, 2 * j:2 * j + 2, feature_cols(j)] = Hm[:, j]
+    seen &= ray[..., 2] > 0
+    mask = np.repeat(seen, 2, axis=-1) & np.isfinite(h)
+    nu = np.where(mask, uv.reshape(B, 2 * J) - np.nan_to_num(h), 0.0)
+    R = (tracks.sigma_px**2 + dither_sigma_px**2) * np.broadcast_to(np.eye(2 * J), (B, 2 * J, 2 * J))
+    return nu, np.where(mask[..., None], np.nan_to_num(H), 0.0), R, mask
+
+
+def bearing(C: NDArray, R_cb: NDArray, K: NDArray, uv: NDArray) -> tuple[NDArray, NDArray]:
+    """The world-frame unit bearing (..., 3) of pixel uv seen by a camera on attitude C, and ∂d/∂uv (..., 3, 2)."""
+    r = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], -1) @ np.linalg.inv(K).T
+    nr = np.linalg.norm(r, axis=-1, keepdims=True)
+    rh = r / nr
+    Rcw = C @ R_cb
+    d = np.einsum("...ij,...j->...i", Rcw, rh)
+    J_r = (np.eye(3) - rh[..., :, None] * rh[..., None, :]) / nr[..., None]
+    dd_duv = Rcw @ J_r @ np.linalg.inv(K)[:, :2]
+    return d, dd_duv
+
+
+def triangulate(c1: NDArray, d1: NDArray, c2: NDArray, d2: NDArray) -> NDArray:
+    """The point (..., 3) nearest two rays c + t·d (unit d) in the least-squares sense."""
+    P1 = np.eye(3) - d1[..., :, None] * d1[..., None, :]
+    P2 = np.eye(3) - d2[..., :, None] * d2[..., None, :]
+    b = np.einsum("...ij,...j->...i", P1, c1) + np.einsum("...ij,...j->...i", P2, c2)
+    return np.linalg.solve(P1 + P2, b[..., None])[..., 0]
+
+
+def triangulation_jacobians(m: NDArray, poses: list[tuple[NDArray, NDArray, NDArray, NDArray, NDArray]],
+                            lever_cam: NDArray) -> list[tuple[NDArray, NDArray, NDArray]]:
+    """∂m/∂δp, ∂m/∂δψ and ∂m/∂uv (each (..., 3, ·)) of the least-squares point for each ray's pose.
+
+    ``poses``: per ray (C, c, d, ∂d/∂uv, P = I − ddᵀ). With A = ΣPᵢ: ``δm = A⁻¹ Σ (Pᵢ δcᵢ − Gᵢ δdᵢ)``,
+    ``Gᵢ = (dᵢ·wᵢ) I + dᵢwᵢᵀ``, wᵢ = cᵢ − m; ``δcᵢ = δp − [(Ĉl)×]δψ``, ``δdᵢ = −[dᵢ×]δψ + (∂d/∂uv) δuv``.
+    """
+    A = sum(P for *_, P in poses)
+    Ainv = np.linalg.inv(A)
+    out = []
+    for C, c, d, dd_duv, P in poses:
+        w = c - m
+        G = np.einsum("...i,...i->...", d, w)[..., None, None] * np.eye(3) + d[..., :, None] * w[..., None, :]
+        la = np.einsum("...ij,j->...i", C, lever_cam)
+        J_p = Ainv @ P
+        J_psi = Ainv @ (-P @ skew(la) + G @ skew(d))
+        J_uv = -Ainv @ G @ dd_duv
+        out.append((J_p, J_psi, J_uv))
+    return out
+
+
+def _set_block(P: NDArray, b: NDArray, cols: slice, rows: NDArray, diag: NDArray) -> None:
+    """For trials b: the slot ``cols``' rows/columns of P become ``rows`` (|b|, 3|6, n), its block ``diag``."""
+    P[b, cols, :] = rows
+    P[b, :, cols] = np.swapaxes(rows, -1, -2)
+    P[np.ix_(b, np.arange(cols.start, cols.stop), np.arange(cols.start, cols.stop))] = diag
+
+
+def _clear(P: NDArray, b: NDArray, cols: slice) -> None:
+    P[b, cols, :] = 0.0
+    P[b, :, cols] = 0.0
+
+
+def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> SlamState:
+    """After the epoch's updates: triangulate or drop the clones, marginalise lost features, start clones."""
+    s = replace(s, P=s.P.copy(), f_id=s.f_id.copy(), f_m=s.f_m.copy(), f_lost=s.f_lost.copy(), c_id=s.c_id.copy(),
+                c_p=s.c_p.copy(), c_C=s.c_C.copy(), c_uv=s.c_uv.copy(), c_age=s.c_age.copy())
+    seen_f = np.isfinite(_lookup(tracks, k, s.f_id)).all(-1)
+    s.f_lost[:] = np.where(seen_f, 0, s.f_lost + 1)
+    _triangulate_clones(s, tracks, k, cfg)
+    lost = (s.f_id >= 0) & (s.f_lost > cfg.lost_frames)
+    for j in range(cfg.slots):
+        b = np.flatnonzero(lost[:, j])
+        if b.size:
+            _clear(s.P, b, feature_cols(j))
+            s.f_id[b, j] = -1
+    _start_clones(s, tracks, k, cfg)
+    return s
+
+
+def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> None:
+    K, R_cb = tracks.K, tracks.camera.R_sensor_to_body
+    lc = np.asarray(tracks.camera.lever_arm_body, float)
+    uv2 = _lookup(tracks, k, s.c_id)  # (B, K, 2)
+    var = tracks.sigma_px**2
+    for q in range(cfg.clones):
+        active = s.c_id[:, q] >= 0
+        seen = active & np.isfinite(uv2[:, q]).all(-1)
+        s.c_age[:, q] += active
+        drop = active & (~seen | (s.c_age[:, q] > cfg.max_wait_frames))
+        b = np.flatnonzero(seen)
+        if b.size:
+            C1, C2 = s.c_C[b, q], s.nav.C[b]
+            c1 = s.c_p[b, q] + C1 @ lc
+            c2 = s.nav.p[b] + C2 @ lc
+            d1, j1 = bearing(C1, R_cb, K, s.c_uv[b, q])
+            d2, j2 = bearing(C2, R_cb, K, uv2[b, q])
+            par = np.degrees(np.arccos(np.clip(np.einsum("bi,bi->b", d1, d2), -1.0, 1.0)))
+            go = par >= cfg.parallax_deg
+            m = triangulate(c1, d1, c2, d2)
+            ahead = (np.einsum("bi,bi->b", m - c1, d1) > 0) & (np.einsum("bi,bi->b", m - c2, d2) > 0)
+            go &= ahead
+            free = s.f_id[b] < 0
+            go &= free.any(-1)
+            drop[b[~ahead & (par >= cfg.parallax_deg)]] = True
+            if go.any():
+                g = b[go]
+                slot = np.argmax(free[go], axis=-1)  # lowest free slot
+                Pm1 = np.eye(3) - d1[go, :, None] * d1[go, None, :]
+                Pm2 = np.eye(3) - d2[go, :, None] * d2[go, None, :]
+                (Jp1, Jq1, Ju1), (Jp2, Jq2, Ju2) = triangulation_jacobians(
+                    m[go], [(C1[go], c1[go], d1[go], j1[go], Pm1), (C2[go], c2[go], d2[go], j2[go], Pm2)], lc)
+                n = s.P.shape[-1]
+                A = np.zeros((g.size, 3, n))
+                cc = clone_cols(cfg, q)
+                A[:, :, cc.start:cc.start + 3], A[:, :, cc.start + 3:cc.stop] = Jp1, Jq1
+                A[:, :, 0:3], A[:, :, 6:9] = Jp2, Jq2
+                rows = A @ s.P[g]
+                Pmm = rows @ np.swapaxes(A, -1, -2) + var * (Ju1 @ np.swapaxes(Ju1, -1, -2) + Ju2 @ np.swapaxes(Ju2, -1, -2))
+                for j in np.unique(slot):
+                    sel = slot == j
+                    gj = g[sel]
+                    cols = feature_cols(int(j))
+                    r = rows[sel].copy()
+                    Pjj = 0.5 * (Pmm[sel] + np.swapaxes(Pmm[sel], -1, -2))
+                    r[:, :, cols] = Pjj
+                    _set_block(s.P, gj, cols, r, Pjj)
+                    s.f_id[gj, j] = s.c_id[gj, q]
+                    s.f_m[gj, j] = m[go][sel]
+                    s.f_lost[gj, j] = 0
+                drop[g] = True
+        d = np.flatnonzero(drop)
+        if d.size:
+            _clear(s.P, d, clone_cols(cfg, q))
+            s.c_id[d, q] = -1
+            s.c_age[d, q] = 0
+
+
+def _start_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> None:
+    ids = tracks.ids[k]
+    if not ids.size:
+        return
+    uv = tracks.uv[:, k]  # (B, W, 2)
+    B = uv.shape[0]
+    for q in range(cfg.clones):
+        free_c = s.c_id[:, q] < 0
+        spare = (s.f_id < 0).sum(-1) > (s.c_id >= 0).sum(-1)  # a feature slot for every pending clone
+        want = free_c & spare
+        if not want.any():
+            continue
+        taken = (ids[None, :, None] == s.f_id[:, None, :]).any(-1) | (ids[None, :, None] == s.c_id[:, None, :]).any(-1)
+        cand = (ids[None] >= 0) & np.isfinite(uv).all(-1) & ~taken
+        v = np.where(cand, uv[..., 1], np.inf)
+        pick = np.argmin(v, axis=-1)  # entering the image: the smallest row
+        b = np.flatnonzero(want & cand[np.arange(B), pick])
+        if not b.size:
+            continue
+        cols = clone_cols(cfg, q)
+        rows = s.P[b][:, _POSE, :]
+        _set_block(s.P, b, cols, rows, rows[:, :, _POSE])
+        s.c_id[b, q] = ids[pick[b]]
+        s.c_p[b, q], s.c_C[b, q] = s.nav.p[b], s.nav.C[b]
+        s.c_uv[b, q] = uv[b, pick[b]]
+        s.c_age[b, q] = 0
+
+
+@dataclass(frozen=True)
+class SlamTrace:
+    """The filter at its aiding epochs (B, T, ...)."""
+
+    t: NDArray
+    p: NDArray  # (B, T, 3)
+    P_pos: NDArray  # (B, T, 3, 3)
+    n_features: NDArray  # (B, T)
+    nis: NDArray  # (B, T)
+    dof: NDArray  # (B, T)
+
+
+def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, cfg: FeatureSettings,
+             tracks: FeatureTracks | None = None, gnss: GnssEpochs | None = None, clock: ClockNoise = ClockNoise(),
+             t_aid: NDArray | None = None, range_rate_sigma_m_s: float | None = None) -> tuple[SlamTrace, SlamState]:
+    """Predict through the IMU intervals, update at each aiding epoch (the tracks' epochs, else ``t_aid``):
+    GNSS rows where a GNSS epoch falls (1e-6 s), then the features in slots, then the slots' bookkeeping."""
+    t_aid = np.asarray(tracks.t if tracks is not None else t_aid, float)
+    B, n = s.P.shape[0], s.P.shape[-1]
+    k_g = None if gnss is None else {round(float(t) * 1e6): i for i, t in enumerate(gnss.t)}
+    rec = {k: [] for k in ("p", "P_pos", "n_features", "nis", "dof")}
+    k_imu = 0
+    for k, t in enumerate(t_aid):
+        k_end = int(np.searchsorted(imu.t, t + 1e-9, side="right"))
+        if k_end > k_imu:
+            dth = np.broadcast_to(np.asarray(imu.dtheta)[..., k_imu:k_end, :], (B, k_end - k_imu, 3))
+            dvl = np.broadcast_to(np.asarray(imu.dvel)[..., k_imu:k_end, :], (B, k_end - k_imu, 3))
+            s = predict_static(s, dth, dvl, imu.dt, frame, imu_noise, clock, imu.earth_rotation)
+            omega = dth[:, -1] / imu.dt - s.nav.bg
+            k_imu = k_end
+        else:
+            omega = np.zeros((B, 3))
+        nis, dof = np.zeros(B), np.zeros(B, np.int64)
+        kg = None if k_g is None else k_g.get(round(float(t) * 1e6))
+        if kg is not None:
+            rows = gnss_rows(s.core(), gnss, kg, frame, omega, range_rate_sigma_m_s)
+            if rows is not None:
+                nu, H, R, mask = rows[:4]
+                s, a, b = apply_update(s, nu, widen(H, n), R, mask)
+                nis, dof = nis + a, dof + b
+        if tracks is not None:
+            rows = feature_rows(s, tracks, k, n)
+            if rows is not None:
+                s, a, b = apply_update(s, *rows)
+                nis, dof = nis + a, dof + b
+            s = manage(s, tracks, k, cfg)
+        rec["p"].append(s.nav.p)
+        rec["P_pos"].append(s.P[:, :3, :3])
+        rec["n_features"].append((s.f_id >= 0).sum(-1))
+        rec["nis"].append(nis)
+        rec["dof"].append(dof)
+    return SlamTrace(t=t_aid, **{k: np.stack(v, 1) for k, v in rec.items()}), s
+
+
+__all__ = ["FeatureSettings", "SlamState", "SlamTrace", "apply_update", "bearing", "feature_rows", "manage",
+           "predict_static", "run_slam", "start", "triangulate", "triangulation_jacobians"]
