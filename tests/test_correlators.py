@@ -127,3 +127,22 @@ def test_crb_matches_the_notes_figures():
     a2 = amplitude_sq(45.0, 0.02)
     assert abs(float(crb_delay_sigma(a2, 1, 1.0)) - 4.1) < 0.05
     assert abs(float(crb_delay_sigma(a2, 50, 1.0)) - 0.58) < 0.01
+
+
+def test_a_residual_doppler_lowers_the_coherent_amplitude_by_its_sinc():
+    """25 Hz left by the carrier loop over T = 20 ms: the receiver's C/N0 estimate from the correlograms falls by
+    −20·log10|sinc(0.5)| = 3.92 dB (medians over 8 satellites × 40 epochs, within 0.15 dB); 0 Hz changes
+    nothing."""
+    from dpe_scene import scene
+
+    from testbed.sensors.gnss.settings import GnssSettings
+
+    def est(hz):
+        gs = GnssSettings(correlators=CorrelatorSettings(residual_doppler_hz=hz))
+        obs, _, _ = scene(40, gnss=gs, seed=4)
+        return np.asarray(obs.correlators.cn0_est_dbhz)
+
+    base, slow = est(0.0), est(25.0)
+    drop = np.median(base - slow)
+    assert abs(drop - (-20 * np.log10(np.sinc(0.5)))) < 0.15, drop
+    np.testing.assert_array_equal(est(0.0), base)

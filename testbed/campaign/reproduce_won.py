@@ -31,7 +31,7 @@ PRNS = (19, 11, 5)
 START_UTC = "2012-01-15T03:00:00Z"
 ORIGIN = (37.5408, 127.0793, 60.0)  # Konkuk University, Seoul (the seed's origin)
 PRIOR_POS_M = 10.0  # the initial position 1σ (NAV_FILTER.md T-SAT-2's prior)
-CHUNK = 50
+CHUNK = 100
 
 CLAIMS = (
     ("INS diverges; vision bounds it only partly",

@@ -251,10 +251,11 @@ def update(s: NavState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray) -> t
     return inject(replace(s, P=P), dx), nis, dof
 
 
-def gain_update(P: NDArray, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray
+def gain_update(P: NDArray, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray, joseph: bool = True
                 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """The linear step of :func:`update`: the correction dx (B, n), P after, the NIS and its dof (B,) (any
-    state size n: the core's 17, or with :mod:`.slam`'s static block)."""
+    state size n: the core's 17, or with :mod:`.slam`'s static block). ``joseph``: the Joseph form (else
+    ``P − KHP``, symmetrised)."""
     m = np.asarray(mask, bool)
     mm = m[..., :, None] & m[..., None, :]
     H = np.where(m[..., None], H, 0.0)
@@ -267,7 +268,10 @@ def gain_update(P: NDArray, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray
     Kt = np.linalg.solve(S, np.swapaxes(PHt, -1, -2))  # (B, M, 17) = Kᵀ
     K = np.swapaxes(Kt, -1, -2)
     dx = np.einsum("bnm,bm->bn", K, nu)
-    I_KH = np.eye(P.shape[-1]) - K @ H
-    P = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ R @ Kt
+    if joseph:
+        I_KH = np.eye(P.shape[-1]) - K @ H
+        P = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ R @ Kt
+    else:  # P − K H P: a third of the cost, for large states (the note's campaign form)
+        P = P - K @ np.swapaxes(PHt, -1, -2)
     return dx, 0.5 * (P + np.swapaxes(P, -1, -2)), nis, m.sum(-1)
 

@@ -6,7 +6,8 @@ the normalised correlator output at delay δ (m, relative to the channel's refer
     y_b(δ) = A·Σ_m c_bm·R_B(δ − δ_k − Δ_m) + w_b(δ),   w_b ~ CN(0, R_B(δ₁ − δ₂)),   A² = (C/N0)·T,
 
 m = 0 the direct signal (c_b0 = e^{jθ_b}, θ_b uniform, new per block), m ≥ 1 echoes
-(c_bm = α_m·e^{j(θ_b + φ_bm)}); δ_k = geometric range + receiver clock + SIS error +
+(c_bm = α_m·e^{j(θ_b + φ_bm)}); a residual carrier frequency Δf left by tracking scales A by
+|sinc(Δf·T)| (``residual_doppler_hz``); δ_k = geometric range + receiver clock + SIS error +
 fault − reference. Blocks are disjoint in time (independent noise); satellites are
 independent (Gold cross-correlation, ≤ −24 dB, neglected).
 
@@ -194,7 +195,8 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
     rho_ref = np.where(vis, np.round(np.asarray(gnss.pseudorange) / grid.step_m) * grid.step_m, np.nan)
     el = np.asarray(gnss_truth.elevation, float)
     cn0 = cn0_at(el, cs)
-    A = np.sqrt(amplitude_sq(cn0, cs.coherent_s))
+    # a residual carrier frequency Δf turns the phasor by 2πΔf·T over a block: the coherent sum keeps |sinc(Δf·T)|
+    A = np.sqrt(amplitude_sq(cn0, cs.coherent_s)) * abs(np.sinc(cs.residual_doppler_hz * cs.coherent_s))
     sig_sis = np.hypot(settings.sigma_ura_m, sigma_tropo(el, settings.sigma_tropo_zenith_m))
     fault = np.asarray(gnss_truth.fault_bias, float)
     clean = np.asarray(gnss_truth.geometric_range) + np.asarray(gnss_truth.clock_bias)[:, None] + fault

@@ -40,6 +40,9 @@ class CorrelatorSettings(StrictModel):
         default_factory=lambda: dict(CN0_BY_ELEVATION),
         description="C/N0 (dB-Hz) at elevations (deg), linear between, held outside")
     cn0_offset_db: float = Field(0.0, ge=-30.0, le=20.0, description="added to every C/N0 (dB)")
+    residual_doppler_hz: float = Field(0.0, ge=0.0, lt=50.0,
+                                       description="carrier tracking's residual frequency error |Δf| (Hz): the "
+                                                   "coherent amplitude falls by |sinc(Δf·T)| (DPE.md §2); < 1/T")
     synthesis: Literal["fast", "exact"] = Field(
         "fast", description="'exact': N_b noise draws per satellite (both statistics); 'fast': the power "
                             "statistic from (2 + echoes) draws of its exact second moments")
