@@ -9,7 +9,8 @@ an aiding update = 7 pseudorange rows (Joseph form) at 1 Hz. Prints median trial
 for predict and for update, batched (B = --trials, one call per step) and per trial
 (B = 1 in a Python loop over trials, the reference a first implementation would be),
 and their ratio; and the compiled predict the filter runs (numba, 20 steps a call). NAV_FILTER.md
-§13's target: ≥ 100k trial-steps/s for a 20-state step and ≥ 10× the per-trial loop.
+§13's target: ≥ 100k trial-steps/s for a 20-state step and ≥ 10× the per-trial loop. Last, the
+50-state filter with unsurveyed features (:mod:`testbed.navigation.slam`).
 """
 
 from __future__ import annotations
@@ -90,7 +91,28 @@ def main(argv=None) -> int:
           f" ({med['upd_b'] / med['upd_1']:.0f}x)")
     per_s = 1.0 / (120.0 / med["comp_b"] + 1.0 / med["upd_b"])
     print(f"  one simulated second per trial (120 predicts + 1 update): {per_s:,.0f} trial-seconds/s")
+    _slam(s, dth, dvl, dt, clock, a.repeats)
     return 0
+
+
+def _slam(s, dth, dvl, dt, clock, repeats: int) -> None:
+    """The filter with unsurveyed features (slam.py: 7 feature slots and 2 clones, 50 states): the compiled core
+    predict plus the static block's cross-covariance over a 12-step aiding interval (120 Hz IMU, 10 Hz vision)."""
+    from testbed.navigation import slam
+
+    cfg = slam.FeatureSettings()
+    st = slam.start(s, cfg)
+    B = s.p.shape[0]
+    d12, v12 = np.repeat(dth[:, None], 12, 1), np.repeat(dvl[:, None], 12, 1)
+    slam.predict_static(st, d12, v12, dt, FRAME, NOISE, clock)
+    rates = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(5):
+            slam.predict_static(st, d12, v12, dt, FRAME, NOISE, clock)
+        rates.append(5 * 12 * B / (time.perf_counter() - t0))
+    print(f"{cfg.size()}-state filter with features (static block), B = {B}: predict "
+          f"{statistics.median(rates):>10,.0f} trial-steps/s (12-step aiding intervals)")
 
 
 if __name__ == "__main__":
