@@ -95,9 +95,11 @@ def _gnss(scene: Scene, n_sat: int, clock_known: bool, rng, n: int):
                    range_rate=np.where(vis, obs.range_rate, np.nan)), geom
 
 
-def run_case(scene: Scene, case: tuple, trials: int, seed: int = 0) -> dict:
+def run_case(scene: Scene, case: tuple, trials: int, seed: int = 0, separation: bool = False) -> dict:
     """One case over ``trials`` trials (chunks of :data:`CHUNK`, the same draws for every case):
-    position errors (B, T, 3) at 1 Hz, the filter's position σ (B, T, 3) and the features in slots."""
+    position errors (B, T, 3) at 1 Hz, the filter's position σ (B, T, 3) and the features in slots;
+    ``separation``: also its solution-separation sub-filters' errors and position blocks (M, B, T, ...) and
+    their modes (satellite slots, then the camera mode), one chunk only."""
     from testbed.inertial import body_to_world, local_to_world
     from testbed.navigation.ekf import ClockNoise, ImuNoise
     from testbed.navigation.run import state_from_init
@@ -112,7 +114,7 @@ def run_case(scene: Scene, case: tuple, trials: int, seed: int = 0) -> dict:
     C0 = body_to_world(scene.frame, p0, tr.q_body_to_enu[0])
     v0 = local_to_world(scene.frame, p0, tr.vel_enu[0])
     cfg = FeatureSettings()
-    errs, sds, nfs = [], [], []
+    errs, sds, nfs, subs = [], [], [], None
     for c0 in range(0, trials, CHUNK):
         n = min(CHUNK, trials - c0)
         r_imu, r_vis, r_gnss, r_init = (np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(c0, i)))
@@ -128,8 +130,8 @@ def run_case(scene: Scene, case: tuple, trials: int, seed: int = 0) -> dict:
             init = replace(init, clock_bias=np.zeros(n), clock_drift=np.zeros(n),
                            sigma=np.r_[init.sigma[:15], 0.0, 0.0])
             clock = ClockNoise(sf=0.0, sg=0.0)
-        s = start(state_from_init(init, n), cfg)
-        trace, _ = run_slam(s, imu, scene.frame, ImuNoise.from_figures(imu.figures), cfg, tracks=tracks, gnss=gnss,
+        s = start(state_from_init(init, n), cfg, n_sat_slots=np.shape(gnss.prn)[0] if separation else None)
+        trace, last = run_slam(s, imu, scene.frame, ImuNoise.from_figures(imu.figures), cfg, tracks=tracks, gnss=gnss,
                             clock=clock, t_aid=tv.t if tracks is None else None,
                             range_rate_sigma_m_s=0.05 if n_sat else None)
         at = np.flatnonzero(np.isin(np.round(trace.t * 1e6), np.round(scene.truth_g.t * 1e6)))
@@ -137,7 +139,13 @@ def run_case(scene: Scene, case: tuple, trials: int, seed: int = 0) -> dict:
         errs.append(trace.p[:, at] - truth[None])
         sds.append(np.sqrt(np.diagonal(trace.P_pos[:, at], axis1=-2, axis2=-1)))
         nfs.append(trace.n_features[:, at])
-    return {"t": trace.t[at], "err": np.concatenate(errs), "sd": np.concatenate(sds), "n_features": np.concatenate(nfs)}
+        if separation and trace.sub_dp is not None:
+            M = trace.sub_dp.shape[0] // n
+            sub_e = (trace.p[None, :, at] + trace.sub_dp[:, at].reshape(M, n, -1, 3)) - truth[None, None]
+            subs = {"sub_err": sub_e, "sub_P": trace.sub_Pp[:, at].reshape(M, n, -1, 3, 3),
+                    "P": trace.P_pos[:, at], "modes": last.bank.modes.tolist()}
+    out = {"t": trace.t[at], "err": np.concatenate(errs), "sd": np.concatenate(sds), "n_features": np.concatenate(nfs)}
+    return out if subs is None else out | subs
 
 
 def los_units(scene: Scene) -> np.ndarray:

@@ -47,8 +47,8 @@ class Bank:
 
     trial: NDArray  # (R,) int
     mode: NDArray  # (R,) int
-    dx: NDArray  # (R, 17) offset from the trial's main nominal state
-    P: NDArray  # (R, 17, 17)
+    dx: NDArray  # (R, n) offset from the trial's main nominal state (n = 17, or with slam.py's static block)
+    P: NDArray  # (R, n, n)
     n_trials: int
     vision_mode: int  # = S, the satellite slots' count: the camera mode (landmark l is S + 1 + l)
     per_landmark: bool = True
@@ -57,8 +57,8 @@ class Bank:
     pending: tuple[NDArray, NDArray] | None = None
 
     @classmethod
-    def empty(cls, n_trials: int, n_slots: int, per_landmark: bool = True) -> Bank:
-        return cls(np.zeros(0, int), np.zeros(0, int), np.zeros((0, N)), np.zeros((0, N, N)), n_trials, n_slots,
+    def empty(cls, n_trials: int, n_slots: int, per_landmark: bool = True, n: int = N) -> Bank:
+        return cls(np.zeros(0, int), np.zeros(0, int), np.zeros((0, n)), np.zeros((0, n, n)), n_trials, n_slots,
                    per_landmark)
 
     def vision_modes(self, landmarks: NDArray) -> NDArray:
@@ -81,12 +81,12 @@ def spawn(bank: Bank, P_main: NDArray, used_modes: NDArray) -> Bank:
     B, k = bank.n_trials, len(new)
     return replace(bank, trial=np.concatenate([bank.trial, np.tile(np.arange(B), k)]),
                    mode=np.concatenate([bank.mode, np.repeat(np.asarray(new, int), B)]),
-                   dx=np.concatenate([bank.dx, np.zeros((k * B, N))]),
+                   dx=np.concatenate([bank.dx, np.zeros((k * B, bank.dx.shape[-1]))]),
                    P=np.concatenate([bank.P, np.tile(P_main, (k, 1, 1))]))
 
 
 def propagate(bank: Bank, Phi: NDArray, P0_before: NDArray, P0_after: NDArray) -> Bank:
-    """Through the main's transition Φ (B, 17, 17) and noise: ``P_i ← P₀⁺ + Φ(P_i − P₀)Φᵀ``, ``δ_i ← Φδ_i``."""
+    """Through the main's transition Φ (B, n, n) and noise: ``P_i ← P₀⁺ + Φ(P_i − P₀)Φᵀ``, ``δ_i ← Φδ_i``."""
     if not bank.trial.size:
         return bank
     F = Phi[bank.trial]
@@ -106,15 +106,37 @@ def settle(bank: Bank, P0_after: NDArray) -> Bank:
 def update(bank: Bank, nu0: NDArray, H0: NDArray, R0: NDArray, mask0: NDArray, row_mode: NDArray,
            dx0: NDArray) -> Bank:
     """One update stage of the sub-filters with the main's rows: ν₀, H₀, R₀, mask₀ (B, M, ...), each row's mode
-    (M,) (a sub-filter skips the rows of its own mode), and the main's correction dx₀ (B, 17) to re-reference to."""
+    (M,) (a sub-filter skips the rows of its own mode), and the main's correction dx₀ (B, n) to re-reference to."""
     if not bank.trial.size:
         return bank
     t = bank.trial
     H = H0[t]
     mask = mask0[t] & (row_mode[None, :] != bank.mode[:, None])
     nu = nu0[t] - np.einsum("rmn,rn->rm", H, bank.dx)
-    dx, P, _, _ = gain_update(bank.P, nu, H, R0[t], mask)
+    dx, P, _, _ = gain_update(bank.P, nu, H, R0[t], mask, joseph=bank.dx.shape[-1] == N)
     return replace(bank, dx=bank.dx + dx - dx0[t], P=P)
+
+
+def augment(bank: Bank, trials: NDArray, cols: slice, A: NDArray, noise: NDArray | None = None) -> Bank:
+    """A slot of the static block (slam.py) set, for the sub-filters of ``trials`` (b,), to the linear map A (b, k, n)
+    of each one's own error state plus independent noise (b, k, k): rows ``A P_i``, block ``A P_i Aᵀ + noise``,
+    offset ``A δ_i`` — what the main's slot got, through the same map (A zero: the slot cleared)."""
+    if not bank.trial.size or not np.size(trials):
+        return bank
+    pos = np.full(bank.n_trials, -1)
+    pos[np.asarray(trials)] = np.arange(np.size(trials))
+    r = np.flatnonzero(pos[bank.trial] >= 0)
+    if not r.size:
+        return bank
+    Ar = A[pos[bank.trial[r]]]
+    P, dx = bank.P.copy(), bank.dx.copy()
+    rows = Ar @ P[r]
+    diag = rows @ np.swapaxes(Ar, -1, -2) + (0.0 if noise is None else noise[pos[bank.trial[r]]])
+    rows[:, :, cols] = diag
+    P[r, cols, :] = rows
+    P[r, :, cols] = np.swapaxes(rows, -1, -2)
+    dx[r, cols] = np.einsum("rkn,rn->rk", Ar, bank.dx[r])
+    return replace(bank, P=P, dx=dx)
 
 
 @dataclass(frozen=True)
@@ -162,4 +184,4 @@ def separation(P_main: NDArray, sub_dp: NDArray, sub_Pp: NDArray, p_fa_share: fl
     return Separation(np.maximum(k_ff * np.sqrt(var0), bound.max(0)), r.max(axis=(0, -1)), n_modes)
 
 
-__all__ = ["Bank", "Separation", "propagate", "separation", "settle", "spawn", "stack_subs", "update"]
+__all__ = ["Bank", "Separation", "augment", "propagate", "separation", "settle", "spawn", "stack_subs", "update"]

@@ -36,6 +36,8 @@ from testbed.inertial import skew, so3_exp
 from testbed.navigation.ekf import N, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows
 from testbed.navigation.ekf import predict_compiled as predict
 from testbed.navigation.run import gnss_rows
+from testbed.navigation.separation import Bank, augment, propagate, spawn, stack_subs
+from testbed.navigation.separation import update as update_subs
 from testbed.records import GnssEpochs, ImuSamples
 from testbed.sensors.vision.features import FeatureTracks
 
@@ -78,6 +80,9 @@ class SlamState:
     c_C: NDArray  # (B, K, 3, 3) and attitude
     c_uv: NDArray  # (B, K, 2) the first pixel
     c_age: NDArray  # (B, K) frames since the clone
+    #: solution-separation sub-filters (separation.py) over the full state: one per satellite and one without
+    #: every feature row (the camera mode); every linear map the main's static block takes, they take too
+    bank: Bank | None = None
 
     def core(self) -> NavState:
         return replace(self.nav, P=np.ascontiguousarray(self.P[:, :N, :N]))
@@ -92,15 +97,17 @@ def clone_cols(cfg: FeatureSettings, k: int) -> slice:
     return slice(o, o + 6)
 
 
-def start(nav: NavState, cfg: FeatureSettings) -> SlamState:
-    """The filter with empty slots (its core covariance ``nav.P``)."""
+def start(nav: NavState, cfg: FeatureSettings, n_sat_slots: int | None = None) -> SlamState:
+    """The filter with empty slots (its core covariance ``nav.P``); with ``n_sat_slots`` (the GNSS records'
+    satellite slots) also its solution-separation sub-filters."""
     B, n = nav.p.shape[0], cfg.size()
     P = np.zeros((B, n, n))
     P[:, :N, :N] = nav.P
     J, K = cfg.slots, cfg.clones
     return SlamState(nav=nav, P=P, f_id=np.full((B, J), -1), f_m=np.zeros((B, J, 3)), f_lost=np.zeros((B, J), int),
                      c_id=np.full((B, K), -1), c_p=np.zeros((B, K, 3)), c_C=np.broadcast_to(np.eye(3), (B, K, 3, 3)).copy(),
-                     c_uv=np.zeros((B, K, 2)), c_age=np.zeros((B, K), int))
+                     c_uv=np.zeros((B, K, 2)), c_age=np.zeros((B, K), int),
+                     bank=None if n_sat_slots is None else Bank.empty(B, int(n_sat_slots), per_landmark=False, n=n))
 
 
 def predict_static(s: SlamState, dtheta: NDArray, dvel: NDArray, dt: float, frame: LocalFrame, imu: ImuNoise,
@@ -114,15 +121,26 @@ def predict_static(s: SlamState, dtheta: NDArray, dvel: NDArray, dt: float, fram
     P[:, :N, :N] = nav.P
     P[:, :N, N:] = Phi @ s.P[:, :N, N:]
     P[:, N:, :N] = np.swapaxes(P[:, :N, N:], -1, -2)
-    return replace(s, nav=nav, P=P)
+    bank = s.bank
+    if bank is not None and bank.trial.size:
+        F = np.broadcast_to(np.eye(P.shape[-1]), P.shape).copy()
+        F[:, :N, :N] = Phi
+        bank = propagate(bank, F, s.P, P)
+    return replace(s, nav=nav, P=P, bank=bank)
 
 
-def apply_update(s: SlamState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray
+def apply_update(s: SlamState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray, row_mode: NDArray | None = None
                  ) -> tuple[SlamState, NDArray, NDArray]:
     """One masked batched update with rows over the full state (H (B, M, n)); the NIS and its dof. The short
-    form ``P − KHP`` (the 50-state Joseph form costs three times as much; the NEES tests hold with it)."""
+    form ``P − KHP`` (the 50-state Joseph form costs three times as much; the NEES tests hold with it).
+    ``row_mode`` (M,): each row's fault mode, for the sub-filters (spawned at a mode's first use)."""
+    bank = s.bank
+    if bank is not None:
+        bank = spawn(bank, s.P, row_mode[mask.any(0)])
     dx, P, nis, dof = gain_update(s.P, nu, H, R, mask, joseph=False)
-    return inject_static(replace(s, nav=inject(s.nav, dx[:, :N]), P=P), dx), nis, dof
+    if bank is not None:
+        bank = update_subs(bank, nu, H, R, mask, row_mode, dx)
+    return inject_static(replace(s, nav=inject(s.nav, dx[:, :N]), P=P, bank=bank), dx), nis, dof
 
 
 def inject_static(s: SlamState, dx: NDArray) -> SlamState:
@@ -214,16 +232,20 @@ def triangulation_jacobians(m: NDArray, poses: list[tuple[NDArray, NDArray, NDAr
     return out
 
 
-def _set_block(P: NDArray, b: NDArray, cols: slice, rows: NDArray, diag: NDArray) -> None:
-    """For trials b: the slot ``cols``' rows/columns of P become ``rows`` (|b|, 3|6, n), its block ``diag``."""
-    P[b, cols, :] = rows
-    P[b, :, cols] = np.swapaxes(rows, -1, -2)
-    P[np.ix_(b, np.arange(cols.start, cols.stop), np.arange(cols.start, cols.stop))] = diag
+def _map_slot(s: SlamState, b: NDArray, cols: slice, A: NDArray, noise: NDArray | None = None) -> SlamState:
+    """For trials b: the slot ``cols`` becomes the linear map A (|b|, k, n) of the error state plus independent
+    noise (|b|, k, k): rows ``A P``, block ``A P Aᵀ + noise`` (A = 0 clears it, exactly a marginalisation); the
+    sub-filters take the same map of their own states (:func:`.separation.augment`)."""
+    rows = A @ s.P[b]
+    diag = rows @ np.swapaxes(A, -1, -2) + (0.0 if noise is None else noise)
+    rows[:, :, cols] = 0.5 * (diag + np.swapaxes(diag, -1, -2))
+    s.P[b, cols, :] = rows
+    s.P[b, :, cols] = np.swapaxes(rows, -1, -2)
+    return s if s.bank is None else replace(s, bank=augment(s.bank, b, cols, A, noise))
 
 
-def _clear(P: NDArray, b: NDArray, cols: slice) -> None:
-    P[b, cols, :] = 0.0
-    P[b, :, cols] = 0.0
+def _clear(s: SlamState, b: NDArray, cols: slice) -> SlamState:
+    return _map_slot(s, b, cols, np.zeros((b.size, cols.stop - cols.start, s.P.shape[-1])))
 
 
 def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> SlamState:
@@ -232,18 +254,17 @@ def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) ->
                 c_p=s.c_p.copy(), c_C=s.c_C.copy(), c_uv=s.c_uv.copy(), c_age=s.c_age.copy())
     seen_f = np.isfinite(_lookup(tracks, k, s.f_id)).all(-1)
     s.f_lost[:] = np.where(seen_f, 0, s.f_lost + 1)
-    _triangulate_clones(s, tracks, k, cfg)
+    s = _triangulate_clones(s, tracks, k, cfg)
     lost = (s.f_id >= 0) & (s.f_lost > cfg.lost_frames)
     for j in range(cfg.slots):
         b = np.flatnonzero(lost[:, j])
         if b.size:
-            _clear(s.P, b, feature_cols(j))
+            s = _clear(s, b, feature_cols(j))
             s.f_id[b, j] = -1
-    _start_clones(s, tracks, k, cfg)
-    return s
+    return _start_clones(s, tracks, k, cfg)
 
 
-def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> None:
+def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> SlamState:
     K, R_cb = tracks.K, tracks.camera.R_sensor_to_body
     lc = np.asarray(tracks.camera.lever_arm_body, float)
     uv2 = _lookup(tracks, k, s.c_id)  # (B, K, 2)
@@ -280,31 +301,27 @@ def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: Featur
                 cc = clone_cols(cfg, q)
                 A[:, :, cc.start:cc.start + 3], A[:, :, cc.start + 3:cc.stop] = Jp1, Jq1
                 A[:, :, 0:3], A[:, :, 6:9] = Jp2, Jq2
-                rows = A @ s.P[g]
-                Pmm = rows @ np.swapaxes(A, -1, -2) + var * (Ju1 @ np.swapaxes(Ju1, -1, -2) + Ju2 @ np.swapaxes(Ju2, -1, -2))
+                noise = var * (Ju1 @ np.swapaxes(Ju1, -1, -2) + Ju2 @ np.swapaxes(Ju2, -1, -2))
                 for j in np.unique(slot):
                     sel = slot == j
                     gj = g[sel]
-                    cols = feature_cols(int(j))
-                    r = rows[sel].copy()
-                    Pjj = 0.5 * (Pmm[sel] + np.swapaxes(Pmm[sel], -1, -2))
-                    r[:, :, cols] = Pjj
-                    _set_block(s.P, gj, cols, r, Pjj)
+                    s = _map_slot(s, gj, feature_cols(int(j)), A[sel], noise[sel])
                     s.f_id[gj, j] = s.c_id[gj, q]
                     s.f_m[gj, j] = m[go][sel]
                     s.f_lost[gj, j] = 0
                 drop[g] = True
         d = np.flatnonzero(drop)
         if d.size:
-            _clear(s.P, d, clone_cols(cfg, q))
+            s = _clear(s, d, clone_cols(cfg, q))
             s.c_id[d, q] = -1
             s.c_age[d, q] = 0
+    return s
 
 
-def _start_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> None:
+def _start_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> SlamState:
     ids = tracks.ids[k]
     if not ids.size:
-        return
+        return s
     uv = tracks.uv[:, k]  # (B, W, 2)
     B = uv.shape[0]
     for q in range(cfg.clones):
@@ -320,13 +337,14 @@ def _start_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSetti
         b = np.flatnonzero(want & cand[np.arange(B), pick])
         if not b.size:
             continue
-        cols = clone_cols(cfg, q)
-        rows = s.P[b][:, _POSE, :]
-        _set_block(s.P, b, cols, rows, rows[:, :, _POSE])
+        E = np.zeros((b.size, 6, s.P.shape[-1]))  # the clone copies the core's δp, δψ
+        E[:, np.arange(6), _POSE] = 1.0
+        s = _map_slot(s, b, clone_cols(cfg, q), E)
         s.c_id[b, q] = ids[pick[b]]
         s.c_p[b, q], s.c_C[b, q] = s.nav.p[b], s.nav.C[b]
         s.c_uv[b, q] = uv[b, pick[b]]
         s.c_age[b, q] = 0
+    return s
 
 
 @dataclass(frozen=True)
@@ -339,6 +357,8 @@ class SlamTrace:
     n_features: NDArray  # (B, T)
     nis: NDArray  # (B, T)
     dof: NDArray  # (B, T)
+    sub_dp: NDArray | None = None  # the sub-filters' position offsets (R, T, 3) (separation.py)
+    sub_Pp: NDArray | None = None  # and position blocks (R, T, 3, 3)
 
 
 def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, cfg: FeatureSettings,
@@ -350,6 +370,7 @@ def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoi
     B, n = s.P.shape[0], s.P.shape[-1]
     k_g = None if gnss is None else {round(float(t) * 1e6): i for i, t in enumerate(gnss.t)}
     rec = {k: [] for k in ("p", "P_pos", "n_features", "nis", "dof")}
+    sub_dp, sub_Pp = [], []
     k_imu = 0
     for k, t in enumerate(t_aid):
         k_end = int(np.searchsorted(imu.t, t + 1e-9, side="right"))
@@ -366,13 +387,14 @@ def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoi
         if kg is not None:
             rows = gnss_rows(s.core(), gnss, kg, frame, omega, range_rate_sigma_m_s)
             if rows is not None:
-                nu, H, R, mask = rows[:4]
-                s, a, b = apply_update(s, nu, widen(H, n), R, mask)
+                nu, H, R, mask, row_sat, _ = rows
+                s, a, b = apply_update(s, nu, widen(H, n), R, mask, row_sat)
                 nis, dof = nis + a, dof + b
         if tracks is not None:
             rows = feature_rows(s, tracks, k, n)
             if rows is not None:
-                s, a, b = apply_update(s, *rows)
+                camera = np.full(rows[0].shape[-1], -1 if s.bank is None else s.bank.vision_mode)
+                s, a, b = apply_update(s, *rows, row_mode=camera)
                 nis, dof = nis + a, dof + b
             s = manage(s, tracks, k, cfg)
         rec["p"].append(s.nav.p)
@@ -380,7 +402,13 @@ def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoi
         rec["n_features"].append((s.f_id >= 0).sum(-1))
         rec["nis"].append(nis)
         rec["dof"].append(dof)
-    return SlamTrace(t=t_aid, **{k: np.stack(v, 1) for k, v in rec.items()}), s
+        if s.bank is not None:
+            sub_dp.append(s.bank.dx[:, :3])
+            sub_Pp.append(s.bank.P[:, :3, :3])
+    out = {k: np.stack(v, 1) for k, v in rec.items()}
+    if s.bank is not None and sub_dp:
+        out["sub_dp"], out["sub_Pp"] = stack_subs(sub_dp, sub_Pp, out["P_pos"], B)
+    return SlamTrace(t=t_aid, **out), s
 
 
 __all__ = ["FeatureSettings", "SlamState", "SlamTrace", "apply_update", "bearing", "feature_rows", "manage",
