@@ -197,6 +197,8 @@ FILE_CASES = [
      "gnss.correlators.multipath", "sky"),
     ("echo-stronger-than-direct", lambda d: approach(d, tail="[gnss.correlators]\nground_echo_db = 6.0"),
      "gnss.correlators.ground_echo_db", "6"),
+    ("nan-doppler", lambda d: approach(d, tail="[gnss.correlators]\nresidual_doppler_hz = nan"),
+     "gnss.correlators.residual_doppler_hz", "nan"),
     ("doppler-past-the-first-null", lambda d: approach(d, tail="[gnss.correlators]\nresidual_doppler_hz = 50.0"),
      "gnss.correlators.residual_doppler_hz", "50"),
     ("string-block-count", lambda d: approach(d, tail='[gnss.correlators]\nn_noncoherent = "50"'),

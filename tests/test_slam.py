@@ -226,8 +226,8 @@ def test_bad_feature_settings_and_racetrack_are_refused():
         racetrack_truth(LocalFrame(0.0, 0.0, 0.0), radius_m=-1.0)
 
 
-def test_the_racetrack_truth_is_the_seeds_route(scene):
-    """Two laps in 300 s at ~3.26 m/s, 10 m up, the IMU from it reproduces the poses (inverse strapdown)."""
+def test_the_racetrack_truth_is_the_seeds_route():
+    """Two laps in 300 s at ~3.26 m/s (constant), 10 m up, back at the start."""
     from testbed.flight.kinematic import racetrack_truth
     from testbed.frames import LocalFrame
 

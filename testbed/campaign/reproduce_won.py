@@ -58,11 +58,14 @@ class Scene:
     mount: object
     points: np.ndarray
     imu: object  # ImuSettings
+    gnss_geom: object  # GnssGeometry at the 1 Hz epochs (the noise and clock models do not change it)
 
 
 def won_scene(duration_s: float = 300.0, n_points: int = 9000, seed: int = 2013) -> Scene:
     from testbed.flight.kinematic import racetrack_truth
     from testbed.frames import LocalFrame
+    from testbed.records import Mount
+    from testbed.sensors.gnss.synth import gnss_geometry
     from testbed.sensors.imu.settings import ImuSettings
     from testbed.sensors.vision.camera import PinholeCamera
     from testbed.sensors.vision.dithering import mount_from_settings
@@ -74,25 +77,29 @@ def won_scene(duration_s: float = 300.0, n_points: int = 9000, seed: int = 2013)
     tr = tr.at_indices(np.flatnonzero(tr.t <= duration_s + 1e-9))
     # ~0.24 features per m² around the track: 7–20 in view (the seed: at most seven used)
     pts = ground_features(n_points, (-60.0, 210.0), (-40.0, 100.0), np.random.default_rng(seed))
-    return Scene(frame=frame, truth=tr, truth_v=tr.decimate(10.0), truth_g=tr.decimate(1.0),
+    truth_g = tr.decimate(1.0)
+    geom = gnss_geometry(truth_g, Mount(lever_arm_body=np.zeros(3)), _gnss_settings(False), start_utc=START_UTC)
+    return Scene(frame=frame, truth=tr, truth_v=tr.decimate(10.0), truth_g=truth_g, gnss_geom=geom,
                  camera=PinholeCamera.from_fov(1032, 776, 28.0),
                  mount=mount_from_settings(MountSettings(lever_arm_body_m=(0.0, 0.0, 0.0), pitch_deg=-45.0)),
                  points=pts, imu=ImuSettings(grade="hg1700", rate_hz=120.0, earth_rotation=False))
 
 
+def _gnss_settings(clock_known: bool):
+    from testbed.sensors.gnss.settings import GnssSettings
+
+    return GnssSettings(terrain_masking=False, airframe_masking=False, sigma_ura_m=1.5, clock_model=not clock_known)
+
+
 def _gnss(scene: Scene, n_sat: int, clock_known: bool, rng, n: int):
     """Pseudoranges and range rates of the first ``n_sat`` of :data:`PRNS`, the others masked."""
-    from testbed.records import Mount
-    from testbed.sensors.gnss.settings import GnssSettings
-    from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
+    from testbed.sensors.gnss.synth import sample_gnss
 
-    gs = GnssSettings(terrain_masking=False, airframe_masking=False, sigma_ura_m=1.5, clock_model=not clock_known)
-    geom = gnss_geometry(scene.truth_g, Mount(lever_arm_body=np.zeros(3)), gs, start_utc=START_UTC)
-    obs, _ = sample_gnss(geom, gs, rng=rng, n_trials=n)
+    obs, _ = sample_gnss(scene.gnss_geom, _gnss_settings(clock_known), rng=rng, n_trials=n)
     keep = np.isin(obs.prn, PRNS[:n_sat])
     vis = np.asarray(obs.visible) & keep
     return replace(obs, visible=vis, pseudorange=np.where(vis, obs.pseudorange, np.nan),
-                   range_rate=np.where(vis, obs.range_rate, np.nan)), geom
+                   range_rate=np.where(vis, obs.range_rate, np.nan)), scene.gnss_geom
 
 
 def run_case(scene: Scene, case: tuple, trials: int, seed: int = 0, separation: bool = False) -> dict:
@@ -150,12 +157,7 @@ def run_case(scene: Scene, case: tuple, trials: int, seed: int = 0, separation: 
 
 def los_units(scene: Scene) -> np.ndarray:
     """The unit lines of sight (3, 3) of :data:`PRNS` at the run's middle (world frame)."""
-    from testbed.records import Mount
-    from testbed.sensors.gnss.settings import GnssSettings
-    from testbed.sensors.gnss.synth import gnss_geometry
-
-    geom = gnss_geometry(scene.truth_g, Mount(lever_arm_body=np.zeros(3)), GnssSettings(terrain_masking=False,
-                         airframe_masking=False), start_utc=START_UTC)
+    geom = scene.gnss_geom
     k = len(geom.t) // 2
     out = []
     for prn in PRNS:

@@ -113,6 +113,7 @@ def update(bank: Bank, nu0: NDArray, H0: NDArray, R0: NDArray, mask0: NDArray, r
     H = H0[t]
     mask = mask0[t] & (row_mode[None, :] != bank.mode[:, None])
     nu = nu0[t] - np.einsum("rmn,rn->rm", H, bank.dx)
+    # the main's own form: Joseph for the 17-state core, P − KHP with slam.py's static block
     dx, P, _, _ = gain_update(bank.P, nu, H, R0[t], mask, joseph=bank.dx.shape[-1] == N)
     return replace(bank, dx=bank.dx + dx - dx0[t], P=P)
 
