@@ -370,6 +370,24 @@ class VisionEpochs:
 
 
 @dataclass(frozen=True)
+class FeatureTracks:
+    """Tracked unsurveyed ground features at the vision epochs (:mod:`testbed.sensors.vision.features`).
+
+    t : (T,) s.  ids : (T, W) int, the scene points in view (−1: padding), the same for every trial.
+    uv : (B, T, W, 2) px, reported pixels (NaN on padding).  sigma_px : the pixel noise 1σ per axis.
+    K : (3, 3) intrinsics.  camera : the mount (lever arm, R_cam_to_body).
+    (W is a block's widest epoch: blocks of a flight may differ in it, so they are not joined.)
+    """
+
+    t: NDArray = epoch_array(batched=False)
+    ids: NDArray = epoch_array(1, batched=False)
+    uv: NDArray = epoch_array(2)
+    sigma_px: float = field()
+    K: NDArray = field()
+    camera: Mount = field()
+
+
+@dataclass(frozen=True)
 class ImuSamples:
     """What the IMU reports (no truth): increments over each interval ending at ``t``.
 

@@ -115,6 +115,10 @@ class CellContext:
     #: only when a monitor reads the IMU (the seed-002 filter)
     imu_increments: tuple | None = None
     imu_start: tuple | None = None
+    #: the ground features the tracker follows at the GNSS epochs (T, W) and the tracker's camera: only when
+    #: the approach's ``[vision.features]`` is enabled and a monitor reads them (the seed-002 filter)
+    feature_ids: np.ndarray | None = None
+    feature_camera: tuple | None = None
 
     def gnss_geometry_of(self, windows: np.ndarray | None):
         """The GNSS geometry of trials flying in sky ``windows`` (n,) (None: the fixed start)."""
@@ -180,6 +184,15 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                 json.dumps([f.model_dump(mode="json") for f in setup.faults], sort_keys=True))
         v_geom = _cached(vkey, lambda: vdetect.vision_geometry(truth, setup.vision, landmarks=lm, terrain=terrain,
                                                                faults=list(setup.faults)))
+    f_ids = f_cam = None
+    if setup.features is not None:
+        from testbed.sensors.vision.dithering import mount_from_settings
+        from testbed.sensors.vision.features import scene_ids
+
+        f_cam = (setup.vision.camera.build(), mount_from_settings(setup.vision.mount))
+        fkey_ = ("feature_ids", tkey, json.dumps(setup.vision.model_dump(mode="json"), sort_keys=True),
+                 setup.features.tobytes())
+        f_ids = _cached(fkey_, lambda: scene_ids(truth, *f_cam, setup.features, setup.vision.features, terrain))
     levels = tuple(setup.integrity.service_levels)
     lv = [service_level(n) for n in levels]
     onset = min((f.onset_s for f in setup.faults), default=float("nan"))
@@ -187,7 +200,8 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                        landmarks=lm, truth_cg_enu=setup.frame.ecef_to_enu(truth.pos_ecef),
                        truth_ant_enu=setup.frame.ecef_to_enu(g_geom.ant_pos_ecef),
                        hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset),
-                       truth_g=truth, sky=sky, imu_increments=imu_inc, imu_start=imu_start)
+                       truth_g=truth, sky=sky, imu_increments=imu_inc, imu_start=imu_start, feature_ids=f_ids,
+                       feature_camera=f_cam)
 
 
 def _segment_start(t_gnss: np.ndarray, duration_s: float | None, segment: str) -> float:
@@ -258,9 +272,10 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     s = ctx.setup
     i0 = block * spec.block_trials
     n = min(spec.block_trials, spec.trials - i0)
-    # children 0-2 as before; children 3 (the correlators), 4 and 5 (IMU errors, alignment) leave them unchanged
-    ss_g, ss_v, ss_s, ss_c, ss_i, ss_a = block_seed(spec.base_seed, ctx.cell.index, block,
-                                                    spec.common_random_numbers).spawn(6)
+    # children 0-2 as before; children 3 (the correlators), 4 and 5 (IMU errors, alignment), 6 (the ground
+    # features' tracking) leave them unchanged
+    ss_g, ss_v, ss_s, ss_c, ss_i, ss_a, ss_f = block_seed(spec.base_seed, ctx.cell.index, block,
+                                                          spec.common_random_numbers).spawn(7)
     faults = list(s.faults)
     trials = np.arange(i0, i0 + n)
     offsets = sortie_offsets(spec, trials)
@@ -286,7 +301,13 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     if s.gnss.correlator_pseudoranges:
         gnss, gtruth = _correlator_observations(ctx, gnss, gtruth, ss_c, trials)
     imu, init = _imu_draw(ctx, gtruth, ss_i, ss_a, n) if ctx.imu_increments is not None else (None, None)
-    return BlockDraw(trials, Observations(gnss, vis, imu, init), gtruth, vtruth, target, offsets,
+    tracks = None
+    if ctx.feature_ids is not None:  # every trial's pixels under its own (dithered) camera
+        from testbed.sensors.vision.features import scene_tracks
+
+        tracks = scene_tracks(ctx.feature_ids, vtruth, s.features, s.frame, *ctx.feature_camera, s.vision.features,
+                              ss_f.generate_state(4), n_trials=n)
+    return BlockDraw(trials, Observations(gnss, vis, imu, init, features=tracks), gtruth, vtruth, target, offsets,
                      np.full(n, -1, np.int64) if windows is None else windows, _fault_present(gnss, gtruth, vis, vtruth),
                      ss_c, model_gnss)
 

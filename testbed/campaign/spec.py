@@ -111,6 +111,9 @@ class Sweep(StrictModel):
     max_satellites: list[int] = Field(
         default_factory=list, description="satellites tracked at most, for the whole sortie (replaces the approach's "
                                           "[gnss] schedule; which ones: its [gnss] keep): the satellites-in-view axis")
+    ground_features: list[bool] = Field(
+        default_factory=list, description="the tracked unsurveyed ground features off / on ([vision.features] "
+                                          "enabled; the seed-002 filter reads them): the SLAM axis")
 
     @field_validator("start_time_utc")
     @classmethod
@@ -382,6 +385,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
         ("va_raim_variant", sw.va_raim_variant or [None]),
         ("multipath_echo_db", sw.multipath_echo_db or [None]),
         ("max_satellites", sw.max_satellites or [None]),
+        ("ground_features", sw.ground_features or [None]),
     ]
     names = [a for a, _ in axes]
     cells: list[Cell] = []
@@ -422,6 +426,8 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                     corr["ground_echo_db"] = float(c["multipath_echo_db"])
             if c["max_satellites"] is not None:
                 d.setdefault("gnss", {})["schedule"] = [{"from_s": 0.0, "max_satellites": int(c["max_satellites"])}]
+            if c["ground_features"] is not None:
+                _set(d, "vision.features.enabled", bool(c["ground_features"]))
             if reads_vision(spec.monitors):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
@@ -447,6 +453,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 "multipath_echo_db": (float(cfg.gnss.correlators.ground_echo_db)
                                       if cfg.gnss.correlators.multipath == "ground" else float("nan")),
                 "max_satellites": -1 if c["max_satellites"] is None else int(c["max_satellites"]),
+                "ground_features": int(cfg.vision.features.enabled),
                 "hal": min(service_level(n).hal for n in cfg.integrity.service_levels),
                 "val": min(service_level(n).val for n in cfg.integrity.service_levels),
             }
@@ -476,7 +483,7 @@ def _describe(name: str, c: dict) -> str:
     fk, fam, mag = c["fault"]
     parts.append(f"faults.{fk} {fam.kind} {mag:g}")
     for k in ("start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant",
-              "multipath_echo_db", "max_satellites"):
+              "multipath_echo_db", "max_satellites", "ground_features"):
         if c[k] is not None:
             parts.append(f"{k}={c[k]}")
     if c["landmark_set"] is not None:

@@ -39,14 +39,15 @@ from typing import Any, ClassVar, Mapping, Protocol, runtime_checkable
 
 from testbed.frames import LocalFrame
 from testbed.integrity.settings import IntegritySettings
-from testbed.records import CorrelatorEpochs, GnssEpochs, ImuSamples, MonitorOutput, NavInit, VisionEpochs
+from testbed.records import (CorrelatorEpochs, FeatureTracks, GnssEpochs, ImuSamples, MonitorOutput, NavInit,
+                             VisionEpochs)
 
 #: what a monitor's position estimate refers to (evaluation picks the matching truth)
 ANTENNA = "antenna"
 REFERENCE_POINT = "reference point (CG)"
 
 #: observation kinds a monitor may declare in ``inputs``
-INPUT_KINDS = frozenset({"gnss", "vision", "imu", "correlators"})
+INPUT_KINDS = frozenset({"gnss", "vision", "imu", "correlators", "features"})
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,8 @@ class Observations:
     when no monitor of the run reads vision.  imu : the IMU intervals of the block (None
     unless a monitor reads "imu").  init : the alignment (:class:`~testbed.records.NavInit`),
     with the first block only.  correlators : the correlograms at the GNSS epochs (None unless
-    a monitor reads "correlators").
+    a monitor reads "correlators").  features : the tracked unsurveyed ground features at the GNSS
+    epochs (None unless a monitor reads "features" and the approach's ``[vision.features]`` is enabled).
     """
 
     gnss: GnssEpochs
@@ -65,6 +67,7 @@ class Observations:
     imu: ImuSamples | None = None
     init: NavInit | None = None
     correlators: CorrelatorEpochs | None = None
+    features: FeatureTracks | None = None
 
     @property
     def t(self):

@@ -21,7 +21,7 @@ _SHIPPED = {
     "gps_raim": ("testbed.integrity.raim:build_monitor", frozenset({"gnss"})),
     "va_raim": ("testbed.integrity.va_raim:build_monitor", frozenset({"gnss", "vision"})),
     "pixel": ("testbed.integrity.pixel:build_monitor", frozenset({"gnss", "vision"})),
-    "ekf": ("testbed.navigation.monitor:build_monitor", frozenset({"gnss", "vision", "imu"})),
+    "ekf": ("testbed.navigation.monitor:build_monitor", frozenset({"gnss", "vision", "imu", "features"})),
     "dpe": ("testbed.integrity.dpe.monitor:build_monitor", frozenset({"gnss", "correlators"})),
 }
 _ADDED: dict[str, tuple[Builder, frozenset[str]]] = {}
@@ -81,6 +81,10 @@ def reads_vision(names) -> bool:
 
 def reads_imu(names) -> bool:
     return any("imu" in monitor_inputs(n) for n in names)
+
+
+def reads_features(names) -> bool:
+    return any("features" in monitor_inputs(n) for n in names)
 
 
 def reads_correlators(names) -> bool:

@@ -34,6 +34,7 @@ from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observati
 from testbed.navigation.ekf import ImuNoise, NavState, predict_compiled
 from testbed.navigation.run import ClockNoise, filter_epochs, state_from_init
 from testbed.navigation.separation import Bank, separation
+from testbed.navigation.slam import FeatureSettings, SlamState, run_slam, start
 from testbed.records import Diagnostics, MonitorOutput, epoch_array
 from testbed.schema import StrictModel
 
@@ -65,6 +66,22 @@ class EkfSettings(StrictModel):
     range_rate_sigma_m_s: float = Field(0.05, gt=0.0, le=100.0, description="the range-rate 1σ the filter assumes "
                                                                            "(m/s; the sensor's default "
                                                                            "gnss.range_rate_sigma_m_s)")
+    features: bool = Field(True, description="update with the tracked unsurveyed ground features when the approach "
+                                             "synthesises them ([vision.features] enabled): SLAM states by delayed "
+                                             "initialisation (navigation/slam.py)")
+    feature_slots: int = Field(7, ge=1, le=30, description="feature states the filter holds")
+    feature_clones: int = Field(2, ge=1, le=10, description="pose clones waiting for parallax (features being "
+                                                            "initialised at once)")
+    parallax_deg: float = Field(3.0, gt=0.0, lt=90.0, description="a feature is triangulated once its two "
+                                                                  "bearings are this far apart")
+    max_wait_frames: int = Field(30, ge=1, le=10_000, description="a clone without parallax after this many "
+                                                                  "GNSS epochs is dropped")
+    lost_frames: int = Field(5, ge=0, le=10_000, description="a feature unseen for this many GNSS epochs is "
+                                                            "marginalised")
+
+    def feature_settings(self) -> FeatureSettings:
+        return FeatureSettings(self.feature_slots, self.feature_clones, self.parallax_deg, self.max_wait_frames,
+                               self.lost_frames)
 
 
 @dataclass(frozen=True)
@@ -82,17 +99,20 @@ class EkfDiagnostics(Diagnostics):
     window_threshold: NDArray = epoch_array()
     ss_ratio: NDArray = epoch_array()
     n_modes: NDArray = epoch_array()
+    n_features: NDArray = epoch_array()  # features in the filter's state (0 without [vision.features])
     k_ff: float = 0.0
 
 
 @dataclass(frozen=True)
 class EkfState:
     """The filter's carry between blocks: None before the alignment; the sub-filter bank (ss); the last
-    epochs' NIS and dof within the window (their times (W,), values (B, W))."""
+    epochs' NIS and dof within the window (their times (W,), values (B, W)); with ground features the
+    SLAM filter instead of ``nav`` and ``bank`` (it holds its own bank)."""
 
     nav: NavState | None = None
     bank: Bank | None = None
     window: tuple[NDArray, NDArray, NDArray] | None = None
+    slam: SlamState | None = None
 
 
 @dataclass(frozen=True)
@@ -100,7 +120,7 @@ class EkfMonitor:
     name: str
     context: MonitorContext
     settings: EkfSettings
-    inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision", "imu"})
+    inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision", "imu", "features"})
     reference: ClassVar[str] = REFERENCE_POINT
     several_tests: ClassVar[bool] = True  # its alert is the innovation, windowed and separation tests
 
@@ -117,24 +137,37 @@ class EkfMonitor:
         g = obs.gnss
         lead = np.shape(g.pseudorange)[:-2]
         T = len(g.t)
-        nav, bank = state.nav, state.bank
-        if nav is None and obs.init is not None:
+        nav, bank, slam = state.nav, state.bank, state.slam
+        ss = self.settings.pl_variant == "ss"
+        if nav is None and slam is None and obs.init is not None:
             nav = state_from_init(obs.init, None if not lead else lead[0])
-            if self.settings.pl_variant == "ss":
-                bank = Bank.empty(nav.p.shape[0], np.shape(g.prn)[0], self.settings.ss_vision == "landmark")
-        if nav is None or obs.imu is None:
-            return self._unavailable(g.t, lead, T), EkfState(nav, bank, state.window)
+            S, per_landmark = np.shape(g.prn)[0], self.settings.ss_vision == "landmark"
+            if self.settings.features and obs.features is not None:
+                slam, nav = start(nav, self.settings.feature_settings(), S if ss else None, per_landmark), None
+            elif ss:
+                bank = Bank.empty(nav.p.shape[0], S, per_landmark)
+        if (nav is None and slam is None) or obs.imu is None:
+            return self._unavailable(g.t, lead, T), EkfState(nav, bank, state.window, slam)
         vis = obs.vision if self.settings.vision else None
         dither = 0.0
-        if vis is not None:
-            f = float(np.asarray(vis.K)[0, 0])
-            dither = float(np.hypot(self.settings.dither_sigma_px, f * np.max(np.asarray(vis.dither_sigma))))
-        trace, nav, bank = filter_epochs(
-            nav, obs.imu, self.context.frame, ImuNoise.from_figures(obs.imu.figures), g, vis, ClockNoise(),
-            dither_sigma_px=dither, survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True,
-            range_rate_sigma_m_s=self.settings.range_rate_sigma_m_s if self.settings.range_rate else None, bank=bank)
+        if vis is not None or obs.features is not None:
+            K, sig = (vis.K, vis.dither_sigma) if vis is not None else (obs.features.K, np.zeros(3))
+            dither = float(np.hypot(self.settings.dither_sigma_px, float(np.asarray(K)[0, 0]) * np.max(np.asarray(sig))))
+        noise = ImuNoise.from_figures(obs.imu.figures)
+        rr = self.settings.range_rate_sigma_m_s if self.settings.range_rate else None
+        if slam is not None:
+            trace, slam = run_slam(slam, obs.imu, self.context.frame, noise, self.settings.feature_settings(),
+                                   tracks=obs.features, gnss=g, t_aid=g.t, range_rate_sigma_m_s=rr, vision=vis,
+                                   dither_sigma_px=dither, survey_sigma_m=self.settings.landmark_survey_sigma_m,
+                                   through_end=True)
+            bank = slam.bank
+        else:
+            trace, nav, bank = filter_epochs(
+                nav, obs.imu, self.context.frame, noise, g, vis, ClockNoise(), dither_sigma_px=dither,
+                survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True, range_rate_sigma_m_s=rr,
+                bank=bank)
         out, window = self._output(trace, bank, lead, state.window)
-        return out, EkfState(nav, bank, window)
+        return out, EkfState(nav, None if slam is not None else bank, window, slam)
 
     def _test_share(self) -> float:
         """P_FA split equally between the enabled tests (a union bound keeps their joint rate within P_FA)."""
@@ -145,8 +178,8 @@ class EkfMonitor:
         st = self.context.integrity
         share = self._test_share()
         k_ff = float(stats.norm.isf(st.p_ff / 2))
-        P = tr.P
-        sig = np.sqrt(np.maximum(np.diagonal(P[..., :3, :3], axis1=-2, axis2=-1), 0.0))
+        P = tr.P_pos
+        sig = np.sqrt(np.maximum(np.diagonal(P, axis1=-2, axis2=-1), 0.0))
         nis_raw, dof = tr.nis, tr.dof
         with np.errstate(invalid="ignore"):
             thr = np.where(dof > 0, stats.chi2.isf(share, np.maximum(dof, 1)), np.nan)
@@ -156,7 +189,7 @@ class EkfMonitor:
         with np.errstate(invalid="ignore"):
             alert |= w_stat > w_thr
         if bank is not None:
-            sep = separation(tr.P[..., :3, :3], tr.sub_dp, tr.sub_Pp, share, st.p_md, st.p_ff)
+            sep = separation(P, tr.sub_dp, tr.sub_Pp, share, st.p_md, st.p_ff)
             hpl, vpl = np.hypot(sep.pl_enu[..., 0], sep.pl_enu[..., 1]), sep.pl_enu[..., 2]
             alert |= sep.ratio > 1.0
             ratio, n_modes = sep.ratio, sep.n_modes
@@ -166,10 +199,11 @@ class EkfMonitor:
             ratio, n_modes = np.full(hpl.shape, np.nan), np.zeros(hpl.shape, np.int64)
         levels = tuple(service_level(s) for s in st.service_levels)
         shape = lambda a: a.reshape(lead + a.shape[1:]) if lead else a[0]  # noqa: E731
-        diag = EkfDiagnostics(sigma_enu=shape(sig), cov_enu=shape(P[..., :3, :3]), nis=shape(nis), dof=shape(dof), accel_bias=shape(tr.ba),
-                              gyro_bias=shape(tr.bg), clock_drift=shape(tr.cd), window_stat=shape(w_stat),
-                              window_threshold=shape(w_thr), ss_ratio=shape(ratio), n_modes=shape(n_modes),
-                              k_ff=k_ff)
+        n_feat = getattr(tr, "n_features", np.zeros(nis.shape, np.int64))
+        diag = EkfDiagnostics(sigma_enu=shape(sig), cov_enu=shape(P), nis=shape(nis), dof=shape(dof),
+                              accel_bias=shape(tr.ba), gyro_bias=shape(tr.bg), clock_drift=shape(tr.cd),
+                              window_stat=shape(w_stat), window_threshold=shape(w_thr), ss_ratio=shape(ratio),
+                              n_modes=shape(n_modes), n_features=shape(n_feat), k_ff=k_ff)
         hpl, vpl = shape(hpl), shape(vpl)
         T = tr.t.size
         return MonitorOutput(
@@ -185,7 +219,8 @@ class EkfMonitor:
         z = lambda *tail: np.full(lead + (T,) + tail, np.nan)  # noqa: E731
         diag = EkfDiagnostics(sigma_enu=z(3), cov_enu=z(3, 3), nis=nan, dof=np.zeros(lead + (T,), np.int64), accel_bias=z(3),
                               gyro_bias=z(3), clock_drift=nan, window_stat=nan, window_threshold=nan, ss_ratio=nan,
-                              n_modes=np.zeros(lead + (T,), np.int64), k_ff=float(stats.norm.isf(st.p_ff / 2)))
+                              n_modes=np.zeros(lead + (T,), np.int64), n_features=np.zeros(lead + (T,), np.int64),
+                              k_ff=float(stats.norm.isf(st.p_ff / 2)))
         return MonitorOutput(
             name=self.name, t=np.asarray(t), pos_enu=z(3), clock=nan, hpl=nan, vpl=nan, test_stat=nan, threshold=nan,
             alert=np.zeros(lead + (T,), bool), available=np.zeros(lead + (T, len(st.service_levels)), bool),

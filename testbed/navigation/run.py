@@ -51,6 +51,11 @@ class EkfTrace:
     sub_dp: NDArray | None = None  # solution-separation sub-filters' position offsets (R, T, 3)
     sub_Pp: NDArray | None = None  # and position covariance blocks (R, T, 3, 3)
 
+    @property
+    def P_pos(self) -> NDArray:
+        """The position covariance (B, T, 3, 3)."""
+        return self.P[..., :3, :3]
+
 
 def run_ekf(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None = None,
             vision: VisionEpochs | None = None, clock: ClockNoise = ClockNoise(), t_aid: NDArray | None = None,
@@ -92,10 +97,10 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
         stages = []
         if gnss is not None:
             # the body rate the antenna's lever arm turns with: the last IMU interval's, bias-corrected
-            omega = _imu_block(imu.dtheta, B, k_end - 1, k_end)[:, 0] / imu.dt - s.bg if k_end > 0 else np.zeros((B, 3))
+            omega = imu_block(imu.dtheta, B, k_end - 1, k_end)[:, 0] / imu.dt - s.bg if k_end > 0 else np.zeros((B, 3))
             stages.append(lambda s: gnss_rows(s, gnss, k, frame, omega, range_rate_sigma_m_s))
         if vision is not None:
-            stages.append(lambda s: _vision_rows(s, vision, k, frame, dither_sigma_px, survey_sigma_m))
+            stages.append(lambda s: vision_rows(s, vision, k, frame, dither_sigma_px, survey_sigma_m))
         for rows_of in stages:  # sequential updates, each linearised at the state the last one left
             rows = rows_of(s)
             if rows is None:
@@ -131,7 +136,7 @@ def _predict(s: NavState, bank: Bank | None, imu: ImuSamples, k0: int, k1: int |
     """The mains through IMU intervals k0:k1, and the sub-filters through the same transition and noise
     (``settle``; else the transition so far is kept pending in the bank for the next call to finish)."""
     B = s.p.shape[0]
-    dth, dvl = _imu_block(imu.dtheta, B, k0, k1), _imu_block(imu.dvel, B, k0, k1)
+    dth, dvl = imu_block(imu.dtheta, B, k0, k1), imu_block(imu.dvel, B, k0, k1)
     if bank is None or not bank.trial.size:
         return predict(s, dth, dvl, imu.dt, frame, imu_noise, clock, imu.earth_rotation), bank
     Phi, P_before = bank.pending if bank.pending is not None else (np.broadcast_to(np.eye(N), (B, N, N)).copy(), s.P)
@@ -140,7 +145,7 @@ def _predict(s: NavState, bank: Bank | None, imu: ImuSamples, k0: int, k1: int |
     return s1, (settle_subs(bank, s1.P) if settle else bank)
 
 
-def _imu_block(a: NDArray, B: int, k0: int, k1: int | None) -> NDArray:
+def imu_block(a: NDArray, B: int, k0: int, k1: int | None) -> NDArray:
     """IMU increments k0:k1 of (K, 3) or (B, K, 3) records, for every trial (B, K', 3)."""
     a = np.asarray(a)[..., k0:k1, :]
     return np.broadcast_to(a, (B,) + a.shape[-2:])
@@ -185,7 +190,7 @@ def gnss_rows(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame, omega_b: ND
     return np.where(mask, nu, 0.0), np.nan_to_num(H), var[..., None] * np.eye(var.shape[-1]), mask, slot, None
 
 
-def _vision_rows(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dither_sigma_px: float,
+def vision_rows(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dither_sigma_px: float,
                  survey_sigma_m: float):
     """Two pixel rows per landmark any trial detects at epoch k (ν, H, R, mask, None (no satellite) and each
     row's landmark index), or None."""

@@ -35,11 +35,10 @@ from testbed.frames import LocalFrame
 from testbed.inertial import skew, so3_exp
 from testbed.navigation.ekf import N, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows
 from testbed.navigation.ekf import predict_compiled as predict
-from testbed.navigation.run import gnss_rows
+from testbed.navigation.run import gnss_rows, imu_block, vision_rows
 from testbed.navigation.separation import Bank, augment, propagate, spawn, stack_subs
 from testbed.navigation.separation import update as update_subs
-from testbed.records import GnssEpochs, ImuSamples
-from testbed.sensors.vision.features import FeatureTracks
+from testbed.records import FeatureTracks, GnssEpochs, ImuSamples, VisionEpochs
 
 #: the core states a clone copies: δp, δψ
 _POSE = np.r_[0:3, 6:9]
@@ -83,6 +82,10 @@ class SlamState:
     #: solution-separation sub-filters (separation.py) over the full state: one per satellite and one without
     #: every feature row (the camera mode); every linear map the main's static block takes, they take too
     bank: Bank | None = None
+    #: the core's transition Φ accumulated since the last aiding epoch and the full P there, while the static
+    #: block's cross-covariance (and the bank) wait for the epoch: a block that ends between epochs leaves
+    #: them pending, so a live flight forms the same products as one pass
+    pending: tuple[NDArray, NDArray] | None = None
 
     def core(self) -> NavState:
         return replace(self.nav, P=np.ascontiguousarray(self.P[:, :N, :N]))
@@ -97,9 +100,12 @@ def clone_cols(cfg: FeatureSettings, k: int) -> slice:
     return slice(o, o + 6)
 
 
-def start(nav: NavState, cfg: FeatureSettings, n_sat_slots: int | None = None) -> SlamState:
+def start(nav: NavState, cfg: FeatureSettings, n_sat_slots: int | None = None, per_landmark: bool = False
+          ) -> SlamState:
     """The filter with empty slots (its core covariance ``nav.P``); with ``n_sat_slots`` (the GNSS records'
-    satellite slots) also its solution-separation sub-filters."""
+    satellite slots) also its solution-separation sub-filters: one per satellite and one without the feature
+    rows, and for surveyed landmarks one per landmark (``per_landmark``) or none of their own (they share the
+    feature rows' camera mode)."""
     B, n = nav.p.shape[0], cfg.size()
     P = np.zeros((B, n, n))
     P[:, :N, :N] = nav.P
@@ -107,26 +113,37 @@ def start(nav: NavState, cfg: FeatureSettings, n_sat_slots: int | None = None) -
     return SlamState(nav=nav, P=P, f_id=np.full((B, J), -1), f_m=np.zeros((B, J, 3)), f_lost=np.zeros((B, J), int),
                      c_id=np.full((B, K), -1), c_p=np.zeros((B, K, 3)), c_C=np.broadcast_to(np.eye(3), (B, K, 3, 3)).copy(),
                      c_uv=np.zeros((B, K, 2)), c_age=np.zeros((B, K), int),
-                     bank=None if n_sat_slots is None else Bank.empty(B, int(n_sat_slots), per_landmark=False, n=n))
+                     bank=None if n_sat_slots is None else Bank.empty(B, int(n_sat_slots), per_landmark, n=n))
 
 
 def predict_static(s: SlamState, dtheta: NDArray, dvel: NDArray, dt: float, frame: LocalFrame, imu: ImuNoise,
-                   clock: ClockNoise, earth_rotation: bool = True) -> SlamState:
+                   clock: ClockNoise, earth_rotation: bool = True, settle: bool = True) -> SlamState:
     """Through K IMU steps (dtheta, dvel (B, K, 3)): the core by the compiled predict, the static block's
-    cross-covariance by the accumulated transition."""
+    cross-covariance by the accumulated transition (``settle``; else left pending, :func:`settle_static`)."""
     B = s.P.shape[0]
-    Phi = np.broadcast_to(np.eye(N), (B, N, N)).copy()
+    Phi, P0 = s.pending if s.pending is not None else (np.broadcast_to(np.eye(N), (B, N, N)), s.P)
+    Phi = np.array(Phi)
     nav = predict(s.core(), dtheta, dvel, dt, frame, imu, clock, earth_rotation, transition=Phi)
     P = s.P.copy()
     P[:, :N, :N] = nav.P
-    P[:, :N, N:] = Phi @ s.P[:, :N, N:]
+    s = replace(s, nav=nav, P=P, pending=(Phi, P0))
+    return settle_static(s) if settle else s
+
+
+def settle_static(s: SlamState) -> SlamState:
+    """The pending transition applied: ``P_cs ← Φ P_cs`` (``P_ss`` stays), the sub-filters through the same Φ."""
+    if s.pending is None:
+        return s
+    Phi, P0 = s.pending
+    P = s.P.copy()
+    P[:, :N, N:] = Phi @ P0[:, :N, N:]
     P[:, N:, :N] = np.swapaxes(P[:, :N, N:], -1, -2)
     bank = s.bank
     if bank is not None and bank.trial.size:
         F = np.broadcast_to(np.eye(P.shape[-1]), P.shape).copy()
         F[:, :N, :N] = Phi
-        bank = propagate(bank, F, s.P, P)
-    return replace(s, nav=nav, P=P, bank=bank)
+        bank = propagate(bank, F, P0, P)
+    return replace(s, P=P, bank=bank, pending=None)
 
 
 def apply_update(s: SlamState, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray, row_mode: NDArray | None = None
@@ -357,59 +374,91 @@ class SlamTrace:
     n_features: NDArray  # (B, T)
     nis: NDArray  # (B, T)
     dof: NDArray  # (B, T)
+    ba: NDArray  # (B, T, 3)
+    bg: NDArray  # (B, T, 3)
+    cb: NDArray  # (B, T)
+    cd: NDArray  # (B, T)
     sub_dp: NDArray | None = None  # the sub-filters' position offsets (R, T, 3) (separation.py)
     sub_Pp: NDArray | None = None  # and position blocks (R, T, 3, 3)
 
 
 def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, cfg: FeatureSettings,
              tracks: FeatureTracks | None = None, gnss: GnssEpochs | None = None, clock: ClockNoise = ClockNoise(),
-             t_aid: NDArray | None = None, range_rate_sigma_m_s: float | None = None) -> tuple[SlamTrace, SlamState]:
+             t_aid: NDArray | None = None, range_rate_sigma_m_s: float | None = None,
+             vision: VisionEpochs | None = None, dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05,
+             through_end: bool = False) -> tuple[SlamTrace, SlamState]:
     """Predict through the IMU intervals, update at each aiding epoch (the tracks' epochs, else ``t_aid``):
-    GNSS rows where a GNSS epoch falls (1e-6 s), then the features in slots, then the slots' bookkeeping."""
+    GNSS rows where a GNSS epoch falls (1e-6 s), then the surveyed landmarks' pixels (``vision``, at the
+    tracks' epochs), then the features in slots, then the slots' bookkeeping. ``dither_sigma_px`` widens
+    every pixel row (landmarks and features see the same camera). ``through_end``: the state returned is
+    after every IMU interval given (a block of a live run hands it on), not after the last aiding epoch."""
     t_aid = np.asarray(tracks.t if tracks is not None else t_aid, float)
     B, n = s.P.shape[0], s.P.shape[-1]
     k_g = None if gnss is None else {round(float(t) * 1e6): i for i, t in enumerate(gnss.t)}
-    rec = {k: [] for k in ("p", "P_pos", "n_features", "nis", "dof")}
+    rec = {k: [] for k in ("p", "P_pos", "n_features", "nis", "dof", "ba", "bg", "cb", "cd")}
     sub_dp, sub_Pp = [], []
     k_imu = 0
     for k, t in enumerate(t_aid):
         k_end = int(np.searchsorted(imu.t, t + 1e-9, side="right"))
         if k_end > k_imu:
-            dth = np.broadcast_to(np.asarray(imu.dtheta)[..., k_imu:k_end, :], (B, k_end - k_imu, 3))
-            dvl = np.broadcast_to(np.asarray(imu.dvel)[..., k_imu:k_end, :], (B, k_end - k_imu, 3))
-            s = predict_static(s, dth, dvl, imu.dt, frame, imu_noise, clock, imu.earth_rotation)
-            omega = dth[:, -1] / imu.dt - s.nav.bg
+            s = predict_static(s, imu_block(imu.dtheta, B, k_imu, k_end), imu_block(imu.dvel, B, k_imu, k_end),
+                               imu.dt, frame, imu_noise, clock, imu.earth_rotation)
             k_imu = k_end
-        else:
-            omega = np.zeros((B, 3))
+        s = settle_static(s)  # (a block that ended between epochs left the last step pending)
+        # the body rate the antenna's lever arm turns with: the last IMU interval's, bias-corrected
+        omega = imu_block(imu.dtheta, B, k_end - 1, k_end)[:, 0] / imu.dt - s.nav.bg if k_end > 0 else np.zeros((B, 3))
         nis, dof = np.zeros(B), np.zeros(B, np.int64)
+        stages = []
         kg = None if k_g is None else k_g.get(round(float(t) * 1e6))
         if kg is not None:
-            rows = gnss_rows(s.core(), gnss, kg, frame, omega, range_rate_sigma_m_s)
+            stages.append(lambda s: _core_rows(gnss_rows(s.core(), gnss, kg, frame, omega, range_rate_sigma_m_s), n,
+                                               None if s.bank is None else lambda r: r[4]))
+        if vision is not None:
+            stages.append(lambda s: _core_rows(vision_rows(s.core(), vision, k, frame, dither_sigma_px, survey_sigma_m),
+                                               n, None if s.bank is None else lambda r: s.bank.vision_modes(r[5])))
+        if tracks is not None:
+            def features(s):
+                rows = feature_rows(s, tracks, k, n, dither_sigma_px)
+                if rows is None:
+                    return None
+                return rows + (np.full(rows[0].shape[-1], -1 if s.bank is None else s.bank.vision_mode),)
+            stages.append(features)
+        for rows_of in stages:  # sequential updates, each linearised at the state the last one left
+            rows = rows_of(s)
             if rows is not None:
-                nu, H, R, mask, row_sat, _ = rows
-                s, a, b = apply_update(s, nu, widen(H, n), R, mask, row_sat)
+                s, a, b = apply_update(s, *rows)
                 nis, dof = nis + a, dof + b
         if tracks is not None:
-            rows = feature_rows(s, tracks, k, n)
-            if rows is not None:
-                camera = np.full(rows[0].shape[-1], -1 if s.bank is None else s.bank.vision_mode)
-                s, a, b = apply_update(s, *rows, row_mode=camera)
-                nis, dof = nis + a, dof + b
             s = manage(s, tracks, k, cfg)
-        rec["p"].append(s.nav.p)
-        rec["P_pos"].append(s.P[:, :3, :3])
-        rec["n_features"].append((s.f_id >= 0).sum(-1))
-        rec["nis"].append(nis)
-        rec["dof"].append(dof)
+        for name, v in (("p", s.nav.p), ("P_pos", s.P[:, :3, :3]), ("n_features", (s.f_id >= 0).sum(-1)),
+                        ("nis", nis), ("dof", dof), ("ba", s.nav.ba), ("bg", s.nav.bg), ("cb", s.nav.cb),
+                        ("cd", s.nav.cd)):
+            rec[name].append(v)
         if s.bank is not None:
             sub_dp.append(s.bank.dx[:, :3])
             sub_Pp.append(s.bank.P[:, :3, :3])
-    out = {k: np.stack(v, 1) for k, v in rec.items()}
-    if s.bank is not None and sub_dp:
-        out["sub_dp"], out["sub_Pp"] = stack_subs(sub_dp, sub_Pp, out["P_pos"], B)
+    if through_end and k_imu < imu.t.size:
+        s = predict_static(s, imu_block(imu.dtheta, B, k_imu, None), imu_block(imu.dvel, B, k_imu, None),
+                           imu.dt, frame, imu_noise, clock, imu.earth_rotation, settle=False)
+    out = {k: np.stack(v, 1) if v else np.zeros((B, 0) + _TRACE_TAILS[k]) for k, v in rec.items()}
+    if s.bank is not None:
+        out["sub_dp"], out["sub_Pp"] = (stack_subs(sub_dp, sub_Pp, out["P_pos"], B) if sub_dp else
+                                        (np.zeros((0, 0, 3)), np.zeros((0, 0, 3, 3))))
     return SlamTrace(t=t_aid, **out), s
 
 
+_TRACE_TAILS = {"p": (3,), "P_pos": (3, 3), "n_features": (), "nis": (), "dof": (), "ba": (3,), "bg": (3,),
+                "cb": (), "cd": ()}
+
+
+def _core_rows(rows, n: int, modes_of):
+    """Rows over the 17 core states (run.py's: ν, H, R, mask, row satellite, row landmark) as apply_update's
+    arguments over the full state, with each row's fault mode (``modes_of(rows)``; None without a bank)."""
+    if rows is None:
+        return None
+    nu, H, R, mask = rows[:4]
+    return nu, widen(H, n), R, mask, None if modes_of is None else modes_of(rows)
+
+
 __all__ = ["FeatureSettings", "SlamState", "SlamTrace", "apply_update", "bearing", "feature_rows", "manage",
-           "predict_static", "run_slam", "start", "triangulate", "triangulation_jacobians"]
+           "predict_static", "run_slam", "settle_static", "start", "triangulate", "triangulation_jacobians"]

@@ -123,6 +123,11 @@ def correlator_seed(seed: int) -> np.ndarray:
     return np.random.SeedSequence(seed).spawn(5)[4].generate_state(4)
 
 
+def feature_seed(seed: int) -> np.ndarray:
+    """Seed words of the ground features' tracking noise (child 5; every other stream is unchanged)."""
+    return np.random.SeedSequence(seed).spawn(6)[5].generate_state(4)
+
+
 class _Runner:
     """The observer that turns flight steps into blocks of observations and monitor outputs."""
 
@@ -141,6 +146,12 @@ class _Runner:
             self.r_step = max(1, int(round(1.0 / (setup.imu.rate_hz * dt))))
         self.uses_correlators = any("correlators" in m.inputs for m in setup.monitors) or setup.gnss.correlator_pseudoranges
         self.seed_corr = correlator_seed(seed)
+        self.seed_features = feature_seed(seed)
+        self.feature_camera = None
+        if setup.features is not None:  # the tracker's camera is the vision sensor's
+            from testbed.sensors.vision.dithering import mount_from_settings
+
+            self.feature_camera = (setup.vision.camera.build(), mount_from_settings(setup.vision.mount))
         self.imu_stream = None
         self.imu_prev: Truth | None = None  # the last IMU-rate truth sample of the previous block
         self.seed_imu, self.seed_align = imu_seeds(seed)
@@ -192,6 +203,7 @@ class _Runner:
                           events=[], alert_limits=s.alert_limits)
         self.parts["truth"].append(truth_g)
         # GNSS: geometry of the new epochs, noise re-drawn prefix-stably over all epochs so far
+        g0 = self.n_g
         if g_sel.size:
             geom_new = gnss_geometry(truth_g, s.antenna, s.gnss, start_utc=self.start_utc, terrain=s.terrain,
                                      constellation=self.eph)
@@ -231,11 +243,20 @@ class _Runner:
             self.parts["vision"].append(block.vision)
             self.parts["vision_truth"].append(block.vision_truth)
             v_at_g = take_epochs(block.vision, g_sel)
+        tracks = None
+        if self.feature_camera is not None and g_sel.size:  # per-epoch geometry and draws: block-size free
+            from testbed.sensors.vision.features import scene_ids, scene_tracks
+
+            cam, mount = self.feature_camera
+            fs = s.vision.features
+            ids = scene_ids(truth_g, cam, mount, s.features, fs, s.terrain)
+            tracks = scene_tracks(ids, take_epochs(block.vision_truth, g_sel), s.features, s.frame, cam, mount, fs,
+                                  self.seed_features, first_epoch=g0)
         imu, init = self._imu(truth_r, block) if self.uses_imu else (None, None)
         t_b = time.perf_counter()
         self.timings.sensors += t_b - t_a
         if block.gnss is not None:
-            self._monitors(block, v_at_g, imu, init)
+            self._monitors(block, v_at_g, imu, init, tracks)
         t_c = time.perf_counter()
         self.timings.monitors += t_c - t_b
         self._events(block)
@@ -266,8 +287,8 @@ class _Runner:
                          figures=s.imu.figures())
         return imu, init
 
-    def _monitors(self, block: LoopBlock, v_at_g, imu=None, init=None) -> None:
-        obs = Observations(block.gnss, v_at_g, imu, init, block.correlators)
+    def _monitors(self, block: LoopBlock, v_at_g, imu=None, init=None, features=None) -> None:
+        obs = Observations(block.gnss, v_at_g, imu, init, block.correlators, features)
         cg_enu = self.setup.frame.ecef_to_enu(block.truth.pos_ecef)
         for mon in self.setup.monitors:
             t0 = time.perf_counter()

@@ -17,7 +17,7 @@ from testbed.flight.path import ApproachPath
 from testbed.frames import LocalFrame, euler_to_R_body_to_ned
 from testbed.integrity.levels import service_level
 from testbed.integrity.monitor import Monitor, MonitorContext
-from testbed.integrity.registry import build_monitor, reads_correlators, reads_imu, reads_vision
+from testbed.integrity.registry import build_monitor, reads_correlators, reads_features, reads_imu, reads_vision
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount
 from testbed.schema import ConfigError, format_validation_error
@@ -41,6 +41,9 @@ class RunSetup:
     monitors: tuple[Monitor, ...]
     faults: tuple
     imu: object = None  # ImuSettings (read when a monitor reads "imu")
+    #: the unsurveyed ground features' scene (n, 3), world frame, when ``[vision.features]`` is enabled and a
+    #: monitor reads features (the ekf); None otherwise
+    features: np.ndarray | None = None
 
     @property
     def monitor_names(self) -> tuple[str, ...]:
@@ -124,9 +127,14 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
                 f"gnss.correlators.statistic = {cs.statistic!r}: dpe.variant = {variant!r} reads {want!r}"
                 + (" (and needs synthesis = 'exact')" if want == "mag" else "")])
     monitors = build_monitors(approach, frame, monitor_threads)
+    features = None
+    if vision.features.enabled and reads_features(c.monitors):
+        from testbed.sensors.vision.features import corridor_features
+
+        features = corridor_features(path.sample(200.0)[0], vision.features, frame, terrain)
     return RunSetup(approach=approach, frame=frame, path=path, terrain=terrain, gnss=gnss,
                     antenna=antenna_mount(approach), vision=vision, landmarks=build_landmarks(c.landmarks),
-                    integrity=c.integrity, monitors=monitors, faults=tuple(c.faults), imu=c.imu)
+                    integrity=c.integrity, monitors=monitors, faults=tuple(c.faults), imu=c.imu, features=features)
 
 
 def _dpe_k_from_file(approach: Approach) -> float:

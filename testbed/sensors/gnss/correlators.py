@@ -40,6 +40,7 @@ from testbed.correlation import L1_WAVELENGTH_M, CHIP_M, amplitude_sq, correlati
 from testbed.records import CorrelatorEpochs, CorrelatorTruth, GnssEpochs, GnssTruth, Truth
 from testbed.sensors.gnss.errors import sigma_tropo
 from testbed.sensors.gnss.settings import CorrelatorSettings, GnssSettings
+from testbed.sensors.streams import epoch_generator
 
 
 @dataclass(frozen=True)
@@ -211,7 +212,7 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
     sis = np.zeros((T, S))
     delay = np.full((T, S), np.nan)
     for i in range(T):
-        g_sis, g_noise = np.random.default_rng(np.random.SeedSequence(seed_words, spawn_key=(first_epoch + i,))).spawn(2)
+        g_sis, g_noise = epoch_generator(seed_words, first_epoch + i).spawn(2)
         sis[i] = sig_sis[i] * g_sis.standard_normal(S)
         k = np.flatnonzero(vis[i])
         if not k.size:

@@ -173,8 +173,31 @@ class DetectionSettings(StrictModel):
                                         "None = the model's own sqrt(sigma_px² + blur²)")
 
 
+class FeatureSceneSettings(StrictModel):
+    """Unsurveyed ground features for the seed-002 filter (``[vision.features]``): points on the terrain
+    along the approach corridor that a tracker follows from frame to frame (:mod:`.features`).
+
+    The scene is fixed by ``seed`` (the same ground for every flight and trial); the tracker reports the
+    ``max_tracks`` nearest points in view, terrain-masked, with white pixel noise ``sigma_px`` and the
+    camera's platform dithering, at the GNSS epochs (where the filter updates).
+    """
+
+    enabled: bool = Field(False, description="synthesise tracked ground features (read by the ekf monitor)")
+    density_per_km2: float = Field(40.0, gt=0, le=10_000, description="points per km² of the corridor")
+    half_width_m: float = Field(2_500.0, gt=0, le=20_000, description="the corridor's half width about the "
+                                                                      "planned ground track, m")
+    beyond_m: float = Field(4_000.0, ge=0, le=50_000, description="the corridor continues this far past the "
+                                                                  "path's end (the camera looks ahead), m")
+    max_range_m: float = Field(6_000.0, gt=0, le=100_000, description="the tracker's maximum range, m")
+    max_tracks: int = Field(30, ge=1, le=500, description="the tracker follows at most this many points "
+                                                         "(the nearest)")
+    sigma_px: float = Field(1.0, ge=0, le=100, description="tracking error 1σ per axis, px")
+    margin_px: float = Field(5.0, ge=0, description="tracked only this far inside the image border, px")
+    seed: int = Field(0, ge=0, description="the scene's layout (not a trial's noise)")
+
+
 class VisionSettings(StrictModel):
-    """The camera sensor: rate, camera, mount, dithering, attitude reference, detector."""
+    """The camera sensor: rate, camera, mount, dithering, attitude reference, detector, ground features."""
 
     rate_hz: float = Field(10.0, gt=0, le=120, description="vision epoch rate, Hz (the truth is decimated to it; "
                            "at most the JSBSim rate)")
@@ -183,6 +206,7 @@ class VisionSettings(StrictModel):
     dithering: DitheringSettings = Field(default_factory=DitheringSettings)
     attitude_ref: AttitudeRefSettings = Field(default_factory=AttitudeRefSettings)
     detection: DetectionSettings = Field(default_factory=DetectionSettings)
+    features: FeatureSceneSettings = Field(default_factory=FeatureSceneSettings)
 
 
 # --------------------------------------------------------------------------- landmarks
