@@ -67,6 +67,8 @@ class LoopBlock:
     #: (t, monitor name or "" for all, kind) of the events plots mark: "fault onset", "alert",
     #: "alert cleared", "excluded", "unavailable", "available"
     marks: list[tuple[float, str, str]] = field(default_factory=list)
+    #: the tracked ground features at the GNSS epochs (FeatureTracks, one trial), when the scene has them
+    features: object | None = None
 
 
 class Sink(Protocol):
@@ -252,6 +254,7 @@ class _Runner:
             ids = scene_ids(truth_g, cam, mount, s.features, fs, s.terrain)
             tracks = scene_tracks(ids, take_epochs(block.vision_truth, g_sel), s.features, s.frame, cam, mount, fs,
                                   self.seed_features, first_epoch=g0)
+            block.features = tracks
         imu, init = self._imu(truth_r, block) if self.uses_imu else (None, None)
         t_b = time.perf_counter()
         self.timings.sensors += t_b - t_a

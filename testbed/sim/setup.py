@@ -198,6 +198,7 @@ class Scene:
     alert_limits: tuple[float, float] = (float("nan"), float("nan"))  # HAL, VAL of the most demanding level
     vertical_only: tuple[str, ...] = ()  # monitors that bound the vertical only (no HPL): DPE
     several_tests: tuple[str, ...] = ()  # monitors whose alert is several tests (the seed-002 filter)
+    features_enu: np.ndarray | None = None  # the unsurveyed ground features' scene (n, 3), when synthesised
 
 
 def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
@@ -226,7 +227,8 @@ def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
                  landmark_ids=tuple(str(i) for i in setup.landmarks.id), camera_K=K, camera_resolution=res,
                  alert_limits=tuple(setup.alert_limits),
                  vertical_only=tuple(m.name for m in setup.monitors if getattr(m, "dimensions", ("H", "V")) == ("V",)),
-                 several_tests=tuple(m.name for m in setup.monitors if getattr(m, "several_tests", False)))
+                 several_tests=tuple(m.name for m in setup.monitors if getattr(m, "several_tests", False)),
+                 features_enu=setup.features)
 
 
 def R_body_to_world(frame: LocalFrame, euler: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:

@@ -77,14 +77,15 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
     # the flown trail is one point per epoch: show all of them up to the cursor
     trail = {"world/path/flown": rrb.VisibleTimeRanges(rrb.VisibleTimeRange(
         "sim_time", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()))}
-    world = ["/world/**", "- /world/camera/detections/**", "- /world/camera/scene/**"]
+    world = ["/world/**", "- /world/camera/detections/**", "- /world/camera/scene/**", "- /world/camera/features/**"]
     left = rrb.Vertical(
         rrb.Tabs(
             rrb.Spatial3DView(name="world", origin="/world", eye_controls=eye, contents=world, overrides=trail),
             # the aircraft's frame as the view's origin: the eye rides with it down the approach
             rrb.Spatial3DView(name="follow the aircraft", origin="/world/aircraft", contents=world, overrides=trail),
         ),
-        rrb.Spatial2DView(name="camera: detections (cyan; red: faulty), landmarks and runway where they are (white)",
+        rrb.Spatial2DView(name="camera: detections (cyan; red: faulty), landmarks and runway where they are (white), "
+                               "tracked ground features (amber)",
                           origin="/world/camera"),
         row_shares=[3, 2],
     )
@@ -93,7 +94,8 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
         if monitor_tabs
         else rrb.TextLogView(name="alerts", origin="/alerts"),
         rrb.Horizontal(
-            rrb.TimeSeriesView(name="satellites and landmarks in view / in use", origin="/sensors",
+            rrb.TimeSeriesView(name="satellites and landmarks in view / in use; ground features tracked / in the "
+                                    "filter's state", origin="/sensors",
                                time_ranges=[WHOLE_FLIGHT], axis_x=WHOLE_AXIS,
                                plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.LeftTop)),
             rrb.TextLogView(name="alerts", origin="/alerts"),

@@ -48,6 +48,7 @@ COLOURS = {
     "flown": (80, 160, 255),
     "landmark": (255, 255, 255),
     "runway": (200, 200, 200),
+    "feature": (255, 200, 60),
 }
 #: Stanford region -> colour of the 3D protection volume
 REGION_COLOURS = {"normal": (60, 200, 90), "unavailable": (150, 150, 150), "misleading": (240, 160, 40),
@@ -136,6 +137,7 @@ class RerunSink:
             raise ValueError("RerunSink needs a file (rrd_path) or live=True")
         self.rec.set_sinks(*sinks)
         self.monitors: list[str] = []
+        self._has_features = False
         self._trail_len = 0
 
     # -- static ----------------------------------------------------------------
@@ -148,6 +150,7 @@ class RerunSink:
         self._scene_landmarks = scene.landmarks_enu
         self._scene_runway = scene.runway_enu
         self._K, self._resolution = scene.camera_K, scene.camera_resolution
+        self._has_features = scene.features_enu is not None
         rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu), tuple(scene.alert_limits),
                                              vertical_only=tuple(scene.vertical_only),
                                              several_tests=tuple(scene.several_tests)),
@@ -163,6 +166,10 @@ class RerunSink:
         if scene.runway_enu is not None:
             ring = np.vstack([scene.runway_enu, scene.runway_enu[:1]])
             rec.log("world/runway", rr.LineStrips3D([ring], colors=[COLOURS["runway"]], radii=[-1.5]), static=True)
+        if scene.features_enu is not None and len(scene.features_enu):
+            rec.log("world/features", rr.Points3D(scene.features_enu, colors=[COLOURS["feature"]], radii=[-1.5]),
+                    static=True)
+            rec.log("sensors/features_tracked", rr.SeriesLines(names=["ground features tracked"]), static=True)
         if scene.landmarks_enu is not None and len(scene.landmarks_enu):
             rec.log("world/landmarks", rr.Points3D(scene.landmarks_enu, labels=list(scene.landmark_ids),
                                                    colors=[COLOURS["landmark"]], radii=[-3.0]), static=True)
@@ -220,6 +227,8 @@ class RerunSink:
             self._log_gnss(block, times)
         if block.vision is not None:
             self._log_vision(block)
+        if block.features is not None:
+            self._log_features(block.features)
         for name, out in block.outputs.items():
             self._log_monitor(name, out, block, times)
             self._log_errors(name, out, block)
@@ -279,6 +288,17 @@ class RerunSink:
                          columns=rr.Scalars.columns(scalars=det.sum(axis=1).astype(float)))
         self._log_scene_in_camera(tv, block.camera_enu, block.R_cam_to_world)
 
+    def _log_features(self, tracks) -> None:
+        """The tracked ground features' pixels (the tracker's report) and how many it follows, per GNSS epoch."""
+        tm = [rr.TimeColumn("sim_time", duration=tracks.t)]
+        seen = np.asarray(tracks.ids) >= 0
+        uv = np.asarray(tracks.uv)[0][seen]
+        self.rec.send_columns("world/camera/features", indexes=tm,
+                              columns=rr.Points2D.columns(positions=uv, colors=np.tile(COLOURS["feature"], (len(uv), 1)),
+                                                          radii=np.full(len(uv), 2.5)).partition(seen.sum(axis=1)))
+        self.rec.send_columns("sensors/features_tracked", indexes=tm,
+                              columns=rr.Scalars.columns(scalars=seen.sum(axis=1).astype(float)))
+
     def _log_scene_in_camera(self, tv, cam_enu: np.ndarray, R_c2w: np.ndarray) -> None:
         """Where the surveyed landmarks and the runway outline fall in the image (true pose, no
         noise), every vision epoch they are in front of the camera and inside the image: the
@@ -322,6 +342,10 @@ class RerunSink:
                               columns=rr.Scalars.columns(scalars=np.asarray(out.n_used, float)))
         self._log_normalised_tests(name, out)
         self._log_vertical_density(name, out)
+        d = out.diagnostics
+        if getattr(d, "n_features", None) is not None and self._has_features:  # the filter's SLAM states
+            self.rec.send_columns(f"sensors/features_in_state/{name}", indexes=tm,
+                                  columns=rr.Scalars.columns(scalars=np.asarray(d.n_features, float)))
 
     def _log_normalised_tests(self, name: str, out) -> None:
         """A monitor with several tests (diagnostics with ``window_stat``, ``window_threshold``, ``ss_ratio``:
