@@ -105,16 +105,25 @@ def features_in_view(cam_w: NDArray, R_cw: NDArray, camera: PinholeCamera, point
             idx = np.flatnonzero(seen[row])
             idx = idx[np.argsort(rng_m[row, idx], kind="stable")]
             if terrain is not None and idx.size:
-                # the nearest first: test only as many as could be kept, and a few more for the masked ones
-                idx = idx[:None if max_tracks is None else 3 * max_tracks]
-                clear = terrain.line_of_sight(frame.enu_to_ecef(c[row]), frame.enu_to_ecef(m[idx]), margin_m=5.0)
-                idx = idx[clear]
+                idx = _unmasked(idx, c[row], m, terrain, frame, max_tracks)
             ids.append(idx[:max_tracks])
     W = max((i.size for i in ids), default=0)
     out = np.full((len(ids), W), -1, np.int64)
     for k, i in enumerate(ids):
         out[k, :i.size] = i
     return out
+
+
+def _unmasked(idx: NDArray, c: NDArray, m: NDArray, terrain, frame: LocalFrame, keep: int | None) -> NDArray:
+    """The points ``idx`` (nearest first) whose segment from the camera ``c`` clears the terrain, tested in
+    batches from the nearest until ``keep`` are found (rays cost; the far ones are rarely needed)."""
+    out, step = [], len(idx) if keep is None else 3 * keep
+    for i in range(0, len(idx), step):
+        part = idx[i:i + step]
+        out.append(part[terrain.line_of_sight(frame.enu_to_ecef(c), frame.enu_to_ecef(m[part]), margin_m=5.0)])
+        if keep is not None and sum(o.size for o in out) >= keep:
+            break
+    return np.concatenate(out)
 
 
 def project(points_w: ArrayLike, ids: NDArray, cam_w: NDArray, R_cw: NDArray, K: NDArray) -> NDArray:
