@@ -17,6 +17,11 @@ included. Its output per GNSS epoch:
   ``HPL = K_ff √λ_max(P_EN)``, ``VPL = K_ff σ_U`` with ``K_ff = Φ⁻¹(1 − P_ff/2)``: the
   fault-free bound only, **not fault tolerant**;
 * availability per service level on those PLs.
+
+With tracked ground features in the observations (``[vision.features]`` enabled, ``features = true``) the
+filter is the SLAM one (:mod:`.slam`): the same core, tests and PLs, plus feature states by delayed
+initialisation; its bank's vision modes are each landmark (``ss_vision = "landmark"``) and the features as
+one mode, or one camera mode for every pixel row (``"camera"``).
 """
 
 from __future__ import annotations

@@ -20,8 +20,11 @@ it inert in every predict and update (its gain rows are zero) at no bookkeeping 
 
 Departures from the note: the triangulation is the closed-form two-ray point, not midpoint then
 Gauss–Newton over stored bearings (only the clone's pose is in the state, so only its bearing can be
-used consistently); no first-estimate Jacobians (``fej``); no solution-separation sub-filters with
-features (the bank is 17-state).
+used consistently); no first-estimate Jacobians (``fej``).
+
+In the loop (the ``ekf`` monitor with ``[vision.features]``): the aiding epochs are the GNSS epochs; a block
+that ends between epochs leaves the static block's transition pending (``SlamState.pending``) so that a live
+flight forms the same products as one pass, bit for bit.
 """
 
 from __future__ import annotations
