@@ -119,8 +119,8 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
         out["nis"].append(nis)
         out["dof"].append(dof)
         if bank is not None:
-            sub_dp.append(bank.dx[:, :3])
-            sub_Pp.append(bank.P[:, :3, :3])
+            sub_dp.append(bank.dx[:, :3].copy())  # copies: a view would keep the whole bank alive per epoch
+            sub_Pp.append(bank.P[:, :3, :3].copy())
     if through_end and k_imu < imu.t.size:
         s, bank = _predict(s, bank, imu, k_imu, None, frame, imu_noise, clock, settle=False)
     st = {k: (np.stack(v, 1) if v else np.zeros((B, 0) + _SHAPES[k])) for k, v in out.items()}

@@ -433,13 +433,13 @@ def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoi
                 nis, dof = nis + a, dof + b
         if tracks is not None:
             s = manage(s, tracks, k, cfg)
-        for name, v in (("p", s.nav.p), ("P_pos", s.P[:, :3, :3]), ("n_features", (s.f_id >= 0).sum(-1)),
+        for name, v in (("p", s.nav.p), ("P_pos", s.P[:, :3, :3].copy()), ("n_features", (s.f_id >= 0).sum(-1)),
                         ("nis", nis), ("dof", dof), ("ba", s.nav.ba), ("bg", s.nav.bg), ("cb", s.nav.cb),
                         ("cd", s.nav.cd)):
             rec[name].append(v)
         if s.bank is not None:
-            sub_dp.append(s.bank.dx[:, :3])
-            sub_Pp.append(s.bank.P[:, :3, :3])
+            sub_dp.append(s.bank.dx[:, :3].copy())  # copies: a view would keep the whole (R, n) array alive
+            sub_Pp.append(s.bank.P[:, :3, :3].copy())
     if through_end and k_imu < imu.t.size:
         s = predict_static(s, imu_block(imu.dtheta, B, k_imu, None), imu_block(imu.dvel, B, k_imu, None),
                            imu.dt, frame, imu_noise, clock, imu.earth_rotation, settle=False)
