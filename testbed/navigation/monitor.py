@@ -155,8 +155,9 @@ class EkfMonitor:
             return self._unavailable(g.t, lead, T), EkfState(nav, bank, state.window, slam)
         vis = obs.vision if self.settings.vision else None
         dither = 0.0
-        if vis is not None or obs.features is not None:
-            K, sig = (vis.K, vis.dither_sigma) if vis is not None else (obs.features.K, np.zeros(3))
+        if vis is not None or obs.features is not None:  # one camera: its dithering moves every pixel row
+            sig = obs.vision.dither_sigma if obs.vision is not None else np.zeros(3)
+            K = vis.K if vis is not None else obs.features.K
             dither = float(np.hypot(self.settings.dither_sigma_px, float(np.asarray(K)[0, 0]) * np.max(np.asarray(sig))))
         noise = ImuNoise.from_figures(obs.imu.figures)
         rr = self.settings.range_rate_sigma_m_s if self.settings.range_rate else None
