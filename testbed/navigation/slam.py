@@ -268,13 +268,16 @@ def _clear(s: SlamState, b: NDArray, cols: slice) -> SlamState:
     return _map_slot(s, b, cols, np.zeros((b.size, cols.stop - cols.start, s.P.shape[-1])))
 
 
-def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> SlamState:
-    """After the epoch's updates: triangulate or drop the clones, marginalise lost features, start clones."""
+def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings, dither_sigma_px: float = 0.0
+           ) -> SlamState:
+    """After the epoch's updates: triangulate or drop the clones, marginalise lost features, start clones.
+    ``dither_sigma_px``: the camera's dithering per pixel, beside the tracker's noise, in both pixels a
+    triangulation spends (as in the update rows)."""
     s = replace(s, P=s.P.copy(), f_id=s.f_id.copy(), f_m=s.f_m.copy(), f_lost=s.f_lost.copy(), c_id=s.c_id.copy(),
                 c_p=s.c_p.copy(), c_C=s.c_C.copy(), c_uv=s.c_uv.copy(), c_age=s.c_age.copy())
     seen_f = np.isfinite(_lookup(tracks, k, s.f_id)).all(-1)
     s.f_lost[:] = np.where(seen_f, 0, s.f_lost + 1)
-    s = _triangulate_clones(s, tracks, k, cfg)
+    s = _triangulate_clones(s, tracks, k, cfg, dither_sigma_px)
     lost = (s.f_id >= 0) & (s.f_lost > cfg.lost_frames)
     for j in range(cfg.slots):
         b = np.flatnonzero(lost[:, j])
@@ -284,11 +287,12 @@ def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) ->
     return _start_clones(s, tracks, k, cfg)
 
 
-def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings) -> SlamState:
+def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings,
+                        dither_sigma_px: float = 0.0) -> SlamState:
     K, R_cb = tracks.K, tracks.camera.R_sensor_to_body
     lc = np.asarray(tracks.camera.lever_arm_body, float)
     uv2 = _lookup(tracks, k, s.c_id)  # (B, K, 2)
-    var = tracks.sigma_px**2
+    var = tracks.sigma_px**2 + dither_sigma_px**2
     for q in range(cfg.clones):
         active = s.c_id[:, q] >= 0
         seen = active & np.isfinite(uv2[:, q]).all(-1)
@@ -432,7 +436,7 @@ def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoi
                 s, a, b = apply_update(s, *rows)
                 nis, dof = nis + a, dof + b
         if tracks is not None:
-            s = manage(s, tracks, k, cfg)
+            s = manage(s, tracks, k, cfg, dither_sigma_px)
         for name, v in (("p", s.nav.p), ("P_pos", s.P[:, :3, :3].copy()), ("n_features", (s.f_id >= 0).sum(-1)),
                         ("nis", nis), ("dof", dof), ("ba", s.nav.ba), ("bg", s.nav.bg), ("cb", s.nav.cb),
                         ("cd", s.nav.cd)):
