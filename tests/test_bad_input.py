@@ -353,7 +353,8 @@ def test_campaign_inputs_are_checked_before_any_work(work, capsys):
                              ('[sweep]\nmultipath_echo_db = [6.0]\n', "sweep.multipath_echo_db", "6"),
                              ('[sweep]\nmultipath_echo_db = ["on"]\n', "sweep.multipath_echo_db", "on"),
                              ('[sweep]\nmax_satellites = [-1]\n', "sweep.max_satellites", "-1"),
-                             ('[sweep]\nmax_satellites = [2.5]\n', "sweep.max_satellites", "2.5")):
+                             ('[sweep]\nmax_satellites = [2.5]\n', "sweep.max_satellites", "2.5"),
+                             ('[sweep]\nground_features = ["yes"]\n', "sweep.ground_features", "yes")):
         bad = inputs / "bad-axis.toml"
         bad.write_text(SPEC.replace("duration_s", "# duration_s") + text if "duration_s" in value else SPEC + text)
         code, out = run(capsys, "campaign", bad, "--out", inputs / "o3")
