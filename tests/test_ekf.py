@@ -69,6 +69,39 @@ def test_pseudorange_and_pixel_jacobians_match_central_differences():
             np.testing.assert_allclose(H[..., i], fd, rtol=1e-5, atol=atol * np.abs(H).max(), err_msg=f"column {i}")
 
 
+def test_the_cameras_dithering_covariance_matches_monte_carlo_of_the_sensors_convention():
+    """CameraNoise: G Q Gᵀ over a frame's pixel rows against 20 000 frames whose camera is turned on its
+    mount by δ ~ N(0, diag σ²) in camera axes, ``C R_cb Exp(δ)`` (the vision sensor's convention, projected
+    here by hand): every element of the 6×6 pixel covariance within 5 Monte Carlo σ, the u–v and
+    landmark-to-landmark correlations included (the frame moves as one)."""
+    from testbed.inertial import so3_exp
+    from testbed.navigation.ekf import CameraNoise, rotation_rows
+
+    rng = np.random.default_rng(3)
+    s = _state(rng, B=1)
+    lm = np.array([[1500.0, 2000.0, 0.0], [1800.0, 2600.0, 5.0], [1200.0, 2400.0, -3.0]])
+    K = np.array([[2000.0, 0, 960], [0, 2000.0, 540], [0, 0, 1]])
+    Rcb = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    lc = np.array([14.0, 0.0, 1.2])
+    sigma = np.array([4e-4, 3e-4, 2e-4])
+    c = s.p[0] + s.C[0] @ lc
+
+    def pixels(delta):  # (M, 3) -> (M, 6)
+        Rc2w = s.C[0] @ Rcb @ so3_exp(delta)
+        x = np.einsum("mji,lj->mli", Rc2w, lm - c) @ K.T
+        return (x[..., :2] / x[..., 2:]).reshape(len(delta), -1)
+
+    M = 20_000
+    e = pixels(rng.standard_normal((M, 3)) * sigma) - pixels(np.zeros((1, 3)))
+    sample = np.cov(e.T)
+    _, _, Hm, _ = pixel_rows(s, lm, K, Rcb, lc)
+    cov = CameraNoise(rotation_rad=tuple(sigma)).covariance(rotation_rows(Hm, lm, c[None]), s.C, Rcb)[0]
+    d = np.diag(cov)
+    tol = 5 * np.sqrt((np.outer(d, d) + cov**2) / M)
+    assert np.all(np.abs(sample - cov) <= tol), (sample - cov) / tol
+    assert np.abs(cov[0, 2]) > 0.5 * np.sqrt(d[0] * d[2])  # landmarks' pixels move together
+
+
 def test_transition_matches_finite_differences_of_the_mechanisation():
     """T-JAC-2: Φ against (f(x ⊕ εeᵢ) ⊖ f(x ⊖ εeᵢ)) / 2ε for one 120 Hz step of the nominal mechanisation
     (biases entering through the corrected increments). Φ takes attitude and specific force constant over

@@ -39,15 +39,16 @@ def _two_views(rng):
 
 
 def _point(poses, dx=None):
-    """The triangulated point from the poses perturbed by dx (12: δp₁, δψ₁, δp₂, δψ₂) and pixels (4)."""
-    dx = np.zeros(16) if dx is None else dx
+    """The triangulated point from the poses perturbed by dx (12: δp₁, δψ₁, δp₂, δψ₂), pixels (4) and the
+    cameras alone turned (6: ψ_cam₁, ψ_cam₂; the camera centres stay)."""
+    dx = np.zeros(22) if dx is None else np.r_[dx, np.zeros(22 - dx.size)]
     cs, ds = [], []
     for i, (p, C, uv) in enumerate(poses):
         Ci = so3_exp(dx[6 * i + 3:6 * i + 6]) @ C
         pi = p + dx[6 * i:6 * i + 3]
         d, _ = slam.bearing(Ci, R_CB, K_CAM, uv + dx[12 + 2 * i:14 + 2 * i])
         cs.append(pi + Ci @ LEVER)
-        ds.append(d)
+        ds.append(so3_exp(dx[16 + 3 * i:19 + 3 * i]) @ d)
     return slam.triangulate(cs[0], ds[0], cs[1], ds[1])
 
 
@@ -57,8 +58,8 @@ def _jacobian(poses):
     for p, C, uv in poses:
         d, dd = slam.bearing(C, R_CB, K_CAM, uv)
         parts.append((C, p + C @ LEVER, d, dd, np.eye(3) - np.outer(d, d)))
-    (Jp1, Jq1, Ju1), (Jp2, Jq2, Ju2) = slam.triangulation_jacobians(m, parts, LEVER)
-    return m, np.hstack([Jp1, Jq1, Jp2, Jq2, Ju1, Ju2])
+    (Jp1, Jq1, Ju1, Jr1), (Jp2, Jq2, Ju2, Jr2) = slam.triangulation_jacobians(m, parts, LEVER)
+    return m, np.hstack([Jp1, Jq1, Jp2, Jq2, Ju1, Ju2, Jr1, Jr2])
 
 
 def test_noise_free_rays_triangulate_to_the_point_and_the_jacobians_match_central_differences():
@@ -66,10 +67,11 @@ def test_noise_free_rays_triangulate_to_the_point_and_the_jacobians_match_centra
     m_true, poses = _two_views(rng)
     m, J = _jacobian(poses)
     np.testing.assert_allclose(m, m_true, atol=1e-9)
-    fd = np.zeros((3, 16))
-    steps = np.r_[np.full(3, 1e-4), np.full(3, 1e-6), np.full(3, 1e-4), np.full(3, 1e-6), np.full(4, 1e-3)]
+    fd = np.zeros((3, 22))
+    steps = np.r_[np.full(3, 1e-4), np.full(3, 1e-6), np.full(3, 1e-4), np.full(3, 1e-6), np.full(4, 1e-3),
+                  np.full(6, 1e-6)]
     for i, h in enumerate(steps):
-        e = np.zeros(16)
+        e = np.zeros(22)
         e[i] = h
         fd[:, i] = (_point(poses, e) - _point(poses, -e)) / (2 * h)
     np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-7 * np.abs(fd).max())
@@ -81,6 +83,7 @@ def test_the_initial_feature_covariance_matches_monte_carlo():
     rng = np.random.default_rng(1)
     _, poses = _two_views(rng)
     _, J = _jacobian(poses)
+    J = J[:, :16]
     sd = np.r_[np.full(3, 0.3), np.full(3, 3e-3), np.full(3, 0.3), np.full(3, 3e-3), np.ones(4)]
     cov = J @ np.diag(sd**2) @ J.T
     M = 20_000
@@ -263,10 +266,14 @@ def test_solution_separation_sub_filters_with_features(scene):
     assert np.all((total > lo) & (total < hi)), total
 
 
-def test_a_triangulation_spends_the_cameras_dithering_as_pixel_noise():
-    """The camera's dithering moves both pixels a triangulation uses: the new feature's covariance with
-    tracker noise σ and dithering d equals the one with noise √(σ² + d²) and none (it was left out once, and
-    the features' innovations then had heavy tails: 36 alerts in 7.5e5 fault-free epochs at P_FA = 1e-5)."""
+def test_a_triangulation_spends_the_cameras_dithering_in_both_frames():
+    """The camera's dithering turns the camera in both frames a triangulation uses. For a point 3 % off the
+    image centre, a rotation of rms a about the camera's x and y axes moves its pixel by f·a in v and u (to
+    0.2 %): the new feature's covariance equals the one with tracker noise √(σ² + (f a)²) and no dithering
+    (rtol 1 %); a roll about the optical axis moves it by r·a (r = 50 px ≪ f) and adds almost nothing. (The
+    dithering was once left out, and the features' innovations had heavy tails: 36 alerts in 7.5e5
+    fault-free epochs at P_FA = 1e-5.)"""
+    from testbed.navigation.ekf import CameraNoise
     from testbed.navigation.run import state_from_init
     from testbed.records import FeatureTracks, Mount, NavInit
     from testbed.sensors.vision.dithering import R_CAM0_TO_BODY
@@ -282,7 +289,8 @@ def test_a_triangulation_spends_the_cameras_dithering_as_pixel_noise():
         s = R_CAM0_TO_BODY.T @ (m - p)
         return (K @ (s / s[2]))[:2]
 
-    def feature_block(sigma, dither):
+    def feature_block(sigma, rotation=(0.0, 0.0, 0.0)):
+        dither = CameraNoise(rotation_rad=rotation)
         s = slam.start(state_from_init(init, 1), cfg)
         s = replace(s, nav=replace(s.nav, p=np.array([[0.0, -10.0, 0.0]])))
         t0 = FeatureTracks(t=np.zeros(1), ids=np.array([[7]]), uv=pixel(np.array([0.0, -10.0, 0.0]))[None, None, None],
@@ -295,5 +303,7 @@ def test_a_triangulation_spends_the_cameras_dithering_as_pixel_noise():
         np.testing.assert_allclose(s.f_m[0, 0], m, atol=1e-6)
         return s.P[0, N:N + 3, N:N + 3]
 
-    np.testing.assert_allclose(feature_block(1.0, 0.7), feature_block(np.hypot(1.0, 0.7), 0.0), rtol=1e-12)
-    assert np.all(np.diag(feature_block(1.0, 0.7)) > np.diag(feature_block(1.0, 0.0)))
+    a = 7e-4  # 0.7 px at f = 1000 px
+    np.testing.assert_allclose(feature_block(1.0, (a, a, 0.0)), feature_block(np.hypot(1.0, 1000 * a)), rtol=1e-2)
+    none, roll = np.diag(feature_block(1.0)), np.diag(feature_block(1.0, (0.0, 0.0, a)))
+    assert np.all(roll > none) and np.all(roll - none < 0.01 * (np.diag(feature_block(1.0, (a, a, 0.0))) - none))

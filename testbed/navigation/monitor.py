@@ -36,7 +36,7 @@ from scipy import stats
 
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
-from testbed.navigation.ekf import ImuNoise, NavState, predict_compiled
+from testbed.navigation.ekf import CameraNoise, ImuNoise, NavState, predict_compiled
 from testbed.navigation.run import ClockNoise, filter_epochs, state_from_init
 from testbed.navigation.separation import Bank, separation
 from testbed.navigation.slam import FeatureSettings, SlamState, run_slam, start
@@ -63,8 +63,9 @@ class EkfSettings(StrictModel):
     window_s: float = Field(10.0, ge=0.0, le=600.0, description="the windowed χ² test's span (s): the NIS summed "
                                                                  "over the epochs of the last window_s; 0 = off")
     vision: bool = Field(True, description="update with the surveyed landmarks' pixels")
-    dither_sigma_px: float = Field(0.0, ge=0.0, description="extra pixel 1σ for camera dithering (px); "
-                                                            "added to the published dithering's f·σ")
+    dither_sigma_px: float = Field(0.0, ge=0.0, description="extra white pixel 1σ per row (px), beside the "
+                                                            "published dithering (modelled as the camera's "
+                                                            "rotation, common to a frame's pixels)")
     landmark_survey_sigma_m: float = Field(0.05, ge=0.0, description="landmark survey error 1σ per axis the filter "
                                                                      "assumes (m)")
     range_rate: bool = Field(True, description="a range-rate (Doppler) row beside each pseudorange row")
@@ -154,22 +155,20 @@ class EkfMonitor:
         if (nav is None and slam is None) or obs.imu is None:
             return self._unavailable(g.t, lead, T), EkfState(nav, bank, state.window, slam)
         vis = obs.vision if self.settings.vision else None
-        dither = 0.0
-        if vis is not None or obs.features is not None:  # one camera: its dithering moves every pixel row
-            sig = obs.vision.dither_sigma if obs.vision is not None else np.zeros(3)
-            K = vis.K if vis is not None else obs.features.K
-            dither = float(np.hypot(self.settings.dither_sigma_px, float(np.asarray(K)[0, 0]) * np.max(np.asarray(sig))))
+        # one camera: its dithering turns every pixel of a frame together (landmarks and features)
+        sig = obs.vision.dither_sigma if obs.vision is not None else np.zeros(3)
+        camera = CameraNoise(self.settings.dither_sigma_px, tuple(float(x) for x in np.asarray(sig, float)))
         noise = ImuNoise.from_figures(obs.imu.figures)
         rr = self.settings.range_rate_sigma_m_s if self.settings.range_rate else None
         if slam is not None:
             trace, slam = run_slam(slam, obs.imu, self.context.frame, noise, self.settings.feature_settings(),
                                    tracks=obs.features, gnss=g, t_aid=g.t, range_rate_sigma_m_s=rr, vision=vis,
-                                   dither_sigma_px=dither, survey_sigma_m=self.settings.landmark_survey_sigma_m,
+                                   camera=camera, survey_sigma_m=self.settings.landmark_survey_sigma_m,
                                    through_end=True)
             bank = slam.bank
         else:
             trace, nav, bank = filter_epochs(
-                nav, obs.imu, self.context.frame, noise, g, vis, ClockNoise(), dither_sigma_px=dither,
+                nav, obs.imu, self.context.frame, noise, g, vis, ClockNoise(), camera=camera,
                 survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True, range_rate_sigma_m_s=rr,
                 bank=bank)
         out, window = self._output(trace, bank, lead, state.window)

@@ -14,8 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
-from testbed.navigation.ekf import (N, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows,
-                                    pseudorange_rows, range_rate_rows)
+from testbed.navigation.ekf import (N, CameraNoise, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows,
+                                    pseudorange_rows, range_rate_rows, rotation_rows)
 from testbed.navigation.ekf import predict_compiled as predict
 from testbed.navigation.separation import Bank, spawn, stack_subs
 from testbed.navigation.separation import settle as settle_subs
@@ -59,16 +59,16 @@ class EkfTrace:
 
 def run_ekf(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None = None,
             vision: VisionEpochs | None = None, clock: ClockNoise = ClockNoise(), t_aid: NDArray | None = None,
-            dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05,
+            camera: CameraNoise = CameraNoise(), survey_sigma_m: float = 0.05,
             range_rate_sigma_m_s: float | None = None) -> EkfTrace:
     """Predict through the IMU intervals and update at each aiding epoch (GNSS epochs, or ``t_aid``)."""
-    return filter_epochs(s, imu, frame, imu_noise, gnss, vision, clock, t_aid, dither_sigma_px, survey_sigma_m,
+    return filter_epochs(s, imu, frame, imu_noise, gnss, vision, clock, t_aid, camera, survey_sigma_m,
                          range_rate_sigma_m_s=range_rate_sigma_m_s)[0]
 
 
 def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, gnss: GnssEpochs | None,
                   vision: VisionEpochs | None, clock: ClockNoise, t_aid: NDArray | None = None,
-                  dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05,
+                  camera: CameraNoise = CameraNoise(), survey_sigma_m: float = 0.05,
                   through_end: bool = False, range_rate_sigma_m_s: float | None = None,
                   bank: Bank | None = None) -> tuple[EkfTrace, NavState, Bank | None]:
     """:func:`run_ekf`, and the state after the last aiding epoch (``through_end``: after every IMU
@@ -100,7 +100,8 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
             omega = imu_block(imu.dtheta, B, k_end - 1, k_end)[:, 0] / imu.dt - s.bg if k_end > 0 else np.zeros((B, 3))
             stages.append(lambda s: gnss_rows(s, gnss, k, frame, omega, range_rate_sigma_m_s))
         if vision is not None:
-            stages.append(lambda s: vision_rows(s, vision, k, frame, dither_sigma_px, survey_sigma_m))
+            stages.append(lambda s: camera_frame(s.C, vision.camera.R_sensor_to_body, camera,
+                                                 vision_rows(s, vision, k, frame, survey_sigma_m)))
         for rows_of in stages:  # sequential updates, each linearised at the state the last one left
             rows = rows_of(s)
             if rows is None:
@@ -190,10 +191,19 @@ def gnss_rows(s: NavState, g: GnssEpochs, k: int, frame: LocalFrame, omega_b: ND
     return np.where(mask, nu, 0.0), np.nan_to_num(H), var[..., None] * np.eye(var.shape[-1]), mask, slot, None
 
 
-def vision_rows(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dither_sigma_px: float,
-                 survey_sigma_m: float):
-    """Two pixel rows per landmark any trial detects at epoch k (ν, H, R, mask, None (no satellite) and each
-    row's landmark index), or None."""
+def camera_frame(C: NDArray, R_cam_to_body: NDArray, camera: CameraNoise, rows):
+    """One frame's pixel rows (ν, H, R, mask, G, tag) as an update's rows (ν, H, R, mask, None, tag): the
+    camera's noise common to all of them (:class:`CameraNoise`) added to R. None stays None."""
+    if rows is None:
+        return None
+    nu, H, R, mask, G, tag = rows
+    return nu, H, R + camera.covariance(G, C, R_cam_to_body), mask, None, tag
+
+
+def vision_rows(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, survey_sigma_m: float):
+    """Two pixel rows per landmark any trial detects at epoch k: ν, H, R of the detections and the survey,
+    mask, the rows' camera-rotation Jacobian G (B, 2L, 3) (for :meth:`CameraNoise.covariance`) and each
+    row's landmark index — or None."""
     B = s.p.shape[0]
     det = _at(vis.detected, k, 1, B)
     seen = np.flatnonzero(det.any(0))
@@ -202,15 +212,17 @@ def vision_rows(s: NavState, vis: VisionEpochs, k: int, frame: LocalFrame, dithe
     det = det[:, seen]
     uv = _at(vis.pixel_uv, k, 2, B)[:, seen]
     lm = frame.ecef_to_enu(np.asarray(vis.landmark_pos_ecef, float)[..., seen, :])
-    h, H, Hm, _ = pixel_rows(s, lm, np.asarray(vis.K, float), vis.camera.R_sensor_to_body,
-                             np.asarray(vis.camera.lever_arm_body, float))
+    lever = np.asarray(vis.camera.lever_arm_body, float)
+    h, H, Hm, _ = pixel_rows(s, lm, np.asarray(vis.K, float), vis.camera.R_sensor_to_body, lever)
+    G = rotation_rows(Hm, lm, s.p + np.einsum("bij,j->bi", s.C, lever))
     L = seen.size
     sp = _at(vis.sigma_px, k, 1, B)[:, seen]
-    var = np.repeat(np.where(det, sp, 1.0) ** 2 + dither_sigma_px**2, 2, axis=-1)
+    var = np.repeat(np.where(det, sp, 1.0) ** 2, 2, axis=-1)
     # each landmark's survey error moves its own pixel pair: a 2×2 block per landmark
     blocks = survey_sigma_m**2 * Hm @ np.swapaxes(Hm, -1, -2)  # (B, L, 2, 2)
     R = np.zeros((B, L, 2, L, 2))
     R[:, np.arange(L), :, np.arange(L), :] = np.moveaxis(blocks, 1, 0)
     R = R.reshape(B, 2 * L, 2 * L) + var[..., None] * np.eye(2 * L)
     m = np.repeat(det, 2, axis=-1) & np.isfinite(uv.reshape(B, 2 * L)) & np.isfinite(h)
-    return np.nan_to_num(uv.reshape(B, 2 * L) - h), np.nan_to_num(H), R, m, None, np.repeat(seen, 2)
+    return (np.nan_to_num(uv.reshape(B, 2 * L) - h), np.nan_to_num(H), R, m, np.nan_to_num(G),
+            np.repeat(seen, 2))

@@ -36,9 +36,10 @@ from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
 from testbed.inertial import skew, so3_exp
-from testbed.navigation.ekf import N, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows
+from testbed.navigation.ekf import (N, CameraNoise, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows,
+                                    rotation_rows)
 from testbed.navigation.ekf import predict_compiled as predict
-from testbed.navigation.run import gnss_rows, imu_block, vision_rows
+from testbed.navigation.run import camera_frame, gnss_rows, imu_block, vision_rows
 from testbed.navigation.separation import Bank, augment, propagate, spawn, stack_subs
 from testbed.navigation.separation import update as update_subs
 from testbed.records import FeatureTracks, GnssEpochs, ImuSamples, VisionEpochs
@@ -192,23 +193,55 @@ def _lookup(tracks: FeatureTracks, k: int, ids: NDArray) -> NDArray:
     return np.where(hit[..., None], got, np.nan)
 
 
-def feature_rows(s: SlamState, tracks: FeatureTracks, k: int, n: int, dither_sigma_px: float = 0.0):
-    """Two pixel rows per feature in a slot seen at epoch k: ν, H (B, 2J, n), R, mask — or None."""
+def feature_rows(s: SlamState, tracks: FeatureTracks, k: int, n: int):
+    """Two pixel rows per feature in a slot seen at epoch k: ν, H (B, 2J, n), R of the tracker's noise, mask
+    and the rows' camera-rotation Jacobian G (B, 2J, 3) — or None."""
     uv = _lookup(tracks, k, s.f_id)
     seen = np.isfinite(uv).all(-1)
     if not seen.any():
         return None
     B, J = s.f_id.shape
-    h, Hc, Hm, ray = pixel_rows(s.nav, s.f_m, tracks.K, tracks.camera.R_sensor_to_body,
-                                np.asarray(tracks.camera.lever_arm_body, float))
+    lever = np.asarray(tracks.camera.lever_arm_body, float)
+    h, Hc, Hm, ray = pixel_rows(s.nav, s.f_m, tracks.K, tracks.camera.R_sensor_to_body, lever)
+    G = rotation_rows(Hm, s.f_m, s.nav.p + np.einsum("bij,j->bi", s.nav.C, lever))
     H = widen(Hc, n)
     for j in range(J):
         H[:, 2 * j:2 * j + 2, feature_cols(j)] = Hm[:, j]
     seen &= ray[..., 2] > 0
     mask = np.repeat(seen, 2, axis=-1) & np.isfinite(h)
     nu = np.where(mask, uv.reshape(B, 2 * J) - np.nan_to_num(h), 0.0)
-    R = (tracks.sigma_px**2 + dither_sigma_px**2) * np.broadcast_to(np.eye(2 * J), (B, 2 * J, 2 * J))
-    return nu, np.where(mask[..., None], np.nan_to_num(H), 0.0), R, mask
+    R = tracks.sigma_px**2 * np.broadcast_to(np.eye(2 * J), (B, 2 * J, 2 * J))
+    return nu, np.where(mask[..., None], np.nan_to_num(H), 0.0), R, mask, np.where(mask[..., None], G, 0.0)
+
+
+def camera_rows(s: SlamState, vision: VisionEpochs | None, tracks: FeatureTracks | None, k: int,
+                frame: LocalFrame, camera: CameraNoise, survey_sigma_m: float):
+    """One frame's pixel rows over the full state, the surveyed landmarks' and the slot features', as one
+    update: the camera's dithering moves them all together, so their R is one dense block (sequential
+    landmark and feature updates would each take the frame's rotation as independent of the other's). ν, H, R,
+    mask and each row's fault mode (None without a bank) — or None."""
+    n = s.P.shape[-1]
+    parts = []
+    if vision is not None:
+        r = vision_rows(s.core(), vision, k, frame, survey_sigma_m)
+        if r is not None:
+            parts.append(r[:1] + (widen(r[1], n),) + r[2:5] + (None if s.bank is None else s.bank.vision_modes(r[5]),))
+    if tracks is not None:
+        r = feature_rows(s, tracks, k, n)
+        if r is not None:
+            parts.append(r + (None if s.bank is None else np.full(r[0].shape[-1], s.bank.vision_mode),))
+    if not parts:
+        return None
+    nu, H, Rs, mask, G, modes = zip(*parts)
+    R = np.zeros(Rs[0].shape[:1] + (sum(r.shape[-1] for r in Rs),) * 2)
+    i = 0
+    for r in Rs:  # block-diagonal: the detector's, the survey's and the tracker's noise are independent
+        R[:, i:i + r.shape[-1], i:i + r.shape[-1]] = r
+        i += r.shape[-1]
+    cam = (vision if vision is not None else tracks).camera
+    rows = camera_frame(s.nav.C, cam.R_sensor_to_body, camera, (np.concatenate(nu, -1), np.concatenate(H, -2), R,
+                                                                np.concatenate(mask, -1), np.concatenate(G, -2), None))
+    return rows[:4] + (None if s.bank is None else np.concatenate(modes),)
 
 
 def bearing(C: NDArray, R_cb: NDArray, K: NDArray, uv: NDArray) -> tuple[NDArray, NDArray]:
@@ -233,10 +266,11 @@ def triangulate(c1: NDArray, d1: NDArray, c2: NDArray, d2: NDArray) -> NDArray:
 
 def triangulation_jacobians(m: NDArray, poses: list[tuple[NDArray, NDArray, NDArray, NDArray, NDArray]],
                             lever_cam: NDArray) -> list[tuple[NDArray, NDArray, NDArray]]:
-    """∂m/∂δp, ∂m/∂δψ and ∂m/∂uv (each (..., 3, ·)) of the least-squares point for each ray's pose.
+    """∂m/∂δp, ∂m/∂δψ, ∂m/∂uv and ∂m/∂ψ_cam (each (..., 3, ·)) of the least-squares point for each ray's pose
+    (ψ_cam: the camera alone turned by a world-frame rotation, its dithering).
 
     ``poses``: per ray (C, c, d, ∂d/∂uv, P = I − ddᵀ). With A = ΣPᵢ: ``δm = A⁻¹ Σ (Pᵢ δcᵢ − Gᵢ δdᵢ)``,
-    ``Gᵢ = (dᵢ·wᵢ) I + dᵢwᵢᵀ``, wᵢ = cᵢ − m; ``δcᵢ = δp − [(Ĉl)×]δψ``, ``δdᵢ = −[dᵢ×]δψ + (∂d/∂uv) δuv``.
+    ``Gᵢ = (dᵢ·wᵢ) I + dᵢwᵢᵀ``, wᵢ = cᵢ − m; ``δcᵢ = δp − [(Ĉl)×]δψ``, ``δdᵢ = −[dᵢ×](δψ + ψ_cam) + (∂d/∂uv) δuv``.
     """
     A = sum(P for *_, P in poses)
     Ainv = np.linalg.inv(A)
@@ -245,10 +279,10 @@ def triangulation_jacobians(m: NDArray, poses: list[tuple[NDArray, NDArray, NDAr
         w = c - m
         G = np.einsum("...i,...i->...", d, w)[..., None, None] * np.eye(3) + d[..., :, None] * w[..., None, :]
         la = np.einsum("...ij,j->...i", C, lever_cam)
-        J_p = Ainv @ P
-        J_psi = Ainv @ (-P @ skew(la) + G @ skew(d))
+        J_rot = Ainv @ G @ skew(d)
+        J_psi = -Ainv @ P @ skew(la) + J_rot
         J_uv = -Ainv @ G @ dd_duv
-        out.append((J_p, J_psi, J_uv))
+        out.append((Ainv @ P, J_psi, J_uv, J_rot))
     return out
 
 
@@ -268,16 +302,17 @@ def _clear(s: SlamState, b: NDArray, cols: slice) -> SlamState:
     return _map_slot(s, b, cols, np.zeros((b.size, cols.stop - cols.start, s.P.shape[-1])))
 
 
-def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings, dither_sigma_px: float = 0.0
+def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings, camera: CameraNoise = CameraNoise()
            ) -> SlamState:
     """After the epoch's updates: triangulate or drop the clones, marginalise lost features, start clones.
-    ``dither_sigma_px``: the camera's dithering per pixel, beside the tracker's noise, in both pixels a
-    triangulation spends (as in the update rows)."""
+    ``camera``: its white noise and dithering, beside the tracker's noise, in both pixels a triangulation
+    spends (each frame's rotation taken as independent of the state: the frame's other rows that saw it are
+    not tracked)."""
     s = replace(s, P=s.P.copy(), f_id=s.f_id.copy(), f_m=s.f_m.copy(), f_lost=s.f_lost.copy(), c_id=s.c_id.copy(),
                 c_p=s.c_p.copy(), c_C=s.c_C.copy(), c_uv=s.c_uv.copy(), c_age=s.c_age.copy())
     seen_f = np.isfinite(_lookup(tracks, k, s.f_id)).all(-1)
     s.f_lost[:] = np.where(seen_f, 0, s.f_lost + 1)
-    s = _triangulate_clones(s, tracks, k, cfg, dither_sigma_px)
+    s = _triangulate_clones(s, tracks, k, cfg, camera)
     lost = (s.f_id >= 0) & (s.f_lost > cfg.lost_frames)
     for j in range(cfg.slots):
         b = np.flatnonzero(lost[:, j])
@@ -288,11 +323,11 @@ def manage(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings, di
 
 
 def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: FeatureSettings,
-                        dither_sigma_px: float = 0.0) -> SlamState:
+                        camera: CameraNoise = CameraNoise()) -> SlamState:
     K, R_cb = tracks.K, tracks.camera.R_sensor_to_body
     lc = np.asarray(tracks.camera.lever_arm_body, float)
     uv2 = _lookup(tracks, k, s.c_id)  # (B, K, 2)
-    var = tracks.sigma_px**2 + dither_sigma_px**2
+    var = tracks.sigma_px**2 + camera.white_px**2
     for q in range(cfg.clones):
         active = s.c_id[:, q] >= 0
         seen = active & np.isfinite(uv2[:, q]).all(-1)
@@ -318,7 +353,7 @@ def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: Featur
                 slot = np.argmax(free[go], axis=-1)  # lowest free slot
                 Pm1 = np.eye(3) - d1[go, :, None] * d1[go, None, :]
                 Pm2 = np.eye(3) - d2[go, :, None] * d2[go, None, :]
-                (Jp1, Jq1, Ju1), (Jp2, Jq2, Ju2) = triangulation_jacobians(
+                (Jp1, Jq1, Ju1, Jr1), (Jp2, Jq2, Ju2, Jr2) = triangulation_jacobians(
                     m[go], [(C1[go], c1[go], d1[go], j1[go], Pm1), (C2[go], c2[go], d2[go], j2[go], Pm2)], lc)
                 n = s.P.shape[-1]
                 A = np.zeros((g.size, 3, n))
@@ -326,6 +361,8 @@ def _triangulate_clones(s: SlamState, tracks: FeatureTracks, k: int, cfg: Featur
                 A[:, :, cc.start:cc.start + 3], A[:, :, cc.start + 3:cc.stop] = Jp1, Jq1
                 A[:, :, 0:3], A[:, :, 6:9] = Jp2, Jq2
                 noise = var * (Ju1 @ np.swapaxes(Ju1, -1, -2) + Ju2 @ np.swapaxes(Ju2, -1, -2))
+                for Jr, Cq in ((Jr1, C1[go]), (Jr2, C2[go])):
+                    noise = noise + Jr @ camera.rotation_cov(Cq, R_cb) @ np.swapaxes(Jr, -1, -2)
                 for j in np.unique(slot):
                     sel = slot == j
                     gj = g[sel]
@@ -392,12 +429,12 @@ class SlamTrace:
 def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoise, cfg: FeatureSettings,
              tracks: FeatureTracks | None = None, gnss: GnssEpochs | None = None, clock: ClockNoise = ClockNoise(),
              t_aid: NDArray | None = None, range_rate_sigma_m_s: float | None = None,
-             vision: VisionEpochs | None = None, dither_sigma_px: float = 0.0, survey_sigma_m: float = 0.05,
+             vision: VisionEpochs | None = None, camera: CameraNoise = CameraNoise(), survey_sigma_m: float = 0.05,
              through_end: bool = False) -> tuple[SlamTrace, SlamState]:
     """Predict through the IMU intervals, update at each aiding epoch (the tracks' epochs, else ``t_aid``):
-    GNSS rows where a GNSS epoch falls (1e-6 s), then the surveyed landmarks' pixels (``vision``, at the
-    tracks' epochs), then the features in slots, then the slots' bookkeeping. ``dither_sigma_px`` widens
-    every pixel row (landmarks and features see the same camera). ``through_end``: the state returned is
+    GNSS rows where a GNSS epoch falls (1e-6 s), then the frame's pixels in one update (:func:`camera_rows`:
+    the surveyed landmarks' (``vision``, at the tracks' epochs) and the features in slots, with ``camera``'s
+    noise common to them), then the slots' bookkeeping. ``through_end``: the state returned is
     after every IMU interval given (a block of a live run hands it on), not after the last aiding epoch."""
     t_aid = np.asarray(tracks.t if tracks is not None else t_aid, float)
     B, n = s.P.shape[0], s.P.shape[-1]
@@ -420,23 +457,15 @@ def run_slam(s: SlamState, imu: ImuSamples, frame: LocalFrame, imu_noise: ImuNoi
         if kg is not None:
             stages.append(lambda s: _core_rows(gnss_rows(s.core(), gnss, kg, frame, omega, range_rate_sigma_m_s), n,
                                                None if s.bank is None else lambda r: r[4]))
-        if vision is not None:
-            stages.append(lambda s: _core_rows(vision_rows(s.core(), vision, k, frame, dither_sigma_px, survey_sigma_m),
-                                               n, None if s.bank is None else lambda r: s.bank.vision_modes(r[5])))
-        if tracks is not None:
-            def features(s):
-                rows = feature_rows(s, tracks, k, n, dither_sigma_px)
-                if rows is None:
-                    return None
-                return rows + (np.full(rows[0].shape[-1], -1 if s.bank is None else s.bank.vision_mode),)
-            stages.append(features)
+        if vision is not None or tracks is not None:
+            stages.append(lambda s: camera_rows(s, vision, tracks, k, frame, camera, survey_sigma_m))
         for rows_of in stages:  # sequential updates, each linearised at the state the last one left
             rows = rows_of(s)
             if rows is not None:
                 s, a, b = apply_update(s, *rows)
                 nis, dof = nis + a, dof + b
         if tracks is not None:
-            s = manage(s, tracks, k, cfg, dither_sigma_px)
+            s = manage(s, tracks, k, cfg, camera)
         for name, v in (("p", s.nav.p), ("P_pos", s.P[:, :3, :3].copy()), ("n_features", (s.f_id >= 0).sum(-1)),
                         ("nis", nis), ("dof", dof), ("ba", s.nav.ba), ("bg", s.nav.bg), ("cb", s.nav.cb),
                         ("cd", s.nav.cd)):
@@ -467,5 +496,5 @@ def _core_rows(rows, n: int, modes_of):
     return nu, widen(H, n), R, mask, None if modes_of is None else modes_of(rows)
 
 
-__all__ = ["FeatureSettings", "SlamState", "SlamTrace", "apply_update", "bearing", "feature_rows", "manage",
+__all__ = ["FeatureSettings", "SlamState", "SlamTrace", "apply_update", "bearing", "camera_rows", "feature_rows", "manage",
            "predict_static", "run_slam", "settle_static", "start", "triangulate", "triangulation_jacobians"]
