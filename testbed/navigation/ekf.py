@@ -71,8 +71,9 @@ class CameraNoise:
     the camera's dithering on its mount, a small rotation δ of the camera per frame that moves every pixel of
     the frame together. It enters a frame's R as ``G Q Gᵀ`` (G = ∂uv/∂ψ of every row, Q its world-frame
     covariance), dense across all the frame's points, surveyed or not. Spread over the rows as per-pixel
-    noise instead (it once was) the mean NIS stays right but the energy of the 2–3 common directions is
-    under-stated by the number of points: the innovation test's far tail ran 10× its budget.
+    noise instead (it once was) the mean NIS stays about right but the energy of the 2–3 common directions is
+    under-stated by the number of points: a frame's NIS then passes its 0.999 quantile 20 times too often
+    (``tests/test_ekf.py``).
     """
 
     white_px: float = 0.0

@@ -39,7 +39,7 @@ from testbed.inertial import skew, so3_exp
 from testbed.navigation.ekf import (N, CameraNoise, ClockNoise, ImuNoise, NavState, gain_update, inject, pixel_rows,
                                     rotation_rows)
 from testbed.navigation.ekf import predict_compiled as predict
-from testbed.navigation.run import camera_frame, gnss_rows, imu_block, vision_rows
+from testbed.navigation.run import gnss_rows, imu_block, vision_rows
 from testbed.navigation.separation import Bank, augment, propagate, spawn, stack_subs
 from testbed.navigation.separation import update as update_subs
 from testbed.records import FeatureTracks, GnssEpochs, ImuSamples, VisionEpochs
@@ -238,10 +238,10 @@ def camera_rows(s: SlamState, vision: VisionEpochs | None, tracks: FeatureTracks
     for r in Rs:  # block-diagonal: the detector's, the survey's and the tracker's noise are independent
         R[:, i:i + r.shape[-1], i:i + r.shape[-1]] = r
         i += r.shape[-1]
-    cam = (vision if vision is not None else tracks).camera
-    rows = camera_frame(s.nav.C, cam.R_sensor_to_body, camera, (np.concatenate(nu, -1), np.concatenate(H, -2), R,
-                                                                np.concatenate(mask, -1), np.concatenate(G, -2), None))
-    return rows[:4] + (None if s.bank is None else np.concatenate(modes),)
+    R_cb = (vision if vision is not None else tracks).camera.R_sensor_to_body
+    R = R + camera.covariance(np.concatenate(G, -2), s.nav.C, R_cb)
+    return (np.concatenate(nu, -1), np.concatenate(H, -2), R, np.concatenate(mask, -1),
+            None if s.bank is None else np.concatenate(modes))
 
 
 def bearing(C: NDArray, R_cb: NDArray, K: NDArray, uv: NDArray) -> tuple[NDArray, NDArray]:
@@ -265,7 +265,7 @@ def triangulate(c1: NDArray, d1: NDArray, c2: NDArray, d2: NDArray) -> NDArray:
 
 
 def triangulation_jacobians(m: NDArray, poses: list[tuple[NDArray, NDArray, NDArray, NDArray, NDArray]],
-                            lever_cam: NDArray) -> list[tuple[NDArray, NDArray, NDArray]]:
+                            lever_cam: NDArray) -> list[tuple[NDArray, NDArray, NDArray, NDArray]]:
     """∂m/∂δp, ∂m/∂δψ, ∂m/∂uv and ∂m/∂ψ_cam (each (..., 3, ·)) of the least-squares point for each ray's pose
     (ψ_cam: the camera alone turned by a world-frame rotation, its dithering).
 
