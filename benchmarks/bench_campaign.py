@@ -59,6 +59,7 @@ def main() -> None:
     from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments
     from testbed.campaign.runner import cell_context, run_campaign, run_chunk
     from testbed.campaign.spec import expand_cells, load_spec
+    from testbed import memo
     from testbed.integrity.batching import available_cores
 
     cores = available_cores()
@@ -81,27 +82,38 @@ def main() -> None:
     print(f"start times spread / fixed, after the one-off geometry: "
           f"{walls['consecutive 60 s sorties'] / walls['fixed start']:.2f}x")
 
-    # the --full reproduction: time one chunk of each experiment, project its settings at 6e6 epochs
-    full_s = 0.0
+    # the --full reproduction: one chunk of every setting of each experiment, in the campaign's
+    # chunk-major order, with the cells' shared draws (testbed.memo) and without them
+    print(f"--full reproduction ({FULL_TRIALS} sorties x 61 epochs per setting), chunk 0 ({args.per_experiment} "
+          "sorties) of every setting timed, shared draws on / off:")
+    total = {"on": 0.0, "off": 0.0}
     n_settings = 0
-    print(f"--full reproduction ({FULL_TRIALS} sorties x 61 epochs per setting), measured per experiment:")
-    for name, le in loaded_experiments(args.per_experiment).items():
-        spec_n = le.spec.model_copy(update={"chunk_trials": args.per_experiment})
-        le = dataclasses.replace(le, spec=spec_n)
+    for name, le in loaded_experiments(2 * args.per_experiment).items():
+        le = dataclasses.replace(le, spec=le.spec.model_copy(update={"chunk_trials": args.per_experiment}))
         cells = expand_cells(le)
-        cell_context(cells[0], le.spec)
-        run_chunk(le, 0, 0)  # warm: kernels, chi-square tables
         t0 = time.perf_counter()
-        tables = run_chunk(le, 0, 0)
-        dt = time.perf_counter() - t0
-        epochs = args.per_experiment * int(tables["trials"].column("epochs")[0].as_py())
-        rate = epochs / dt
-        per_setting = FULL_TRIALS * 61 / rate
-        full_s += per_setting * len(cells)
+        for c in cells:
+            cell_context(c, le.spec)
+        setup_s = time.perf_counter() - t0
+        run_chunk(le, 0, 1)  # warm (kernels, chi-square tables) on blocks the timed chunk does not draw
+        rates = {}
+        for mode, cap in (("on", memo.DEFAULT_LIMIT_BYTES), ("off", 0)):
+            memo.clear()
+            with memo.limit(cap):
+                t0 = time.perf_counter()
+                tables = [run_chunk(le, i, 0) for i in range(len(cells))]
+                dt = time.perf_counter() - t0
+            epochs = args.per_experiment * len(cells) * int(tables[0]["trials"].column("epochs")[0].as_py())
+            rates[mode] = epochs / dt
+            total[mode] += FULL_TRIALS * 61 * len(cells) / rates[mode] + setup_s
         n_settings += len(cells)
-        print(f"  {name:20s} monitors {'+'.join(le.spec.monitors):17s} {rate:9,.0f} sortie-epochs/s -> "
-              f"{per_setting / 60:5.1f} min per setting x {len(cells):2d} settings = {per_setting * len(cells) / 60:6.1f} min")
-    print(f"  all {n_settings} settings: {full_s / 3600:.2f} h on this machine ({cores} cores, one process)")
+        full = FULL_TRIALS * 61 * len(cells) / rates["on"] + setup_s
+        print(f"  {name:26s} {'+'.join(le.spec.monitors):16s} {len(cells):3d} settings: "
+              f"{rates['on']:9,.0f} sortie-epochs/s shared ({rates['on'] / rates['off']:.2f}x unshared "
+              f"{rates['off']:,.0f}) -> {full / 60:6.1f} min (geometry {setup_s:.1f} s once)")
+    memo.clear()
+    print(f"  all {n_settings} settings: {total['on'] / 3600:.2f} h on this machine ({cores} cores, one process); "
+          f"{total['off'] / 3600:.2f} h without shared draws")
 
 
 if __name__ == "__main__":

@@ -55,6 +55,9 @@ Assumptions the paper leaves open (also in the README):
   = an alert at any epoch from the onset on (false alarm: any alert in a fault-free
   sortie). P_FA / P_MD and the service levels (APV-I, LPV-200, APV-II: HAL 40 m,
   VAL 50/35/20 m) are the testbed's integrity defaults (the paper's Table 1).
+- Common random numbers in every experiment: sortie k of every setting draws the same noise
+  (pseudoranges, survey, frames, dithering), so two settings differ by the setting alone and
+  their comparison is paired; the runner draws once what the settings share (`testbed.memo`).
 - LPE is drawn once per block of 100 sorties (one landmark survey serves many
   sorties); the monitor is told the LPE sigma it faces. DE is white Gaussian per
   pixel axis; platform dithering and the attitude-reference errors are the
@@ -97,7 +100,7 @@ def experiments(trials: int) -> dict[str, CampaignSpec]:
     chunk = 100 if trials <= 1000 else 1000
     common = dict(approaches=["va-raim-2015"], trials=trials, base_seed=2015, block_trials=100,
                   chunk_trials=chunk, per_epoch_trials=min(trials, 100),
-                  sorties={"start": "consecutive", "sortie_s": 60.0})
+                  sorties={"start": "consecutive", "sortie_s": 60.0}, common_random_numbers=True)
     return {
         "vision-calibration": CampaignSpec.model_validate({
             **common, "name": "va-raim-2015-vision-calibration", "monitors": ["va_raim"],
@@ -115,7 +118,6 @@ def experiments(trials: int) -> dict[str, CampaignSpec]:
                       "lpe_sigma_m": [0.05], "va_raim_variant": ["seed", "gated"]}}),
         "gps-faults": CampaignSpec.model_validate({
             **common, "name": "va-raim-2015-gps-faults", "monitors": ["gps_raim", "va_raim"],
-            "common_random_numbers": True,
             "description": "GPS step on a random visible satellite from 20 s: detection rate vs bias",
             "faults": [{"kind": "gps_step", "onset_s": 20.0,
                         "magnitudes": [0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0, 50.0]}],
@@ -131,7 +133,6 @@ def experiments(trials: int) -> dict[str, CampaignSpec]:
                       "va_raim_variant": ["seed"]}}),
         "where-vision-pays": CampaignSpec.model_validate({
             **common, "name": "va-raim-2015-where-vision-pays", "monitors": ["gps_raim", "va_raim"],
-            "common_random_numbers": True,
             "description": "GPS RAIM vs VA-RAIM (testbed default) across angular precision (focal length at the "
                            "seed camera's field of view, DE 1 px) and landmark baseline (triangles of radius "
                            "100, 300, 1000 m): fault-free and GPS-step cells, the break-even camera",
@@ -139,7 +140,7 @@ def experiments(trials: int) -> dict[str, CampaignSpec]:
             "sweep": {"camera_focal_px": list(FOCAL_SWEEP_PX), "detection_sigma_px": [1.0], "lpe_sigma_m": [0.05],
                       "landmark_sets": [[{"kind": "triangle", "radius_m": r}] for r in BASELINES_M]}}),
         "vision-faults": CampaignSpec.model_validate({
-            **common, "name": "va-raim-2015-vision-faults", "monitors": ["va_raim"], "common_random_numbers": True,
+            **common, "name": "va-raim-2015-vision-faults", "monitors": ["va_raim"],
             "description": "Pixel bias on a random landmark from 20 s: VA-RAIM detection rate vs bias",
             "faults": [{"kind": "pixel_bias", "onset_s": 20.0, "magnitudes": [0.0, 2.0, 5.0, 10.0, 20.0, 50.0]}],
             "sweep": {"camera_dpi": [720.0], "detection_sigma_px": [1.0], "lpe_sigma_m": [0.05],

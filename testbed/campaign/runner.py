@@ -22,6 +22,7 @@ coordinates per call, which a block provides.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -33,6 +34,7 @@ from typing import Callable
 import numpy as np
 import pyarrow as pa
 
+from testbed import memo
 from testbed.campaign.sorties import sky_windows, sortie_offsets, window_offsets
 from testbed.campaign.spec import CampaignSpec, Cell, LoadedSpec, expand_cells, resolve_spec
 from testbed.integrity.batching import available_cores, map_trial_chunks
@@ -40,6 +42,7 @@ from testbed.integrity.monitor import ANTENNA, Observations, provided_output
 from testbed.integrity.levels import service_level
 from testbed.records import MonitorOutput, map_epoch_arrays
 from testbed.schema import ConfigError
+from testbed.sensors.faults import GNSS_KINDS, VISION_KINDS
 from testbed.sim.evaluate import REGIONS, misleading, position_errors, stanford_regions
 
 TABLES = ("trials", "epochs", "hist")
@@ -115,6 +118,10 @@ class CellContext:
     #: only when a monitor reads the IMU (the seed-002 filter)
     imu_increments: tuple | None = None
     imu_start: tuple | None = None
+    #: what fixes the cell's GNSS / vision draws besides seed, faults and sky windows (memo keys: a sweep's
+    #: cells that share them share their draws, :func:`_shared_draw`)
+    gnss_draw_key: tuple = ()
+    vision_draw_key: tuple = ()
     #: the ground features the tracker follows at the GNSS epochs (T, W) and the tracker's camera: only when
     #: the approach's ``[vision.features]`` is enabled and a monitor reads them (the seed-002 filter)
     feature_ids: np.ndarray | None = None
@@ -201,7 +208,8 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                        truth_ant_enu=setup.frame.ecef_to_enu(g_geom.ant_pos_ecef),
                        hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset),
                        truth_g=truth, sky=sky, imu_increments=imu_inc, imu_start=imu_start, feature_ids=f_ids,
-                       feature_camera=f_cam)
+                       feature_camera=f_cam, gnss_draw_key=gkey,
+                       vision_draw_key=() if v_geom is None else (tkey, vkey[2], vkey[3]))
 
 
 def _segment_start(t_gnss: np.ndarray, duration_s: float | None, segment: str) -> float:
@@ -280,12 +288,16 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     trials = np.arange(i0, i0 + n)
     offsets = sortie_offsets(spec, trials)
     windows = None if ctx.sky is None else sky_windows(offsets, spec.sorties.window_s)
-    gnss, gtruth = sample_gnss(ctx.gnss_geometry_of(windows), s.gnss, faults=faults, rng=np.random.default_rng(ss_g),
-                               n_trials=n)
+    gnss, gtruth = _shared_draw(
+        ("gnss_draw", ctx.gnss_draw_key, None if windows is None else memo.digest(windows)), faults, GNSS_KINDS, ss_g, n,
+        lambda: sample_gnss(ctx.gnss_geometry_of(windows), s.gnss, faults=faults, rng=np.random.default_rng(ss_g),
+                            n_trials=n))
     vis = vtruth = None
     if ctx.v_geom is not None:
-        vis, vtruth = vdetect.sample_vision(ctx.v_geom, s.vision, landmarks=ctx.landmarks, faults=faults,
-                                            rng=np.random.default_rng(ss_v), n_trials=n)
+        vis, vtruth = _shared_draw(
+            ("vision_draw", ctx.vision_draw_key), faults, VISION_KINDS, ss_v, n,
+            lambda: vdetect.sample_vision(ctx.v_geom, s.vision, landmarks=ctx.landmarks, faults=faults,
+                                          rng=np.random.default_rng(ss_v), n_trials=n))
         # one survey per block: the monitor believes true + e, the landmarks stand at true (+ a fault's move)
         lpe = s.landmarks.lpe_sigma_m
         e = np.random.default_rng(ss_s).standard_normal(ctx.landmarks.pos_ecef.shape) * lpe
@@ -310,6 +322,14 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     return BlockDraw(trials, Observations(gnss, vis, imu, init, features=tracks), gtruth, vtruth, target, offsets,
                      np.full(n, -1, np.int64) if windows is None else windows, _fault_present(gnss, gtruth, vis, vtruth),
                      ss_c, model_gnss)
+
+
+def _shared_draw(key: tuple, faults: list, kinds: tuple, seed: np.random.SeedSequence, n: int, draw: Callable):
+    """One sensor's draw of a block, shared by the cells whose draw key, faults of that sensor's kinds,
+    seed (common random numbers) and trial count agree: a GPS-step sweep draws its camera frames
+    once, a camera sweep its pseudoranges once (:mod:`testbed.memo`; off outside campaigns)."""
+    own = json.dumps([f.model_dump(mode="json") for f in faults if f.kind in kinds], sort_keys=True)
+    return memo.shared(key + (own, memo.seed_key(seed), n), draw)
 
 
 def _imu_draw(ctx: CellContext, gtruth, seed_imu: np.random.SeedSequence, seed_align: np.random.SeedSequence,
@@ -560,11 +580,14 @@ def run_chunk(loaded: LoadedSpec, cell_index: int, chunk: int, threads: int | No
     n_blocks = -(-spec.trials // spec.block_trials)
     blocks = range(chunk * per_chunk, min((chunk + 1) * per_chunk, n_blocks))
     n_threads = available_cores() if threads is None else int(threads)
-    if n_threads > 1 and len(blocks) > 1:  # blocks are independent: sample and monitor them side by side
-        with ThreadPoolExecutor(min(n_threads, len(blocks))) as pool:
-            res = list(pool.map(lambda b: run_block(ctx, spec, b), blocks))
-    else:
-        res = [run_block(ctx, spec, b) for b in blocks]
+    # with common random numbers, the sweep's other cells reuse this chunk's draws (the same numbers either way;
+    # without, no two cells draw from one seed)
+    with memo.sharing() if spec.common_random_numbers else contextlib.nullcontext():
+        if n_threads > 1 and len(blocks) > 1:  # blocks are independent: sample and monitor them side by side
+            with ThreadPoolExecutor(min(n_threads, len(blocks))) as pool:
+                res = list(pool.map(lambda b: run_block(ctx, spec, b), blocks))
+        else:
+            res = [run_block(ctx, spec, b) for b in blocks]
     monitors = list(ctx.setup.monitor_names)
     trials = _concat([_cat_cols([r["trials"][m] for r in res]) for m in monitors])
     epochs = _concat([_cat_cols([r["epochs"][m] for r in res if m in r["epochs"]]) for m in monitors])
@@ -670,7 +693,8 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
         raise
     plan = chunk_plan(loaded)
     done = store.done_chunks()
-    todo = [p for p in plan if (p[0], p[1]) not in done]
+    # chunk-major: the cells of a sweep run one chunk each in turn, so what they share (memo) is still held
+    todo = sorted((p for p in plan if (p[0], p[1]) not in done), key=lambda p: (p[1], p[0]))
     if max_chunks is not None:
         todo = todo[:max_chunks]
     total_trials = sum(n for _, _, n in plan)

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from pydantic import Field, field_validator
 from scipy import optimize, stats
 
+from testbed import memo
 from testbed.frames import LocalFrame, q_to_R
 from testbed.integrity import kernels, lsq
 from testbed.integrity.batching import map_trial_chunks
@@ -48,6 +49,7 @@ from testbed.integrity.levels import SERVICE_LEVELS, service_level
 from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
 from testbed.integrity.fde import Verdict, exclude, flat_take
 from testbed.integrity.raim import (
+    GpsFix,
     GpsRaimMonitor,
     fix_at_solution,
     gps_exclusion,
@@ -362,10 +364,19 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     """
     st = settings or VaRaimSettings()
     inp = _read_inputs(gnss, vision, frame)
-    return map_trial_chunks(lambda sl: _va_raim_chunk(inp.trials(sl), st, name), inp.pr.shape[:-1], threads)
+    # step 1 reads the GNSS record only: the cells of a camera sweep that share it share step 1 (memo)
+    gps_key = ("va_raim_gps", id(gnss), st.integrity.model_dump_json(), memo.digest(frame.origin_ecef, frame.R))
+    return map_trial_chunks(lambda sl: _va_raim_chunk(inp.trials(sl), st, name, (gps_key + (sl.start, sl.stop), gnss)),
+                            inp.pr.shape[:-1], threads)
 
 
-def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput:
+def _gps_step(inp: _Inputs, ist: IntegritySettings) -> tuple[GpsFix, MonitorOutput]:
+    """Step 1: the GPS RAIM monitor itself on the chunk's pseudoranges."""
+    fix_g = gps_fix(inp.pr, inp.vis, inp.sat_ecef, inp.sigma, None, None, inp.frame, ist, inp.n_gps_rows)
+    return fix_g, gps_output(fix_g, inp.t, inp.pr.shape[-1], ist, "gps_raim")
+
+
+def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tuple) -> MonitorOutput:
     """:func:`va_raim` on one chunk of trials."""
     ist = st.integrity
     pr, t, p_enu, uv = inp.pr, inp.t, inp.p_enu, inp.uv
@@ -381,8 +392,8 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str) -> MonitorOutput
     # --- 1. GPS-only RAIM: the GPS RAIM monitor itself (at the antenna, as a receiver solves),
     # then moved to the reference point through the lever arm (the pseudoranges see x + R·l_ant
     # only, so this is the fix a solve for the reference point reaches, to rounding)
-    fix_g = gps_fix(pr, inp.vis, inp.sat_ecef, inp.sigma, None, None, inp.frame, ist, inp.n_gps_rows)
-    gps = gps_output(fix_g, t, pr.shape[-1], ist, "gps_raim")
+    key, guard = shared_gps
+    fix_g, gps = memo.shared(key, lambda: _gps_step(inp, ist), guard=guard)
     idx, mg, zg, wg, anchor_g, fit_g = fix_g.idx, fix_g.mask, fix_g.z, fix_g.w, fix_g.anchor, fix_g.fit
     x_g = fix_g.x - np.concatenate([off_ant, np.zeros(bt + (1,))], axis=-1)
     has_fix = np.isfinite(x_g).all(-1)

@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from testbed import memo
 from testbed.frames import R_ecef_to_enu, R_to_q, ecef_to_geodetic
 from testbed.records import Mount, NotVisible, Truth, VisionEpochs, epoch_array
 from testbed.sensors.faults import LandmarkMoved, Misassociation, PixelBias, VISION_KINDS, active
@@ -408,14 +409,17 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     g_survey, g_dith, g_att, g_noise, g_faults = _spawn(rng, len(RNG_STREAMS))
     fault_rngs = _spawn(g_faults, len(faults))
     lm_survey = survey(lm, g_survey, n_trials)  # (B..., L, 3)
-    delta, delta_rate = dithering_angles(t, settings.dithering, g_dith, n_trials,
-                                         sample_rate_hz=settings.rate_hz)  # (B..., T, 3)
+    # the same seed, times and settings dither every camera of a sweep alike (memo.shared: off outside campaigns)
+    delta, delta_rate = memo.shared(
+        ("dithering", memo.digest(t), settings.dithering.model_dump_json(), settings.rate_hz, memo.seed_key(g_dith),
+         n_trials),
+        lambda: dithering_angles(t, settings.dithering, g_dith, n_trials, sample_rate_hz=settings.rate_hz))  # (B..., T, 3)
     q_ref, att_err, att_sigma = attitude_reference_from_euler(g.euler, settings.attitude_ref, g_att, n_trials)
     noise_std = g_noise.standard_normal(batch + (T, L, 2))
 
     # True camera attitude: nominal × dithering (the position is not dithered).
     if settings.dithering.enabled:
-        R_d = Rotation.from_rotvec(delta.reshape(-1, 3)).as_matrix().reshape(delta.shape[:-1] + (3, 3))
+        R_d = Rotation.from_rotvec(np.array(delta.reshape(-1, 3))).as_matrix().reshape(delta.shape[:-1] + (3, 3))
     else:
         R_d = np.broadcast_to(np.eye(3), delta.shape[:-1] + (3, 3))
     R_c2e = g.R_cam_to_ecef @ R_d  # (B..., T, 3, 3)

@@ -82,16 +82,21 @@ def _lowpass_noise(t: NDArray, rms: NDArray, bandwidth_hz: float, rng: np.random
     if sos is not None:
         h = signal.sosfilt(sos, np.r_[1.0, np.zeros(int(50 * fs / bandwidth_hz))])
         gain = 1.0 / np.sqrt(np.sum(h * h))
-        x = signal.sosfilt(sos, w, axis=-2) * gain
+        y = signal.sosfilt(sos, w, axis=-2)
     else:
-        x = w
-    x = x * rms
-    xdot = np.gradient(x, 1.0 / fs, axis=-2)
+        y = w
     pos = (t - t0) * fs
     i = np.clip(np.floor(pos).astype(int), 0, n - 2)
     f = (pos - i)[:, None]
-    samp = x[..., i, :] * (1 - f) + x[..., i + 1, :] * f
-    sampd = xdot[..., i, :] * (1 - f) + xdot[..., i + 1, :] * f
+
+    def x(j: NDArray) -> NDArray:  # the scaled noise on grid points j only (the grid is ~50x the samples)
+        return (y[..., j, :] * gain if sos is not None else y[..., j, :]) * rms
+
+    def xdot(j: NDArray) -> NDArray:  # np.gradient's central difference (every j is an inner point)
+        return (x(j + 1) - x(j - 1)) / (2. * (1.0 / fs))
+
+    samp = x(i) * (1 - f) + x(i + 1) * f
+    sampd = xdot(i) * (1 - f) + xdot(i + 1) * f
     return samp, sampd
 
 

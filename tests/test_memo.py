@@ -1,0 +1,128 @@
+"""Shared draws across a sweep's cells (testbed.memo): the same tables bit for bit, and the memo's rules."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from testbed import memo
+from testbed.campaign.runner import run_campaign
+
+from test_campaign import same, table
+
+# common random numbers over a GPS-step sweep x two cameras: each camera's frames are drawn once for both
+# magnitudes, each magnitude's pseudoranges (and VA-RAIM's step 1) once for both cameras
+SWEEP = """
+name = "shared"
+approaches = ["va-raim-2015"]
+monitors = ["gps_raim", "va_raim"]
+trials = 40
+block_trials = 10
+chunk_trials = 20
+base_seed = 11
+per_epoch_trials = 4
+duration_s = 30.0
+common_random_numbers = true
+
+[sorties]
+start = "consecutive"
+sortie_s = 60.0
+
+[[faults]]
+kind = "gps_step"
+magnitudes = [0.0, 40.0]
+onset_s = 10.0
+
+[sweep]
+camera_focal_px = [992.0, 1e4]
+"""
+
+
+@pytest.fixture(autouse=True)
+def _fresh_memo():
+    memo.clear()
+    yield
+    memo.clear()
+
+
+def test_a_sweep_gives_the_same_tables_with_and_without_shared_draws(tmp_path):
+    spec = tmp_path / "shared.toml"
+    spec.write_text(SWEEP)
+    run_campaign(spec, tmp_path / "on", progress=False)
+    shared = memo.counts()
+    # per block, cells in order (0 m, f1) (0 m, f2) (40 m, f1) (40 m, f2): the pseudoranges and step 1 are new
+    # for each magnitude and reused by its second camera (2 + 2 hits), the frames new for each camera and
+    # reused at 40 m (2 hits), the dithering drawn with the first frames and reused by the second camera's
+    # (1 hit): 7 hits and 7 misses a block, 4 blocks a cell
+    assert shared["hits"] == 4 * 7 and shared["misses"] == 4 * 7
+    memo.clear()
+    with memo.limit(0):
+        run_campaign(spec, tmp_path / "off", progress=False)
+    assert memo.counts()["hits"] == 0
+    for name in ("trials.parquet", "epochs.parquet", "stanford_hist.parquet"):
+        assert same(table(tmp_path / "on", name), table(tmp_path / "off", name)), name
+
+
+def test_without_common_random_numbers_nothing_is_shared(tmp_path):
+    spec = tmp_path / "own.toml"
+    spec.write_text(SWEEP.replace("common_random_numbers = true", "common_random_numbers = false"))
+    run_campaign(spec, tmp_path / "out", progress=False)
+    assert memo.counts() == {"hits": 0, "misses": 0, "entries": 0, "bytes": 0}
+
+
+def test_off_by_default_the_memo_computes_every_time():
+    calls = []
+    for _ in range(2):
+        memo.shared(("k",), lambda: calls.append(1) or np.zeros(3))
+    assert len(calls) == 2 and memo.counts()["entries"] == 0
+
+
+def test_a_shared_value_is_frozen_and_served_again():
+    with memo.sharing():
+        a = memo.shared(("k", 1), lambda: (np.arange(4.0), {"b": np.ones(2)}))
+        b = memo.shared(("k", 1), lambda: pytest.fail("recomputed"))
+    assert b is a
+    with pytest.raises(ValueError, match="read-only"):
+        a[0][0] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        a[1]["b"][0] = 1.0
+
+
+def test_a_guarded_entry_serves_only_the_very_object_it_was_made_for():
+    x, y = np.zeros(2), np.zeros(2)
+    with memo.sharing():
+        memo.shared(("id", 1), lambda: np.ones(1), guard=x)
+        assert memo.shared(("id", 1), lambda: np.full(1, 2.0), guard=y)[0] == 2.0  # same key, another object
+        assert memo.shared(("id", 1), lambda: np.full(1, 3.0), guard=y)[0] == 2.0  # now y's
+        assert memo.counts()["entries"] == 1
+
+
+def test_the_store_is_bounded_in_bytes_least_recently_used_first():
+    with memo.sharing(), memo.limit(3 * 800):
+        for k in range(5):
+            memo.shared(("lru", k), lambda: np.zeros(100))  # 800 bytes each
+        memo.shared(("lru", 2), lambda: pytest.fail("2 was evicted"))  # touch 2: 3 becomes the oldest
+        memo.shared(("lru", 5), lambda: np.zeros(100))
+        assert memo.counts()["entries"] == 3 and memo.counts()["bytes"] == 2400
+        again = []
+        memo.shared(("lru", 3), lambda: again.append(1) or np.zeros(100))
+        assert again == [1]
+        memo.shared(("big",), lambda: np.zeros(1000))  # larger than the budget: computed, not kept
+        assert memo.counts()["bytes"] <= 2400
+
+
+def test_seed_keys_name_a_fresh_stream_and_refuse_unseeded_generators():
+    a = np.random.default_rng(np.random.SeedSequence(5, spawn_key=(1, 2)))
+    b = np.random.default_rng(np.random.SeedSequence(5, spawn_key=(1, 3)))
+    assert memo.seed_key(a) != memo.seed_key(b)
+    assert memo.seed_key(a) == memo.seed_key(np.random.SeedSequence(5, spawn_key=(1, 2)))
+    with pytest.raises(TypeError, match="SeedSequence"):
+        memo.seed_key(5)
+
+
+def test_digests_see_dtype_shape_and_content():
+    a = np.arange(6.0)
+    assert memo.digest(a) == memo.digest(a.copy())
+    assert memo.digest(a) != memo.digest(a.reshape(2, 3))
+    assert memo.digest(a) != memo.digest(a.astype(np.float32))
+    assert memo.digest(a[::2]) == memo.digest(np.array([0.0, 2.0, 4.0]))
