@@ -88,16 +88,24 @@ def _cmd_observability(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
-    from testbed.campaign.dpe_calibration import calibrate_dpe, write_record
+    from testbed.campaign.dpe_calibration import SET_C_TRAJECTORIES, calibrate_dpe, write_record
+    from testbed.config import load_approach
+    from testbed.sim.preflight import check_output_folder
 
     out = Path(args.out)
     if out.exists() and out.is_dir():
         raise ConfigError(out, ["--out: expected a file path for the calibration record, got a folder"])
     if not out.parent.is_dir():
         raise ConfigError(out, [f"--out: the folder {out.parent} does not exist"])
+    trajectories = SET_C_TRAJECTORIES if args.trajectories == ["set-c"] else tuple(args.trajectories or ())
+    for t in (args.approach, *trajectories):
+        load_approach(t)  # every named approach reads before any work (exit 2 naming the file and key)
+    if args.work is not None:
+        check_output_folder(args.work, "--work")
     try:
         rec = calibrate_dpe(args.approach, sorties=args.sorties, p_hmi=args.p_hmi, seed=args.seed,
-                            progress=lambda m: print(m, flush=True))
+                            trajectories=trajectories, chunk=args.chunk, work=args.work, resume=args.resume,
+                            scheduler=args.scheduler, progress=lambda m: print(m, flush=True))
     except ValueError as exc:  # too few epochs for the tail levels, and the like
         raise ConfigError(Path(args.approach), [f"calibrate-dpe: {exc}"]) from None
     write_record(rec, out)
@@ -191,6 +199,13 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--p-hmi", type=_in_range(float, 1e-12, 0.01), default=1e-7,
                    help="per-epoch HMI probability K is for")
     k.add_argument("--seed", type=int, default=0, help="seed of the sorties' draws")
+    k.add_argument("--trajectories", nargs="+", metavar="APPROACH",
+                   help="approaches whose trajectories the sorties fly, with APPROACH's DPE and correlator settings "
+                        "(default: its own; set-c: DPE.md's zunz-rwy05-final zunz-rwy05-rnp va-raim-2015)")
+    k.add_argument("--chunk", type=_in_range(int, 1, 100_000), default=25, help="sorties per chunk (a unit of work)")
+    k.add_argument("--work", type=Path, help="folder keeping every chunk as it finishes (a killed run resumes)")
+    k.add_argument("--resume", action="store_true", help="continue the calibration stored in --work")
+    k.add_argument("--scheduler", help="Dask scheduler address: chunks run on its workers")
     k.set_defaults(func=_cmd_calibrate_dpe)
 
     c = sub.add_parser("check", help="validate approach (or campaign) files and explain every problem")

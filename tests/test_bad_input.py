@@ -498,13 +498,40 @@ def test_an_output_folder_that_is_a_file_is_refused(work, capsys):
         assert f.read_text() == "mine"
 
 
-@pytest.mark.parametrize("argv", [["--sorties", "3"], ["--sorties", "x"], ["--p-hmi", "0.5"], ["--p-hmi", "nan"], []])
+@pytest.mark.parametrize("argv", [["--sorties", "3"], ["--sorties", "x"], ["--p-hmi", "0.5"], ["--p-hmi", "nan"], [],
+                                  ["--chunk", "0"], ["--chunk", "x"], ["--trajectories"]])
 def test_calibrate_dpe_options_are_checked_before_any_work(argv, work, capsys):
     cwd, _ = work
     with pytest.raises(SystemExit) as ei:  # argparse: usage message, exit 2 (no --out: required)
         main(["calibrate-dpe", *argv] + ([] if not argv else ["--out", str(cwd / "k.json")]))
     assert ei.value.code == 2
     assert not list(cwd.iterdir())
+
+
+def test_calibrate_dpe_names_an_unknown_trajectory_before_any_work(work, capsys):
+    cwd, _ = work
+    code, out = run(capsys, "calibrate-dpe", "--out", cwd / "k.json", "--trajectories", "zunz-rwy05-final",
+                    "no-such-approach", "--work", cwd / "w")
+    assert code == 2 and "no-such-approach" in out, out
+    assert not list(cwd.iterdir())
+
+
+def test_calibrate_dpe_refuses_a_work_folder_of_another_run_and_changes_nothing(work, capsys):
+    cwd, _ = work
+    w = cwd / "w"
+    w.mkdir()
+    manifest = w / "manifest.json"
+    manifest.write_text('{"approach": "x", "trajectories": [], "sorties": 6, "seed": 0, "chunk": 25}')
+    before = listing(cwd)
+    code, out = run(capsys, "calibrate-dpe", "--out", cwd / "k.json", "--work", w)
+    assert code == 2 and "--resume to continue" in out, out
+    code, out = run(capsys, "calibrate-dpe", "--out", cwd / "k.json", "--work", w, "--resume", "--sorties", "7")
+    assert code == 2 and "sorties = 6 there, 7 here" in out and "approach = 'x' there" in out, out
+    manifest.write_text("{not json")
+    code, out = run(capsys, "calibrate-dpe", "--out", cwd / "k.json", "--work", w, "--resume")
+    assert code == 2 and "cannot be read" in out and str(manifest) in out, out
+    assert listing(cwd) == {**before, str(manifest): manifest.stat().st_mtime_ns}
+    assert not (cwd / "k.json").exists()
 
 
 def test_calibrate_dpe_into_a_missing_folder_is_refused(work, capsys):

@@ -86,3 +86,67 @@ def test_calibrate_dpe_end_to_end_even_when_the_approach_names_a_stale_record(tm
     write_record(rec, tmp_path / "k.json")
     s = DpeSettings.model_validate({"k_factor": 1.0, "sis": "add"})
     assert read_k_file(tmp_path / "k.json", settings_fingerprint(s, CorrelatorSettings())[1]) == rec["k"]
+
+
+def test_the_sortie_plan_keeps_one_trajectorys_order_and_balances_three():
+    from testbed.campaign.dpe_calibration import CN0_OFFSETS_DB, MULTIPATH, sortie_plan
+
+    for j in range(40):  # one trajectory: the plan the shipped record was made with
+        assert sortie_plan(j, 40, 1) == (0, j * 2160.0, CN0_OFFSETS_DB[j % 3], MULTIPATH[(j // 3) % 2],
+                                         j % 3 + 3 * ((j // 3) % 2))
+    plan = [sortie_plan(j, 180, 3, 240.0) for j in range(180)]
+    pairs = {(t, s) for t, _, _, _, s in plan}
+    assert len(pairs) == 18  # every trajectory meets every C/N0 x multipath stratum, 10 times each
+    assert all(sum(1 for t, _, _, _, s in plan if (t, s) == p) == 10 for p in pairs)
+    assert plan[1][1] - plan[0][1] == 480.0 and plan[0][1] == 240.0
+
+
+def test_vdop_of_a_zenith_satellite_and_three_on_the_horizon():
+    """Closed form: zenith + three at 0 deg elevation 120 deg apart: VDOP = 2/sqrt(3)."""
+    from testbed.campaign.dpe_calibration import vdop
+    from testbed.frames import LocalFrame
+
+    f = LocalFrame(29.3, 94.3, 2939.0)
+    az = np.radians([0.0, 120.0, 240.0])
+    enu = np.r_[[[0.0, 0.0, 2e7]], np.c_[2e7 * np.sin(az), 2e7 * np.cos(az), np.zeros(3)]]
+    sats = f.enu_to_ecef(enu)[None]
+    ant = f.enu_to_ecef(np.zeros(3))[None]
+    assert vdop(f, sats, np.ones((1, 4), bool), ant) == pytest.approx(2 / np.sqrt(3), rel=1e-9)
+    assert np.isnan(vdop(f, sats, np.array([[True, True, True, False]]), ant)[0])
+
+
+def test_strata_cover_the_set_and_name_what_they_hold():
+    from testbed.campaign.dpe_calibration import strata
+
+    rng = np.random.default_rng(1)
+    n = 3000
+    c = {"stratum": rng.integers(0, 6, n), "trajectory": rng.integers(0, 3, n), "n_sat": rng.integers(4, 11, n),
+         "vdop": rng.uniform(0.8, 3.0, n)}
+    st = strata(c, ("a.toml", "b.toml", "c.toml"))
+    groups = [[k for k in st if k.startswith(p)] for p in ("cn0", "trajectory", "satellites", "VDOP")]
+    assert [len(g) for g in groups] == [6, 3, 3, 3] and "trajectory b" in st
+    for g in groups:  # each family partitions the set
+        assert (sum(st[k].astype(int) for k in g) >= 1).all()
+        assert sum(int(st[k].sum()) for k in g) <= n + 2  # VDOP tercile bounds are shared by two strata
+    assert abs(int(st[groups[3][0]].sum()) - n / 3) <= 1
+    assert len(strata(c, ("a.toml",))) == 12  # one trajectory: no trajectory strata
+
+
+def test_a_chunked_killed_and_resumed_calibration_equals_one_run(tmp_path):
+    """6 + 6 sorties of the DPE's settings on the seed-000 sortie (61 epochs each): chunks of 2 stopped after
+    3 chunks and resumed from the work folder give the sets one chunk of 6 gives, bit for bit."""
+    from testbed.campaign.dpe_calibration import CalibrationRun, run_chunks
+    from testbed.config import resolve_approach
+
+    src, traj = str(resolve_approach("zunz-rwy05-dpe")), str(resolve_approach("va-raim-2015"))
+    whole = run_chunks(CalibrationRun(src, (traj,), 6, 3, 6))
+    run = CalibrationRun(src, (traj,), 6, 3, 2)
+    assert run_chunks(run, work=tmp_path / "w", max_chunks=3) is None
+    assert len(list((tmp_path / "w").glob("c*.npz"))) == 3
+    (tmp_path / "w" / "c0-00001.npz").write_bytes(b"damaged")  # computed again
+    again = run_chunks(run, work=tmp_path / "w", resume=True)
+    for name in ("calibration", "validation"):
+        assert whole[name].keys() == again[name].keys()
+        for k in whole[name]:
+            assert np.array_equal(whole[name][k], again[name][k], equal_nan=True), (name, k)
+    assert whole["calibration"]["z"].size > 300 and set(np.unique(whole["calibration"]["stratum"])) == set(range(6))
