@@ -126,3 +126,22 @@ def test_digests_see_dtype_shape_and_content():
     assert memo.digest(a) != memo.digest(a.reshape(2, 3))
     assert memo.digest(a) != memo.digest(a.astype(np.float32))
     assert memo.digest(a[::2]) == memo.digest(np.array([0.0, 2.0, 4.0]))
+
+
+@pytest.mark.parametrize("module, name, shares", [
+    ("test_dpe_loop", "SPEC", False),  # no camera; each magnitude its own pseudoranges: frozen draws, nothing reused
+    ("test_ekf_loop", "EKF_SPEC", True),  # the step's cells share the camera frames
+])
+def test_the_filter_and_the_dpe_give_the_same_tables_with_shared_draws(module, name, shares, tmp_path):
+    import importlib
+
+    text = getattr(importlib.import_module(module), name).format(chunk=6)
+    spec = tmp_path / "crn.toml"
+    spec.write_text(text.replace("per_epoch_trials", "common_random_numbers = true\nper_epoch_trials"))
+    run_campaign(spec, tmp_path / "on", progress=False)
+    assert (memo.counts()["hits"] > 0) == shares and memo.counts()["misses"] > 0
+    memo.clear()
+    with memo.limit(0):
+        run_campaign(spec, tmp_path / "off", progress=False)
+    for t in ("trials.parquet", "epochs.parquet", "stanford_hist.parquet"):
+        assert same(table(tmp_path / "on", t), table(tmp_path / "off", t)), t
