@@ -28,19 +28,19 @@ DEFAULT_LIMIT_BYTES = 1 << 30
 
 _lock = threading.Lock()
 _store: OrderedDict[tuple, tuple[Any, int, object]] = OrderedDict()
-_state = {"depth": 0, "bytes": 0, "limit": DEFAULT_LIMIT_BYTES, "hits": 0, "misses": 0}
+_state = {"bytes": 0, "limit": DEFAULT_LIMIT_BYTES, "hits": 0, "misses": 0}
+_on = threading.local()  # per thread: a flight beside a campaign chunk in one process shares nothing
 
 
 @contextmanager
 def sharing() -> Iterator[None]:
-    """Turn the memo on for the block (nested uses keep it on; the store outlives it)."""
-    with _lock:
-        _state["depth"] += 1
+    """Turn the memo on for the block in this thread (nested uses keep it on; the store, one per process,
+    outlives it)."""
+    _on.depth = getattr(_on, "depth", 0) + 1
     try:
         yield
     finally:
-        with _lock:
-            _state["depth"] -= 1
+        _on.depth -= 1
 
 
 @contextmanager
@@ -56,7 +56,7 @@ def limit(limit_bytes: int) -> Iterator[None]:
 
 
 def active() -> bool:
-    return _state["depth"] > 0
+    return getattr(_on, "depth", 0) > 0
 
 
 def clear() -> None:

@@ -70,11 +70,18 @@ def test_without_common_random_numbers_nothing_is_shared(tmp_path):
     assert memo.counts() == {"hits": 0, "misses": 0, "entries": 0, "bytes": 0}
 
 
-def test_off_by_default_the_memo_computes_every_time():
+def test_off_by_default_and_in_other_threads_the_memo_computes_every_time():
+    import threading
+
     calls = []
     for _ in range(2):
         memo.shared(("k",), lambda: calls.append(1) or np.zeros(3))
     assert len(calls) == 2 and memo.counts()["entries"] == 0
+    with memo.sharing():  # on in this thread only: a flight in another thread of the process keeps its own arrays
+        t = threading.Thread(target=lambda: memo.shared(("k",), lambda: calls.append(2) or np.zeros(3)))
+        t.start()
+        t.join()
+        assert calls[-1] == 2 and memo.counts()["entries"] == 0
 
 
 def test_a_shared_value_is_frozen_and_served_again():

@@ -429,9 +429,13 @@ def monitor_block(monitors, obs: Observations, correlators: Callable | None = No
 
 
 def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndarray]]:
-    """Draw and monitor the trials of one block; per-trial, per-epoch and histogram columns."""
-    d = draw_block(ctx, spec, block)
-    outs = monitor_block(ctx.setup.monitors, d.obs, lambda mon: correlator_monitor(mon, ctx, d))
+    """Draw and monitor the trials of one block; per-trial, per-epoch and histogram columns.
+
+    With common random numbers the sweep's other cells reuse this block's draws (:mod:`testbed.memo`; the
+    same numbers either way); without, no two cells draw from one seed and nothing is shared."""
+    with memo.sharing() if spec.common_random_numbers else contextlib.nullcontext():
+        d = draw_block(ctx, spec, block)
+        outs = monitor_block(ctx.setup.monitors, d.obs, lambda mon: correlator_monitor(mon, ctx, d))
     keep_ep = d.trials < spec.per_epoch_trials
     rows, ep, hist = {}, {}, {}
     for mon in ctx.setup.monitors:
@@ -580,14 +584,11 @@ def run_chunk(loaded: LoadedSpec, cell_index: int, chunk: int, threads: int | No
     n_blocks = -(-spec.trials // spec.block_trials)
     blocks = range(chunk * per_chunk, min((chunk + 1) * per_chunk, n_blocks))
     n_threads = available_cores() if threads is None else int(threads)
-    # with common random numbers, the sweep's other cells reuse this chunk's draws (the same numbers either way;
-    # without, no two cells draw from one seed)
-    with memo.sharing() if spec.common_random_numbers else contextlib.nullcontext():
-        if n_threads > 1 and len(blocks) > 1:  # blocks are independent: sample and monitor them side by side
-            with ThreadPoolExecutor(min(n_threads, len(blocks))) as pool:
-                res = list(pool.map(lambda b: run_block(ctx, spec, b), blocks))
-        else:
-            res = [run_block(ctx, spec, b) for b in blocks]
+    if n_threads > 1 and len(blocks) > 1:  # blocks are independent: sample and monitor them side by side
+        with ThreadPoolExecutor(min(n_threads, len(blocks))) as pool:
+            res = list(pool.map(lambda b: run_block(ctx, spec, b), blocks))
+    else:
+        res = [run_block(ctx, spec, b) for b in blocks]
     monitors = list(ctx.setup.monitor_names)
     trials = _concat([_cat_cols([r["trials"][m] for r in res]) for m in monitors])
     epochs = _concat([_cat_cols([r["epochs"][m] for r in res if m in r["epochs"]]) for m in monitors])
