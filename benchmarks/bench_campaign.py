@@ -2,15 +2,18 @@
 
 Usage::
 
-    /work/venv/bin/python benchmarks/bench_campaign.py [--trials 2000] [--block 100] [--chunk 1000]
+    python benchmarks/bench_campaign.py [--trials 2000] [--block 100] [--chunk 1000] [--per-experiment 1000]
 
 Runs a fault-free + GPS-step campaign on the seed-000 sortie (approach
 ``va-raim-2015``, 61 epochs at 1 Hz, 720 dpi, DE 1 px) in-process, into a
-temporary folder, and prints: wall time, trials/s, sortie-epochs/s (after the
-one-off flight and geometry, which are timed separately), and the projected
-time of ``testbed reproduce va-raim-2015 --full`` (1e5 sorties x 60 s = ~6e6
-epochs per setting) per setting and for all its settings, on one process and on
-this machine's cores.
+temporary folder, with a fixed start and with consecutive sorties, and prints:
+wall time, trials/s, sortie-epochs/s (after the one-off flight and geometry,
+which are timed separately) and their ratio. Then the projected time of
+``testbed reproduce va-raim-2015 --full`` (1e5 sorties x 60 s = ~6e6 epochs per
+setting): chunk 0 (``--per-experiment`` sorties) of every setting of every
+experiment, run in the campaign's chunk-major order with the cells' shared draws
+(:mod:`testbed.memo`) and again without them, side by side; each experiment's
+geometry is paid once.
 """
 
 from __future__ import annotations
