@@ -492,7 +492,8 @@ def test_an_output_folder_that_is_a_file_is_refused(work, capsys):
     f.write_text("mine")
     spec = inputs / "s.toml"
     spec.write_text(SPEC)
-    for argv in (["campaign", spec, "--out", f, "--quiet"], ["export-rinex", "va-raim-2015", f]):
+    for argv in (["campaign", spec, "--out", f, "--quiet"], ["export-rinex", "va-raim-2015", f],
+                 ["calibrate-dpe", "--out", cwd / "k.json", "--work", f]):
         code, out = run(capsys, *argv)
         assert code == 2 and str(f) in out and "is a file" in out, out
         assert f.read_text() == "mine"

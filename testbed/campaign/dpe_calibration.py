@@ -123,17 +123,16 @@ def _sortie_errors(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, mult
 
 
 def vdop(frame, sat_ecef: np.ndarray, visible: np.ndarray, ant_ecef: np.ndarray) -> np.ndarray:
-    """(T,) the vertical DOP of the satellites in view (unit weights; NaN below four)."""
+    """(T,) the vertical DOP of the satellites in view (unit weights; NaN where the geometry is unsolvable):
+    the monitors' own weighted fit (:func:`testbed.integrity.lsq.wls_geometry`) and DOPs."""
+    from testbed.integrity import lsq
+
     los = sat_ecef - ant_ecef[:, None, :]
     u = frame.vec_ecef_to_enu(los / np.linalg.norm(los, axis=-1, keepdims=True))
-    G = np.concatenate([-u, np.ones(u.shape[:-1] + (1,))], -1) * visible[..., None]
-    N = np.einsum("tsi,tsj->tij", G, G)
-    out = np.full(N.shape[0], np.nan)
-    ok = visible.sum(-1) >= 4
-    if ok.any():
-        with np.errstate(invalid="ignore"):
-            out[ok] = np.sqrt(np.linalg.pinv(N[ok], hermitian=True)[:, 2, 2])
-    return out
+    G = np.concatenate([-u, np.ones(u.shape[:-1] + (1,))], -1)
+    with np.errstate(invalid="ignore"):
+        geom = lsq.wls_geometry(G, np.ones(visible.shape), visible)
+        return np.where(geom.solvable, lsq.dops(geom)["vdop"], np.nan)
 
 
 def calibration_chunk(run: CalibrationRun, set_key: int, chunk: int) -> dict[str, np.ndarray]:
@@ -173,9 +172,7 @@ class WorkFolder:
                                              "; expected the same run to resume (nothing was changed)"])
         else:
             self.path.mkdir(parents=True, exist_ok=True)
-            part = manifest.with_name("manifest.json.part")
-            part.write_text(json.dumps(want, indent=2, sort_keys=True) + "\n")
-            part.replace(manifest)
+            write_record(want, manifest)
 
     def _file(self, set_key: int, chunk: int) -> Path:
         return self.path / f"c{set_key}-{chunk:05d}.npz"

@@ -186,8 +186,9 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
     v_geom, lm = None, None
     if setup.uses_vision:
         lm = replace(setup.landmarks, lpe_sigma_m=0.0)
-        vkey = ("vision_geom", tkey, json.dumps(setup.vision.model_dump(mode="json"), sort_keys=True),
-                json.dumps(c.landmarks.model_dump(mode="json"), sort_keys=True),
+        vision_json = json.dumps(setup.vision.model_dump(mode="json"), sort_keys=True)
+        landmarks_json = json.dumps(c.landmarks.model_dump(mode="json"), sort_keys=True)
+        vkey = ("vision_geom", tkey, vision_json, landmarks_json,
                 json.dumps([f.model_dump(mode="json") for f in setup.faults], sort_keys=True))
         v_geom = _cached(vkey, lambda: vdetect.vision_geometry(truth, setup.vision, landmarks=lm, terrain=terrain,
                                                                faults=list(setup.faults)))
@@ -209,7 +210,7 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                        hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset),
                        truth_g=truth, sky=sky, imu_increments=imu_inc, imu_start=imu_start, feature_ids=f_ids,
                        feature_camera=f_cam, gnss_draw_key=gkey,
-                       vision_draw_key=() if v_geom is None else (tkey, vkey[2], vkey[3]))
+                       vision_draw_key=() if v_geom is None else (tkey, vision_json, landmarks_json))
 
 
 def _segment_start(t_gnss: np.ndarray, duration_s: float | None, segment: str) -> float:
