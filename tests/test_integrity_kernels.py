@@ -324,3 +324,19 @@ def test_used_gps_rows_match_compact_rows_and_take():
     np.testing.assert_array_equal(w, np.where(m_ref, 1.0 / np.take_along_axis(sigma, idx_ref, -1) ** 2, 0.0))
     np.testing.assert_allclose(anchor, frame.ecef_to_enu(np.take_along_axis(sat, idx_ref[..., None], -2)),
                                rtol=0, atol=1e-7)
+
+
+def test_scatter_rows_is_the_inverse_of_compact_rows_with_trailing_rows_kept():
+    from testbed.integrity.raim import compact_rows, scatter_rows
+
+    rng = np.random.default_rng(11)
+    B, T, S, E = 7, 9, 12, 3
+    vis = rng.random((B, T, S)) > 0.4
+    idx, m, N = compact_rows(vis)
+    vals = rng.normal(size=(B, T, N + E))
+    got = scatter_rows(vals, idx, m, S)
+    ref = np.full((B, T, S), np.nan)  # the numpy formula the kernel replaced
+    np.put_along_axis(ref, idx, np.where(m, vals[..., :N], np.nan), -1)
+    np.testing.assert_array_equal(got, np.concatenate([ref, vals[..., N:]], -1))
+    np.testing.assert_array_equal(np.isfinite(got[..., :S]), vis)  # NaN exactly on the unused slots
+    np.testing.assert_array_equal(scatter_rows(vals[..., :N], idx, m, S), ref)  # no trailing rows

@@ -68,14 +68,19 @@ def used_gps_rows(vis: NDArray, pr: NDArray, sigma: NDArray, sat_ecef: NDArray, 
 
 
 def scatter_rows(values: NDArray, idx: NDArray, mask_c: NDArray, S: int) -> NDArray:
-    """Inverse of :func:`compact_rows` for a per-row quantity ``(..., N)`` -> ``(..., S)``, NaN elsewhere.
+    """Inverse of :func:`compact_rows` for a per-row quantity ``(..., N + E)`` -> ``(..., S + E)``.
 
-    Unused compacted rows point at unused slots (they sort last), so writing
-    NaN there is correct and the used slots are written exactly once.
+    The N compacted rows go back to their satellite slots (NaN on every other slot); E
+    trailing rows that are not satellites (VA-RAIM's vision block) follow unchanged.
+    Unused compacted rows are skipped, so a used slot is written exactly once.
     """
-    out = np.full(values.shape[:-1] + (S,), np.nan)
-    np.put_along_axis(out, idx, np.where(mask_c, values, np.nan), -1)
-    return out
+    batch, (N, E) = idx.shape[:-1], (idx.shape[-1], values.shape[-1] - idx.shape[-1])
+    P = int(np.prod(batch, dtype=np.int64))
+    out = np.empty((P, S + E))
+    kernels.scatter_used_rows(kernels.kernel_input(values, batch + (N + E,), (P, N + E)),
+                              kernels.kernel_input(idx, batch + (N,), (P, N), np.int64),
+                              kernels.kernel_input(mask_c, batch + (N,), (P, N), np.bool_), out)
+    return out.reshape(batch + (S + E,))
 
 
 def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | None = None,

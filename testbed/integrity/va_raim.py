@@ -243,10 +243,9 @@ class VaRaimDiagnostics(Diagnostics):
 def _monitor_output(name, t, x, ft: lsq.WlsFit, pls, reason, ok, ist, extra: dict, gps_rows: tuple) -> MonitorOutput:
     """gps_rows : (idx, mask, S) of the compacted GPS rows, to put the stacked rows back in satellite slots."""
     idx, mg, S = gps_rows
-    Ng = idx.shape[-1]
 
     def slots(v: NDArray) -> NDArray:  # (..., Ng + N_C) -> (..., S + N_C)
-        return np.concatenate([scatter_rows(v[..., :Ng], idx, mg, S), v[..., Ng:]], axis=-1)
+        return scatter_rows(v, idx, mg, S)
 
     def diagnostics(pl, per_variant) -> VaRaimDiagnostics:
         return VaRaimDiagnostics(hslope=slots(pl.hslope), vslope=slots(pl.vslope), residual=slots(ft.residual),

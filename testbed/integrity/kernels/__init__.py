@@ -29,7 +29,7 @@ import numpy as np
 
 from testbed.integrity.kernels.calibration import calibrate_epochs
 from testbed.integrity.kernels.geometry import wls_epoch
-from testbed.integrity.kernels.ranges import gather_used_rows, range_gauss_newton
+from testbed.integrity.kernels.ranges import gather_used_rows, range_gauss_newton, scatter_used_rows
 from testbed.integrity.kernels.small import _lu_solve
 from testbed.integrity.kernels.vision import (
     cosine_gauss_newton,
@@ -40,7 +40,7 @@ from testbed.integrity.kernels.vision import (
 )
 
 __all__ = ["calibrate_epochs", "compile_all", "cosine_gauss_newton", "cosine_rule_products",
-           "cosines_and_covariance", "gather_used_rows", "kernel_input", "range_gauss_newton", "vision_prior",
+           "cosines_and_covariance", "gather_used_rows", "kernel_input", "range_gauss_newton", "scatter_used_rows", "vision_prior",
            "vision_rows", "wls_epoch", "_lu_solve"]
 
 
@@ -76,6 +76,7 @@ def compile_all() -> None:
 
     gather_used_rows(r(1, 4, dt=b), r(1, 4), r(1, 4), r(1, 4, 3), r(3, 3), r(3), w(1, 3, dt=i), w(1, 3, dt=b), w(1, 3), w(1, 3),
                      w(1, 3, 3))
+    scatter_used_rows(r(1, 3), r(1, 2, dt=i), r(1, 2, dt=b), w(1, 5))
     range_gauss_newton(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
                        r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
                        w(1, 4), w(1, 4, 4))

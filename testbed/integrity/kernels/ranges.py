@@ -44,6 +44,27 @@ def gather_used_rows(vis, pr, sigma, sat_ecef, R, origin, idx_out, mask_out, z_o
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def scatter_used_rows(values, idx, mask, out):
+    """The inverse of :func:`gather_used_rows` for a per-row quantity, in one pass.
+
+    values (P, N + E): N compacted rows, then E rows that are not satellites (copied as
+    they are); idx, mask (P, N); out (P, S + E): the N rows put back in their slots
+    ``idx``, NaN on every slot no used row fills, then the E rows.
+    """
+    P, N = idx.shape
+    S = out.shape[1] - (values.shape[1] - N)
+    E = values.shape[1] - N
+    for p in range(P):
+        for s in range(S):
+            out[p, s] = np.nan
+        for n in range(N):
+            if mask[p, n]:
+                out[p, idx[p, n]] = values[p, n]
+        for e in range(E):
+            out[p, S + e] = values[p, N + e]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, Gv, h, G):
     """Stacked predictions h (NG + R,) and partials G (NG + R, 4) of epoch p at state x.
 
