@@ -11,9 +11,10 @@ wall time, trials/s, sortie-epochs/s (after the one-off flight and geometry,
 which are timed separately) and their ratio. Then the projected time of
 ``testbed reproduce va-raim-2015 --full`` (1e5 sorties x 60 s = ~6e6 epochs per
 setting): chunk 0 (``--per-experiment`` sorties) of every setting of every
-experiment, run in the campaign's chunk-major order with the cells' shared draws
-(:mod:`testbed.memo`) and again without them, side by side; each experiment's
-geometry is paid once.
+experiment, run as the driver runs it (one chunk row, block-major:
+:func:`testbed.campaign.runner.run_chunk_row`) with the cells' shared draws
+(:mod:`testbed.memo`) and again without them, and cell by cell (each cell's whole
+chunk in turn), side by side; each experiment's geometry is paid once.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments
-    from testbed.campaign.runner import cell_context, run_campaign, run_chunk
+    from testbed.campaign.runner import cell_context, run_campaign, run_chunk, run_chunk_row
     from testbed.campaign.spec import expand_cells, load_spec
     from testbed import memo
     from testbed.integrity.batching import available_cores
@@ -85,11 +86,13 @@ def main() -> None:
     print(f"start times spread / fixed, after the one-off geometry: "
           f"{walls['consecutive 60 s sorties'] / walls['fixed start']:.2f}x")
 
-    # the --full reproduction: one chunk of every setting of each experiment, in the campaign's
-    # chunk-major order, with the cells' shared draws (testbed.memo) and without them
+    # the --full reproduction: chunk 0 of every setting, as the driver runs it (one chunk row, block-major:
+    # each block through every cell in turn), with the cells' shared draws (testbed.memo) and without
+    # them; and cell by cell (each cell's whole chunk in turn, the order before run_chunk_row), shared
     print(f"--full reproduction ({FULL_TRIALS} sorties x 61 epochs per setting), chunk 0 ({args.per_experiment} "
-          "sorties) of every setting timed, shared draws on / off:")
-    total = {"on": 0.0, "off": 0.0}
+          "sorties) of every setting timed as one chunk row (block-major), shared draws on / off, and cell by cell:")
+    modes = (("on", memo.DEFAULT_LIMIT_BYTES, True), ("off", 0, True), ("cell by cell", memo.DEFAULT_LIMIT_BYTES, False))
+    total = {m: 0.0 for m, _, _ in modes}
     n_settings = 0
     for name, le in loaded_experiments(2 * args.per_experiment).items():
         le = dataclasses.replace(le, spec=le.spec.model_copy(update={"chunk_trials": args.per_experiment}))
@@ -100,11 +103,14 @@ def main() -> None:
         setup_s = time.perf_counter() - t0
         run_chunk(le, 0, 1)  # warm (kernels, chi-square tables) on blocks the timed chunk does not draw
         rates = {}
-        for mode, cap in (("on", memo.DEFAULT_LIMIT_BYTES), ("off", 0)):
+        for mode, cap, row in modes:
             memo.clear()
             with memo.limit(cap):
                 t0 = time.perf_counter()
-                tables = [run_chunk(le, i, 0) for i in range(len(cells))]
+                if row:
+                    tables = list(run_chunk_row(le, 0, list(range(len(cells)))).values())
+                else:
+                    tables = [run_chunk(le, i, 0) for i in range(len(cells))]
                 dt = time.perf_counter() - t0
             epochs = args.per_experiment * len(cells) * int(tables[0]["trials"].column("epochs")[0].as_py())
             rates[mode] = epochs / dt
@@ -113,10 +119,11 @@ def main() -> None:
         full = FULL_TRIALS * 61 * len(cells) / rates["on"] + setup_s
         print(f"  {name:26s} {'+'.join(le.spec.monitors):16s} {len(cells):3d} settings: "
               f"{rates['on']:9,.0f} sortie-epochs/s shared ({rates['on'] / rates['off']:.2f}x unshared "
-              f"{rates['off']:,.0f}) -> {full / 60:6.1f} min (geometry {setup_s:.1f} s once)")
+              f"{rates['off']:,.0f}; {rates['on'] / rates['cell by cell']:.2f}x cell by cell "
+              f"{rates['cell by cell']:,.0f}) -> {full / 60:6.1f} min (geometry {setup_s:.1f} s once)")
     memo.clear()
     print(f"  all {n_settings} settings: {total['on'] / 3600:.2f} h on this machine ({cores} cores, one process); "
-          f"{total['off'] / 3600:.2f} h without shared draws")
+          f"{total['off'] / 3600:.2f} h without shared draws; {total['cell by cell'] / 3600:.2f} h cell by cell")
 
 
 if __name__ == "__main__":

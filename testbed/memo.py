@@ -22,9 +22,11 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-#: Default byte budget of the store: a where-vision-pays chunk (90 cells, 10 blocks of 100 sorties) reuses
-#: ~0.5 GB (10 blocks' pseudoranges at 17 MB, 150 blocks' camera frames at 2.1 MB).
-DEFAULT_LIMIT_BYTES = 1 << 30
+#: Default byte budget of the store. The driver runs a chunk row block-major (every cell of a block in
+#: turn, :func:`testbed.campaign.runner.run_chunk_row`), so what is reused is one block's draws per thread:
+#: where-vision-pays' 90 cells share ~140 MB a block (6 magnitudes' pseudoranges at 17 MB, 15 cameras'
+#: frames at 2.1 MB, their step-1 fixes), ~280 MB on two threads.
+DEFAULT_LIMIT_BYTES = 512 << 20
 
 _lock = threading.Lock()
 _store: OrderedDict[tuple, tuple[Any, int, object]] = OrderedDict()

@@ -390,3 +390,18 @@ def test_accuracy_quantile_from_the_histogram_matches_the_sample_quantile():
         assert abs(got / ref - 1) < 10 ** 0.05 - 1, (scale, got, ref)  # within one bin (12 %)
         assert abs(got / (1.95996 * scale) - 1) < 0.13  # and the half-normal's closed form
     assert np.isnan(hist_quantile({"err_bin": np.zeros(0, int), "count": np.zeros(0)}, None, 0.95))
+
+
+def test_a_chunk_row_gives_each_cell_what_its_chunk_alone_gives(reference, tmp_path):
+    """The driver runs chunk k of every cell block-major (run_chunk_row); each cell's tables are its run_chunk's."""
+    from testbed.campaign.runner import run_chunk, run_chunk_row
+
+    loaded = load_spec(write_spec(tmp_path))
+    row = run_chunk_row(loaded, 1, [1, 0], threads=2)
+    assert sorted(row) == [0, 1]
+    for c in (0, 1):
+        alone = run_chunk(loaded, c, 1, threads=1)
+        for name in ("trials", "epochs", "hist"):
+            assert (row[c][name] is None) == (alone[name] is None)
+            if alone[name] is not None:
+                assert same(row[c][name], alone[name]), (c, name)

@@ -578,18 +578,42 @@ def run_chunk(loaded: LoadedSpec, cell_index: int, chunk: int, threads: int | No
     threads : its draw blocks run on this many threads (None: one per core); each block's
     monitors run on one thread.
     """
+    return run_chunk_row(loaded, chunk, [cell_index], threads)[cell_index]
+
+
+def run_chunk_row(loaded: LoadedSpec, chunk: int, cells: list[int], threads: int | None = None
+                  ) -> dict[int, dict[str, pa.Table | None]]:
+    """Chunk ``chunk`` of each of ``cells``: ``{cell: tables}``, each what :func:`run_chunk` returns.
+
+    Block-major: each draw block runs every cell in turn (blocks side by side on
+    ``threads``), so what a sweep's cells draw alike for a block (:mod:`testbed.memo`) is
+    drawn once and reused while it is still in the processor's cache. Measured on
+    where-vision-pays (90 cells, 1000 sorties, 2 threads): 344k sortie-epochs/s against 241k
+    cell by cell (``benchmarks/bench_campaign.py``).
+    """
     spec = loaded.spec
-    cell = _cells(loaded)[cell_index]
-    ctx = cell_context(cell, spec)
+    ctxs = [cell_context(_cells(loaded)[c], spec) for c in cells]
     per_chunk = spec.chunk_trials // spec.block_trials
     n_blocks = -(-spec.trials // spec.block_trials)
     blocks = range(chunk * per_chunk, min((chunk + 1) * per_chunk, n_blocks))
+
+    def every_cell(b: int) -> list[dict]:
+        return [run_block(ctx, spec, b) for ctx in ctxs]
+
     n_threads = available_cores() if threads is None else int(threads)
     if n_threads > 1 and len(blocks) > 1:  # blocks are independent: sample and monitor them side by side
         with ThreadPoolExecutor(min(n_threads, len(blocks))) as pool:
-            res = list(pool.map(lambda b: run_block(ctx, spec, b), blocks))
+            per_block = list(pool.map(every_cell, blocks))
     else:
-        res = [run_block(ctx, spec, b) for b in blocks]
+        per_block = [every_cell(b) for b in blocks]
+    throttle = float(os.environ.get("TESTBED_CAMPAIGN_THROTTLE_S", "0") or 0)  # test hook: slow chunks down
+    if throttle > 0:
+        time.sleep(throttle * len(cells))
+    return {c: _chunk_tables(c, ctx, [r[i] for r in per_block]) for i, (c, ctx) in enumerate(zip(cells, ctxs))}
+
+
+def _chunk_tables(cell_index: int, ctx: CellContext, res: list[dict]) -> dict[str, pa.Table | None]:
+    """A cell's chunk tables from its blocks' columns (:func:`run_block`), in block order."""
     monitors = list(ctx.setup.monitor_names)
     trials = _concat([_cat_cols([r["trials"][m] for r in res]) for m in monitors])
     epochs = _concat([_cat_cols([r["epochs"][m] for r in res if m in r["epochs"]]) for m in monitors])
@@ -608,11 +632,7 @@ def run_chunk(loaded: LoadedSpec, cell_index: int, chunk: int, threads: int | No
                               "dim": np.full(len(kk), dim, object), "err_bin": np.array([a for a, _ in kk], np.int16),
                               "pl_bin": np.array([b for _, b in kk], np.int16),
                               "count": np.array([acc[x] for x in kk], np.int64)})
-    hist = _cat_cols(hrows)
-    throttle = float(os.environ.get("TESTBED_CAMPAIGN_THROTTLE_S", "0") or 0)  # test hook: slow chunks down
-    if throttle > 0:
-        time.sleep(throttle)
-    return {"trials": trials, "epochs": epochs, "hist": hist}
+    return {"trials": trials, "epochs": epochs, "hist": _cat_cols(hrows)}
 
 
 def _cells(loaded: LoadedSpec) -> list[Cell]:
@@ -628,6 +648,15 @@ def chunk_plan(loaded: LoadedSpec) -> list[tuple[int, int, int]]:
         for k in range(n_chunks):
             out.append((c, k, min(spec.chunk_trials, spec.trials - k * spec.chunk_trials)))
     return out
+
+
+def chunk_rows(todo: list[tuple[int, int, int]]) -> list[tuple[int, list[tuple[int, int]]]]:
+    """Tasks ``(cell, chunk, n)`` grouped by chunk: ``[(chunk, [(cell, n), ...]), ...]`` in chunk order
+    (the unit :func:`run_chunk_row` runs)."""
+    rows: dict[int, list[tuple[int, int]]] = {}
+    for c, k, n in todo:
+        rows.setdefault(k, []).append((c, n))
+    return sorted(rows.items())
 
 
 def _dask_chunk(spec_json: str, source: str, cell_index: int, chunk: int) -> dict:
@@ -695,7 +724,7 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
         raise
     plan = chunk_plan(loaded)
     done = store.done_chunks()
-    # chunk-major: the cells of a sweep run one chunk each in turn, so what they share (memo) is still held
+    # chunk-major: a row (chunk k of every cell) runs block-major, so what the cells share (memo) is reused hot
     todo = sorted((p for p in plan if (p[0], p[1]) not in done), key=lambda p: (p[1], p[0]))
     if max_chunks is not None:
         todo = todo[:max_chunks]
@@ -706,11 +735,12 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     bar = _Progress(total_trials, done_trials, loaded.spec.name, enabled=progress)
     with bar:
         if scheduler is None:
-            for c, k, n in todo:
-                tables = run_chunk(loaded, c, k)
-                store.write_chunk(c, k, tables)
-                epochs_run += n * _epochs_of(tables)
-                bar.advance(n)
+            for k, row in chunk_rows(todo):
+                row_tables = run_chunk_row(loaded, k, [c for c, _ in row])
+                for c, n in row:
+                    store.write_chunk(c, k, row_tables[c])
+                    epochs_run += n * _epochs_of(row_tables[c])
+                    bar.advance(n)
         else:
             try:
                 from distributed import as_completed
