@@ -149,3 +149,38 @@ def test_a_campaign_can_fly_the_last_segment_of_the_final(tmp_path):
     first.write_text(SPEC.format(chunk=2))
     lf = load_spec(first)
     assert cell_context(expand_cells(lf)[0], lf.spec).truth_g.agl[0] > 500.0
+
+
+def test_the_dpe_variant_axis_runs_the_seed_over_sorties_beside_the_likelihood(tmp_path):
+    """``sweep.dpe_variant``: a 'seed' cell's receiver reports the seed's magnitude statistic (exact
+    synthesis; the monitor refuses any other) and its K is Q⁻¹(P/2) = 5.33 at P = 1e-7; a 'likelihood' cell
+    keeps the approach's calibrated K. In the loop the seed's VPL is set by its ±110 m grid (DPE.md F2: ~6× the
+    likelihood's here, measured 322 m against 12.7 m over 10 sorties); a bad variant is refused naming the key."""
+    import pyarrow.parquet as pq
+    import pytest
+
+    from testbed.campaign.runner import run_campaign
+    from testbed.campaign.spec import expand_cells, load_spec
+    from testbed.integrity.dpe.calibration import gaussian_k
+    from testbed.schema import ConfigError
+
+    assert gaussian_k(1e-7) == pytest.approx(5.3267, abs=1e-4)
+    text = (SPEC.format(chunk=2).replace("magnitudes = [0.0, 60.0]", "magnitudes = [0.0]")
+            .replace("trials = 4", "trials = 2").replace("duration_s = 25.0", "duration_s = 4.0")
+            + '\n[sweep]\ndpe_variant = ["likelihood", "seed"]\n')
+    spec = tmp_path / "v.toml"
+    spec.write_text(text)
+    cells = expand_cells(load_spec(spec))
+    assert [c.params["dpe_variant"] for c in cells] == ["likelihood", "seed"]
+    lik, seed = (c.approach.config for c in cells)
+    assert (seed.gnss.correlators.statistic, seed.gnss.correlators.synthesis) == ("mag", "exact")
+    assert seed.dpe["variant"] == "seed" and seed.dpe["k_factor"] == gaussian_k(1e-7)
+    assert lik.gnss.correlators.statistic == "pow" and isinstance(lik.dpe["k_factor"], str)  # the record
+    run_campaign(spec, tmp_path / "out", progress=False)
+    t = pq.read_table(tmp_path / "out" / "trials.parquet").to_pandas()
+    vpl = t[t.monitor == "dpe"].groupby("cell").max_vpl.median()
+    assert np.isfinite(vpl).all() and vpl[1] > 4 * vpl[0], vpl
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('"seed"]', '"paper"]'))
+    with pytest.raises(ConfigError, match="dpe_variant"):
+        load_spec(bad)

@@ -340,3 +340,29 @@ def test_scatter_rows_is_the_inverse_of_compact_rows_with_trailing_rows_kept():
     np.testing.assert_array_equal(got, np.concatenate([ref, vals[..., N:]], -1))
     np.testing.assert_array_equal(np.isfinite(got[..., :S]), vis)  # NaN exactly on the unused slots
     np.testing.assert_array_equal(scatter_rows(vals[..., :N], idx, m, S), ref)  # no trailing rows
+
+
+def test_every_serial_kernel_releases_the_gil_so_campaign_blocks_run_side_by_side():
+    """A campaign runs its draw blocks on threads with the monitors on one thread each; a compiled entry point
+    that holds the GIL serialises them (the DPE's manifold did: one core busy of two on a DPE campaign).
+    Inlined helpers run inside their caller; numba's parallel ones run on its own threads."""
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    import testbed.integrity.kernels as pkg
+
+    mods = [importlib.import_module(f"testbed.integrity.kernels.{m.name}") for m in pkgutil.iter_modules(pkg.__path__)]
+    mods.append(importlib.import_module("testbed.navigation.kernels"))
+    holding, checked = [], 0
+    for mod in mods:
+        for name, f in vars(mod).items():
+            if isinstance(f, CPUDispatcher) and f.__module__ == mod.__name__:
+                opts = f.targetoptions
+                if opts.get("inline") == "always" or opts.get("parallel"):
+                    continue
+                checked += 1
+                if not opts.get("nogil"):
+                    holding.append(f"{mod.__name__}.{name}")
+    assert checked >= 15 and not holding, holding

@@ -32,7 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from testbed.integrity.dpe.calibration import KFit, fit_k_tail, settings_fingerprint, validate
+from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, KFit, fit_k_tail, settings_fingerprint, validate
 from testbed.schema import ConfigError
 
 #: strata cycled over the sorties (DPE.md §6's set C)
@@ -262,7 +262,7 @@ def strata(c: dict[str, np.ndarray], trajectories: tuple[str, ...]) -> dict[str,
     return out
 
 
-def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60, p_hmi: float = 1e-7, seed: int = 0,
+def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60, p_hmi: float = DEFAULT_P_HMI, seed: int = 0,
                   trajectories: tuple[str | Path, ...] = (), chunk: int = CHUNK_SORTIES, work: Path | None = None,
                   resume: bool = False, scheduler=None, max_chunks: int | None = None,
                   progress: Callable[[str], None] | None = None) -> dict[str, Any] | None:

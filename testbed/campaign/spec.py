@@ -105,6 +105,10 @@ class Sweep(StrictModel):
     calibration: list[Literal["gps", "none"]] = Field(default_factory=list, description="VA-RAIM calibration modes")
     va_raim_variant: list[Literal["gated", "seed"]] = Field(default_factory=list,
                                                             description="VA-RAIM variants (testbed default 'gated')")
+    dpe_variant: list[Literal["likelihood", "seed"]] = Field(
+        default_factory=list, description="DPE variants (testbed default 'likelihood'); a 'seed' cell's receiver "
+                                          "reports the seed's magnitude statistic (exact synthesis) and its VPL "
+                                          "factor is the Gaussian K = Q⁻¹(P/2) at P = 1e-7 (5.33)")
     multipath_echo_db: list[float | Literal["off"]] = Field(
         default_factory=list, description="the correlators' ground multipath: 'off', or the specular echo's amplitude "
                                           "relative to the direct signal (dB, ≤ 0): the multipath strength axis")
@@ -383,6 +387,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
         ("landmark_set", list(enumerate(sw.landmark_sets)) or [None]),
         ("calibration", sw.calibration or [None]),
         ("va_raim_variant", sw.va_raim_variant or [None]),
+        ("dpe_variant", sw.dpe_variant or [None]),
         ("multipath_echo_db", sw.multipath_echo_db or [None]),
         ("max_satellites", sw.max_satellites or [None]),
         ("ground_features", sw.ground_features or [None]),
@@ -419,6 +424,8 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 d.setdefault("va_raim", {})["calibration"] = c["calibration"]
             if c["va_raim_variant"] is not None:
                 d.setdefault("va_raim", {})["variant"] = c["va_raim_variant"]
+            if c["dpe_variant"] is not None:
+                _dpe_variant(d, c["dpe_variant"])
             if c["multipath_echo_db"] is not None:
                 corr = d.setdefault("gnss", {}).setdefault("correlators", {})
                 corr["multipath"] = "off" if c["multipath_echo_db"] == "off" else "ground"
@@ -450,6 +457,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 "landmark_set": -1 if c["landmark_set"] is None else int(c["landmark_set"][0]),
                 "calibration": str(cfg.va_raim.get("calibration", "gps")),
                 "va_raim_variant": str(cfg.va_raim.get("variant", "gated")),
+                "dpe_variant": str(cfg.dpe.get("variant", "likelihood")),
                 "multipath_echo_db": (float(cfg.gnss.correlators.ground_echo_db)
                                       if cfg.gnss.correlators.multipath == "ground" else float("nan")),
                 "max_satellites": -1 if c["max_satellites"] is None else int(c["max_satellites"]),
@@ -461,6 +469,21 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
     if problems:
         raise ConfigError(loaded.source, problems)
     return cells
+
+
+def _dpe_variant(d: dict, variant: str) -> None:
+    """Set a cell's DPE variant. The seed's receiver reports (1/N_b)Σ|y_b| (``statistic = "mag"``,
+    exact synthesis: GPS RAIM reads its peaks too when the approach derives pseudoranges from the
+    correlators); its K is the Gaussian one its "factoring the overbound" implies, Q⁻¹(P/2) at the
+    calibration's P = 1e-7 (the seed's own empirical K needs N·P ≥ 10, 1e8 epochs: DPE.md §6)."""
+    from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, gaussian_k
+
+    dpe = d.setdefault("dpe", {})
+    dpe["variant"] = variant
+    if variant == "seed":
+        corr = d.setdefault("gnss", {}).setdefault("correlators", {})
+        corr.update(statistic="mag", synthesis="exact")
+        dpe["k_factor"] = gaussian_k(DEFAULT_P_HMI)
 
 
 def _camera_at_focal(camera, focal_px: float) -> dict:
@@ -483,7 +506,7 @@ def _describe(name: str, c: dict) -> str:
     fk, fam, mag = c["fault"]
     parts.append(f"faults.{fk} {fam.kind} {mag:g}")
     for k in ("start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant",
-              "multipath_echo_db", "max_satellites", "ground_features"):
+              "dpe_variant", "multipath_echo_db", "max_satellites", "ground_features"):
         if c[k] is not None:
             parts.append(f"{k}={c[k]}")
     if c["landmark_set"] is not None:

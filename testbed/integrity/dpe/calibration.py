@@ -30,6 +30,8 @@ from scipy.special import ndtri
 
 LEVELS_PER_SIDE = 50
 CONFIDENCE = 1.0 - 0.05 / (2 * LEVELS_PER_SIDE)
+#: the per-epoch HMI probability K is calibrated for by default (DPE.md §6: Annex 10's 2e-7 per approach)
+DEFAULT_P_HMI = 1e-7
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,12 @@ def _clean(z: ArrayLike) -> NDArray:
 
 def _q_inv(p: NDArray) -> NDArray:
     return -ndtri(np.asarray(p, float))  # Q⁻¹(p), exact for tiny p
+
+
+def gaussian_k(p_hmi: float) -> float:
+    """K = Q⁻¹(P/2): the factor of a zero-mean Gaussian overbound's σ that bounds a two-sided tail
+    of ``p_hmi`` (5.33 at 1e-7), what the seed's VPL = K·σ_ob assumes."""
+    return float(_q_inv(p_hmi / 2.0))
 
 
 def fit_k_tail(z: ArrayLike, p_hmi: float, n_eff: float | None = None) -> KFit:

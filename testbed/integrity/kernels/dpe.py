@@ -59,19 +59,19 @@ def _product_slab(c, H, poly, floor, x0, x1, x2, x3, cubic, out, i0):
                     q += 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def manifold_product(c, H, poly, floor, x0, x1, x2, x3, cubic, out):
     """The manifold on the product grid x0 × x1 × x2 × x3 (any nodes per axis; out C order)."""
     for i0 in range(x0.shape[0]):
         _product_slab(c, H, poly, floor, x0, x1, x2, x3, cubic, out, i0)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _box_axis(spacing, n):
     return (np.arange(n) - (n - 1) / 2.0) * spacing
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def manifold_box(c, H, poly, floor, spacing, n, cubic, out):
     """The manifold on the box ξ_a = (i_a − (n−1)/2)·spacing, i_a < n (out: n⁴, C order)."""
     a = _box_axis(spacing, n)
@@ -86,7 +86,7 @@ def manifold_box_threads(c, H, poly, floor, spacing, n, cubic, out):
         _product_slab(c, H, poly, floor, a, a, a, a, cubic, out, i0)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def weighted_mean_product(values, x0, x1, x2, x3):
     """Σ v·ξ / Σ v over the product grid (the seed's solution: the manifold as weights)."""
     tot = 0.0
@@ -163,7 +163,7 @@ def _moments_from_slabs(part):
     return tot, mean / tot, sec / tot
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def posterior_moments(lam, spacing, n, weights):
     """Weights exp(Λ − max) on the n⁴ box (into ``weights``): (Σw, mean (4), second moments (4, 4)), box units.
 
@@ -220,7 +220,7 @@ def _bins_from_slabs(part, bins):
         bins[j] = s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def deposit_marginal(weights, spacing, n, coef, origin, width, bins):
     """Deposit the box's weights onto ``bins`` (linear shares) along u = coef·z − origin.
 
