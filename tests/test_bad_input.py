@@ -553,6 +553,10 @@ def test_new_campaign_options_are_checked(work, capsys):
     code, out = run(capsys, "campaign", spec, "--out", inputs / "o")
     assert code == 2 and "sweep.va_raim_variant.0" in out and "nope" in out, out
     assert not (inputs / "o").exists()
+    spec.write_text(SPEC + '[sweep]\ndpe_variant = ["likelihood", "paper"]\n')
+    code, out = run(capsys, "campaign", spec, "--out", inputs / "o")
+    assert code == 2 and "sweep.dpe_variant.1" in out and "paper" in out and "seed" in out, out
+    assert not (inputs / "o").exists()
 
 
 def test_a_path_too_steep_to_trim_names_the_speed_and_the_path(tmp_path):
