@@ -26,7 +26,7 @@ def test_the_claims_table_has_a_row_per_claim_and_well_formed_cells():
     k_rec = json.loads((approaches_dir() / "calibration" / "dpe-k.json").read_text())
     hmi = [{"fault_size": 0.0, "monitor": "dpe", "epochs": 100, "mi_epochs": 0, "hmi_epochs": 0},
            {"fault_size": 80.0, "monitor": "dpe", "epochs": 100, "mi_epochs": 60, "hmi_epochs": 40},
-           {"fault_size": 80.0, "monitor": "gps_raim", "epochs": 100, "mi_epochs": 0, "hmi_epochs": 0}]
+           {"fault_size": 80.0, "monitor": "gps_raim", "epochs": 100, "mi_epochs": 3, "hmi_epochs": 2}]
     md = summary(cases, k_rec, hmi, trials=5)
     start = md.index("## Claims")
     rows = [line for line in md[start:] if line.startswith("| ") and not line.startswith("| claim")]
@@ -34,3 +34,4 @@ def test_the_claims_table_has_a_row_per_claim_and_well_formed_cells():
     cells = [len(r.split("|")) for r in rows]
     assert len(set(cells)) == 1 and cells[0] == 6  # 4 columns: no stray pipe inside a cell
     assert "40 HMI in 100 epochs" in "\n".join(rows) and np.isfinite(k_rec["k"])
+    assert "(GPS RAIM: 2 in 100)" in "\n".join(rows)  # RAIM's own count at that step, not a constant

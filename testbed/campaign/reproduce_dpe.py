@@ -181,10 +181,12 @@ def _claim(key: str, cases, k_rec, hmi) -> tuple[str, str, str]:
     if key == "no convolution-born HMI":
         free = [r for r in hmi if r["fault_size"] == 0.0 and r["monitor"] == "dpe"]
         worst = max((r for r in hmi if r["monitor"] == "dpe"), key=lambda r: r["hmi_epochs"] / max(r["epochs"], 1))
+        raim = [r for r in hmi if r["monitor"] == "gps_raim" and r["fault_size"] == worst["fault_size"]]
         n0 = free[0]["epochs"] if free else 0
         h0 = free[0]["hmi_epochs"] if free else 0
         return (f"fault-free: {h0} HMI in {n0} epochs; {worst['fault_size']:g} m step: {worst['hmi_epochs']} HMI in "
-                f"{worst['epochs']} epochs (GPS RAIM: 0)",
+                f"{worst['epochs']} epochs (GPS RAIM: "
+                f"{raim[0]['hmi_epochs'] if raim else '-'} in {raim[0]['epochs'] if raim else '-'})",
                 "holds fault-free; not under a satellite fault",
                 "DPE bounds what its manifold sees and detects nothing: a code-phase fault within ~1.5 chip pulls "
                 "the peak, and the SIS error is outside the manifold (carried by σ_SIS,U and K)")
