@@ -39,7 +39,7 @@ def test_peak_delay_spread_is_the_cramer_rao_bound(synthesis, cn0, n, statistic)
     """n channels: the peak's sd against √J (chi-square 99 % band of the ratio: ±2.58/√(2n), 2.9 % for
     n = 4000), plus 1 % for the non-coherent estimator's excess at 35 dB-Hz; its mean within 3 standard
     errors of zero. Measured ratios 1.002-1.028. The seed's magnitude statistic (1/N_b)Σ|y_b| (a DPE
-    'seed' cell's receiver) peaks as tightly: measured 0.986-1.009 at 35-50 dB-Hz, as the power's."""
+    'seed' cell's receiver) peaks as tightly: measured 1.022 at 35 dB-Hz."""
     cs = CorrelatorSettings(synthesis=synthesis, statistic=statistic)
     grid = delay_grid(cs)
     A = float(np.sqrt(amplitude_sq(cn0, cs.coherent_s)))
