@@ -16,6 +16,7 @@ import pytest
 from testbed.campaign.report import binomial_interval, minimal_detectable_bias, write_report
 from testbed.campaign.runner import run_campaign
 from testbed.campaign.spec import expand_cells, load_spec
+from testbed.campaign.store import ResultStore
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
@@ -194,8 +195,14 @@ def test_kill_and_resume_equals_an_uninterrupted_run(reference, tmp_path):
     # without --resume the folder is refused, with it the run completes
     with pytest.raises(ConfigError, match="--resume"):
         run_campaign(spec, out, progress=False)
+    killed = ResultStore(out).runs()
+    assert len(killed) == 1 and not killed[0]["finished"]  # the killed run is on record
     res = run_campaign(spec, out, resume=True, progress=False)
     assert res.chunks_skipped == len(stored) and res.chunks_run == 4 - len(stored)
+    runs = ResultStore(out).runs()
+    assert len(runs) == 2 and runs[1]["finished"] and runs[1]["chunks_run"] == 4 - len(stored)
+    assert runs[1]["wall_s"] == pytest.approx(res.wall_s, abs=1e-3)
+    assert ResultStore(out).wall_s() == pytest.approx(runs[0]["wall_s"] + runs[1]["wall_s"])
     a, b = table(reference), table(out)
     assert same(a, b)
     assert len({(r["cell"], r["trial"], r["monitor"]) for r in b.to_pylist()}) == b.num_rows  # no duplicates

@@ -23,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from testbed.campaign.store import read_columns
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
@@ -89,12 +90,25 @@ def _load(out_dir: Path):
         except (OSError, pa.ArrowException) as exc:
             raise ConfigError(p, [f"not a readable Parquet table ({exc}); run the campaign again"]) from None
 
-    return man, table("cells.parquet").to_pylist(), table("trials.parquet"), table("epochs.parquet"), \
-        table("stanford_hist.parquet")
+    cells = table("cells.parquet").to_pylist()
+    try:  # numpy columns, read one at a time: a paper-scale campaign's trials are ~10⁷ rows
+        trials = read_columns(out_dir / "trials.parquet")
+    except (OSError, pa.ArrowException) as exc:
+        raise ConfigError(out_dir / "trials.parquet", [f"not a readable Parquet table ({exc}); run the campaign "
+                                                       "again"]) from None
+    return man, cells, trials, table("epochs.parquet"), table("stanford_hist.parquet")
+
+
+def _names(t) -> list[str]:
+    """Column names of a table: a pyarrow Table or a dict of numpy columns."""
+    return list(t) if isinstance(t, dict) else t.column_names
 
 
 def _cols(t, names=None) -> dict[str, np.ndarray]:
-    names = names or t.column_names
+    """Numpy columns ``names`` (default all) of a pyarrow Table, or of a dict of numpy columns (as they are)."""
+    names = names or _names(t)
+    if isinstance(t, dict):
+        return {n: t[n] for n in names}
     out = {}
     for n in names:
         c = t.column(n)
@@ -115,7 +129,7 @@ def detection_table(cells: list[dict], trials, confidence: float = 0.95, method:
     false-alarm rate). Stores written before the per-epoch columns give NaN there.
     """
     names = ["cell", "monitor", "detected"]
-    per_epoch = "onset_epochs" in trials.column_names
+    per_epoch = "onset_epochs" in _names(trials)
     c = _cols(trials, names + (["onset_epochs", "onset_alerts"] if per_epoch else []))
     rows = []
     for m in sorted(set(c["monitor"].tolist())):
@@ -661,7 +675,7 @@ def _index_lines(inp: _ReportInputs, figures: list[tuple[str, str]]) -> list[str
 
 def vision_range_error_table(cells: list[dict], trials) -> list[dict]:
     """Pooled vision-range error per cell (rows of monitors that report it): mean and sd, raw and calibrated."""
-    tc = _cols(trials)
+    tc = _cols(trials, ["cell"] + [f"vre_{tag}_{x}" for tag in ("raw", "cal") for x in ("n", "sum", "sumsq")])
     sel = np.isfinite(np.asarray(tc["vre_raw_n"], float))
     out = []
     for c in cells:

@@ -730,7 +730,8 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     total_trials = sum(n for _, _, n in plan)
     done_trials = total_trials - sum(n for c, k, n in plan if (c, k) not in done)
     wall0 = time.perf_counter()
-    epochs_run = 0
+    epochs_run = chunks_run = 0
+    run_index = store.start_run()
     bar = _Progress(total_trials, done_trials, loaded.spec.name, enabled=progress)
     with bar:
         if scheduler is None:
@@ -739,7 +740,9 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
                 for c, n in row:
                     store.write_chunk(c, k, row_tables[c])
                     epochs_run += n * _epochs_of(row_tables[c])
+                    chunks_run += 1
                     bar.advance(n)
+                store.update_run(run_index, time.perf_counter() - wall0, chunks_run, epochs_run)
         else:
             try:
                 from distributed import as_completed
@@ -752,14 +755,17 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
                     tables = fut.result()
                     store.write_chunk(c, k, tables)
                     epochs_run += n * _epochs_of(tables)
+                    chunks_run += 1
                     bar.advance(n)
+                    store.update_run(run_index, time.perf_counter() - wall0, chunks_run, epochs_run)
             finally:
                 if own:
                     client.close()
     if len(store.done_chunks()) == len(plan):
         store.finalize()
-    return CampaignResult(Path(out_dir), len(cells), total_trials, len(todo), len(done),
-                          time.perf_counter() - wall0, epochs_run)
+    wall = time.perf_counter() - wall0
+    store.update_run(run_index, wall, chunks_run, epochs_run, finished=True)
+    return CampaignResult(Path(out_dir), len(cells), total_trials, len(todo), len(done), wall, epochs_run)
 
 
 def _epochs_of(tables: dict) -> int:

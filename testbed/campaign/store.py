@@ -8,6 +8,7 @@ Layout of ``out_dir``::
     trials.parquet        consolidated (sorted by cell, trial, monitor) when all chunks are done
     epochs.parquet        per-epoch records of the first ``per_epoch_trials`` trials of each cell
     stanford_hist.parquet Stanford-diagram counts (cell, monitor, dim, err_bin, pl_bin, count)
+    runs.json             each run (the first, every resume, a killed one too): start, wall time, chunks, epochs
 
 A chunk folder is written under a temporary name and renamed into place in one
 ``os.rename`` (atomic on POSIX), so after a kill a chunk is either complete or
@@ -24,12 +25,15 @@ import uuid
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from testbed.schema import ConfigError
 
 NAMES = {"trials": "trials.parquet", "epochs": "epochs.parquet", "hist": "stanford_hist.parquet"}
+#: one entry per run that worked on the folder (wall time, chunks and epochs computed)
+RUNS = "runs.json"
 
 
 class ResultStore:
@@ -98,7 +102,7 @@ class ResultStore:
 
     def discard(self) -> None:
         """Remove a stored run's files (only the ones the store writes; anything else is left alone)."""
-        for name in ("manifest.json", "cells.parquet", "report.md", *NAMES.values()):
+        for name in ("manifest.json", "cells.parquet", "report.md", RUNS, *NAMES.values()):
             (self.dir / name).unlink(missing_ok=True)
         for sub in ("parts", "figures"):
             shutil.rmtree(self.dir / sub, ignore_errors=True)
@@ -140,23 +144,55 @@ class ResultStore:
 
     # -- consolidation -----------------------------------------------------------
     def finalize(self) -> None:
-        """Merge the chunk parts into the sorted top-level tables (atomically, each)."""
+        """Merge the chunk parts into the sorted top-level tables (atomically, each).
+
+        Cell by cell: every sort key starts with the cell, so the cells' sorted tables written
+        one after another are the whole table sorted, and memory holds one cell's rows, not the
+        campaign's (10⁵ sorties × 90 cells × 2 monitors is ~10⁷ rows)."""
         for key, name in NAMES.items():
             files = sorted(self.parts.glob(f"c*-k*/{key}.parquet"))
             files = [f for f in files if ".tmp-" not in f.parent.name]
             if not files:
                 continue
-            t = pa.concat_tables([pq.read_table(f) for f in files], promote_options="default")
-            sort = {"trials": [("cell", "ascending"), ("trial", "ascending"), ("monitor", "ascending")],
-                    "epochs": [("cell", "ascending"), ("trial", "ascending"), ("monitor", "ascending"),
-                               ("t", "ascending")],
-                    "hist": [("cell", "ascending"), ("monitor", "ascending"), ("dim", "ascending"),
-                             ("err_bin", "ascending"), ("pl_bin", "ascending")]}[key]
-            if key == "hist":  # chunks of one cell add up
-                t = t.group_by(["cell", "monitor", "dim", "err_bin", "pl_bin"]).aggregate([("count", "sum")])
-                t = t.rename_columns([c if c != "count_sum" else "count" for c in t.column_names])
-            t = t.sort_by(sort)
-            _atomic_table(self.dir / name, t)
+            by_cell: dict[str, list[Path]] = {}
+            for f in files:
+                by_cell.setdefault(f.parent.name.split("-k")[0], []).append(f)
+            schema = pa.unify_schemas([pq.read_schema(f) for f in files])  # as concatenation promotes
+            with _AtomicWriter(self.dir / name) as w:
+                for cell_files in by_cell.values():
+                    t = pa.concat_tables([pq.read_table(f) for f in cell_files], promote_options="default")
+                    t = _sorted_part(key, _conform(t, schema))
+                    w.write(t)
+
+    # -- the runs that computed it ----------------------------------------------
+    def start_run(self) -> int:
+        """Add a run (an invocation: the first or a resume) to ``runs.json``; returns its index for
+        :meth:`update_run`. A campaign finished over several runs still knows how long it took."""
+        runs = self.runs() + [{"started_utc": _utc_now(), "finished": False, "wall_s": 0.0, "chunks_run": 0,
+                               "epochs_run": 0}]
+        _atomic_bytes(self.dir / RUNS, json.dumps(runs, indent=1).encode())
+        return len(runs) - 1
+
+    def update_run(self, index: int, wall_s: float, chunks_run: int, epochs_run: int, finished: bool = False) -> None:
+        """What run ``index`` has done so far (written after every chunk row: a killed run keeps its time)."""
+        runs = self.runs()
+        if not 0 <= index < len(runs):
+            return
+        runs[index] |= {"wall_s": round(float(wall_s), 3), "chunks_run": int(chunks_run),
+                        "epochs_run": int(epochs_run), "finished": bool(finished)}
+        _atomic_bytes(self.dir / RUNS, json.dumps(runs, indent=1).encode())
+
+    def runs(self) -> list[dict]:
+        """The recorded runs, oldest first (none for a folder written before they were recorded)."""
+        try:
+            runs = json.loads((self.dir / RUNS).read_text())
+        except (OSError, ValueError):
+            return []
+        return runs if isinstance(runs, list) else []
+
+    def wall_s(self) -> float:
+        """Wall time of every recorded run added up (0 when none was recorded)."""
+        return float(sum(r.get("wall_s", 0.0) for r in self.runs()))
 
     def complete(self) -> bool:
         return (self.dir / NAMES["trials"]).exists()
@@ -176,6 +212,72 @@ def _readable(chunk_dir: Path) -> bool:
     return True
 
 
+#: the consolidated tables' row order
+SORT_KEYS = {"trials": ("cell", "trial", "monitor"), "epochs": ("cell", "trial", "monitor", "t"),
+             "hist": ("cell", "monitor", "dim", "err_bin", "pl_bin")}
+
+
+def _sorted_part(key: str, t: pa.Table) -> pa.Table:
+    """Rows of one cell in the table's order (histogram chunks of the cell added up first)."""
+    if key == "hist":
+        t = t.group_by(list(SORT_KEYS["hist"])).aggregate([("count", "sum")])
+        t = t.rename_columns([c if c != "count_sum" else "count" for c in t.column_names])
+    return t.sort_by([(k, "ascending") for k in SORT_KEYS[key]])
+
+
+def _conform(t: pa.Table, schema: pa.Schema) -> pa.Table:
+    """``t`` in ``schema``'s column order, a column it lacks as nulls (as concatenating with promotion gives)."""
+    cols = [(t.column(f.name) if t.column(f.name).type == f.type else t.column(f.name).cast(f.type))
+            if f.name in t.column_names else pa.nulls(t.num_rows, f.type) for f in schema]
+    return pa.Table.from_arrays(cols, schema=schema)
+
+
+class _AtomicWriter:
+    """A Parquet file written in pieces (one schema) beside its name, renamed into place when all went well."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+        self.writer: pq.ParquetWriter | None = None
+
+    def __enter__(self) -> "_AtomicWriter":
+        return self
+
+    def write(self, t: pa.Table) -> None:
+        if self.writer is None:  # the first piece's schema is the file's
+            self.writer = pq.ParquetWriter(self.tmp, t.schema)
+        self.writer.write_table(t)
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if self.writer is not None:
+            self.writer.close()
+        if exc_type is not None or self.writer is None:
+            self.tmp.unlink(missing_ok=True)
+            return
+        _fsync(self.tmp)
+        os.replace(self.tmp, self.path)
+
+
+def read_columns(path: Path, names: list[str] | None = None) -> dict[str, np.ndarray]:
+    """Columns of a Parquet table as numpy arrays, read one at a time (memory: the arrays, not also a table).
+
+    Values as ``pyarrow``'s ``to_numpy`` gives them (nulls as NaN in numeric columns); a string column
+    becomes an object array whose equal values share one ``str`` (a column of 10⁷ monitor names is
+    80 MB of references, not 10⁷ strings). Names absent from the table are skipped.
+    """
+    pf = pq.ParquetFile(path)
+    have = pf.schema_arrow.names
+    out = {}
+    for n in (have if names is None else [n for n in names if n in have]):
+        col = pf.read(columns=[n]).column(0).combine_chunks()
+        if pa.types.is_string(col.type) and col.null_count == 0:
+            enc = col.dictionary_encode()
+            out[n] = np.asarray(enc.dictionary.to_pylist(), dtype=object)[enc.indices.to_numpy(zero_copy_only=False)]
+        else:
+            out[n] = col.to_numpy(zero_copy_only=False)
+    return out
+
+
 def _atomic_table(path: Path, t: pa.Table) -> None:
     tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
     pq.write_table(t, tmp)
@@ -188,6 +290,12 @@ def _atomic_bytes(path: Path, data: bytes) -> None:
     tmp.write_bytes(data)
     _fsync(tmp)
     os.replace(tmp, path)
+
+
+def _utc_now() -> str:
+    import datetime as dt
+
+    return dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def _fsync(path: Path) -> None:
