@@ -47,7 +47,7 @@ def _global_sort(key: str, tables: list[pa.Table]) -> pa.Table:
 def test_finalize_cell_by_cell_equals_one_global_sort(tmp_path):
     rng = np.random.default_rng(3)
     store = ResultStore(tmp_path)
-    variants = {0: "plain", 1: "extra", 2: "null", 11: "plain"}  # cell 11 sorts after cell 2 (names are padded)
+    variants = {0: "plain", 1: "extra", 2: "null", 11: "plain", 123456: "plain"}  # by number, not by name
     written = {k: [] for k in SORT_KEYS}
     for cell, v in variants.items():
         for chunk in (1, 0):

@@ -154,12 +154,12 @@ class ResultStore:
             files = [f for f in files if ".tmp-" not in f.parent.name]
             if not files:
                 continue
-            by_cell: dict[str, list[Path]] = {}
+            by_cell: dict[int, list[Path]] = {}
             for f in files:
-                by_cell.setdefault(f.parent.name.split("-k")[0], []).append(f)
+                by_cell.setdefault(int(f.parent.name[1:].split("-k")[0]), []).append(f)
             schema = pa.unify_schemas([pq.read_schema(f) for f in files])  # as concatenation promotes
             with _AtomicWriter(self.dir / name) as w:
-                for cell_files in by_cell.values():
+                for _, cell_files in sorted(by_cell.items()):
                     t = pa.concat_tables([pq.read_table(f) for f in cell_files], promote_options="default")
                     t = _sorted_part(key, _conform(t, schema))
                     w.write(t)
