@@ -412,3 +412,33 @@ def test_a_chunk_row_gives_each_cell_what_its_chunk_alone_gives(reference, tmp_p
             assert (row[c][name] is None) == (alone[name] is None)
             if alone[name] is not None:
                 assert same(row[c][name], alone[name]), (c, name)
+
+
+def test_clustered_standard_error_against_closed_form_and_monte_carlo():
+    from testbed.campaign.report import clustered_mean_se
+
+    rng = np.random.default_rng(11)
+    # one observation per cluster: the textbook standard error s/sqrt(G) (s with G - 1)
+    x = rng.normal(size=50)
+    se, g = clustered_mean_se(np.arange(50), np.ones(50), x)
+    assert g == 50 and se == pytest.approx(np.std(x, ddof=1) / np.sqrt(50), rel=1e-12)
+    # 40 surveys of 500 epochs, each survey with its own bias (sd 1) under white noise (sd 3): over 400
+    # replications the estimate follows the pooled mean's real spread, which sd/sqrt(N) understates ~7x
+    G, n, reps = 40, 500, 400
+    cluster = np.repeat(np.arange(G), n)
+    means, ses, naive = [], [], []
+    for _ in range(reps):
+        e = np.repeat(rng.normal(size=G), n) + 3.0 * rng.normal(size=G * n)
+        means.append(e.mean())
+        ses.append(clustered_mean_se(cluster, np.ones(G * n), e)[0])
+        naive.append(e.std() / np.sqrt(G * n))
+    true_sd = np.std(means, ddof=1)  # its own sampling error is ~3.5 % at 400 replications
+    assert np.sqrt(np.mean(np.square(ses))) == pytest.approx(true_sd, rel=0.12)
+    assert true_sd > 5 * np.mean(naive)
+    # per-trial sums give the same answer as the epochs they sum (the campaign tables store sums)
+    e = rng.normal(size=(G, n)) + rng.normal(size=(G, 1))
+    per_trial = e.reshape(G, 10, n // 10).sum(-1).ravel()
+    a = clustered_mean_se(cluster, np.ones(G * n), e.ravel())[0]
+    b = clustered_mean_se(np.repeat(np.arange(G), 10), np.full(G * 10, n // 10), per_trial)[0]
+    assert a == pytest.approx(b, rel=1e-12)
+    assert np.isnan(clustered_mean_se(np.zeros(5), np.ones(5), x[:5])[0])  # one survey: no standard error

@@ -673,9 +673,15 @@ def _index_lines(inp: _ReportInputs, figures: list[tuple[str, str]]) -> list[str
 
 
 
-def vision_range_error_table(cells: list[dict], trials) -> list[dict]:
-    """Pooled vision-range error per cell (rows of monitors that report it): mean and sd, raw and calibrated."""
-    tc = _cols(trials, ["cell"] + [f"vre_{tag}_{x}" for tag in ("raw", "cal") for x in ("n", "sum", "sumsq")])
+def vision_range_error_table(cells: list[dict], trials, block_trials: int | None = None) -> list[dict]:
+    """Pooled vision-range error per cell (rows of monitors that report it): mean and sd, raw and calibrated.
+
+    With ``block_trials`` also the mean's standard error with the landmark surveys as the independent
+    units (``{tag}_se``, ``{tag}_surveys``): a campaign draws one survey per block, and every epoch of a
+    block carries that survey's bias, so epochs are not independent draws of the mean —
+    :func:`clustered_mean_se`.
+    """
+    tc = _cols(trials, ["cell", "trial"] + [f"vre_{tag}_{x}" for tag in ("raw", "cal") for x in ("n", "sum", "sumsq")])
     sel = np.isfinite(np.asarray(tc["vre_raw_n"], float))
     out = []
     for c in cells:
@@ -684,15 +690,37 @@ def vision_range_error_table(cells: list[dict], trials) -> list[dict]:
             continue
         row = dict(c)
         for tag in ("raw", "cal"):
-            n = np.nansum(tc[f"vre_{tag}_n"][s].astype(float))
-            sm = np.nansum(tc[f"vre_{tag}_sum"][s].astype(float))
+            n_t = np.nan_to_num(tc[f"vre_{tag}_n"][s].astype(float))
+            sum_t = np.nan_to_num(tc[f"vre_{tag}_sum"][s].astype(float))
+            n, sm = n_t.sum(), sum_t.sum()
             sq = np.nansum(tc[f"vre_{tag}_sumsq"][s].astype(float))
             mu = sm / n if n > 0 else float("nan")
             row[f"{tag}_mean"] = mu
             row[f"{tag}_std"] = float(np.sqrt(max(sq / n - mu**2, 0.0))) if n > 0 else float("nan")
             row[f"{tag}_n"] = int(n)
+            if block_trials:
+                row[f"{tag}_se"], row[f"{tag}_surveys"] = clustered_mean_se(
+                    np.asarray(tc["trial"][s], np.int64) // block_trials, n_t, sum_t)
         out.append(row)
     return out
+
+
+def clustered_mean_se(cluster: np.ndarray, n: np.ndarray, total: np.ndarray) -> tuple[float, int]:
+    """Standard error of the pooled mean Σtotal/Σn with clusters (here landmark surveys) as the independent
+    units, and the number of clusters with data: the ratio estimator's sandwich variance
+    ``G/(G−1) · Σ_g (t_g − m·n_g)² / (Σn)²`` over the G clusters (NaN with fewer than two).
+
+    Pooled epochs are not independent when each cluster shares an error (a survey's bias): the
+    naive sd/√N then understates the error of the mean by √(1 + (N/G − 1)·ρ)."""
+    _, inv = np.unique(cluster, return_inverse=True)
+    n_g, t_g = np.bincount(inv, weights=n), np.bincount(inv, weights=total)
+    keep = n_g > 0
+    n_g, t_g = n_g[keep], t_g[keep]
+    G, N = int(n_g.size), float(n_g.sum())
+    if G < 2:
+        return float("nan"), G
+    m = t_g.sum() / N
+    return float(np.sqrt(G / (G - 1) * np.sum((t_g - m * n_g) ** 2)) / N), G
 
 
 def _f(x: float, fmt: str) -> str:
