@@ -195,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("approach", nargs="?", default="zunz-rwy05-dpe", help="approach with the dpe settings to calibrate")
     k.add_argument("--out", required=True, type=Path, help="the calibration record to write (.json)")
     k.add_argument("--sorties", type=_in_range(int, 6, 100_000), default=60,
-                   help="sorties per set (calibration and validation; ~150 epochs and ~1.5 s each)")
+                   help="sorties per set (calibration and validation; ~140 epochs and ~0.6 s each on 2 cores)")
     k.add_argument("--p-hmi", type=_in_range(float, 1e-12, 0.01), default=1e-7,
                    help="per-epoch HMI probability K is for")
     k.add_argument("--seed", type=int, default=0, help="seed of the sorties' draws")
