@@ -97,3 +97,13 @@ def test_runs_are_recorded_and_added_up(tmp_path):
     assert store.wall_s() == pytest.approx(3.75)
     store.discard()
     assert store.runs() == []
+
+
+def test_a_damaged_runs_file_is_kept_aside_not_written_over(tmp_path):
+    store = ResultStore(tmp_path)
+    (tmp_path / "runs.json").write_text("{not json")
+    with pytest.warns(UserWarning, match="runs.json"):
+        i = store.start_run()
+    assert i == 0 and len(store.runs()) == 1
+    kept = list(tmp_path.glob("runs.json.damaged-*"))
+    assert len(kept) == 1 and kept[0].read_text() == "{not json"

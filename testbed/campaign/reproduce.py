@@ -197,7 +197,7 @@ def write_summary(out: Path, trials: int, walls: dict[str, float]) -> Path:
 
 #: the trials columns the summary reads (at the paper's scale an experiment's trials are up to 1.8e7 rows)
 SUMMARY_COLUMNS = ["cell", "trial", "monitor", "epochs", "detected", "onset_epochs", "onset_alerts", "alert_epochs", "max_hpl",
-                   "max_vpl", "avail_APV-I", "avail_LPV-200", "avail_APV-II"] + \
+                   "max_vpl", "avail_APV-I", "avail_LPV-200"] + \
     [f"vre_{tag}_{x}" for tag in ("raw", "cal") for x in ("n", "sum", "sumsq")]
 
 

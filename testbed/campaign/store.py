@@ -183,12 +183,21 @@ class ResultStore:
         _atomic_bytes(self.dir / RUNS, json.dumps(runs, indent=1).encode())
 
     def runs(self) -> list[dict]:
-        """The recorded runs, oldest first (none for a folder written before they were recorded)."""
-        try:
-            runs = json.loads((self.dir / RUNS).read_text())
-        except (OSError, ValueError):
+        """The recorded runs, oldest first (none for a folder written before they were recorded). A damaged
+        ``runs.json`` is moved aside (``runs.json.damaged-*``, with a warning), not written over."""
+        path = self.dir / RUNS
+        if not path.exists():
             return []
-        return runs if isinstance(runs, list) else []
+        try:
+            runs = json.loads(path.read_text())
+            if isinstance(runs, list) and all(isinstance(r, dict) for r in runs):
+                return runs
+        except (OSError, ValueError):
+            pass
+        aside = path.with_name(f"{RUNS}.damaged-{uuid.uuid4().hex[:8]}")
+        path.replace(aside)
+        warnings.warn(f"{path}: not a list of runs; kept as {aside.name}, the run times start again", stacklevel=2)
+        return []
 
     def wall_s(self) -> float:
         """Wall time of every recorded run added up (0 when none was recorded)."""
@@ -237,7 +246,7 @@ class _AtomicWriter:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+        self.tmp = _beside(path)
         self.writer: pq.ParquetWriter | None = None
 
     def __enter__(self) -> "_AtomicWriter":
@@ -278,15 +287,18 @@ def read_columns(path: Path, names: list[str] | None = None) -> dict[str, np.nda
     return out
 
 
+def _beside(path: Path) -> Path:
+    """A temporary name beside ``path`` (same folder: the rename into place is atomic)."""
+    return path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+
+
 def _atomic_table(path: Path, t: pa.Table) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
-    pq.write_table(t, tmp)
-    _fsync(tmp)
-    os.replace(tmp, path)
+    with _AtomicWriter(path) as w:
+        w.write(t)
 
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+    tmp = _beside(path)
     tmp.write_bytes(data)
     _fsync(tmp)
     os.replace(tmp, path)
