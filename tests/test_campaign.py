@@ -152,6 +152,22 @@ def test_dask_local_cluster_gives_the_same_tables(reference, tmp_path):
     assert same(table(reference), table(tmp_path / "out"))
 
 
+def test_dask_tasks_are_chunk_rows_cut_only_to_keep_every_worker_busy():
+    from testbed.campaign.runner import chunk_rows, dask_tasks
+
+    todo = [(c, k, 10) for c in range(5) for k in range(3) if (c, k) != (2, 1)]  # one chunk already stored
+    assert dask_tasks(todo, 1) == chunk_rows(todo)  # 3 rows >= 2 tasks per worker: whole rows
+    assert dask_tasks([], 4) == []
+    tasks = dask_tasks(todo, 4)  # 3 rows < 8 wanted: each row cut into runs of consecutive cells
+    assert len(tasks) >= 8
+    assert sorted((c, k, n) for k, row in tasks for c, n in row) == sorted(todo)  # every chunk exactly once
+    for k, row in tasks:
+        cells = [c for c, _ in row]
+        row_cells = [c for c, kk, _ in todo if kk == k]
+        i = row_cells.index(cells[0])
+        assert cells == row_cells[i:i + len(cells)]  # consecutive cells of one row: they share draws
+
+
 def test_faults_are_detected_and_fault_free_trials_carry_no_fault(reference):
     t = table(reference).to_pylist()
     cells = pq.read_table(reference / "cells.parquet").to_pylist()

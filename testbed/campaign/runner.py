@@ -658,15 +658,33 @@ def chunk_rows(todo: list[tuple[int, int, int]]) -> list[tuple[int, list[tuple[i
     return sorted(rows.items())
 
 
-def _dask_chunk(spec_json: str, source: str, cell_index: int, chunk: int) -> dict:
-    """Entry point on a Dask worker: rebuild the spec from its JSON (cheap, cached per process)."""
+def dask_tasks(todo: list[tuple[int, int, int]], workers: int) -> list[tuple[int, list[tuple[int, int]]]]:
+    """The Dask tasks of ``todo``: chunk rows (:func:`chunk_rows`), so a worker draws once what a row's cells
+    share (:mod:`testbed.memo`; a task per cell would draw it once per cell: 1.7-2.3x the work in the VA-RAIM
+    reproduction). Rows are cut into runs of consecutive cells when there are fewer than two tasks per
+    worker, so a campaign of few chunks still keeps every worker busy."""
+    rows = chunk_rows(todo)
+    want = 2 * max(int(workers), 1)
+    if not rows or len(rows) >= want:
+        return rows
+    pieces = -(-want // len(rows))
+    out = []
+    for k, cells in rows:
+        size = -(-len(cells) // pieces)
+        out += [(k, cells[i:i + size]) for i in range(0, len(cells), size)]
+    return out
+
+
+def _dask_row(spec_json: str, source: str, chunk: int, cells: list[int]) -> dict:
+    """Entry point on a Dask worker: rebuild the spec from its JSON (cheap, cached per process) and run
+    chunk ``chunk`` of ``cells`` (:func:`run_chunk_row`)."""
     from testbed.campaign.spec import CampaignSpec
     from testbed.heap import keep_freed_memory
 
     keep_freed_memory()  # a worker process runs nothing but campaign chunks
     key = ("loaded", spec_json, source)
     loaded = _cached(key, lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
-    return run_chunk(loaded, cell_index, chunk, threads=1)  # the cluster's workers are the parallelism
+    return run_chunk_row(loaded, chunk, cells, threads=1)  # the cluster's workers are the parallelism
 
 
 # ----------------------------------------------------------------------------- driver
@@ -748,15 +766,18 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
                 from distributed import as_completed
 
                 sj = loaded.spec.model_dump_json()
-                futs = {client.submit(_dask_chunk, sj, str(loaded.source), c, k, pure=False, key=f"campaign-{loaded.hash}-{c}-{k}"): (c, k, n)
-                        for c, k, n in todo}
+                workers = sum(client.nthreads().values())
+                futs = {client.submit(_dask_row, sj, str(loaded.source), k, [c for c, _ in row], pure=False,
+                                      key=f"campaign-{loaded.hash}-{k}-{row[0][0]}-{row[-1][0]}"): (k, row)
+                        for k, row in dask_tasks(todo, workers)}
                 for fut in as_completed(list(futs)):
-                    c, k, n = futs[fut]
+                    k, row = futs[fut]
                     tables = fut.result()
-                    store.write_chunk(c, k, tables)
-                    epochs_run += n * _epochs_of(tables)
-                    chunks_run += 1
-                    bar.advance(n)
+                    for c, n in row:
+                        store.write_chunk(c, k, tables[c])
+                        epochs_run += n * _epochs_of(tables[c])
+                        chunks_run += 1
+                        bar.advance(n)
                     store.update_run(run_index, time.perf_counter() - wall0, chunks_run, epochs_run)
             finally:
                 if own:

@@ -1,0 +1,108 @@
+"""Benchmark: a campaign on a Dask cluster against the in-process driver, and what a task holds.
+
+Usage::
+
+    python benchmarks/bench_dask.py [--experiment where-vision-pays] [--trials 2000] [--workers 2]
+
+Runs one experiment of the VA-RAIM reproduction (``--trials`` sorties per setting, chunks of
+1000) three ways, each into a fresh temporary folder, and prints the wall time of each and
+their ratios:
+
+1. in-process (the default driver: chunk rows, draw blocks on threads);
+2. a local Dask cluster of ``--workers`` single-threaded worker processes, one task per
+   chunk row (:func:`testbed.campaign.runner.dask_tasks`: the cells of a row share their
+   draws on the worker);
+3. the same cluster, one task per (cell, chunk) (how the Dask path ran before: every
+   task draws what the cells would share).
+
+The three stores hold the same tables (checked, bit for bit, NaN equal to NaN). The flight
+and the sky geometry are computed before the clock starts, in the driver and in every worker.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+
+def _warm(spec_json: str, source: str) -> int:
+    """On a worker: the spec as :func:`testbed.campaign.runner._dask_row` caches it, and every cell's
+    flight and sky geometry (what a long campaign pays once per worker process)."""
+    from testbed.campaign import runner
+    from testbed.campaign.spec import CampaignSpec, resolve_spec
+
+    loaded = runner._cached(("loaded", spec_json, source),
+                            lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
+    for c in runner._cells(loaded):
+        runner.cell_context(c, loaded.spec)
+    return len(runner._cells(loaded))
+
+
+def _same(a, b) -> bool:
+    import numpy as np
+
+    if a.schema != b.schema or a.num_rows != b.num_rows:
+        return False
+    for n in a.column_names:
+        x, y = a.column(n).to_numpy(zero_copy_only=False), b.column(n).to_numpy(zero_copy_only=False)
+        if not (np.array_equal(x, y, equal_nan=True) if x.dtype.kind == "f" else list(x) == list(y)):
+            return False
+    return True
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--experiment", default="where-vision-pays")
+    ap.add_argument("--trials", type=int, default=2000, help="sorties per setting")
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+
+    import pyarrow.parquet as pq
+    from distributed import Client, LocalCluster
+
+    from testbed.campaign import runner
+    from testbed.campaign.reproduce import loaded_experiments
+    from testbed.campaign.spec import expand_cells
+
+    le = loaded_experiments(args.trials)[args.experiment]
+    le = dataclasses.replace(le, spec=le.spec.model_copy(update={"chunk_trials": 1000}))
+    cells = expand_cells(le)
+    for c in cells:
+        runner.cell_context(c, le.spec)
+    epochs = args.trials * len(cells) * 61
+    print(f"{args.experiment}: {len(cells)} settings x {args.trials} sorties x 61 epochs = {epochs:.3g} sortie-epochs")
+
+    by_row = runner.dask_tasks
+    one_cell = lambda todo, workers: [(k, [(c, n)]) for c, k, n in todo]  # noqa: E731
+    walls, tables = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        runner.run_campaign(le, Path(tmp) / "in-process", progress=False)
+        walls["in-process"] = time.perf_counter() - t0
+        with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
+                          dashboard_address=None) as cluster, Client(cluster) as client:
+            client.run(_warm, le.spec.model_dump_json(), str(le.source))  # as the driver: before the clock
+            for name, tasks in (("dask, a task per chunk row", by_row), ("dask, a task per cell", one_cell)):
+                runner.dask_tasks = tasks
+                try:
+                    t0 = time.perf_counter()
+                    runner.run_campaign(le, Path(tmp) / name, scheduler=client, progress=False)
+                    walls[name] = time.perf_counter() - t0
+                finally:
+                    runner.dask_tasks = by_row
+        for name in walls:
+            tables[name] = pq.read_table(Path(tmp) / name / "trials.parquet")
+    ref = walls["in-process"]
+    for name, w in walls.items():
+        same = _same(tables[name], tables["in-process"])
+        print(f"  {name:28s} {w:7.1f} s  {epochs / w:10,.0f} sortie-epochs/s  {ref / w:5.2f}x in-process"
+              f"  tables {'identical' if same else 'DIFFER'}")
+    print(f"  a task per chunk row / a task per cell: "
+          f"{walls['dask, a task per cell'] / walls['dask, a task per chunk row']:.2f}x faster")
+
+
+if __name__ == "__main__":
+    main()
