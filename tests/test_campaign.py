@@ -184,6 +184,31 @@ def test_faults_are_detected_and_fault_free_trials_carry_no_fault(reference):
 
 # ----------------------------------------------------------------------------- resume
 
+def test_a_damaged_consolidated_table_is_kept_aside_and_consolidated_again(reference, tmp_path, capsys):
+    import shutil
+
+    from testbed.campaign.store import ResultStore
+    from testbed.cli import main
+
+    out = tmp_path / "out"
+    shutil.copytree(reference, out)
+    spec = write_spec(tmp_path)
+    trials = out / "trials.parquet"
+    damaged = trials.read_bytes()[:-200]  # the footer cut off, as a full disk or a killed copy leaves it
+    trials.write_bytes(damaged)
+    assert not ResultStore(out).complete()
+    assert main(["report", str(out)]) == 2  # a clear error, not a traceback
+    said = capsys.readouterr()
+    assert "trials.parquet" in said.out + said.err and "--resume" in said.out + said.err
+    with pytest.warns(UserWarning, match="consolidated again"):
+        res = run_campaign(spec, out, resume=True, progress=False)
+    assert res.chunks_run == 0 and ResultStore(out).complete()
+    assert same(table(reference), table(out))  # rebuilt from the stored chunks
+    kept = list(out.glob("trials.parquet.damaged-*"))
+    assert len(kept) == 1 and kept[0].read_bytes() == damaged  # not written over
+
+
+
 def test_kill_and_resume_equals_an_uninterrupted_run(reference, tmp_path):
     spec = write_spec(tmp_path)
     out = tmp_path / "out"

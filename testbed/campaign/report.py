@@ -88,13 +88,15 @@ def _load(out_dir: Path):
         try:
             return pq.read_table(p)
         except (OSError, pa.ArrowException) as exc:
-            raise ConfigError(p, [f"not a readable Parquet table ({exc}); run the campaign again"]) from None
+            raise ConfigError(p, [f"not a readable Parquet table ({exc}); run the campaign again with --resume: "
+                                 "its stored chunks are consolidated again"]) from None
 
     cells = table("cells.parquet").to_pylist()
     try:  # numpy columns, read one at a time: a paper-scale campaign's trials are ~10⁷ rows
         trials = read_columns(out_dir / "trials.parquet")
     except (OSError, pa.ArrowException) as exc:
         raise ConfigError(out_dir / "trials.parquet", [f"not a readable Parquet table ({exc}); run the campaign "
+                                                       "again with --resume: its stored chunks are consolidated "
                                                        "again"]) from None
     return man, cells, trials, table("epochs.parquet"), table("stanford_hist.parquet")
 

@@ -158,6 +158,8 @@ class ResultStore:
             for f in files:
                 by_cell.setdefault(int(f.parent.name[1:].split("-k")[0]), []).append(f)
             schema = pa.unify_schemas([pq.read_schema(f) for f in files])  # as concatenation promotes
+            if (self.dir / name).exists() and not _readable(self.dir / name):
+                _keep_aside(self.dir / name, "not a readable Parquet table", "consolidated again from parts/")
             with _AtomicWriter(self.dir / name) as w:
                 for _, cell_files in sorted(by_cell.items()):
                     t = pa.concat_tables([pq.read_table(f) for f in cell_files], promote_options="default")
@@ -194,9 +196,7 @@ class ResultStore:
                 return runs
         except (OSError, ValueError):
             pass
-        aside = path.with_name(f"{RUNS}.damaged-{uuid.uuid4().hex[:8]}")
-        path.replace(aside)
-        warnings.warn(f"{path}: not a list of runs; kept as {aside.name}, the run times start again", stacklevel=2)
+        _keep_aside(path, "not a list of runs", "the run times start again")
         return []
 
     def wall_s(self) -> float:
@@ -204,21 +204,32 @@ class ResultStore:
         return float(sum(r.get("wall_s", 0.0) for r in self.runs()))
 
     def complete(self) -> bool:
-        return (self.dir / NAMES["trials"]).exists()
+        """The consolidated tables are there and every one of them opens (a truncated or edited one does
+        not: the next run consolidates the stored chunks again, :meth:`finalize`)."""
+        tables = [self.dir / n for n in NAMES.values()]
+        return tables[0].exists() and all(_readable(t) for t in tables if t.exists())
 
     def table(self, key: str) -> pa.Table | None:
         p = self.dir / NAMES.get(key, f"{key}.parquet")
         return pq.read_table(p) if p.exists() else None
 
 
-def _readable(chunk_dir: Path) -> bool:
-    """Every Parquet file of a chunk folder opens (its footer is intact)."""
+def _readable(path: Path) -> bool:
+    """A Parquet file, or every one of a chunk folder, opens (its footer is intact)."""
     try:
-        for f in chunk_dir.glob("*.parquet"):
+        for f in (path.glob("*.parquet") if path.is_dir() else [path]):
             pq.read_metadata(f)
     except (OSError, pa.ArrowException):
         return False
     return True
+
+
+def _keep_aside(path: Path, what: str, then: str) -> None:
+    """Move a damaged file of the store aside (``<name>.damaged-<tag>``, with a warning): a file the
+    store wrote is never written over, even one it cannot read."""
+    aside = path.with_name(f"{path.name}.damaged-{uuid.uuid4().hex[:8]}")
+    path.replace(aside)
+    warnings.warn(f"{path}: {what}; kept as {aside.name}, {then}", stacklevel=3)
 
 
 #: the consolidated tables' row order
