@@ -274,6 +274,15 @@ def test_report_figures_and_region_counts(reference):
     assert "| setting | monitor | sorties | max HPL: median / p95 / max (m)" in text
     assert text.count("| dpi 720") + text.count("| all cells") >= 2
     t = table(reference).to_pydict()
+    # the vision-range table: each mean with its standard error over the landmark surveys (4 blocks of 10)
+    from testbed.campaign.report import clustered_mean_se
+
+    va = (np.asarray(t["monitor"]) == "va_raim") & (np.asarray(t["cell"]) == 0)
+    se, surveys = clustered_mean_se(np.asarray(t["trial"])[va] // 10, np.asarray(t["vre_raw_n"], float)[va],
+                                    np.asarray(t["vre_raw_sum"], float)[va])
+    mean = np.asarray(t["vre_raw_sum"], float)[va].sum() / np.asarray(t["vre_raw_n"], float)[va].sum()
+    row = next(r for r in text.splitlines() if r.startswith("| 0 | 720 |"))
+    assert f"{mean:.3f} ± {se:.3f}" in row and row.rstrip(" |").endswith(str(surveys)) and surveys == 4
     epochs = np.asarray(t["epochs"])
     for dim in "hv":
         total = sum(np.asarray(t[f"{dim}_{r}"]) for r in REGIONS)

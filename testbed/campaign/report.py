@@ -619,7 +619,8 @@ def _vision_range_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str
     tc, trials = inp.tc, inp.trials
     # ---- vision-range error
     if "vre_raw_n" in tc:
-        vr = vision_range_error_table(cells, trials)
+        bt = int(inp.man["spec"].get("block_trials") or 0) or None
+        vr = vision_range_error_table(cells, trials, bt)
         if vr:
             vaxes = [a for a in ("lpe_sigma_m", "dpi", "sigma_px") if len({r[a] for r in vr}) > 1] or ["lpe_sigma_m"]
             fig, axs = _figure(1, len(vaxes), figsize=(5.2 * len(vaxes), 4.2), squeeze=False)
@@ -646,13 +647,20 @@ def _vision_range_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str
             _save(fig, figdir / "vision_range_error.png")
             figures.append(("Vision-range error", "vision_range_error.png"))
             md += ["## Vision-range error (VA-RAIM; error = estimated - true camera-landmark range)", "",
-                   "| cell | dpi | DE px | LPE m | cal mode | raw mean | raw sd | calibrated mean | calibrated sd |",
-                   "|---|---|---|---|---|---|---|---|---|"]
+                   "| cell | dpi | DE px | LPE m | cal mode | raw mean ± se | raw sd | calibrated mean ± se | "
+                   "calibrated sd | surveys |", "|---|---|---|---|---|---|---|---|---|---|"]
+
+            def mean_se(r: dict, tag: str) -> str:
+                se = r.get(f"{tag}_se", float("nan"))
+                return _f(r[f"{tag}_mean"], "{:.3f}") + ("" if not np.isfinite(se) else f" ± {se:.3f}")
+
             for r in vr:
                 md.append(f"| {r['cell']} | {r['dpi']:g} | {r['sigma_px']:g} | {r['lpe_sigma_m']:g} | {r['calibration']} | "
-                          f"{_f(r['raw_mean'], '{:.3f}')} | {_f(r['raw_std'], '{:.3f}')} | {_f(r['cal_mean'], '{:.3f}')} | "
-                          f"{_f(r['cal_std'], '{:.3f}')} |")
-            md.append("")
+                          f"{mean_se(r, 'raw')} | {_f(r['raw_std'], '{:.3f}')} | {mean_se(r, 'cal')} | "
+                          f"{_f(r['cal_std'], '{:.3f}')} | {r.get('raw_surveys', '')} |")
+            md += ["", "se: standard error of the mean with the landmark surveys as the independent units (one survey "
+                   f"per block of {bt} sorties: every epoch of a block carries its survey's bias, so the epochs' "
+                   "sd/√N would understate it; `report.clustered_mean_se`). sd: the spread of single errors.", ""]
     return md, figures
 
 
