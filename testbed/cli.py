@@ -149,7 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--live", action="store_true", help="also serve the stream to a Rerun viewer (gRPC)")
     f.add_argument("--bind", default="127.0.0.1", help="live server address (default loopback 127.0.0.1)")
     f.add_argument("--port", type=int, default=9876, help="live server port (default 9876)")
-    f.add_argument("--linger", type=float, default=60.0, help="with --live: seconds to keep serving after landing")
+    f.add_argument("--linger", type=float, default=60.0, help="with --live: seconds to keep serving after landing (default 60)")
     f.add_argument("--block", type=float, default=5.0,
                    help="simulated seconds between live updates (default 5: ~0.1 s of wall time)")
     f.add_argument("--monitors", nargs="+", choices=monitor_names(),
@@ -192,17 +192,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     k = sub.add_parser("calibrate-dpe", help="fit the dpe monitor's K on fault-free sorties and validate it on "
                                              "held-out ones (writes a record [dpe] k_factor can name)")
-    k.add_argument("approach", nargs="?", default="zunz-rwy05-dpe", help="approach with the dpe settings to calibrate")
+    k.add_argument("approach", nargs="?", default="zunz-rwy05-dpe", help="approach with the dpe settings to calibrate (default: %(default)s)")
     k.add_argument("--out", required=True, type=Path, help="the calibration record to write (.json)")
     k.add_argument("--sorties", type=_in_range(int, 6, 100_000), default=60,
-                   help="sorties per set (calibration and validation; ~140 epochs and ~0.6 s each on 2 cores)")
+                   help="sorties per set (calibration and validation; ~140 epochs and ~0.6 s each on 2 cores; "
+                        "6-100000, default %(default)s)")
     k.add_argument("--p-hmi", type=_in_range(float, 1e-12, 0.01), default=1e-7,
-                   help="per-epoch HMI probability K is for")
-    k.add_argument("--seed", type=int, default=0, help="seed of the sorties' draws")
+                   help="per-epoch HMI probability K is for (1e-12-0.01, default %(default)g)")
+    k.add_argument("--seed", type=int, default=0, help="seed of the sorties' draws (default %(default)s)")
     k.add_argument("--trajectories", nargs="+", metavar="APPROACH",
                    help="approaches whose trajectories the sorties fly, with APPROACH's DPE and correlator settings "
                         "(default: its own; set-c: DPE.md's zunz-rwy05-final zunz-rwy05-rnp va-raim-2015)")
-    k.add_argument("--chunk", type=_in_range(int, 1, 100_000), default=25, help="sorties per chunk (a unit of work)")
+    k.add_argument("--chunk", type=_in_range(int, 1, 100_000), default=25, help="sorties per chunk (a unit of work; default %(default)s)")
     k.add_argument("--work", type=Path, help="folder keeping every chunk as it finishes (a killed run resumes)")
     k.add_argument("--resume", action="store_true", help="continue the calibration stored in --work")
     k.add_argument("--scheduler", help="Dask scheduler address: chunks run on its workers")

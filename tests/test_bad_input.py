@@ -337,6 +337,20 @@ SPEC = ('name = "s"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntri
         'chunk_trials = 10\nduration_s = 10.0\n')
 
 
+def test_options_that_cannot_apply_are_refused_not_ignored(work, capsys):
+    cwd, inputs = work
+    spec = inputs / "s.toml"
+    spec.write_text(SPEC)
+    with pytest.raises(SystemExit) as exc:  # argparse: usage and the clash, exit code 2
+        main(["campaign", str(spec), "--out", str(inputs / "o"), "--resume", "--restart"])
+    assert exc.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
+    for paper in ("won-2013", "dpe-vertical"):
+        for extra in (["--scheduler", "tcp://127.0.0.1:9"], ["--resume"]):
+            code, out = run(capsys, "reproduce", paper, "--out", inputs / "r", *extra)
+            assert code == 2 and extra[0] in out and paper in out, out
+    assert not (inputs / "o").exists() and not (inputs / "r").exists() and not any(cwd.iterdir())
+
+
 def test_campaign_inputs_are_checked_before_any_work(work, capsys):
     cwd, inputs = work
     empty = inputs / "empty-faults.toml"

@@ -69,6 +69,11 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     if args.paper not in PAPERS:
         print(f"unknown paper {args.paper!r}; expected one of {sorted(PAPERS)}")
         return 2
+    ignored = [o for o, v in (("--scheduler", args.scheduler), ("--resume", args.resume)) if v]
+    if args.paper != "va-raim-2015" and ignored:  # refused, not silently ignored
+        print(f"{' and '.join(ignored)}: only va-raim-2015's campaigns take them; {args.paper} runs in-process "
+              "from the start")
+        return 2
     out = Path(args.out) if args.out else Path("campaigns") / f"reproduce-{args.paper}"
     if args.paper == "dpe-vertical":
         from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
@@ -92,8 +97,10 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("--trials", type=_positive_int, help="override the spec's trials per cell (a quick look)")
     p.add_argument("--out", help="result folder (default: campaigns/<spec name>)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: batched in-process)")
-    p.add_argument("--resume", action="store_true", help="complete an interrupted run in --out (same spec and inputs)")
-    p.add_argument("--restart", action="store_true", help="discard the run stored in --out and start over")
+    again = p.add_mutually_exclusive_group()  # both at once would discard what --resume means to keep
+    again.add_argument("--resume", action="store_true", help="complete an interrupted run in --out (same spec and "
+                                                             "inputs)")
+    again.add_argument("--restart", action="store_true", help="discard the run stored in --out and start over")
     p.add_argument("--no-report", action="store_true", help="do not draw the figures and report.md")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_campaign)
@@ -109,9 +116,9 @@ def add_campaign_parsers(subparsers) -> None:
                                                       "(dpe-vertical: DPE.md's 2000 sorties per cell; "
                                                       "won-2013: 200 runs per case, else 50)")
     p.add_argument("--out", help="result folder (default: campaigns/reproduce-<paper>)")
-    p.add_argument("--scheduler", help="Dask scheduler address")
-    p.add_argument("--resume", action="store_true")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--scheduler", help="va-raim-2015: Dask scheduler address (default: in-process)")
+    p.add_argument("--resume", action="store_true", help="va-raim-2015: complete the experiments stored in --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_reproduce)
 
 
