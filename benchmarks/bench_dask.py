@@ -29,28 +29,13 @@ from pathlib import Path
 
 
 def _warm(spec_json: str, source: str) -> int:
-    """On a worker: the spec as :func:`testbed.campaign.runner._dask_row` caches it, and every cell's
-    flight and sky geometry (what a long campaign pays once per worker process)."""
+    """On a worker: every cell's flight and sky geometry (what a long campaign pays once per worker process)."""
     from testbed.campaign import runner
-    from testbed.campaign.spec import CampaignSpec, resolve_spec
 
-    loaded = runner._cached(("loaded", spec_json, source),
-                            lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
+    loaded = runner.worker_spec(spec_json, source)
     for c in runner._cells(loaded):
         runner.cell_context(c, loaded.spec)
     return len(runner._cells(loaded))
-
-
-def _same(a, b) -> bool:
-    import numpy as np
-
-    if a.schema != b.schema or a.num_rows != b.num_rows:
-        return False
-    for n in a.column_names:
-        x, y = a.column(n).to_numpy(zero_copy_only=False), b.column(n).to_numpy(zero_copy_only=False)
-        if not (np.array_equal(x, y, equal_nan=True) if x.dtype.kind == "f" else list(x) == list(y)):
-            return False
-    return True
 
 
 def main() -> None:
@@ -66,6 +51,7 @@ def main() -> None:
     from testbed.campaign import runner
     from testbed.campaign.reproduce import loaded_experiments
     from testbed.campaign.spec import expand_cells
+    from testbed.campaign.store import tables_equal
 
     le = loaded_experiments(args.trials)[args.experiment]
     le = dataclasses.replace(le, spec=le.spec.model_copy(update={"chunk_trials": 1000}))
@@ -97,7 +83,7 @@ def main() -> None:
             tables[name] = pq.read_table(Path(tmp) / name / "trials.parquet")
     ref = walls["in-process"]
     for name, w in walls.items():
-        same = _same(tables[name], tables["in-process"])
+        same = tables_equal(tables[name], tables["in-process"])
         print(f"  {name:28s} {w:7.1f} s  {epochs / w:10,.0f} sortie-epochs/s  {ref / w:5.2f}x in-process"
               f"  tables {'identical' if same else 'DIFFER'}")
     print(f"  a task per chunk row / a task per cell: "

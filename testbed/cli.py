@@ -149,7 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--live", action="store_true", help="also serve the stream to a Rerun viewer (gRPC)")
     f.add_argument("--bind", default="127.0.0.1", help="live server address (default loopback 127.0.0.1)")
     f.add_argument("--port", type=int, default=9876, help="live server port (default 9876)")
-    f.add_argument("--linger", type=float, default=60.0, help="with --live: seconds to keep serving after landing (default 60)")
+    f.add_argument("--linger", type=float, default=60.0, help="with --live: seconds to keep serving after landing (default %(default)g)")
     f.add_argument("--block", type=float, default=5.0,
                    help="simulated seconds between live updates (default 5: ~0.1 s of wall time)")
     f.add_argument("--monitors", nargs="+", choices=monitor_names(),

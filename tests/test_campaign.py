@@ -16,7 +16,7 @@ import pytest
 from testbed.campaign.report import binomial_interval, minimal_detectable_bias, write_report
 from testbed.campaign.runner import run_campaign
 from testbed.campaign.spec import expand_cells, load_spec
-from testbed.campaign.store import ResultStore
+from testbed.campaign.store import ResultStore, tables_equal
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
@@ -56,16 +56,7 @@ def table(out: Path, name: str = "trials.parquet"):
 
 def same(a, b) -> bool:
     """Tables equal bit for bit (NaN == NaN, same schema and row order)."""
-    if a.schema != b.schema or a.num_rows != b.num_rows:
-        return False
-    for n in a.column_names:
-        x, y = a.column(n).to_numpy(zero_copy_only=False), b.column(n).to_numpy(zero_copy_only=False)
-        if x.dtype.kind == "f":
-            if not np.array_equal(x, y, equal_nan=True):
-                return False
-        elif list(x) != list(y):
-            return False
-    return True
+    return tables_equal(a, b)
 
 
 @pytest.fixture(scope="module")

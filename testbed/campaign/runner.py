@@ -678,13 +678,18 @@ def dask_tasks(todo: list[tuple[int, int, int]], workers: int) -> list[tuple[int
 def _dask_row(spec_json: str, source: str, chunk: int, cells: list[int]) -> dict:
     """Entry point on a Dask worker: rebuild the spec from its JSON (cheap, cached per process) and run
     chunk ``chunk`` of ``cells`` (:func:`run_chunk_row`)."""
-    from testbed.campaign.spec import CampaignSpec
     from testbed.heap import keep_freed_memory
 
     keep_freed_memory()  # a worker process runs nothing but campaign chunks
-    key = ("loaded", spec_json, source)
-    loaded = _cached(key, lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
-    return run_chunk_row(loaded, chunk, cells, threads=1)  # the cluster's workers are the parallelism
+    return run_chunk_row(worker_spec(spec_json, source), chunk, cells, threads=1)  # the workers are the parallelism
+
+
+def worker_spec(spec_json: str, source: str) -> LoadedSpec:
+    """The spec a worker rebuilds from its JSON, cached per process."""
+    from testbed.campaign.spec import CampaignSpec
+
+    return _cached(("loaded", spec_json, source),
+                   lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
 
 
 # ----------------------------------------------------------------------------- driver

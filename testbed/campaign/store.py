@@ -214,6 +214,17 @@ class ResultStore:
         return pq.read_table(p) if p.exists() else None
 
 
+def tables_equal(a: pa.Table, b: pa.Table) -> bool:
+    """Tables equal bit for bit: same schema and row order, NaN equal to NaN."""
+    if a.schema != b.schema or a.num_rows != b.num_rows:
+        return False
+    for n in a.column_names:
+        x, y = a.column(n).to_numpy(zero_copy_only=False), b.column(n).to_numpy(zero_copy_only=False)
+        if not (np.array_equal(x, y, equal_nan=True) if x.dtype.kind == "f" else list(x) == list(y)):
+            return False
+    return True
+
+
 def _readable(path: Path) -> bool:
     """A Parquet file, or every one of a chunk folder, opens (its footer is intact)."""
     try:
