@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from vision_oracle import bearings_from_pixels, cosine_covariance, cosine_model, cosine_rule_jacobians, cosines
 
@@ -54,7 +55,7 @@ def test_compile_all_covers_the_monitors_so_nothing_compiles_mid_flight():
     from testbed.integrity.va_raim import va_raim
 
     kernels.compile_all()
-    names = ("gather_used_rows", "range_gauss_newton", "cosine_gauss_newton", "wls_epoch",
+    names = ("gather_used_rows", "range_gauss_newton", "cosine_gauss_newton", "wls_epochs",
              "cosine_rule_products", "vision_rows", "cosines_and_covariance", "calibrate_epochs")
 
     def compiled(n):
@@ -267,6 +268,34 @@ def test_wls_fit_matches_the_oracle_on_every_reason_code():
         part = lsq.wls_fit(h[:11], G[:11], z[:11], wdiag[:11], None if W_block is None else Wb[:11], mask[:11])
         for f in ("J", "A", "cond", "sse", "hslope", "reason"):
             np.testing.assert_array_equal(getattr(part, f), getattr(got, f)[:11], err_msg=f)
+
+
+def _fit_outputs(P, N):
+    """wls kernels' outputs, pre-filled with a value neither writes (so an unwritten one shows)."""
+    f = lambda *s: np.full((P,) + s, 7.0)  # noqa: E731
+    i = lambda dt: np.full(P, 7, dt)  # noqa: E731
+    return [f(4, 4), f(4, N), f(N), f(), f(N), f(), f(N), f(N), f(), f(), i(np.int64), i(np.int64), i(np.int8)]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_side_by_side_fit_gives_the_one_epoch_fit_bit_for_bit(seed):
+    """wls_epochs (epochs in vector lanes) against wls_one called on each epoch alone, byte for byte (the
+    sign of a zero included), on a batch with every reason code, both weight forms, and more epochs than a tile."""
+    from testbed.integrity.kernels.geometry import TILE
+
+    h, G, z, wd, Wb, mask = _fit_batch(np.random.default_rng(seed), P=3 * TILE + 17)
+    N = G.shape[1]
+    for wdiag, W_block in ((wd, Wb), (np.concatenate([wd, np.full(Wb.shape[:-1], 2.0)], -1), np.zeros((len(G), 0, 0)))):
+        got = _fit_outputs(len(G), N)
+        kernels.wls_epochs(G, h, z, wdiag, W_block, mask, 1e10, *got)
+        ref = _fit_outputs(len(G), N)
+        scratch = (np.empty((4, 4, 4)), np.empty((3, 4)), np.empty(4))
+        for p in range(len(G)):
+            kernels.wls_one(G[p], h[p], z[p], wdiag[p], W_block[p], mask[p], 1e10,
+                            *(o[p] if o.ndim > 1 else o[p:p + 1] for o in ref), *scratch)
+        for k, (a, b) in enumerate(zip(got, ref)):
+            assert a.tobytes() == b.tobytes(), k
+        assert (got[-1] == 0).sum() > 2 * TILE and len(set(got[-1].tolist())) == 5  # the common path and every reason
 
 
 def test_wls_fit_broadcasts_over_batch_axes_and_checks_its_weights():

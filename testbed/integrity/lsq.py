@@ -13,7 +13,7 @@ pixel-domain monitor) builds on. Notation follows INTEGRITY_MATH.md §4 and seed
   epochs is one stack of matrices.
 * ``J = (GᵀWG)⁻¹``, ``A = J GᵀW``, ``S = I − G A``, ``SSE = rᵀ W r``.
 
-One compiled pass per epoch (:func:`kernels.wls_epoch`, behind :func:`wls_fit` and
+One compiled pass per epoch (:func:`kernels.wls_epochs`, behind :func:`wls_fit` and
 :func:`wls_geometry`) computes all of it, degenerate epochs included; it never forms
 the N×N matrix ``S``: ``(WS)ᵢᵢ = Wᵢᵢ − (WG)ᵢ J (WG)ᵢᵀ`` needs only ``WG`` and ``J``.
 The numpy/LAPACK formulas it replaces are the test oracle (``tests/wls_oracle.py``).
@@ -198,7 +198,7 @@ def wls_fit(h: ArrayLike, G: ArrayLike, z: ArrayLike, w_diag: ArrayLike, W_block
     anything). Weights ``W = blockdiag(diag(w_diag), W_block)``: w_diag (..., n1) for the
     first, uncorrelated rows (e.g. pseudoranges), W_block (..., N − n1, N − n1) for the
     rest (e.g. a vision block), or None when ``n1 = N``. One compiled pass per epoch
-    (:func:`kernels.wls_epoch`) decides every epoch, degenerate ones included, on its
+    (:func:`kernels.wls_epochs`) decides every epoch, degenerate ones included, on its
     own: a chunk of a batch gives the same numbers, bit for bit, as the whole.
     """
     G = np.asarray(G, float)
@@ -215,13 +215,19 @@ def wls_fit(h: ArrayLike, G: ArrayLike, z: ArrayLike, w_diag: ArrayLike, W_block
     h, z = np.asarray(h, float), np.asarray(z, float)
     batch = np.broadcast_shapes(G.shape[:-2], h.shape[:-1], z.shape[:-1], wd.shape[:-1], Wb.shape[:-2],
                                 m.shape[:-1])
-    out = {"J": np.empty(batch + (N_STATES, N_STATES)), "A": np.empty(batch + (N_STATES, N)),
-           "ws_diag": np.empty(batch + (N,)), "cond": np.empty(batch), "residual": np.empty(batch + (N,)),
-           "sse": np.empty(batch), "hslope": np.empty(batch + (N,)), "vslope": np.empty(batch + (N,)),
-           "hmax": np.empty(batch), "vmax": np.empty(batch), "n_used": np.empty(batch, np.int64),
-           "n_states": np.empty(batch, np.int64), "reason": np.empty(batch, np.int8)}
-    kernels.wls_epoch(G, h, z, wd, Wb, m, float(max_cond), *(out[k] for k in _FIT_FIELDS))
-    return WlsFit(mask=np.broadcast_to(m, batch + (N,)), **out)
+    P = int(np.prod(batch, dtype=np.int64))
+    R = N - n1
+
+    def flat(a: NDArray, tail: tuple, dt: type = np.float64) -> NDArray:
+        return kernels.kernel_input(a, batch + tail, (P,) + tail, dt)
+
+    out = {"J": (N_STATES, N_STATES), "A": (N_STATES, N), "ws_diag": (N,), "cond": (), "residual": (N,), "sse": (),
+           "hslope": (N,), "vslope": (N,), "hmax": (), "vmax": (), "n_used": (), "n_states": (), "reason": ()}
+    dtypes = {"n_used": np.int64, "n_states": np.int64, "reason": np.int8}
+    out = {k: np.empty((P,) + tail, dtypes.get(k, np.float64)) for k, tail in out.items()}
+    kernels.wls_epochs(flat(G, (N, N_STATES)), flat(h, (N,)), flat(z, (N,)), flat(wd, (n1,)), flat(Wb, (R, R)),
+                       flat(m, (N,), np.bool_), float(max_cond), *(out[k] for k in _FIT_FIELDS))
+    return WlsFit(mask=np.broadcast_to(m, batch + (N,)), **{k: v.reshape(batch + v.shape[1:]) for k, v in out.items()})
 
 
 def wls_fit_any(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None, max_cond: float = MAX_COND,

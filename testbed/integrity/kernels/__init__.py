@@ -11,7 +11,7 @@ checked against the numpy or LAPACK formula it replaces
 * :mod:`.small` – small dense linear algebra (LU, products);
 * :mod:`.ranges` – the used-row gather and the range Gauss–Newton (GPS and vision rows);
 * :mod:`.geometry` – the weighted LS of an epoch: GᵀWG, its condition, J, A, (WS)ᵢᵢ, residuals,
-  SSE, slopes and the reason code (a gufunc);
+  SSE, slopes and the reason code (epochs side by side in vector lanes);
 * :mod:`.vision` – cosines and Σ_c, the cosine-rule solve and its products, the vision
   prior and the integrated solve's vision block;
 * :mod:`.calibration` – the GPS calibration of the vision ranges.
@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.integrity.kernels.calibration import calibrate_epochs
-from testbed.integrity.kernels.geometry import wls_epoch
+from testbed.integrity.kernels.geometry import wls_epochs, wls_one
 from testbed.integrity.kernels.ranges import gather_used_rows, range_gauss_newton, scatter_used_rows
 from testbed.integrity.kernels.small import _lu_solve
 from testbed.integrity.kernels.vision import (
@@ -41,7 +41,7 @@ from testbed.integrity.kernels.vision import (
 
 __all__ = ["calibrate_epochs", "compile_all", "cosine_gauss_newton", "cosine_rule_products",
            "cosines_and_covariance", "gather_used_rows", "kernel_input", "range_gauss_newton", "scatter_used_rows", "vision_prior",
-           "vision_rows", "wls_epoch", "_lu_solve"]
+           "vision_rows", "wls_epochs", "wls_one", "_lu_solve"]
 
 
 def kernel_input(a, shape: tuple, out_shape: tuple | None = None, dtype=np.float64) -> np.ndarray:
@@ -82,9 +82,9 @@ def compile_all() -> None:
                        w(1, 4), w(1, 4, 4))
     cosine_gauss_newton(r(1, 3), r(1, 3, 3), r(3), r(1, 3), r(1, 3, dt=b), r(1, 3, dt=b), 1, 1e-4, w(1, 3),
                         w(1, dt=i), w(1, dt=b), w(1, dt=b))
-    wls_epoch(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e10, w(1, 4, 4), w(1, 4, 5),
-              w(1, 5), w(1), w(1, 5), w(1), w(1, 5), w(1, 5), w(1), w(1), w(1, dt=i), w(1, dt=i),
-              w(1, dt=np.int8))
+    wls_epochs(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e10, w(1, 4, 4), w(1, 4, 5),
+               w(1, 5), w(1), w(1, 5), w(1), w(1, 5), w(1, 5), w(1), w(1), w(1, dt=i), w(1, dt=i),
+               w(1, dt=np.int8))
     cosine_rule_products(r(1, 3), r(1, 3), r(3), r(1, 3, dt=b), r(1, 3, dt=b), r(1, 3, 3), r(1, 3, 3), r(1, 3),
                          r(1, 3, 3), w(1, 3, 3), w(1, 3), w(1, 3, 3), w(1, dt=b), w(1), w(1, 3, 3), w(1), w(1), w(1),
                          w(1, dt=b))
