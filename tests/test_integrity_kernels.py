@@ -55,7 +55,7 @@ def test_compile_all_covers_the_monitors_so_nothing_compiles_mid_flight():
     from testbed.integrity.va_raim import va_raim
 
     kernels.compile_all()
-    names = ("gather_used_rows", "range_gauss_newton", "cosine_gauss_newton", "wls_epochs",
+    names = ("gather_used_rows", "range_gauss_newton_tiles", "cosine_gauss_newton", "wls_epochs",
              "cosine_rule_products", "vision_rows", "cosines_and_covariance", "calibrate_epochs")
 
     def compiled(n):
@@ -296,6 +296,61 @@ def test_the_side_by_side_fit_gives_the_one_epoch_fit_bit_for_bit(seed):
         for k, (a, b) in enumerate(zip(got, ref)):
             assert a.tobytes() == b.tobytes(), k
         assert (got[-1] == 0).sum() > 2 * TILE and len(set(got[-1].tolist())) == 5  # the common path and every reason
+
+
+def _range_problem(rng, P, NG=8, L=3):
+    """Stacked GPS and vision range rows around random truths, with every way an epoch can go wrong."""
+    x_true = rng.normal(scale=500.0, size=(P, 4))
+    u = rng.normal(size=(P, NG, 3))
+    sats = 2.2e7 * u / np.linalg.norm(u, axis=-1, keepdims=True)
+    sats[..., 2] = np.abs(sats[..., 2])
+    off_g = rng.normal(scale=2.0, size=(P, 3))
+    z_g = np.linalg.norm(sats - (x_true[:, None, :3] + off_g[:, None]), axis=-1) + x_true[:, None, 3]
+    z_g += rng.normal(size=z_g.shape)
+    w_g = rng.uniform(0.2, 1.0, (P, NG))
+    mask_g = rng.random((P, NG)) > 0.15
+    lm = np.array([[6000.0, 0.0, -3000.0], [6100.0, 80.0, -3000.0], [6050.0, -90.0, -3010.0]])[:L]
+    off_v = rng.normal(scale=3.0, size=(P, 3))
+    m_true = np.linalg.norm(lm - (x_true[:, None, :3] + off_v[:, None]), axis=-1)
+    Tm = np.broadcast_to(np.eye(L) + 0.1 * rng.normal(size=(L, L)), (P, L, L)).copy()
+    z_v = np.einsum("prl,pl->pr", Tm, m_true + rng.normal(scale=5.0, size=(P, L)))
+    X = rng.normal(size=(P, L, L))
+    W_v = np.linalg.inv(X @ np.swapaxes(X, -1, -2) + 0.5 * np.eye(L)) / 25.0
+    mask_v = rng.random((P, L)) > 0.15
+    x0 = x_true + rng.normal(scale=30.0, size=(P, 4))
+    x0[0] = np.nan  # no start
+    mask_g[1] = False  # vision rows only: the clock is unobservable (singular)
+    w_g[2, :3] = 0.0  # zero weights
+    W_v[3, 0, 1] = W_v[3, 1, 0] = np.nan  # a NaN weight between used rows
+    z_g[4, 0] = np.nan  # a NaN pseudorange on a used row
+    mask_v[5] = False
+    x0[6] = [1e9, 1e9, 1e9, 0.0]  # far off: many steps
+    return (sats, off_g, z_g, w_g, mask_g, lm, off_v, Tm, z_v, W_v, mask_v, x0)
+
+
+@pytest.mark.parametrize("vision", [True, False])
+def test_the_side_by_side_gauss_newton_gives_the_per_epoch_one_bit_for_bit(vision):
+    """range_gauss_newton_tiles (epochs in vector lanes, stragglers finished alone) against the per-epoch kernel,
+    byte for byte, on epochs that converge in 2, 3 or more steps, fail or never start, over several tiles."""
+    from testbed.integrity.kernels.ranges import TILE
+
+    P = 3 * TILE + 5
+    args = list(_range_problem(np.random.default_rng(21), P))
+    if not vision:
+        args[5:11] = [np.zeros((1, 3)), np.zeros((P, 3)), np.zeros((P, 0, 1)), np.zeros((P, 0)), np.zeros((P, 0, 0)),
+                      np.zeros((P, 0), bool)]
+    Nr = args[2].shape[1] + args[8].shape[1]
+
+    def outs():
+        return [np.full((P, 4), 7.0), np.zeros(P, bool), np.full(P, 7), np.full((P, Nr), 7.0), np.full((P, Nr, 4), 7.0)]
+
+    ref, got = outs(), outs()
+    kernels.range_gauss_newton(*args, 8, 1e-3, *ref)
+    kernels.range_gauss_newton_tiles(*args, 8, 1e-3, *got)
+    for k, (a, b) in enumerate(zip(got, ref)):
+        assert a.tobytes() == b.tobytes(), k
+    steps = ref[2]
+    assert ref[1].mean() > 0.9 and not ref[1][:2].any() and steps.max() >= 4 and {0, 2, 3} <= set(steps.tolist())
 
 
 def test_wls_fit_broadcasts_over_batch_axes_and_checks_its_weights():

@@ -549,7 +549,8 @@ def _solution_at(x: NDArray, geom: WlsGeometry, converged: NDArray, frozen: NDAr
 
 def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, vision: tuple | None = None
                         ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
-    """Iterated WLS of stacked range rows, each epoch stopping on its own (compiled, :mod:`.kernels`).
+    """Iterated WLS of stacked range rows, each epoch stopping on its own (compiled, :mod:`.kernels`; epochs
+    side by side in vector lanes, the per-epoch kernel's numbers bit for bit).
 
     gps = ``(anchor (..., NG, 3), antenna offset (..., 3), z, w, mask (..., NG))``;
     vision = ``(landmarks (L, 3), camera offset (..., 3), Tm (..., R, L), z (..., R),
@@ -579,7 +580,7 @@ def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, visi
     conv = np.empty(P, bool)
     iters = np.empty(P, np.int64)
     h, G = np.empty((P, Nr)), np.empty((P, Nr, 4))
-    kernels.range_gauss_newton(flat(ag, (NG, 3)), flat(og, (3,)), flat(zg, (NG,)), flat(wg, (NG,)),
+    kernels.range_gauss_newton_tiles(flat(ag, (NG, 3)), flat(og, (3,)), flat(zg, (NG,)), flat(wg, (NG,)),
                                flat(mg, (NG,), np.bool_), av, ov, Tm, zv, Wv, mv, flat(x0, (4,)),
                                n_iter, tol_m, x, conv, iters, h, G)
     return (x.reshape(batch + (4,)), conv.reshape(batch), iters.reshape(batch), h.reshape(batch + (Nr,)),

@@ -9,7 +9,8 @@ checked against the numpy or LAPACK formula it replaces
 (``tests/test_integrity_kernels.py``).
 
 * :mod:`.small` – small dense linear algebra (LU, products);
-* :mod:`.ranges` – the used-row gather and the range Gauss–Newton (GPS and vision rows);
+* :mod:`.ranges` – the used-row gather and the range Gauss–Newton (GPS and vision rows; per epoch, and
+  epochs side by side in vector lanes);
 * :mod:`.geometry` – the weighted LS of an epoch: GᵀWG, its condition, J, A, (WS)ᵢᵢ, residuals,
   SSE, slopes and the reason code (epochs side by side in vector lanes);
 * :mod:`.vision` – cosines and Σ_c, the cosine-rule solve and its products, the vision
@@ -29,7 +30,12 @@ import numpy as np
 
 from testbed.integrity.kernels.calibration import calibrate_epochs
 from testbed.integrity.kernels.geometry import wls_epochs, wls_one
-from testbed.integrity.kernels.ranges import gather_used_rows, range_gauss_newton, scatter_used_rows
+from testbed.integrity.kernels.ranges import (
+    gather_used_rows,
+    range_gauss_newton,
+    range_gauss_newton_tiles,
+    scatter_used_rows,
+)
 from testbed.integrity.kernels.small import _lu_solve
 from testbed.integrity.kernels.vision import (
     cosine_gauss_newton,
@@ -40,8 +46,9 @@ from testbed.integrity.kernels.vision import (
 )
 
 __all__ = ["calibrate_epochs", "compile_all", "cosine_gauss_newton", "cosine_rule_products",
-           "cosines_and_covariance", "gather_used_rows", "kernel_input", "range_gauss_newton", "scatter_used_rows", "vision_prior",
-           "vision_rows", "wls_epochs", "wls_one", "_lu_solve"]
+           "cosines_and_covariance", "gather_used_rows", "kernel_input", "range_gauss_newton",
+           "range_gauss_newton_tiles", "scatter_used_rows", "vision_prior", "vision_rows", "wls_epochs",
+           "wls_one", "_lu_solve"]
 
 
 def kernel_input(a, shape: tuple, out_shape: tuple | None = None, dtype=np.float64) -> np.ndarray:
@@ -77,7 +84,7 @@ def compile_all() -> None:
     gather_used_rows(r(1, 4, dt=b), r(1, 4), r(1, 4), r(1, 4, 3), r(3, 3), r(3), w(1, 3, dt=i), w(1, 3, dt=b), w(1, 3), w(1, 3),
                      w(1, 3, 3))
     scatter_used_rows(r(1, 3), r(1, 2, dt=i), r(1, 2, dt=b), w(1, 5))
-    range_gauss_newton(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
+    range_gauss_newton_tiles(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
                        r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
                        w(1, 4), w(1, 4, 4))
     cosine_gauss_newton(r(1, 3), r(1, 3, 3), r(3), r(1, 3), r(1, 3, dt=b), r(1, 3, dt=b), 1, 1e-4, w(1, 3),

@@ -113,6 +113,64 @@ def _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _gn_steps(p, x, steps, n_iter, tol_m, anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z_v, W_v, mask_v,
+              Nm, g, hv, Gv, h, G, dz):
+    """Gauss–Newton steps of epoch ``p`` from ``x`` (updated in place), ``steps`` already taken, until its
+    step is below ``tol_m``, its normal matrix is singular or it has taken ``n_iter``: (converged, steps)."""
+    NG = z_g.shape[1]
+    R = z_v.shape[1]
+    Nr = NG + R
+    conv = False
+    while steps < n_iter:
+        _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, Gv, h, G)
+        for n in range(Nr):
+            used = mask_g[p, n] if n < NG else mask_v[p, n - NG]
+            zn = z_g[p, n] if n < NG else z_v[p, n - NG]
+            dz[n] = zn - h[n] if used else 0.0
+            if not np.isfinite(dz[n]):
+                dz[n] = 0.0
+            for c in range(4):
+                if not np.isfinite(G[n, c]):
+                    G[n, c] = 0.0
+        Nm[:] = 0.0
+        g[:] = 0.0
+        for n in range(NG):
+            w = w_g[p, n]
+            if not mask_g[p, n] or w == 0.0:
+                continue
+            for i in range(4):
+                wgi = w * G[n, i]
+                g[i, 0] += wgi * dz[n]
+                for j in range(i, 4):
+                    Nm[i, j] += wgi * G[n, j]
+        for r in range(R):
+            if not mask_v[p, r]:
+                continue
+            for s in range(R):
+                w = W_v[p, r, s]
+                if not mask_v[p, s] or w == 0.0 or not np.isfinite(w):
+                    continue
+                for i in range(4):
+                    wgi = w * G[NG + r, i]
+                    g[i, 0] += wgi * dz[NG + s]
+                    for j in range(i, 4):
+                        Nm[i, j] += wgi * G[NG + s, j]
+        for i in range(4):
+            for j in range(i):
+                Nm[i, j] = Nm[j, i]
+        if not _lu_solve(Nm, g):
+            conv = False
+            break
+        steps += 1
+        for i in range(4):
+            x[i] += g[i, 0]
+        conv = np.sqrt(g[0, 0] ** 2 + g[1, 0] ** 2 + g[2, 0] ** 2) < tol_m
+        if conv:
+            break
+    return conv, steps
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def range_gauss_newton(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z_v, W_v, mask_v,
                        x0, n_iter, tol_m, x_out, conv_out, iter_out, h_out, G_out):
     """Iterated WLS of stacked range rows, one epoch at a time.
@@ -146,55 +204,241 @@ def range_gauss_newton(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z
     x = np.empty(4)
     for p in range(P):
         x[:] = x0[p]
-        conv = False
-        steps = 0
-        while steps < n_iter:
-            _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, Gv, h, G)
-            for n in range(Nr):
-                used = mask_g[p, n] if n < NG else mask_v[p, n - NG]
-                zn = z_g[p, n] if n < NG else z_v[p, n - NG]
-                dz[n] = zn - h[n] if used else 0.0
-                if not np.isfinite(dz[n]):
-                    dz[n] = 0.0
-                for c in range(4):
-                    if not np.isfinite(G[n, c]):
-                        G[n, c] = 0.0
-            Nm[:] = 0.0
-            g[:] = 0.0
-            for n in range(NG):
-                w = w_g[p, n]
-                if not mask_g[p, n] or w == 0.0:
-                    continue
-                for i in range(4):
-                    wgi = w * G[n, i]
-                    g[i, 0] += wgi * dz[n]
-                    for j in range(i, 4):
-                        Nm[i, j] += wgi * G[n, j]
-            for r in range(R):
-                if not mask_v[p, r]:
-                    continue
-                for s in range(R):
-                    w = W_v[p, r, s]
-                    if not mask_v[p, s] or w == 0.0 or not np.isfinite(w):
-                        continue
-                    for i in range(4):
-                        wgi = w * G[NG + r, i]
-                        g[i, 0] += wgi * dz[NG + s]
-                        for j in range(i, 4):
-                            Nm[i, j] += wgi * G[NG + s, j]
-            for i in range(4):
-                for j in range(i):
-                    Nm[i, j] = Nm[j, i]
-            if not _lu_solve(Nm, g):
-                conv = False
-                break
-            steps += 1
-            for i in range(4):
-                x[i] += g[i, 0]
-            conv = np.sqrt(g[0, 0] ** 2 + g[1, 0] ** 2 + g[2, 0] ** 2) < tol_m
-            if conv:
-                break
+        conv, steps = _gn_steps(p, x, 0, n_iter, tol_m, anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z_v, W_v,
+                                mask_v, Nm, g, hv, Gv, h, G, dz)
         x_out[p] = x
         conv_out[p] = conv
         iter_out[p] = steps
         _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, Gv, h_out[p], G_out[p])
+
+
+#: epochs iterated side by side by :func:`range_gauss_newton_tiles`
+TILE = 64
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tile_rows(n, x, ag, og, mg, av, ov, Tm, mv, hv, Gv, h, G):
+    """:func:`_range_rows` for ``n`` gathered epochs side by side (last axis), the same arithmetic.
+
+    ag (NG, 3, T), og (3, T), mg (NG, T); av (L, 3); ov (3, T), Tm (R, L, T), mv (R, T);
+    x (4, T). Writes h (NG + R, T) and G (NG + R, 4, T); hv (L, T), Gv (L, 3, T) scratch.
+    """
+    NG = ag.shape[0]
+    R = Tm.shape[0]
+    L = av.shape[0]
+    for k in range(NG):
+        for q in range(n):
+            d0 = ag[k, 0, q] - (x[0, q] + og[0, q])
+            d1 = ag[k, 1, q] - (x[1, q] + og[1, q])
+            d2 = ag[k, 2, q] - (x[2, q] + og[2, q])
+            rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            u = mg[k, q]
+            h[k, q] = rng + x[3, q] if u else 0.0
+            G[k, 0, q] = -d0 / rng if u else 0.0
+            G[k, 1, q] = -d1 / rng if u else 0.0
+            G[k, 2, q] = -d2 / rng if u else 0.0
+            G[k, 3, q] = 1.0 if u else 0.0
+    if R == 0:
+        return
+    for l in range(L):
+        for q in range(n):
+            d0 = av[l, 0] - (x[0, q] + ov[0, q])
+            d1 = av[l, 1] - (x[1, q] + ov[1, q])
+            d2 = av[l, 2] - (x[2, q] + ov[2, q])
+            rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            hv[l, q] = rng
+            Gv[l, 0, q] = -d0 / rng
+            Gv[l, 1, q] = -d1 / rng
+            Gv[l, 2, q] = -d2 / rng
+    for r in range(R):
+        k = NG + r
+        for q in range(n):
+            h[k, q] = 0.0
+            G[k, 0, q] = 0.0
+            G[k, 1, q] = 0.0
+            G[k, 2, q] = 0.0
+            G[k, 3, q] = 0.0
+        for l in range(L):
+            for q in range(n):
+                t = Tm[r, l, q]
+                if mv[r, q] and t != 0.0:
+                    h[k, q] += t * hv[l, q]
+                    G[k, 0, q] += t * Gv[l, 0, q]
+                    G[k, 1, q] += t * Gv[l, 1, q]
+                    G[k, 2, q] += t * Gv[l, 2, q]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tile_normal(n, h, G, zg, wg, zv, Wv, dz, Nm, g):
+    """The normal equations of ``n`` epochs side by side at the rows h, G (:func:`range_gauss_newton`'s
+    arithmetic: non-finite residuals and partials count as zero; weights of unused rows are zero)."""
+    NG = zg.shape[0]
+    R = zv.shape[0]
+    Nr = NG + R
+    for k in range(Nr):
+        for q in range(n):
+            zk = zg[k, q] if k < NG else zv[k - NG, q]
+            e = zk - h[k, q]
+            dz[k, q] = e if np.isfinite(e) else 0.0
+        for c in range(4):
+            for q in range(n):
+                gc = G[k, c, q]
+                G[k, c, q] = gc if np.isfinite(gc) else 0.0
+    Nm[:, :, :n] = 0.0
+    g[:, :n] = 0.0
+    for k in range(NG):  # each sum in the per-epoch kernel's order (the epochs innermost)
+        for i in range(4):
+            for q in range(n):
+                g[i, q] += (wg[k, q] * G[k, i, q]) * dz[k, q]
+            for j in range(i, 4):
+                for q in range(n):
+                    Nm[i, j, q] += (wg[k, q] * G[k, i, q]) * G[k, j, q]
+    for r in range(R):
+        for s in range(R):
+            for i in range(4):
+                for q in range(n):
+                    g[i, q] += (Wv[r, s, q] * G[NG + r, i, q]) * dz[NG + s, q]
+                for j in range(i, 4):
+                    for q in range(n):
+                        Nm[i, j, q] += (Wv[r, s, q] * G[NG + r, i, q]) * G[NG + s, j, q]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tile_lu_solve(n, A, B, ok):
+    """:func:`~testbed.integrity.kernels.small._lu_solve` of ``n`` systems side by side (A (K, K, T), one
+    right-hand side B (K, T)), its operations and pivots per system, as selects: ``ok`` says which it solves."""
+    K = A.shape[0]
+    big, piv = np.empty(n), np.empty(n, np.int64)
+    for q in range(n):
+        ok[q] = True
+    for j in range(K):
+        for q in range(n):
+            big[q] = abs(A[j, j, q])
+            piv[q] = j
+        for i in range(j + 1, K):
+            for q in range(n):
+                a = abs(A[i, j, q])
+                up = a > big[q]
+                big[q] = a if up else big[q]
+                piv[q] = i if up else piv[q]
+        for q in range(n):
+            ok[q] = ok[q] and big[q] > 0.0  # also catches NaN
+        for q in range(n):
+            i = piv[q]
+            if i != j:
+                for c in range(K):
+                    A[j, c, q], A[i, c, q] = A[i, c, q], A[j, c, q]
+                B[j, q], B[i, q] = B[i, q], B[j, q]
+        for i in range(j + 1, K):
+            for q in range(n):
+                f = A[i, j, q] / A[j, j, q]
+                for c in range(j + 1, K):
+                    A[i, c, q] = A[i, c, q] - f * A[j, c, q] if f != 0.0 else A[i, c, q]
+                B[i, q] = B[i, q] - f * B[j, q] if f != 0.0 else B[i, q]
+    for i in range(K - 1, -1, -1):
+        for q in range(n):
+            s = B[i, q]
+            for c in range(i + 1, K):
+                s -= A[i, c, q] * B[c, q]
+            s = s / A[i, i, q]
+            ok[q] = ok[q] and np.isfinite(s)
+            B[i, q] = s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def range_gauss_newton_tiles(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z_v, W_v, mask_v,
+                             x0, n_iter, tol_m, x_out, conv_out, iter_out, h_out, G_out):
+    """:func:`range_gauss_newton`, epochs ``TILE`` at a time side by side: the same numbers bit for bit.
+
+    Each epoch keeps its own iteration: it stops, as there, when its step is below ``tol_m`` or its
+    normal matrix is singular, and later passes leave it alone. An unused row or pair of rows
+    enters with a zero weight, and adding an exact zero to a sum that starts at +0 changes no bit.
+    """
+    P, NG = z_g.shape
+    R = z_v.shape[1]
+    L = anchor_v.shape[0]
+    Nr = NG + R
+    ag, og, zg, wg, mg = (np.empty((NG, 3, TILE)), np.empty((3, TILE)), np.empty((NG, TILE)), np.empty((NG, TILE)),
+                          np.empty((NG, TILE), np.bool_))
+    ov, Tt, zv, Wt, mv = (np.empty((3, TILE)), np.empty((R, L, TILE)), np.empty((R, TILE)), np.empty((R, R, TILE)),
+                          np.empty((R, TILE), np.bool_))
+    x, h, G, dz = np.empty((4, TILE)), np.empty((Nr, TILE)), np.empty((Nr, 4, TILE)), np.empty((Nr, TILE))
+    hv, Gv = np.empty((L, TILE)), np.empty((L, 3, TILE))
+    Nm, g = np.empty((4, 4, TILE)), np.empty((4, TILE))
+    active, solved = np.empty(TILE, np.bool_), np.empty(TILE, np.bool_)
+    x1, Nm1, g1, hv1, Gv1 = np.empty(4), np.empty((4, 4)), np.empty((4, 1)), np.empty(L), np.zeros((L, 4))
+    h1, G1, dz1 = np.empty(Nr), np.empty((Nr, 4)), np.empty(Nr)
+    conv = np.empty(TILE, np.bool_)
+    steps = np.empty(TILE, np.int64)
+    for p0 in range(0, P, TILE):
+        n = min(TILE, P - p0)
+        for q in range(n):  # -- gather; a skipped row or pair gets weight 0
+            p = p0 + q
+            for k in range(NG):
+                u = mask_g[p, k]
+                mg[k, q] = u
+                zg[k, q] = z_g[p, k]
+                wg[k, q] = w_g[p, k] if u else 0.0
+                for c in range(3):
+                    ag[k, c, q] = anchor_g[p, k, c]
+            for c in range(3):
+                og[c, q] = off_g[p, c]
+                ov[c, q] = off_v[p, c]
+            for r in range(R):
+                mv[r, q] = mask_v[p, r]
+                zv[r, q] = z_v[p, r]
+                for l in range(L):
+                    Tt[r, l, q] = Tm[p, r, l]
+                for s in range(R):
+                    w = W_v[p, r, s]
+                    use = mask_v[p, r] and mask_v[p, s] and w != 0.0 and np.isfinite(w)
+                    Wt[r, s, q] = w if use else 0.0
+            for c in range(4):
+                x[c, q] = x0[p, c]
+            active[q] = True
+            conv[q] = False
+            steps[q] = 0
+        for it in range(n_iter):
+            _tile_rows(n, x, ag, og, mg, anchor_v, ov, Tt, mv, hv, Gv, h, G)
+            _tile_normal(n, h, G, zg, wg, zv, Wt, dz, Nm, g)
+            for i in range(4):
+                for j in range(i):
+                    for q in range(n):
+                        Nm[i, j, q] = Nm[j, i, q]
+            _tile_lu_solve(n, Nm, g, solved)
+            more = 0
+            for q in range(n):
+                if not active[q]:
+                    continue
+                if not solved[q]:
+                    conv[q] = False
+                    active[q] = False
+                    continue
+                steps[q] += 1
+                for i in range(4):
+                    x[i, q] += g[i, q]
+                conv[q] = np.sqrt(g[0, q] ** 2 + g[1, q] ** 2 + g[2, q] ** 2) < tol_m
+                active[q] = not conv[q]
+                more += active[q]
+            if more == 0:
+                break
+            if 8 * more <= n:  # a few epochs left: each finishes on its own (the same steps)
+                for q in range(n):
+                    if active[q]:
+                        x1[:] = x[:, q]
+                        conv[q], steps[q] = _gn_steps(p0 + q, x1, steps[q], n_iter, tol_m, anchor_g, off_g, z_g, w_g,
+                                                      mask_g, anchor_v, off_v, Tm, z_v, W_v, mask_v, Nm1, g1, hv1, Gv1,
+                                                      h1, G1, dz1)
+                        x[:, q] = x1
+                break
+        _tile_rows(n, x, ag, og, mg, anchor_v, ov, Tt, mv, hv, Gv, h, G)
+        for q in range(n):  # -- scatter
+            p = p0 + q
+            for c in range(4):
+                x_out[p, c] = x[c, q]
+            conv_out[p] = conv[q]
+            iter_out[p] = steps[q]
+            for k in range(Nr):
+                h_out[p, k] = h[k, q]
+                for c in range(4):
+                    G_out[p, k, c] = G[k, c, q]
