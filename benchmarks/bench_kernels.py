@@ -1,0 +1,112 @@
+"""Benchmark: VA-RAIM's two solve kernels, epochs side by side against one epoch at a time.
+
+Inputs: one draw block (100 sorties x 61 epochs) of the VA-RAIM reproduction's where-vision-pays
+experiment (f = 1e4 px, 300 m triangle), captured as VA-RAIM passes them to its integrated
+(GPS + vision) solve. Times, as the median of ``--repeat`` calls:
+
+* the weighted fit (``kernels.wls_epochs``) against ``kernels.wls_one`` called on each epoch in a
+  compiled loop (the work of the per-epoch gufunc it replaced);
+* the range Gauss-Newton (``kernels.range_gauss_newton_tiles``) against the per-epoch kernel
+  (``kernels.range_gauss_newton``);
+
+and checks that each pair gives the same bytes.
+
+Run:  python benchmarks/bench_kernels.py [--repeat 25]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from timing import median_time  # noqa: E402
+
+from testbed.integrity.kernels.geometry import wls_one  # noqa: E402
+
+
+@njit(cache=True, nogil=True)
+def _one_at_a_time(G, h, z, wd, Wb, mask, max_cond, J, A, ws, cond, r, sse, hslope, vslope, hmax, vmax, n_used,
+                   n_states, reason):
+    K = G.shape[2]
+    for p in range(G.shape[0]):  # scratch per epoch, as the gufunc allocated it
+        wls_one(G[p], h[p], z[p], wd[p], Wb[p], mask[p], max_cond, J[p], A[p], ws[p], cond[p:p + 1], r[p],
+                sse[p:p + 1], hslope[p], vslope[p], hmax[p:p + 1], vmax[p:p + 1], n_used[p:p + 1],
+                n_states[p:p + 1], reason[p:p + 1], np.empty((4, K, K)), np.empty((3, K)), np.empty(K))
+
+
+def captured_inputs():
+    """The integrated solve's Gauss-Newton and fit inputs of one where-vision-pays block, flat (P, ...)."""
+    from testbed.campaign.reproduce import loaded_experiments
+    from testbed.campaign.runner import cell_context, run_block
+    from testbed.campaign.spec import expand_cells
+    from testbed.integrity import kernels
+
+    got = {}
+    gn, fit = kernels.range_gauss_newton_tiles, kernels.wls_epochs
+
+    def spy_gn(*a):
+        if a[9].shape[1] > 0:  # the integrated solve (vision rows), not step 1
+            got["gn"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:14])
+        return gn(*a)
+
+    def spy_fit(*a):
+        if a[4].shape[1] > 0:
+            got["fit"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:7])
+        return fit(*a)
+
+    kernels.range_gauss_newton_tiles, kernels.wls_epochs = spy_gn, spy_fit
+    try:
+        le = loaded_experiments(200)["where-vision-pays"]
+        cell = next(c for c in expand_cells(le) if c.params["focal_px"] == 1e4 and c.params["landmark_set"] == 1
+                    and c.params["fault_size"] == 0.0)
+        run_block(cell_context(cell, le.spec), le.spec, 0)
+    finally:
+        kernels.range_gauss_newton_tiles, kernels.wls_epochs = gn, fit
+    return got["gn"], got["fit"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeat", type=int, default=25)
+    args = ap.parse_args()
+    from testbed.integrity import kernels
+
+    gn_in, fit_in = captured_inputs()
+    P = gn_in[0].shape[0]
+    NG, R = gn_in[2].shape[1], gn_in[8].shape[1]
+
+    def gn_out():
+        return [np.empty((P, 4)), np.empty(P, bool), np.empty(P, np.int64), np.empty((P, NG + R)),
+                np.empty((P, NG + R, 4))]
+
+    N = fit_in[0].shape[1]
+
+    def fit_out():
+        f = lambda *s: np.empty((P,) + s)  # noqa: E731
+        return [f(4, 4), f(4, N), f(N), f(), f(N), f(), f(N), f(N), f(), f(), np.empty(P, np.int64),
+                np.empty(P, np.int64), np.empty(P, np.int8)]
+
+    rows = []
+    for name, new, old, inputs, outs in (
+            ("weighted fit", kernels.wls_epochs, _one_at_a_time, fit_in, fit_out),
+            ("range Gauss-Newton", kernels.range_gauss_newton_tiles, kernels.range_gauss_newton, gn_in, gn_out)):
+        a, b = outs(), outs()
+        new(*inputs, *a)
+        old(*inputs, *b)
+        assert all(x.tobytes() == y.tobytes() for x, y in zip(a, b)), f"{name}: the two kernels disagree"
+        t_new = median_time(lambda: new(*inputs, *a), args.repeat)
+        t_old = median_time(lambda: old(*inputs, *b), args.repeat)
+        rows.append((name, t_old / P * 1e9, t_new / P * 1e9))
+    print(f"VA-RAIM's integrated solve, {P} epochs (one where-vision-pays block), one thread, median of {args.repeat}:")
+    for name, old_ns, new_ns in rows:
+        print(f"  {name:20s} one epoch at a time {old_ns:6.0f} ns/epoch, side by side {new_ns:6.0f} ns/epoch: "
+              f"{old_ns / new_ns:.2f}x (the same bytes)")
+
+
+if __name__ == "__main__":
+    main()
