@@ -1,4 +1,4 @@
-"""The test oracle for the weighted-LS kernel (:func:`testbed.integrity.kernels.wls_epoch`).
+"""The test oracle for the weighted-LS kernel (:func:`testbed.integrity.kernels.wls_epochs`).
 
 Textbook numpy/LAPACK, one epoch at a time, written from INTEGRITY_MATH.md §4 and
 seed 000 eq. 20-26 without looking at the kernel: the used rows are selected (not
