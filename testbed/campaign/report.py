@@ -81,23 +81,19 @@ def _load(out_dir: Path):
         raise ConfigError(out_dir, [f"{n}: missing (the campaign is incomplete: complete it with testbed campaign "
                                     f"SPEC --out {out_dir} --resume)" for n in missing])
 
+    def readable(path: Path, read):
+        try:
+            return read(path)
+        except (OSError, pa.ArrowException) as exc:
+            raise ConfigError(path, [f"not a readable Parquet table ({exc}); run the campaign again with --resume: "
+                                     "its stored chunks are consolidated again"]) from None
+
     def table(name: str):
         p = out_dir / name
-        if not p.exists():
-            return None
-        try:
-            return pq.read_table(p)
-        except (OSError, pa.ArrowException) as exc:
-            raise ConfigError(p, [f"not a readable Parquet table ({exc}); run the campaign again with --resume: "
-                                 "its stored chunks are consolidated again"]) from None
+        return readable(p, pq.read_table) if p.exists() else None
 
     cells = table("cells.parquet").to_pylist()
-    try:  # numpy columns, read one at a time: a paper-scale campaign's trials are ~10⁷ rows
-        trials = read_columns(out_dir / "trials.parquet")
-    except (OSError, pa.ArrowException) as exc:
-        raise ConfigError(out_dir / "trials.parquet", [f"not a readable Parquet table ({exc}); run the campaign "
-                                                       "again with --resume: its stored chunks are consolidated "
-                                                       "again"]) from None
+    trials = readable(out_dir / "trials.parquet", read_columns)  # numpy columns, one at a time: ~10⁷ rows at paper scale
     return man, cells, trials, table("epochs.parquet"), table("stanford_hist.parquet")
 
 
