@@ -1,4 +1,4 @@
-"""Benchmark: VA-RAIM's two solve kernels, epochs side by side against one epoch at a time.
+"""Benchmark: VA-RAIM's three solve kernels, epochs side by side against one epoch at a time.
 
 Inputs: one draw block (100 sorties x 61 epochs) of the VA-RAIM reproduction's where-vision-pays
 experiment (f = 1e4 px, 300 m triangle), captured as VA-RAIM passes them to its integrated
@@ -8,6 +8,8 @@ experiment (f = 1e4 px, 300 m triangle), captured as VA-RAIM passes them to its 
   compiled loop (the work of the per-epoch gufunc it replaced);
 * the range Gauss-Newton (``kernels.range_gauss_newton_tiles``) against the per-epoch kernel
   (``kernels.range_gauss_newton``);
+* the cosine-rule Gauss-Newton of the vision ranges (``kernels.cosine_gauss_newton_tiles``) against
+  the per-epoch kernel (``kernels.cosine_gauss_newton``);
 
 and checks that each pair gives the same bytes.
 
@@ -40,14 +42,15 @@ def _one_at_a_time(G, h, z, wd, Wb, mask, max_cond, J, A, ws, cond, r, sse, hslo
 
 
 def captured_inputs():
-    """The integrated solve's Gauss-Newton and fit inputs of one where-vision-pays block, flat (P, ...)."""
+    """The integrated solve's Gauss-Newton and fit inputs and the cosine solve's, one where-vision-pays block,
+    flat (P, ...)."""
     from testbed.campaign.reproduce import loaded_experiments
     from testbed.campaign.runner import cell_context, run_block
     from testbed.campaign.spec import expand_cells
     from testbed.integrity import kernels
 
     got = {}
-    gn, fit = kernels.range_gauss_newton_tiles, kernels.wls_epochs
+    gn, fit, cos = kernels.range_gauss_newton_tiles, kernels.wls_epochs, kernels.cosine_gauss_newton_tiles
 
     def spy_gn(*a):
         if a[9].shape[1] > 0:  # the integrated solve (vision rows), not step 1
@@ -59,15 +62,19 @@ def captured_inputs():
             got["fit"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:7])
         return fit(*a)
 
-    kernels.range_gauss_newton_tiles, kernels.wls_epochs = spy_gn, spy_fit
+    def spy_cos(*a):
+        got["cos"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:8])
+        return cos(*a)
+
+    kernels.range_gauss_newton_tiles, kernels.wls_epochs, kernels.cosine_gauss_newton_tiles = spy_gn, spy_fit, spy_cos
     try:
         le = loaded_experiments(200)["where-vision-pays"]
         cell = next(c for c in expand_cells(le) if c.params["focal_px"] == 1e4 and c.params["landmark_set"] == 1
                     and c.params["fault_size"] == 0.0)
         run_block(cell_context(cell, le.spec), le.spec, 0)
     finally:
-        kernels.range_gauss_newton_tiles, kernels.wls_epochs = gn, fit
-    return got["gn"], got["fit"]
+        kernels.range_gauss_newton_tiles, kernels.wls_epochs, kernels.cosine_gauss_newton_tiles = gn, fit, cos
+    return got["gn"], got["fit"], got["cos"]
 
 
 def main() -> None:
@@ -76,7 +83,7 @@ def main() -> None:
     args = ap.parse_args()
     from testbed.integrity import kernels
 
-    gn_in, fit_in = captured_inputs()
+    gn_in, fit_in, cos_in = captured_inputs()
     P = gn_in[0].shape[0]
     NG, R = gn_in[2].shape[1], gn_in[8].shape[1]
 
@@ -91,10 +98,16 @@ def main() -> None:
         return [f(4, 4), f(4, N), f(N), f(), f(N), f(), f(N), f(N), f(), f(), np.empty(P, np.int64),
                 np.empty(P, np.int64), np.empty(P, np.int8)]
 
+    L = cos_in[3].shape[1]
+
+    def cos_out():
+        return [np.empty((P, L)), np.empty(P, np.int64), np.empty(P, bool), np.empty(P, bool)]
+
     rows = []
     for name, new, old, inputs, outs in (
             ("weighted fit", kernels.wls_epochs, _one_at_a_time, fit_in, fit_out),
-            ("range Gauss-Newton", kernels.range_gauss_newton_tiles, kernels.range_gauss_newton, gn_in, gn_out)):
+            ("range Gauss-Newton", kernels.range_gauss_newton_tiles, kernels.range_gauss_newton, gn_in, gn_out),
+            ("cosine Gauss-Newton", kernels.cosine_gauss_newton_tiles, kernels.cosine_gauss_newton, cos_in, cos_out)):
         a, b = outs(), outs()
         new(*inputs, *a)
         old(*inputs, *b)
@@ -102,7 +115,7 @@ def main() -> None:
         t_new = median_time(lambda: new(*inputs, *a), args.repeat)
         t_old = median_time(lambda: old(*inputs, *b), args.repeat)
         rows.append((name, t_old / P * 1e9, t_new / P * 1e9))
-    print(f"VA-RAIM's integrated solve, {P} epochs (one where-vision-pays block), one thread, median of {args.repeat}:")
+    print(f"VA-RAIM's solves, {P} epochs (one where-vision-pays block), one thread, median of {args.repeat}:")
     for name, old_ns, new_ns in rows:
         print(f"  {name:20s} one epoch at a time {old_ns:6.0f} ns/epoch, side by side {new_ns:6.0f} ns/epoch: "
               f"{old_ns / new_ns:.2f}x (the same bytes)")

@@ -55,7 +55,7 @@ def test_compile_all_covers_the_monitors_so_nothing_compiles_mid_flight():
     from testbed.integrity.va_raim import va_raim
 
     kernels.compile_all()
-    names = ("gather_used_rows", "range_gauss_newton_tiles", "cosine_gauss_newton", "wls_epochs",
+    names = ("gather_used_rows", "range_gauss_newton_tiles", "cosine_gauss_newton_tiles", "wls_epochs",
              "cosine_rule_products", "vision_rows", "cosines_and_covariance", "calibrate_epochs")
 
     def compiled(n):
@@ -351,6 +351,38 @@ def test_the_side_by_side_gauss_newton_gives_the_per_epoch_one_bit_for_bit(visio
         assert a.tobytes() == b.tobytes(), k
     steps = ref[2]
     assert ref[1].mean() > 0.9 and not ref[1][:2].any() and steps.max() >= 4 and {0, 2, 3} <= set(steps.tolist())
+
+
+@pytest.mark.parametrize("L", [3, 4])
+def test_the_side_by_side_cosine_solve_gives_the_per_epoch_one_bit_for_bit(L):
+    """cosine_gauss_newton_tiles against the per-epoch kernel, byte for byte: landmarks and pairs left out,
+    far and NaN starts, NaN cosines, epochs with no landmark, over several tiles."""
+    from testbed.integrity.kernels.vision import TILE
+
+    rng = np.random.default_rng(31 + L)
+    P = 3 * TILE + 9
+    lm = np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [50.0, 86.6, 0.0], [40.0, 30.0, 25.0]])[:L]
+    I, J = np.triu_indices(L, 1)
+    cam = np.column_stack([rng.uniform(-6000, -3000, P), rng.uniform(-500, 500, P), rng.uniform(300, 800, P)])
+    m = np.linalg.norm(lm[None] - cam[:, None], axis=-1)
+    d2 = np.sum((lm[I] - lm[J]) ** 2, axis=-1)
+    c = (m[:, I] ** 2 + m[:, J] ** 2 - d2) / (2 * m[:, I] * m[:, J]) + 1e-7 * rng.normal(size=(P, len(I)))
+    W = np.broadcast_to(np.eye(len(I)), (P, len(I), len(I))).copy()
+    m0 = m * (1 + 0.01 * rng.normal(size=m.shape))
+    colm = rng.random((P, L)) > 0.05
+    pair = colm[:, I] & colm[:, J]
+    m0[:10] *= 3.0  # far starts: many steps
+    m0[10:13] = np.nan
+    c[13:16] = np.nan
+    colm[16:18] = False
+    ref = [np.full((P, L), 7.0), np.full(P, 7), np.zeros(P, bool), np.zeros(P, bool)]
+    got = [a.copy() for a in ref]
+    kernels.cosine_gauss_newton(c, W, d2, m0, colm, pair, 25, 1e-4, *ref)
+    kernels.cosine_gauss_newton_tiles(c, W, d2, m0, colm, pair, 25, 1e-4, *got)
+    for k, (a, b) in enumerate(zip(got, ref)):
+        assert a.tobytes() == b.tobytes(), k
+    steps = ref[1]
+    assert ref[2].mean() > 0.8 and steps.max() >= 5 and 0 in set(steps.tolist()) and not ref[3][10:13].all()
 
 
 def test_wls_fit_broadcasts_over_batch_axes_and_checks_its_weights():

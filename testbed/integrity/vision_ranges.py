@@ -311,10 +311,10 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     if big.any():
         W[big] = _masked_pinv_weight(Sigma_c[big], pair_mask[big], n_v[big])
 
-    # --- Gauss-Newton on the weighted cosine residual, each epoch on its own (compiled)
+    # --- Gauss-Newton on the weighted cosine residual, each epoch on its own (compiled; epochs side by side)
     m_f, it_f = np.empty((P, L)), np.empty(P, np.int64)
     conv_f, good_f = np.empty(P, bool), np.empty(P, bool)
-    kernels.cosine_gauss_newton(flat(c, (nc,)), flat(W, (nc, nc)), kernels.kernel_input(d2, d2.shape),
+    kernels.cosine_gauss_newton_tiles(flat(c, (nc,)), flat(W, (nc, nc)), kernels.kernel_input(d2, d2.shape),
                                 flat(np.where(colm, mp, 1.0), (L,)), flat(colm, (L,), np.bool_),
                                 flat(pair_mask, (nc,), np.bool_), s.max_iter, s.tol_m, m_f, it_f, conv_f, good_f)
     m = m_f.reshape(batch + (L,))

@@ -13,7 +13,7 @@ checked against the numpy or LAPACK formula it replaces
   epochs side by side in vector lanes);
 * :mod:`.geometry` – the weighted LS of an epoch: GᵀWG, its condition, J, A, (WS)ᵢᵢ, residuals,
   SSE, slopes and the reason code (epochs side by side in vector lanes);
-* :mod:`.vision` – cosines and Σ_c, the cosine-rule solve and its products, the vision
+* :mod:`.vision` – cosines and Σ_c, the cosine-rule solve (per epoch, and side by side) and its products, the vision
   prior and the integrated solve's vision block;
 * :mod:`.calibration` – the GPS calibration of the vision ranges.
 
@@ -39,16 +39,17 @@ from testbed.integrity.kernels.ranges import (
 from testbed.integrity.kernels.small import _lu_solve
 from testbed.integrity.kernels.vision import (
     cosine_gauss_newton,
+    cosine_gauss_newton_tiles,
     cosine_rule_products,
     cosines_and_covariance,
     vision_prior,
     vision_rows,
 )
 
-__all__ = ["calibrate_epochs", "compile_all", "cosine_gauss_newton", "cosine_rule_products",
-           "cosines_and_covariance", "gather_used_rows", "kernel_input", "range_gauss_newton",
-           "range_gauss_newton_tiles", "scatter_used_rows", "vision_prior", "vision_rows", "wls_epochs",
-           "wls_one", "_lu_solve"]
+__all__ = ["calibrate_epochs", "compile_all", "cosine_gauss_newton", "cosine_gauss_newton_tiles",
+           "cosine_rule_products", "cosines_and_covariance", "gather_used_rows", "kernel_input",
+           "range_gauss_newton", "range_gauss_newton_tiles", "scatter_used_rows", "vision_prior",
+           "vision_rows", "wls_epochs", "wls_one", "_lu_solve"]
 
 
 def kernel_input(a, shape: tuple, out_shape: tuple | None = None, dtype=np.float64) -> np.ndarray:
@@ -85,10 +86,10 @@ def compile_all() -> None:
                      w(1, 3, 3))
     scatter_used_rows(r(1, 3), r(1, 2, dt=i), r(1, 2, dt=b), w(1, 5))
     range_gauss_newton_tiles(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
-                       r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
-                       w(1, 4), w(1, 4, 4))
-    cosine_gauss_newton(r(1, 3), r(1, 3, 3), r(3), r(1, 3), r(1, 3, dt=b), r(1, 3, dt=b), 1, 1e-4, w(1, 3),
-                        w(1, dt=i), w(1, dt=b), w(1, dt=b))
+                             r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
+                             w(1, 4), w(1, 4, 4))
+    cosine_gauss_newton_tiles(r(1, 3), r(1, 3, 3), r(3), r(1, 3), r(1, 3, dt=b), r(1, 3, dt=b), 1, 1e-4, w(1, 3),
+                              w(1, dt=i), w(1, dt=b), w(1, dt=b))
     wls_epochs(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e10, w(1, 4, 4), w(1, 4, 5),
                w(1, 5), w(1), w(1, 5), w(1), w(1, 5), w(1, 5), w(1), w(1), w(1, dt=i), w(1, dt=i),
                w(1, dt=np.int8))

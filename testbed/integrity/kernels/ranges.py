@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _lu_solve
+from testbed.integrity.kernels.small import _end_failed_lanes, _lu_solve, _tile_lu_solve
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -304,48 +304,6 @@ def _tile_normal(n, h, G, zg, wg, zv, Wv, dz, Nm, g):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _tile_lu_solve(n, A, B, ok):
-    """:func:`~testbed.integrity.kernels.small._lu_solve` of ``n`` systems side by side (A (K, K, T), one
-    right-hand side B (K, T)), its operations and pivots per system, as selects: ``ok`` says which it solves."""
-    K = A.shape[0]
-    big, piv = np.empty(n), np.empty(n, np.int64)
-    for q in range(n):
-        ok[q] = True
-    for j in range(K):
-        for q in range(n):
-            big[q] = abs(A[j, j, q])
-            piv[q] = j
-        for i in range(j + 1, K):
-            for q in range(n):
-                a = abs(A[i, j, q])
-                up = a > big[q]
-                big[q] = a if up else big[q]
-                piv[q] = i if up else piv[q]
-        for q in range(n):
-            ok[q] = ok[q] and big[q] > 0.0  # also catches NaN
-        for q in range(n):
-            i = piv[q]
-            if i != j:
-                for c in range(K):
-                    A[j, c, q], A[i, c, q] = A[i, c, q], A[j, c, q]
-                B[j, q], B[i, q] = B[i, q], B[j, q]
-        for i in range(j + 1, K):
-            for q in range(n):
-                f = A[i, j, q] / A[j, j, q]
-                for c in range(j + 1, K):
-                    A[i, c, q] = A[i, c, q] - f * A[j, c, q] if f != 0.0 else A[i, c, q]
-                B[i, q] = B[i, q] - f * B[j, q] if f != 0.0 else B[i, q]
-    for i in range(K - 1, -1, -1):
-        for q in range(n):
-            s = B[i, q]
-            for c in range(i + 1, K):
-                s -= A[i, c, q] * B[c, q]
-            s = s / A[i, i, q]
-            ok[q] = ok[q] and np.isfinite(s)
-            B[i, q] = s
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def range_gauss_newton_tiles(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z_v, W_v, mask_v,
                              x0, n_iter, tol_m, x_out, conv_out, iter_out, h_out, G_out):
     """:func:`range_gauss_newton`, epochs ``TILE`` at a time side by side: the same numbers bit for bit.
@@ -374,21 +332,17 @@ def range_gauss_newton_tiles(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v,
         n = min(TILE, P - p0)
         for q in range(n):  # -- gather; a skipped row or pair gets weight 0
             p = p0 + q
+            mg[:, q] = mask_g[p]
+            zg[:, q] = z_g[p]
+            ag[:, :, q] = anchor_g[p]
+            og[:, q] = off_g[p]
+            ov[:, q] = off_v[p]
+            mv[:, q] = mask_v[p]
+            zv[:, q] = z_v[p]
+            Tt[:, :, q] = Tm[p]
             for k in range(NG):
-                u = mask_g[p, k]
-                mg[k, q] = u
-                zg[k, q] = z_g[p, k]
-                wg[k, q] = w_g[p, k] if u else 0.0
-                for c in range(3):
-                    ag[k, c, q] = anchor_g[p, k, c]
-            for c in range(3):
-                og[c, q] = off_g[p, c]
-                ov[c, q] = off_v[p, c]
+                wg[k, q] = w_g[p, k] if mask_g[p, k] else 0.0
             for r in range(R):
-                mv[r, q] = mask_v[p, r]
-                zv[r, q] = z_v[p, r]
-                for l in range(L):
-                    Tt[r, l, q] = Tm[p, r, l]
                 for s in range(R):
                     w = W_v[p, r, s]
                     use = mask_v[p, r] and mask_v[p, s] and w != 0.0 and np.isfinite(w)
@@ -406,13 +360,10 @@ def range_gauss_newton_tiles(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v,
                     for q in range(n):
                         Nm[i, j, q] = Nm[j, i, q]
             _tile_lu_solve(n, Nm, g, solved)
+            _end_failed_lanes(n, active, solved, conv)
             more = 0
             for q in range(n):
                 if not active[q]:
-                    continue
-                if not solved[q]:
-                    conv[q] = False
-                    active[q] = False
                     continue
                 steps[q] += 1
                 for i in range(4):

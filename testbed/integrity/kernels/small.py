@@ -1,4 +1,4 @@
-"""Small dense linear algebra for the kernels: LU solve and products."""
+"""Small dense linear algebra for the kernels: LU solve (one system, or many side by side) and products."""
 
 from __future__ import annotations
 
@@ -72,3 +72,72 @@ def _sandwich(X, C, out, tmp, accumulate):
             for q in range(n):
                 s += tmp[l, q] * X[j, q]
             out[l, j] = out[l, j] + s if accumulate else s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tile_lu_solve(n, A, B, ok):
+    """:func:`~testbed.integrity.kernels.small._lu_solve` of ``n`` systems side by side (A (K, K, T), one
+    right-hand side B (K, T)), its operations and pivots per system, as selects: ``ok`` says which it solves."""
+    K = A.shape[0]
+    big, piv = np.empty(n), np.empty(n, np.int64)
+    for q in range(n):
+        ok[q] = True
+    for j in range(K):
+        for q in range(n):
+            big[q] = abs(A[j, j, q])
+            piv[q] = j
+        for i in range(j + 1, K):
+            for q in range(n):
+                a = abs(A[i, j, q])
+                up = a > big[q]
+                big[q] = a if up else big[q]
+                piv[q] = i if up else piv[q]
+        for q in range(n):
+            ok[q] = ok[q] and big[q] > 0.0  # also catches NaN
+        for q in range(n):
+            i = piv[q]
+            if i != j:
+                for c in range(K):
+                    A[j, c, q], A[i, c, q] = A[i, c, q], A[j, c, q]
+                B[j, q], B[i, q] = B[i, q], B[j, q]
+        for i in range(j + 1, K):
+            for q in range(n):
+                f = A[i, j, q] / A[j, j, q]
+                for c in range(j + 1, K):
+                    A[i, c, q] = A[i, c, q] - f * A[j, c, q] if f != 0.0 else A[i, c, q]
+                B[i, q] = B[i, q] - f * B[j, q] if f != 0.0 else B[i, q]
+    for i in range(K - 1, -1, -1):
+        for q in range(n):
+            s = B[i, q]
+            for c in range(i + 1, K):
+                s -= A[i, c, q] * B[c, q]
+            s = s / A[i, i, q]
+            ok[q] = ok[q] and np.isfinite(s)
+            B[i, q] = s
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _tile_matmul(n, X, Y, out, acc, xt):
+    """out = X Y (or Xᵀ Y with ``xt``) for ``n`` products side by side (last axis), each sum in
+    :func:`_matmul`'s order. X (I, K, T) (or (K, I, T)), Y (K, J, T), out (I, J, T); acc (T) scratch."""
+    I, J = out.shape[0], out.shape[1]
+    K = Y.shape[0]
+    for i in range(I):
+        for j in range(J):
+            for q in range(n):
+                acc[q] = 0.0
+            for k in range(K):
+                for q in range(n):
+                    acc[q] += (X[k, i, q] if xt else X[i, k, q]) * Y[k, j, q]
+            for q in range(n):
+                out[i, j, q] = acc[q]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _end_failed_lanes(n, active, solved, flag):
+    """After :func:`_tile_lu_solve`: an active system it could not solve stops iterating (``flag`` False)."""
+    for q in range(n):
+        if active[q] and not solved[q]:
+            flag[q] = False
+            active[q] = False
+

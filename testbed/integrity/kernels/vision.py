@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _lu_solve, _matmul, _sandwich
+from testbed.integrity.kernels.small import _end_failed_lanes, _lu_solve, _matmul, _sandwich, _tile_lu_solve, _tile_matmul
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -48,62 +48,172 @@ def cosine_gauss_newton(c, W, d2, m0, colm, pair_mask, n_iter, tol_m, m_out, ite
     g = np.empty((L, 1))
     m = np.empty(L)
     for p in range(P):
-        m[:] = m0[p]
-        any_used = False
-        for l in range(L):
-            if colm[p, l]:
-                any_used = True
-            else:
-                m[l] = 1.0
-        conv = not any_used
-        good = True
-        it = 0
-        while not conv and it < n_iter:
-            A[:] = 0.0
-            for k in range(nc):
-                i = I[k]
-                j = J[k]
-                mi = m[i]
-                mj = m[j]
-                cm = (mi * mi + mj * mj - d2[k]) / (2.0 * mi * mj)
-                A[k, i] = 1.0 / mj - cm / mi
-                A[k, j] = 1.0 / mi - cm / mj
-                r[k] = c[p, k] - cm if pair_mask[p, k] else 0.0
-                if not colm[p, i]:
-                    A[k, i] = 0.0
-                if not colm[p, j]:
-                    A[k, j] = 0.0
-            for k in range(nc):
-                s = 0.0
-                for k2 in range(nc):
-                    s += W[p, k, k2] * r[k2]
-                Wr[k] = s
-            _matmul(W[p], A, WA)
-            _matmul(A.T, WA, N)  # AᵀWA
-            for a in range(L):
-                s = 0.0
-                for k in range(nc):
-                    s += A[k, a] * Wr[k]
-                g[a, 0] = s
-                if not colm[p, a]:
-                    N[a, a] += 1.0
-            if not _lu_solve(N, g):
-                good = False
-                break
-            it += 1
-            small = True
-            for l in range(L):
-                if colm[p, l]:
-                    m[l] += g[l, 0]
-                    if not abs(g[l, 0]) < tol_m:
-                        small = False
-                if not np.isfinite(m[l]):
-                    m[l] = 1.0
-            conv = small
+        conv = _cosine_start(p, m0, colm, m)
+        conv, good, it = _cosine_steps(p, m, conv, 0, n_iter, tol_m, c, W, d2, colm, pair_mask, I, J, A, r, Wr, WA,
+                                       N, g)
         m_out[p] = m
         iter_out[p] = it
         conv_out[p] = conv
         good_out[p] = good
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cosine_start(p, m0, colm, m) -> bool:
+    """Epoch ``p``'s start ranges into ``m`` (1 on unused landmarks); True when it has no used landmark."""
+    any_used = False
+    for l in range(m.shape[0]):
+        m[l] = m0[p, l]
+        if colm[p, l]:
+            any_used = True
+        else:
+            m[l] = 1.0
+    return not any_used
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cosine_steps(p, m, conv, it, n_iter, tol_m, c, W, d2, colm, pair_mask, I, J, A, r, Wr, WA, N, g):
+    """Gauss–Newton steps of epoch ``p`` from ``m`` (updated in place), ``it`` already taken, until every
+    step is below ``tol_m``, the normal matrix is singular or ``n_iter`` are taken: (converged, good, steps)."""
+    nc = r.shape[0]
+    L = m.shape[0]
+    good = True
+    while not conv and it < n_iter:
+        A[:] = 0.0
+        for k in range(nc):
+            i = I[k]
+            j = J[k]
+            mi = m[i]
+            mj = m[j]
+            cm = (mi * mi + mj * mj - d2[k]) / (2.0 * mi * mj)
+            A[k, i] = 1.0 / mj - cm / mi
+            A[k, j] = 1.0 / mi - cm / mj
+            r[k] = c[p, k] - cm if pair_mask[p, k] else 0.0
+            if not colm[p, i]:
+                A[k, i] = 0.0
+            if not colm[p, j]:
+                A[k, j] = 0.0
+        for k in range(nc):
+            s = 0.0
+            for k2 in range(nc):
+                s += W[p, k, k2] * r[k2]
+            Wr[k] = s
+        _matmul(W[p], A, WA)
+        _matmul(A.T, WA, N)  # AᵀWA
+        for a in range(L):
+            s = 0.0
+            for k in range(nc):
+                s += A[k, a] * Wr[k]
+            g[a, 0] = s
+            if not colm[p, a]:
+                N[a, a] += 1.0
+        if not _lu_solve(N, g):
+            good = False
+            break
+        it += 1
+        small = True
+        for l in range(L):
+            if colm[p, l]:
+                m[l] += g[l, 0]
+                if not abs(g[l, 0]) < tol_m:
+                    small = False
+            if not np.isfinite(m[l]):
+                m[l] = 1.0
+        conv = small
+    return conv, good, it
+
+
+#: epochs iterated side by side by :func:`cosine_gauss_newton_tiles`
+TILE = 64
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def cosine_gauss_newton_tiles(c, W, d2, m0, colm, pair_mask, n_iter, tol_m, m_out, iter_out, conv_out, good_out):
+    """:func:`cosine_gauss_newton`, epochs ``TILE`` at a time side by side: the same numbers bit for bit.
+
+    Each epoch keeps its own iteration (it stops, as there, when every step is below ``tol_m`` or its
+    normal matrix is singular); when an eighth or fewer of a tile still iterate they finish alone
+    (:func:`_cosine_steps`).
+    """
+    P, nc = c.shape
+    L = m0.shape[1]
+    I, J = _pair_indices(L)
+    A1, r1, Wr1, WA1, N1, g1, m1 = (np.zeros((nc, L)), np.empty(nc), np.empty(nc), np.empty((nc, L)),
+                                    np.empty((L, L)), np.empty((L, 1)), np.empty(L))
+    m, A, r, Wr = np.empty((L, TILE)), np.empty((nc, L, TILE)), np.empty((nc, TILE)), np.empty((nc, TILE))
+    Wt, WA, N, g = np.empty((nc, nc, TILE)), np.empty((nc, L, TILE)), np.empty((L, L, TILE)), np.empty((L, TILE))
+    ct, cm_, pm, cl = np.empty((nc, TILE)), np.empty(TILE), np.empty((nc, TILE), np.bool_), np.empty((L, TILE), np.bool_)
+    conv, good, active, solved = (np.empty(TILE, np.bool_), np.empty(TILE, np.bool_), np.empty(TILE, np.bool_),
+                                  np.empty(TILE, np.bool_))
+    steps = np.empty(TILE, np.int64)
+    for p0 in range(0, P, TILE):
+        n = min(TILE, P - p0)
+        for q in range(n):  # -- gather
+            p = p0 + q
+            conv[q] = _cosine_start(p, m0, colm, m1)
+            good[q] = True
+            active[q] = not conv[q]
+            steps[q] = 0
+            m[:, q] = m1
+            cl[:, q] = colm[p]
+            ct[:, q] = c[p]
+            pm[:, q] = pair_mask[p]
+            Wt[:, :, q] = W[p]
+        for it in range(n_iter):
+            more = 0
+            for q in range(n):
+                more += active[q]
+            if more == 0:
+                break
+            if 8 * more <= n:  # a few epochs left: each finishes on its own (the same steps)
+                for q in range(n):
+                    if active[q]:
+                        m1[:] = m[:, q]
+                        conv[q], good[q], steps[q] = _cosine_steps(p0 + q, m1, False, steps[q], n_iter, tol_m, c, W, d2,
+                                                                   colm, pair_mask, I, J, A1, r1, Wr1, WA1, N1, g1)
+                        m[:, q] = m1
+                        active[q] = False
+                break
+            A[:, :, :n] = 0.0
+            for k in range(nc):
+                i = I[k]
+                j = J[k]
+                for q in range(n):
+                    mi = m[i, q]
+                    mj = m[j, q]
+                    cm = (mi * mi + mj * mj - d2[k]) / (2.0 * mi * mj)
+                    A[k, i, q] = (1.0 / mj - cm / mi) if cl[i, q] else 0.0
+                    A[k, j, q] = (1.0 / mi - cm / mj) if cl[j, q] else 0.0
+                    r[k, q] = ct[k, q] - cm if pm[k, q] else 0.0
+            _tile_matmul(n, Wt, r.reshape((nc, 1, TILE)), Wr.reshape((nc, 1, TILE)), cm_, False)  # _matmul's orders
+            _tile_matmul(n, Wt, A, WA, cm_, False)
+            _tile_matmul(n, A, WA, N, cm_, True)  # AᵀWA
+            _tile_matmul(n, A, Wr.reshape((nc, 1, TILE)), g.reshape((L, 1, TILE)), cm_, True)
+            for a in range(L):
+                for q in range(n):
+                    N[a, a, q] += 0.0 if cl[a, q] else 1.0
+            _tile_lu_solve(n, N, g, solved)
+            _end_failed_lanes(n, active, solved, good)
+            for q in range(n):
+                if not active[q]:
+                    continue
+                steps[q] += 1
+                small = True
+                for l in range(L):
+                    if cl[l, q]:
+                        m[l, q] += g[l, q]
+                        if not abs(g[l, q]) < tol_m:
+                            small = False
+                    if not np.isfinite(m[l, q]):
+                        m[l, q] = 1.0
+                conv[q] = small
+                active[q] = not small
+        for q in range(n):  # -- scatter
+            p = p0 + q
+            for l in range(L):
+                m_out[p, l] = m[l, q]
+            iter_out[p] = steps[q]
+            conv_out[p] = conv[q]
+            good_out[p] = good[q]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
