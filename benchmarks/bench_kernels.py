@@ -1,4 +1,4 @@
-"""Benchmark: VA-RAIM's three solve kernels, epochs side by side against one epoch at a time.
+"""Benchmark: VA-RAIM's solve and calibration kernels, epochs side by side against one epoch at a time.
 
 Inputs: one draw block (100 sorties x 61 epochs) of the VA-RAIM reproduction's where-vision-pays
 experiment (f = 1e4 px, 300 m triangle), captured as VA-RAIM passes them to its integrated
@@ -10,6 +10,8 @@ experiment (f = 1e4 px, 300 m triangle), captured as VA-RAIM passes them to its 
   (``kernels.range_gauss_newton``);
 * the cosine-rule Gauss-Newton of the vision ranges (``kernels.cosine_gauss_newton_tiles``) against
   the per-epoch kernel (``kernels.cosine_gauss_newton``);
+* the GPS calibration of the vision ranges (``kernels.calibrate_tiles``) against the per-epoch kernel
+  (``kernels.calibrate_epochs``);
 
 and checks that each pair gives the same bytes.
 
@@ -50,7 +52,8 @@ def captured_inputs():
     from testbed.integrity import kernels
 
     got = {}
-    gn, fit, cos = kernels.range_gauss_newton_tiles, kernels.wls_epochs, kernels.cosine_gauss_newton_tiles
+    gn, fit, cos, cal = (kernels.range_gauss_newton_tiles, kernels.wls_epochs, kernels.cosine_gauss_newton_tiles,
+                         kernels.calibrate_tiles)
 
     def spy_gn(*a):
         if a[9].shape[1] > 0:  # the integrated solve (vision rows), not step 1
@@ -66,15 +69,21 @@ def captured_inputs():
         got["cos"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:8])
         return cos(*a)
 
-    kernels.range_gauss_newton_tiles, kernels.wls_epochs, kernels.cosine_gauss_newton_tiles = spy_gn, spy_fit, spy_cos
+    def spy_cal(*a):
+        got["cal"] = tuple(np.array(x) for x in a[:13])
+        return cal(*a)
+
+    kernels.range_gauss_newton_tiles, kernels.wls_epochs = spy_gn, spy_fit
+    kernels.cosine_gauss_newton_tiles, kernels.calibrate_tiles = spy_cos, spy_cal
     try:
         le = loaded_experiments(200)["where-vision-pays"]
         cell = next(c for c in expand_cells(le) if c.params["focal_px"] == 1e4 and c.params["landmark_set"] == 1
                     and c.params["fault_size"] == 0.0)
         run_block(cell_context(cell, le.spec), le.spec, 0)
     finally:
-        kernels.range_gauss_newton_tiles, kernels.wls_epochs, kernels.cosine_gauss_newton_tiles = gn, fit, cos
-    return got["gn"], got["fit"], got["cos"]
+        kernels.range_gauss_newton_tiles, kernels.wls_epochs = gn, fit
+        kernels.cosine_gauss_newton_tiles, kernels.calibrate_tiles = cos, cal
+    return got["gn"], got["fit"], got["cos"], got["cal"]
 
 
 def main() -> None:
@@ -83,7 +92,7 @@ def main() -> None:
     args = ap.parse_args()
     from testbed.integrity import kernels
 
-    gn_in, fit_in, cos_in = captured_inputs()
+    gn_in, fit_in, cos_in, cal_in = captured_inputs()
     P = gn_in[0].shape[0]
     NG, R = gn_in[2].shape[1], gn_in[8].shape[1]
 
@@ -103,11 +112,17 @@ def main() -> None:
     def cos_out():
         return [np.empty((P, L)), np.empty(P, np.int64), np.empty(P, bool), np.empty(P, bool)]
 
+    Bt, T = cal_in[1].shape[:2]
+
+    def cal_out():
+        return [np.empty((Bt, T, L)), np.empty((Bt, T, L)), np.empty((Bt, T, L, L)), np.empty((Bt, T, L, L))]
+
     rows = []
     for name, new, old, inputs, outs in (
             ("weighted fit", kernels.wls_epochs, _one_at_a_time, fit_in, fit_out),
             ("range Gauss-Newton", kernels.range_gauss_newton_tiles, kernels.range_gauss_newton, gn_in, gn_out),
-            ("cosine Gauss-Newton", kernels.cosine_gauss_newton_tiles, kernels.cosine_gauss_newton, cos_in, cos_out)):
+            ("cosine Gauss-Newton", kernels.cosine_gauss_newton_tiles, kernels.cosine_gauss_newton, cos_in, cos_out),
+            ("GPS calibration", kernels.calibrate_tiles, kernels.calibrate_epochs, cal_in, cal_out)):
         a, b = outs(), outs()
         new(*inputs, *a)
         old(*inputs, *b)

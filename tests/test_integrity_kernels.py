@@ -56,7 +56,7 @@ def test_compile_all_covers_the_monitors_so_nothing_compiles_mid_flight():
 
     kernels.compile_all()
     names = ("gather_used_rows", "range_gauss_newton_tiles", "cosine_gauss_newton_tiles", "wls_epochs",
-             "cosine_rule_products", "vision_rows", "cosines_and_covariance", "calibrate_epochs")
+             "cosine_rule_products", "vision_rows", "cosines_and_covariance", "calibrate_tiles")
 
     def compiled(n):
         k = getattr(kernels, n)
@@ -383,6 +383,32 @@ def test_the_side_by_side_cosine_solve_gives_the_per_epoch_one_bit_for_bit(L):
         assert a.tobytes() == b.tobytes(), k
     steps = ref[1]
     assert ref[2].mean() > 0.8 and steps.max() >= 5 and 0 in set(steps.tolist()) and not ref[3][10:13].all()
+
+
+def test_the_side_by_side_calibration_gives_the_per_epoch_one_bit_for_bit():
+    """calibrate_tiles against calibrate_epochs, byte for byte, on random products with zero B entries, NaN
+    ranges, unused landmarks and calibration epochs anywhere in the trial, over several tiles."""
+    from testbed.integrity.kernels.calibration import TILE
+
+    rng = np.random.default_rng(41)
+    Bt, T, L, nc = 3, TILE + 11, 3, 3
+    f = lambda *s: rng.normal(size=(Bt, T) + s)  # noqa: E731
+    sym = lambda a: a @ np.swapaxes(a, -1, -2)  # noqa: E731
+    m = 6000.0 + 100.0 * f(L)
+    m[rng.random(m.shape) < 0.05] = np.nan
+    B = f(nc) * 1e-8
+    B[rng.random(B.shape) < 0.05] = 0.0
+    args = (rng.integers(0, T, (Bt, T)), m, f(nc, L) * 1e-4, B, f(L, nc) * 1e4, sym(f(nc, nc)) * 1e-12,
+            sym(f(L, L)), rng.random((Bt, T, L)) > 0.1, f(3) * 100.0, sym(f(3, 3)), f(3), rng.normal(size=(L, 3)) * 50.0,
+            sym(rng.normal(size=(nc, nc))))
+    outs = lambda: [np.full((Bt, T, L), 7.0), np.full((Bt, T, L), 7.0), np.full((Bt, T, L, L), 7.0),  # noqa: E731
+                    np.full((Bt, T, L, L), 7.0)]
+    ref, got = outs(), outs()
+    kernels.calibrate_epochs(*args, *ref)
+    kernels.calibrate_tiles(*args, *got)
+    for k, (a, b) in enumerate(zip(got, ref)):
+        assert a.tobytes() == b.tobytes(), k
+    assert np.isfinite(ref[2]).mean() > 0.5
 
 
 def test_wls_fit_broadcasts_over_batch_axes_and_checks_its_weights():

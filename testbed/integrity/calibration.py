@@ -149,12 +149,12 @@ def calibrate(vr: VisionRanges, cal_idx: ArrayLike, x_gps_enu: ArrayLike, P_gps:
     beta, beta0 = np.empty((Bt, T, L)), np.empty((Bt, T, L))
     Sigma_hat, Sigma_uncal = np.empty((Bt, T, L, L)), np.empty((Bt, T, L, L))
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        kernels.calibrate_epochs(flat(i0, (), np.int64), flat(vr.m, (L,)), flat(vr.A, (nc, L)), flat(vr.B, (nc,)),
-                                 flat(vr.A_pinv, (L, nc)), flat(vr.Sigma_c, (nc, nc)), flat(vr.Sigma_V, (L, L)),
-                                 flat(vr.used, (L,), bool), flat(x_gps_enu, (3,)), flat(P_gps, (3, 3)),
-                                 flat(cam_offset_enu, (3,)), kernels.kernel_input(p, p.shape),
-                                 kernels.kernel_input(Sd, Sd.shape),
-                                 beta, beta0, Sigma_hat, Sigma_uncal)
+        kernels.calibrate_tiles(flat(i0, (), np.int64), flat(vr.m, (L,)), flat(vr.A, (nc, L)), flat(vr.B, (nc,)),
+                                flat(vr.A_pinv, (L, nc)), flat(vr.Sigma_c, (nc, nc)), flat(vr.Sigma_V, (L, L)),
+                                flat(vr.used, (L,), bool), flat(x_gps_enu, (3,)), flat(P_gps, (3, 3)),
+                                flat(cam_offset_enu, (3,)), kernels.kernel_input(p, p.shape),
+                                kernels.kernel_input(Sd, Sd.shape),
+                                beta, beta0, Sigma_hat, Sigma_uncal)
     beta, beta0 = beta.reshape(bt + (L,)), beta0.reshape(bt + (L,))
     Sigma_hat, Sigma_uncal = Sigma_hat.reshape(bt + (L, L)), Sigma_uncal.reshape(bt + (L, L))
 

@@ -15,7 +15,7 @@ checked against the numpy or LAPACK formula it replaces
   SSE, slopes and the reason code (epochs side by side in vector lanes);
 * :mod:`.vision` – cosines and Σ_c, the cosine-rule solve (per epoch, and side by side) and its products, the vision
   prior and the integrated solve's vision block;
-* :mod:`.calibration` – the GPS calibration of the vision ranges.
+* :mod:`.calibration` – the GPS calibration of the vision ranges (per epoch, and side by side).
 
 The kernels release the GIL, so callers may run chunks of a batch on threads.
 They use numpy's floating-point error model: a division by zero gives inf/NaN
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.integrity.kernels.calibration import calibrate_epochs
+from testbed.integrity.kernels.calibration import calibrate_epochs, calibrate_tiles
 from testbed.integrity.kernels.geometry import wls_epochs, wls_one
 from testbed.integrity.kernels.ranges import (
     gather_used_rows,
@@ -46,10 +46,10 @@ from testbed.integrity.kernels.vision import (
     vision_rows,
 )
 
-__all__ = ["calibrate_epochs", "compile_all", "cosine_gauss_newton", "cosine_gauss_newton_tiles",
-           "cosine_rule_products", "cosines_and_covariance", "gather_used_rows", "kernel_input",
-           "range_gauss_newton", "range_gauss_newton_tiles", "scatter_used_rows", "vision_prior",
-           "vision_rows", "wls_epochs", "wls_one", "_lu_solve"]
+__all__ = ["calibrate_epochs", "calibrate_tiles", "compile_all", "cosine_gauss_newton",
+           "cosine_gauss_newton_tiles", "cosine_rule_products", "cosines_and_covariance", "gather_used_rows",
+           "kernel_input", "range_gauss_newton", "range_gauss_newton_tiles", "scatter_used_rows",
+           "vision_prior", "vision_rows", "wls_epochs", "wls_one", "_lu_solve"]
 
 
 def kernel_input(a, shape: tuple, out_shape: tuple | None = None, dtype=np.float64) -> np.ndarray:
@@ -102,6 +102,6 @@ def compile_all() -> None:
                  w(1, 1, 3), w(1, 1, 3, 3))
     cosines_and_covariance(r(1, 3, 2), r(1, 3, dt=b), r(1, 3), kernel_input(np.eye(3), (3, 3)), w(1, 3),
                            w(1, 3, 3))
-    calibrate_epochs(r(1, 1, dt=i), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3, 3),
-                     r(1, 1, 3, 3), r(1, 1, 3, dt=b), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(3, 3), r(3, 3),
-                     w(1, 1, 3), w(1, 1, 3), w(1, 1, 3, 3), w(1, 1, 3, 3))
+    calibrate_tiles(r(1, 1, dt=i), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3, 3),
+                    r(1, 1, 3, 3), r(1, 1, 3, dt=b), r(1, 1, 3), r(1, 1, 3, 3), r(1, 1, 3), r(3, 3), r(3, 3),
+                    w(1, 1, 3), w(1, 1, 3), w(1, 1, 3, 3), w(1, 1, 3, 3))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _matmul, _sandwich
+from testbed.integrity.kernels.small import _matmul, _sandwich, _tile_matmul
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -79,3 +79,101 @@ def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
             _sandwich(Ld, Sd, Sh_out[b, t], tmp, True)
             _sandwich(AB, Sd, Su_out[b, t], tmp, True)
             _sandwich(MAH, Pg[b, k], Sh_out[b, t], tmp3, True)
+
+
+#: epochs calibrated side by side by :func:`calibrate_tiles`
+TILE = 64
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _tile_sandwich_add(n, X, C, out, tmp, acc):
+    """out += X C Xᵀ for ``n`` systems side by side, in :func:`~.small._sandwich`'s order (tmp: X C)."""
+    _tile_matmul(n, X, C, tmp, acc, False)
+    for l in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            for q in range(n):
+                acc[q] = 0.0
+            for k in range(X.shape[1]):
+                for q in range(n):
+                    acc[q] += tmp[l, k, q] * X[j, k, q]
+            for q in range(n):
+                out[l, j, q] = out[l, j, q] + acc[q]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def calibrate_tiles(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd, beta_out, beta0_out, Sh_out, Su_out):
+    """:func:`calibrate_epochs`, epochs ``TILE`` at a time side by side: the same numbers bit for bit."""
+    Bt, T, L = m.shape
+    nc = B.shape[2]
+    P = Bt * T
+    xk, ok_, mk, uk = np.empty((3, TILE)), np.empty((3, TILE)), np.empty((L, TILE)), np.empty((L, TILE))
+    Bt_, Bk, ratio = np.empty((nc, TILE)), np.empty((nc, TILE)), np.empty((nc, TILE))
+    Apt, Apk, Ak = np.empty((L, nc, TILE)), np.empty((L, nc, TILE)), np.empty((nc, L, TILE))
+    Sck, Sdt, P0 = np.empty((nc, nc, TILE)), np.empty((nc, nc, TILE)), np.empty((nc, nc, TILE))
+    Pgk, H0, MAH, tmp3 = np.empty((3, 3, TILE)), np.empty((L, 3, TILE)), np.empty((L, 3, TILE)), np.empty((L, 3, TILE))
+    SVt, MA0, Sh, Su = np.empty((L, L, TILE)), np.empty((L, L, TILE)), np.empty((L, L, TILE)), np.empty((L, L, TILE))
+    M, AB, MP0 = np.empty((L, nc, TILE)), np.empty((L, nc, TILE)), np.empty((L, nc, TILE))
+    Ld, tmp = np.empty((L, nc, TILE)), np.empty((L, nc, TILE))
+    b0, bet, acc = np.empty((L, 1, TILE)), np.empty((L, 1, TILE)), np.empty(TILE)
+    for q in range(TILE):
+        Sdt[:, :, q] = Sd
+    for p0 in range(0, P, TILE):
+        n = min(TILE, P - p0)
+        for q in range(n):  # -- gather: the epoch's own rows and its calibration epoch's
+            b, t = divmod(p0 + q, T)
+            k = i0[b, t]
+            xk[:, q] = x[b, k]
+            ok_[:, q] = off[b, k]
+            mk[:, q] = m[b, k]
+            for l in range(L):
+                uk[l, q] = 1.0 if used[b, k, l] else 0.0
+            Bt_[:, q] = B[b, t]
+            Bk[:, q] = B[b, k]
+            Apt[:, :, q] = Ap[b, t]
+            Apk[:, :, q] = Ap[b, k]
+            Ak[:, :, q] = A[b, k]
+            Sck[:, :, q] = Sc[b, k]
+            Pgk[:, :, q] = Pg[b, k]
+            SVt[:, :, q] = SigV[b, t]
+        for l in range(L):
+            for q in range(n):
+                d0 = p[l, 0] - (xk[0, q] + ok_[0, q])
+                d1 = p[l, 1] - (xk[1, q] + ok_[1, q])
+                d2 = p[l, 2] - (xk[2, q] + ok_[2, q])
+                r0 = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                u = uk[l, q]
+                H0[l, 0, q] = -d0 / r0 * u
+                H0[l, 1, q] = -d1 / r0 * u
+                H0[l, 2, q] = -d2 / r0 * u
+                be = mk[l, q] - r0 if u != 0.0 else 0.0
+                b0[l, 0, q] = be if np.isfinite(be) else 0.0
+        for c in range(nc):
+            for q in range(n):
+                v = Bt_[c, q] / Bk[c, q] if Bk[c, q] != 0.0 else 0.0
+                ratio[c, q] = v if np.isfinite(v) else 0.0
+        for l in range(L):
+            for c in range(nc):
+                for q in range(n):
+                    M[l, c, q] = Apt[l, c, q] * ratio[c, q]
+                    AB[l, c, q] = Apt[l, c, q] * Bt_[c, q]
+        _tile_matmul(n, M, Ak, MA0, acc, False)
+        _tile_matmul(n, MA0, b0, bet, acc, False)
+        _tile_matmul(n, Ak, Apk, P0, acc, False)
+        _tile_matmul(n, M, P0, MP0, acc, False)
+        _tile_matmul(n, MA0, H0, MAH, acc, False)
+        for l in range(L):
+            for c in range(nc):
+                for q in range(n):
+                    Ld[l, c, q] = AB[l, c, q] - MP0[l, c, q] * Bk[c, q]
+        Sh[:, :, :n] = SVt[:, :, :n]
+        Su[:, :, :n] = SVt[:, :, :n]
+        _tile_sandwich_add(n, MP0, Sck, Sh, tmp, acc)
+        _tile_sandwich_add(n, Ld, Sdt, Sh, tmp, acc)
+        _tile_sandwich_add(n, AB, Sdt, Su, tmp, acc)
+        _tile_sandwich_add(n, MAH, Pgk, Sh, tmp3, acc)
+        for q in range(n):  # -- scatter
+            b, t = divmod(p0 + q, T)
+            beta_out[b, t] = bet[:, 0, q]
+            beta0_out[b, t] = b0[:, 0, q]
+            Sh_out[b, t] = Sh[:, :, q]
+            Su_out[b, t] = Su[:, :, q]
