@@ -387,8 +387,42 @@ def test_campaign_caches_are_bounded():
     runner.clear_caches()
     for k in range(runner._CACHE_MAX + 10):
         runner._cached(("probe", k), lambda: k)
+        runner._cached(("probe", 0), lambda: "made again")  # used on every round: never the oldest
     assert len(runner._CACHE) == runner._CACHE_MAX
+    assert runner._CACHE[("probe", 0)] == 0 and ("probe", 1) not in runner._CACHE
     runner.clear_caches()
+
+
+def test_a_gps_fault_sweep_wider_than_the_cache_computes_its_geometry_once(tmp_path, monkeypatch):
+    """70 GPS-step cells, each context built twice (two chunk rows): one GNSS geometry, one camera geometry
+    (a GPS fault does not change what the camera sees; before, every row recomputed both)."""
+    from testbed.campaign import runner
+    from testbed.sensors.gnss import synth
+    from testbed.sensors.vision import detect
+
+    made = {"gnss": 0, "vision": 0}
+
+    def counted(fn, what):
+        def wrapper(*a, **k):
+            made[what] += 1
+            return fn(*a, **k)
+        return wrapper
+
+    monkeypatch.setattr(synth, "gnss_geometry", counted(synth.gnss_geometry, "gnss"))
+    monkeypatch.setattr(detect, "vision_geometry", counted(detect.vision_geometry, "vision"))
+    text = TINY.format(chunk=20, monitors='["gps_raim", "va_raim"]').replace(
+        "magnitudes = [0.0, 60.0]", f"magnitudes = {[float(m) for m in range(70)]}")
+    loaded = load_spec(write_spec(tmp_path, text=text))
+    cells = expand_cells(loaded)
+    assert len(cells) == 70 > runner._CACHE_MAX
+    runner.clear_caches()
+    try:
+        for _ in range(2):
+            ctxs = [runner.cell_context(c, loaded.spec) for c in cells]
+        assert made == {"gnss": 1, "vision": 1}
+        assert all(c.g_geom is ctxs[0].g_geom and c.v_geom is ctxs[0].v_geom for c in ctxs)
+    finally:
+        runner.clear_caches()
 
 
 def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
@@ -483,3 +517,27 @@ def test_clustered_standard_error_against_closed_form_and_monte_carlo():
     b = clustered_mean_se(np.repeat(np.arange(G), 10), np.full(G * 10, n // 10), per_trial)[0]
     assert a == pytest.approx(b, rel=1e-12)
     assert np.isnan(clustered_mean_se(np.zeros(5), np.ones(5), x[:5])[0])  # one survey: no standard error
+
+
+def test_stanford_counts_are_numpys_histogram2d():
+    """The sparse Stanford counts against np.histogram2d on the same clipped logs, points on bin edges,
+    beyond both ends, NaN and alerted epochs included."""
+    from types import SimpleNamespace
+
+    from testbed.campaign import runner
+
+    edges = np.linspace(runner.HIST_LOG10_MIN, runner.HIST_LOG10_MAX, runner.HIST_BINS + 1)
+    rng = np.random.default_rng(3)
+    e = 10.0 ** np.concatenate([rng.uniform(-4, 6, 4000), edges, [np.nan, -np.inf]])
+    p = 10.0 ** rng.permutation(np.concatenate([rng.uniform(-4, 6, 4000), edges, [1.0, 2.0]]))
+    alert = rng.random(e.size) < 0.1
+    out = SimpleNamespace(alert=alert[None], hpl=p[None], vpl=p[::-1][None])
+    got = runner._stanford_counts("m", out, e[None], e[None])
+    for dim, pl in (("H", p), ("V", p[::-1])):
+        ok = np.isfinite(e) & np.isfinite(pl) & ~alert
+        clip = lambda v: np.clip(np.log10(np.maximum(v[ok], 1e-12)), edges[0], edges[-1] - 1e-9)  # noqa: E731
+        H, _, _ = np.histogram2d(clip(e), clip(pl), bins=[edges, edges])
+        ei, pi, c = got[f"m/{dim}"]
+        want = np.zeros_like(H)
+        want[ei, pi] = c
+        assert np.array_equal(H, want) and (c > 0).all()

@@ -63,7 +63,12 @@ _CACHE_MAX = 64
 
 
 def _cached(key: tuple, make: Callable[[], object]):
-    if key not in _CACHE:
+    """``make()`` once per key, least recently used out first: a chunk row touches every cell's entries, so
+    with eviction by age the experiment's GNSS geometry (the first entry a row makes; 5 s for where-vision-pays'
+    1436 sky windows) was recomputed for every row once the row's cells held more than 64 entries."""
+    if key in _CACHE:
+        _CACHE[key] = _CACHE.pop(key)  # most recent last
+    else:
         if len(_CACHE) >= _CACHE_MAX:
             _CACHE.pop(next(iter(_CACHE)))
         _CACHE[key] = make()
@@ -188,10 +193,12 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
         lm = replace(setup.landmarks, lpe_sigma_m=0.0)
         vision_json = json.dumps(setup.vision.model_dump(mode="json"), sort_keys=True)
         landmarks_json = json.dumps(c.landmarks.model_dump(mode="json"), sort_keys=True)
+        # keyed on the faults the geometry reads: a GPS-fault sweep's cells share one
+        moved = vdetect.geometry_faults(list(setup.faults))
         vkey = ("vision_geom", tkey, vision_json, landmarks_json,
-                json.dumps([f.model_dump(mode="json") for f in setup.faults], sort_keys=True))
+                json.dumps([f.model_dump(mode="json") for f in moved], sort_keys=True))
         v_geom = _cached(vkey, lambda: vdetect.vision_geometry(truth, setup.vision, landmarks=lm, terrain=terrain,
-                                                               faults=list(setup.faults)))
+                                                               faults=moved))
     f_ids = f_cam = None
     if setup.features is not None:
         from testbed.sensors.vision.dithering import mount_from_settings
@@ -530,9 +537,12 @@ def _stanford_counts(name: str, out: MonitorOutput, he: np.ndarray, ve: np.ndarr
         ok = np.isfinite(e) & np.isfinite(p) & ~alert
         le = np.clip(np.log10(np.maximum(e[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
         lp = np.clip(np.log10(np.maximum(p[ok], 1e-12)), HIST_LOG10_MIN, HIST_LOG10_MAX - 1e-9)
-        H, _, _ = np.histogram2d(le, lp, bins=[edges_log, edges_log])
-        ei, pi = np.nonzero(H)
-        hist[f"{name}/{dim}"] = [ei, pi, H[ei, pi].astype(np.int64)]
+        # np.histogram2d's binning (searchsorted on the edges, right side; the clip keeps the last edge out),
+        # counted with one bincount instead of its general d-dimensional path (4x the time)
+        cell = (np.searchsorted(edges_log, le, "right") - 1) * HIST_BINS + np.searchsorted(edges_log, lp, "right") - 1
+        H = np.bincount(cell, minlength=HIST_BINS * HIST_BINS)
+        nz = np.flatnonzero(H)
+        hist[f"{name}/{dim}"] = [nz // HIST_BINS, nz % HIST_BINS, H[nz].astype(np.int64)]
     return hist
 
 
@@ -616,21 +626,20 @@ def _chunk_tables(cell_index: int, ctx: CellContext, res: list[dict]) -> dict[st
     monitors = list(ctx.setup.monitor_names)
     trials = _concat([_cat_cols([r["trials"][m] for r in res]) for m in monitors])
     epochs = _concat([_cat_cols([r["epochs"][m] for r in res if m in r["epochs"]]) for m in monitors])
-    # histogram: sum the blocks' sparse counts
+    # histogram: sum the blocks' sparse counts, bins in (error bin, PL bin) order
     hrows = []
     for m in monitors:
         for dim in ("H", "V"):
-            acc: dict[tuple[int, int], int] = {}
-            for r in res:
-                ei, pi, c = r["hist"][f"{m}/{dim}"]
-                for a, b, k in zip(ei.tolist(), pi.tolist(), c.tolist()):
-                    acc[(a, b)] = acc.get((a, b), 0) + k
-            if acc:
-                kk = sorted(acc)
-                hrows.append({"cell": np.full(len(kk), cell_index, np.int32), "monitor": np.full(len(kk), m, object),
-                              "dim": np.full(len(kk), dim, object), "err_bin": np.array([a for a, _ in kk], np.int16),
-                              "pl_bin": np.array([b for _, b in kk], np.int16),
-                              "count": np.array([acc[x] for x in kk], np.int64)})
+            parts = [r["hist"][f"{m}/{dim}"] for r in res]
+            flat = np.concatenate([np.asarray(ei, np.int64) * HIST_BINS + pi for ei, pi, _ in parts])
+            if flat.size == 0:
+                continue
+            bins, at = np.unique(flat, return_inverse=True)
+            count = np.zeros(bins.size, np.int64)
+            np.add.at(count, at, np.concatenate([np.asarray(c, np.int64) for _, _, c in parts]))
+            hrows.append({"cell": np.full(bins.size, cell_index, np.int32), "monitor": np.full(bins.size, m, object),
+                          "dim": np.full(bins.size, dim, object), "err_bin": (bins // HIST_BINS).astype(np.int16),
+                          "pl_bin": (bins % HIST_BINS).astype(np.int16), "count": count})
     return {"trials": trials, "epochs": epochs, "hist": _cat_cols(hrows)}
 
 

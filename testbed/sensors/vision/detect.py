@@ -188,6 +188,11 @@ def _vision_faults(faults: list | None) -> list:
     return [f for f in (faults or []) if getattr(f, "kind", None) in VISION_KINDS]
 
 
+def geometry_faults(faults: list | None) -> list:
+    """The faults :func:`vision_geometry` reads (LandmarkMoved); the rest are :func:`sample_vision`'s."""
+    return [f for f in _vision_faults(faults) if isinstance(f, LandmarkMoved)]
+
+
 def _moved_key(f: LandmarkMoved) -> NDArray:
     """(5,) the LandmarkMoved parameters its terrain line of sight depends on: delta ENU, onset, end."""
     return np.array([*map(float, f.delta_enu_m), f.onset_s, np.inf if f.end_s is None else f.end_s])
@@ -322,7 +327,7 @@ def vision_geometry(truth: Truth, settings: VisionSettings, *, landmarks: Landma
     diff0 = lm.pos_ecef[None, :, :] - cam_pos[:, None, :]  # (T, L, 3)
     range0 = np.linalg.norm(diff0, axis=-1)
     los0 = _line_of_sight(terrain, cam_pos, lm.pos_ecef, range0 <= max_range)
-    moved = [f for f in _vision_faults(faults) if isinstance(f, LandmarkMoved)] if terrain is not None else []
+    moved = geometry_faults(faults) if terrain is not None else []
     keys = np.array([_moved_key(f) for f in moved]).reshape(-1, 5)
     los_moved = np.ones((T, len(moved), L), bool)
     for k, f in enumerate(moved):
