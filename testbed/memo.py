@@ -78,14 +78,15 @@ def shared(key: tuple, make: Callable[[], Any], guard: object = None) -> Any:
 
     ``key`` must fix the result completely (every input that changes it); ``make`` must not
     depend on anything else. ``guard``: an input object the key names by ``id()`` (a record
-    another shared call returned); the entry holds it, and serves only a call passing that very
-    object, so a recycled id never matches. Off (the default): ``make()`` every time, nothing kept.
+    another shared call returned), or a tuple of them; the entry holds it, and serves only a call
+    passing those very objects, so a recycled id never matches. Off (the default): ``make()`` every
+    time, nothing kept.
     """
     if not active():
         return make()
     with _lock:
         got = _store.get(key)
-        if got is not None and got[2] is guard:
+        if got is not None and _same(got[2], guard):
             _store.move_to_end(key)
             _state["hits"] += 1
             return got[0]
@@ -101,6 +102,12 @@ def shared(key: tuple, make: Callable[[], Any], guard: object = None) -> Any:
                 _, (_, s, _) = _store.popitem(last=False)
                 _state["bytes"] -= s
     return value
+
+
+def _same(held: object, guard: object) -> bool:
+    if isinstance(guard, tuple) and isinstance(held, tuple):
+        return len(held) == len(guard) and all(a is b for a, b in zip(held, guard))
+    return held is guard
 
 
 def seed_key(seed: np.random.SeedSequence | np.random.Generator) -> tuple:

@@ -53,8 +53,26 @@ def test_a_sweep_gives_the_same_tables_with_and_without_shared_draws(tmp_path):
     # per block, cells in order (0 m, f1) (0 m, f2) (40 m, f1) (40 m, f2): the pseudoranges and step 1 are new
     # for each magnitude and reused by its second camera (2 + 2 hits), the frames new for each camera and
     # reused at 40 m (2 hits), the dithering drawn with the first frames and reused by the second camera's
-    # (1 hit): 7 hits and 7 misses a block, 4 blocks a cell
-    assert shared["hits"] == 4 * 7 and shared["misses"] == 4 * 7
+    # (1 hit), the landmark survey new for each camera and reused at 40 m (2 misses, 2 hits), VA-RAIM's vision
+    # step new in every cell (4 misses; it reads both records): 9 hits and 13 misses a block, 4 blocks a cell
+    assert shared["hits"] == 4 * 9 and shared["misses"] == 4 * 13
+    _same_tables_without_sharing(spec, tmp_path)
+
+
+def test_va_raim_settings_after_the_vision_step_share_it(tmp_path):
+    """Cells differing in the VA-RAIM variant or the calibration share the vision step (the cosine-rule solve)."""
+    spec = tmp_path / "variants.toml"
+    spec.write_text(SWEEP.replace('magnitudes = [0.0, 40.0]', 'magnitudes = [0.0]').replace(
+        "camera_focal_px = [992.0, 1e4]", 'va_raim_variant = ["seed", "gated"]\ncalibration = ["gps", "none"]'))
+    run_campaign(spec, tmp_path / "on", progress=False)
+    # per block, 4 cells on one pseudorange draw and one camera draw; misses: pseudoranges, frames, dithering,
+    # the survey, step 1, the vision step; the other 3 cells reuse all but the dithering (drawn with the frames)
+    shared = memo.counts()
+    assert shared["misses"] == 4 * 6 and shared["hits"] == 4 * 3 * 5
+    _same_tables_without_sharing(spec, tmp_path)
+
+
+def _same_tables_without_sharing(spec: Path, tmp_path: Path) -> None:
     memo.clear()
     with memo.limit(0):
         run_campaign(spec, tmp_path / "off", progress=False)
@@ -102,6 +120,11 @@ def test_a_guarded_entry_serves_only_the_very_object_it_was_made_for():
         assert memo.shared(("id", 1), lambda: np.full(1, 2.0), guard=y)[0] == 2.0  # same key, another object
         assert memo.shared(("id", 1), lambda: np.full(1, 3.0), guard=y)[0] == 2.0  # now y's
         assert memo.counts()["entries"] == 1
+        z = np.zeros(2)
+        memo.shared(("ids", 1), lambda: np.ones(1), guard=(x, y))
+        assert memo.shared(("ids", 1), lambda: np.full(1, 2.0), guard=(x, y))[0] == 1.0  # the same two objects
+        assert memo.shared(("ids", 1), lambda: np.full(1, 3.0), guard=(x, z))[0] == 3.0  # one of them another
+        assert memo.shared(("ids", 1), lambda: np.full(1, 4.0), guard=(x,))[0] == 4.0
 
 
 def test_the_store_is_bounded_in_bytes_least_recently_used_first():

@@ -306,10 +306,14 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
             ("vision_draw", ctx.vision_draw_key), faults, VISION_KINDS, ss_v, n,
             lambda: vdetect.sample_vision(ctx.v_geom, s.vision, landmarks=ctx.landmarks, faults=faults,
                                           rng=np.random.default_rng(ss_v), n_trials=n))
-        # one survey per block: the monitor believes true + e, the landmarks stand at true (+ a fault's move)
-        lpe = s.landmarks.lpe_sigma_m
-        e = np.random.default_rng(ss_s).standard_normal(ctx.landmarks.pos_ecef.shape) * lpe
-        vis = replace(vis, landmark_pos_ecef=ctx.landmarks.pos_ecef + e)
+        # one survey per block: the monitor believes true + e, the landmarks stand at true (+ a fault's move);
+        # shared like the frames, so the cells of one survey hand VA-RAIM one record (its vision step is shared)
+        lpe, true_pos = s.landmarks.lpe_sigma_m, ctx.landmarks.pos_ecef
+        frames = vis
+        vis = memo.shared(
+            ("landmark_survey", id(frames), memo.seed_key(ss_s), float(lpe), memo.digest(true_pos)),
+            lambda: replace(frames, landmark_pos_ecef=true_pos
+                            + np.random.default_rng(ss_s).standard_normal(true_pos.shape) * lpe), guard=frames)
     target = np.full(n, -1, np.int64)
     if gtruth.faulty.any():
         hit = gtruth.faulty.any(axis=-2)  # (n, S)

@@ -363,9 +363,13 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     """
     st = settings or VaRaimSettings()
     inp = _read_inputs(gnss, vision, frame)
-    # step 1 reads the GNSS record only: the cells of a camera sweep that share it share step 1 (memo)
+    # step 1 reads the GNSS record only: the cells of a camera sweep that share it share step 1; step 2 reads
+    # both records and step 1: the cells that differ only after it (variant, calibration) share it (memo)
     gps_key = ("va_raim_gps", id(gnss), st.integrity.model_dump_json(), memo.digest(frame.origin_ecef, frame.R))
-    return map_trial_chunks(lambda sl: _va_raim_chunk(inp.trials(sl), st, name, (gps_key + (sl.start, sl.stop), gnss)),
+    vision_key = gps_key + ("va_raim_vision", id(vision), st.vision.model_dump_json(), st.prior_speed_m_s,
+                            st.prior_floor_m)
+    return map_trial_chunks(lambda sl: _va_raim_chunk(inp.trials(sl), st, name, (gps_key + (sl.start, sl.stop), gnss),
+                                                      (vision_key + (sl.start, sl.stop), (gnss, vision))),
                             inp.pr.shape[:-1], threads)
 
 
@@ -375,7 +379,8 @@ def _gps_step(inp: _Inputs, ist: IntegritySettings) -> tuple[GpsFix, MonitorOutp
     return fix_g, gps_output(fix_g, inp.t, inp.pr.shape[-1], ist, "gps_raim")
 
 
-def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tuple) -> MonitorOutput:
+def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tuple, shared_vision: tuple
+                   ) -> MonitorOutput:
     """:func:`va_raim` on one chunk of trials."""
     ist = st.integrity
     pr, t, p_enu, uv = inp.pr, inp.t, inp.p_enu, inp.uv
@@ -399,12 +404,14 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tupl
     x_g0 = np.where(has_fix[..., None], x_g, 0.0)
     P_g = np.where(has_fix[..., None, None], fit_g.J[..., :3, :3], np.nan)
 
-    # --- 2. prior for the vision solve: this epoch's fix, else the last one carried forward
-    last, m_pred, Sigma_pred = _vision_prior(x_g, P_g, has_fix & np.isfinite(P_g).all((-1, -2)), t, p_enu,
-                                             off_cam, st)
-    li = np.maximum(last, 0)
+    # --- 2. the vision ranges, solved from the prior of this epoch's fix (else the last one carried forward)
+    def vision_step() -> tuple[NDArray, VisionRanges]:
+        last, m_pred, Sigma_pred = _vision_prior(x_g, P_g, has_fix & np.isfinite(P_g).all((-1, -2)), t, p_enu,
+                                                 off_cam, st)
+        return last, vision_pseudoranges(uv, inp.det, inp.K, inp.sig, p_enu, m_pred, Sigma_pred, st.vision)
 
-    vr = vision_pseudoranges(uv, inp.det, inp.K, inp.sig, p_enu, m_pred, Sigma_pred, st.vision)
+    last, vr = memo.shared(shared_vision[0], vision_step, guard=shared_vision[1])
+    li = np.maximum(last, 0)
     # the seed's Gaussian vision model holds only while σ_V/m is small (linear_range_limit)
     rel_sigma, linear = _linear_enough(vr, linear_range_limit(ist.p_fa, st.linearity_inflation))
     vision_ok = linear if st.variant == "gated" else vr.ok
