@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _matmul, _sandwich, _tile_matmul
+from testbed.integrity.kernels.small import _matmul, _offset_range, _sandwich, _tile_matmul
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -41,10 +41,8 @@ def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
         for t in range(T):
             k = i0[b, t]
             for l in range(L):
-                d0 = p[l, 0] - (x[b, k, 0] + off[b, k, 0])
-                d1 = p[l, 1] - (x[b, k, 1] + off[b, k, 1])
-                d2 = p[l, 2] - (x[b, k, 2] + off[b, k, 2])
-                r0[l] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                d0, d1, d2, r0[l] = _offset_range(p[l, 0], p[l, 1], p[l, 2], x[b, k, 0] + off[b, k, 0],
+                                                  x[b, k, 1] + off[b, k, 1], x[b, k, 2] + off[b, k, 2])
                 u = 1.0 if used[b, k, l] else 0.0
                 H0[l, 0] = -d0 / r0[l] * u
                 H0[l, 1] = -d1 / r0[l] * u
@@ -137,10 +135,8 @@ def calibrate_tiles(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd, beta_out
             SVt[:, :, q] = SigV[b, t]
         for l in range(L):
             for q in range(n):
-                d0 = p[l, 0] - (xk[0, q] + ok_[0, q])
-                d1 = p[l, 1] - (xk[1, q] + ok_[1, q])
-                d2 = p[l, 2] - (xk[2, q] + ok_[2, q])
-                r0 = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                d0, d1, d2, r0 = _offset_range(p[l, 0], p[l, 1], p[l, 2], xk[0, q] + ok_[0, q],
+                                               xk[1, q] + ok_[1, q], xk[2, q] + ok_[2, q])
                 u = uk[l, q]
                 H0[l, 0, q] = -d0 / r0 * u
                 H0[l, 1, q] = -d1 / r0 * u

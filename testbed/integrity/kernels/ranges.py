@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _end_failed_lanes, _lu_solve, _tile_lu_solve
+from testbed.integrity.kernels.small import _end_failed_lanes, _lu_solve, _offset_range, _tile_lu_solve
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -78,10 +78,8 @@ def _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, 
             h[n] = 0.0
             G[n, :] = 0.0
             continue
-        d0 = anchor_g[p, n, 0] - (x[0] + off_g[p, 0])
-        d1 = anchor_g[p, n, 1] - (x[1] + off_g[p, 1])
-        d2 = anchor_g[p, n, 2] - (x[2] + off_g[p, 2])
-        rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        d0, d1, d2, rng = _offset_range(anchor_g[p, n, 0], anchor_g[p, n, 1], anchor_g[p, n, 2],
+                                        x[0] + off_g[p, 0], x[1] + off_g[p, 1], x[2] + off_g[p, 2])
         h[n] = rng + x[3]
         G[n, 0] = -d0 / rng
         G[n, 1] = -d1 / rng
@@ -90,10 +88,8 @@ def _range_rows(p, x, anchor_g, off_g, mask_g, anchor_v, off_v, Tm, mask_v, hv, 
     if R == 0:
         return
     for l in range(L):
-        d0 = anchor_v[l, 0] - (x[0] + off_v[p, 0])
-        d1 = anchor_v[l, 1] - (x[1] + off_v[p, 1])
-        d2 = anchor_v[l, 2] - (x[2] + off_v[p, 2])
-        rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        d0, d1, d2, rng = _offset_range(anchor_v[l, 0], anchor_v[l, 1], anchor_v[l, 2],
+                                        x[0] + off_v[p, 0], x[1] + off_v[p, 1], x[2] + off_v[p, 2])
         hv[l] = rng
         Gv[l, 0] = -d0 / rng
         Gv[l, 1] = -d1 / rng
@@ -228,10 +224,8 @@ def _tile_rows(n, x, ag, og, mg, av, ov, Tm, mv, hv, Gv, h, G):
     L = av.shape[0]
     for k in range(NG):
         for q in range(n):
-            d0 = ag[k, 0, q] - (x[0, q] + og[0, q])
-            d1 = ag[k, 1, q] - (x[1, q] + og[1, q])
-            d2 = ag[k, 2, q] - (x[2, q] + og[2, q])
-            rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            d0, d1, d2, rng = _offset_range(ag[k, 0, q], ag[k, 1, q], ag[k, 2, q],
+                                            x[0, q] + og[0, q], x[1, q] + og[1, q], x[2, q] + og[2, q])
             u = mg[k, q]
             h[k, q] = rng + x[3, q] if u else 0.0
             G[k, 0, q] = -d0 / rng if u else 0.0
@@ -242,10 +236,8 @@ def _tile_rows(n, x, ag, og, mg, av, ov, Tm, mv, hv, Gv, h, G):
         return
     for l in range(L):
         for q in range(n):
-            d0 = av[l, 0] - (x[0, q] + ov[0, q])
-            d1 = av[l, 1] - (x[1, q] + ov[1, q])
-            d2 = av[l, 2] - (x[2, q] + ov[2, q])
-            rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            d0, d1, d2, rng = _offset_range(av[l, 0], av[l, 1], av[l, 2],
+                                            x[0, q] + ov[0, q], x[1, q] + ov[1, q], x[2, q] + ov[2, q])
             hv[l, q] = rng
             Gv[l, 0, q] = -d0 / rng
             Gv[l, 1, q] = -d1 / rng

@@ -6,6 +6,16 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _offset_range(a0, a1, a2, p0, p1, p2):
+    """(d0, d1, d2, |d|): the vector from p to a and its length, in the one order of operations every range
+    row uses (the per-epoch kernels and their side-by-side versions give the same bits)."""
+    d0 = a0 - p0
+    d1 = a1 - p1
+    d2 = a2 - p2
+    return d0, d1, d2, np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _lu_solve(A, B) -> bool:
     """Solve ``A X = B`` in place (A (n, n) and B (n, k) overwritten, X left in B).

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _end_failed_lanes, _lu_solve, _matmul, _sandwich, _tile_lu_solve, _tile_matmul
+from testbed.integrity.kernels.small import (_end_failed_lanes, _lu_solve, _matmul, _offset_range, _sandwich, _tile_lu_solve,
+                                            _tile_matmul)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -468,10 +469,8 @@ def vision_prior(x_g, P_g, fix, t, p, off, speed, floor, li_out, m_out, S_out):
                 x0 = x_g[b, i, 0] if last >= 0 else 0.0
                 x1 = x_g[b, i, 1] if last >= 0 else 0.0
                 x2 = x_g[b, i, 2] if last >= 0 else 0.0
-                d0 = p[l, 0] - (x0 + off[b, k, 0])
-                d1 = p[l, 1] - (x1 + off[b, k, 1])
-                d2 = p[l, 2] - (x2 + off[b, k, 2])
-                rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                d0, d1, d2, rng = _offset_range(p[l, 0], p[l, 1], p[l, 2], x0 + off[b, k, 0], x1 + off[b, k, 1],
+                                                x2 + off[b, k, 2])
                 m_out[b, k, l] = rng if last >= 0 else np.nan
                 H[l, 0] = -d0 / rng
                 H[l, 1] = -d1 / rng
