@@ -54,8 +54,9 @@ def test_a_sweep_gives_the_same_tables_with_and_without_shared_draws(tmp_path):
     # for each magnitude and reused by its second camera (2 + 2 hits), the frames new for each camera and
     # reused at 40 m (2 hits), the dithering drawn with the first frames and reused by the second camera's
     # (1 hit), the landmark survey new for each camera and reused at 40 m (2 misses, 2 hits), VA-RAIM's vision
-    # step new in every cell (4 misses; it reads both records): 9 hits and 13 misses a block, 4 blocks a cell
-    assert shared["hits"] == 4 * 9 and shared["misses"] == 4 * 13
+    # step new in every cell (4 misses; it reads both records), the fault-free GNSS errors drawn for 0 m and
+    # reused at 40 m (1 miss, 1 hit): 10 hits and 14 misses a block, 4 blocks a cell
+    assert shared["hits"] == 4 * 10 and shared["misses"] == 4 * 14
     _same_tables_without_sharing(spec, tmp_path)
 
 
@@ -65,11 +66,29 @@ def test_va_raim_settings_after_the_vision_step_share_it(tmp_path):
     spec.write_text(SWEEP.replace('magnitudes = [0.0, 40.0]', 'magnitudes = [0.0]').replace(
         "camera_focal_px = [992.0, 1e4]", 'va_raim_variant = ["seed", "gated"]\ncalibration = ["gps", "none"]'))
     run_campaign(spec, tmp_path / "on", progress=False)
-    # per block, 4 cells on one pseudorange draw and one camera draw; misses: pseudoranges, frames, dithering,
-    # the survey, step 1, the vision step; the other 3 cells reuse all but the dithering (drawn with the frames)
+    # per block, 4 cells on one pseudorange draw and one camera draw; misses: the GNSS errors, pseudoranges,
+    # frames, dithering, the survey, step 1, the vision step; the other 3 cells reuse the pseudoranges, frames,
+    # survey, step 1 and vision step
     shared = memo.counts()
-    assert shared["misses"] == 4 * 6 and shared["hits"] == 4 * 3 * 5
+    assert shared["misses"] == 4 * 7 and shared["hits"] == 4 * 3 * 5
     _same_tables_without_sharing(spec, tmp_path)
+
+
+def test_a_gps_fault_sweep_shares_the_fault_free_errors_and_draws_each_faults_target_alike(tmp_path):
+    """Three GPS-step magnitudes, two of them faulted: the noise and clock are drawn once a block, and each
+    faulted cell draws its random satellite from the same fresh fault stream (a reused, already spawned-from
+    stream gave the third magnitude other satellites)."""
+    spec = tmp_path / "steps.toml"
+    spec.write_text(SWEEP.replace('["gps_raim", "va_raim"]', '["gps_raim"]')
+                    .replace("magnitudes = [0.0, 40.0]", "magnitudes = [0.0, 20.0, 40.0]")
+                    .replace("camera_focal_px = [992.0, 1e4]", "camera_dpi = [720.0]"))
+    run_campaign(spec, tmp_path / "on", progress=False)
+    # per block: the errors once (1 miss, 2 hits), each magnitude's observations (3 misses)
+    assert memo.counts()["misses"] == 4 * 4 and memo.counts()["hits"] == 4 * 2
+    _same_tables_without_sharing(spec, tmp_path)
+    t = table(tmp_path / "on").to_pandas()
+    by_cell = t.pivot(index="trial", columns="cell", values="fault_target")
+    assert (by_cell[0] == -1).all() and (by_cell[1] == by_cell[2]).all() and (by_cell[1] >= 0).all()
 
 
 def _same_tables_without_sharing(spec: Path, tmp_path: Path) -> None:
@@ -159,7 +178,7 @@ def test_digests_see_dtype_shape_and_content():
 
 
 @pytest.mark.parametrize("module, name, shares", [
-    ("test_dpe_loop", "SPEC", False),  # no camera; each magnitude its own pseudoranges: frozen draws, nothing reused
+    ("test_dpe_loop", "SPEC", True),  # no camera; each magnitude its own pseudoranges on the shared errors
     ("test_ekf_loop", "EKF_SPEC", True),  # the step's cells share the camera frames
 ])
 def test_the_filter_and_the_dpe_give_the_same_tables_with_shared_draws(module, name, shares, tmp_path):

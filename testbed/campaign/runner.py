@@ -23,6 +23,7 @@ coordinates per call, which a block provides.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import time
@@ -282,7 +283,7 @@ class BlockDraw:
 
 def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     """Noise, faults and (per block) the landmark survey of one block's trials."""
-    from testbed.sensors.gnss.synth import sample_gnss
+    from testbed.sensors.gnss.synth import apply_gnss_errors, draw_gnss_errors
     from testbed.sensors.vision import detect as vdetect
 
     s = ctx.setup
@@ -296,10 +297,12 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     trials = np.arange(i0, i0 + n)
     offsets = sortie_offsets(spec, trials)
     windows = None if ctx.sky is None else sky_windows(offsets, spec.sorties.window_s)
-    gnss, gtruth = _shared_draw(
-        ("gnss_draw", ctx.gnss_draw_key, None if windows is None else memo.digest(windows)), faults, GNSS_KINDS, ss_g, n,
-        lambda: sample_gnss(ctx.gnss_geometry_of(windows), s.gnss, faults=faults, rng=np.random.default_rng(ss_g),
-                            n_trials=n))
+    sky_key = ("gnss_draw", ctx.gnss_draw_key, None if windows is None else memo.digest(windows))
+    geom = functools.cache(lambda: ctx.gnss_geometry_of(windows))
+    # the fault-free errors are shared by every GNSS fault of the sweep, the observations by its cells of one fault
+    errors = lambda: memo.shared(sky_key + ("errors", memo.seed_key(ss_g), n),  # noqa: E731
+                                 lambda: draw_gnss_errors(geom(), s.gnss, rng=np.random.default_rng(ss_g), n_trials=n))
+    gnss, gtruth = _shared_draw(sky_key, faults, GNSS_KINDS, ss_g, n, lambda: apply_gnss_errors(geom(), errors(), faults))
     vis = vtruth = None
     if ctx.v_geom is not None:
         vis, vtruth = _shared_draw(

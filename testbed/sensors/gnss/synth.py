@@ -201,6 +201,23 @@ def _fault_bias(faults: Sequence, geom: GnssGeometry, rng: np.random.Generator,
     return np.broadcast_to(gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng), batch + (T, S))
 
 
+@dataclass(frozen=True)
+class GnssErrors:
+    """The fault-free random part of a draw (:func:`draw_gnss_errors`): what a GNSS-fault sweep's cells share
+    under common random numbers. ``fault_seed``: (entropy, spawn key, pool size, children spawned) of the
+    faults' own child generator, rebuilt fresh for each application (a fault draw may spawn from it), so
+    every fault schedule draws from the same stream."""
+
+    batch: tuple[int, ...]
+    sigma: NDArray  # (T, S) or stacked (n, T, S)
+    noise: NDArray  # (batch, T, S)
+    clock_bias: NDArray  # (batch, T)
+    clock_drift: NDArray  # (batch, T)
+    rr_noise: NDArray  # (batch, T, S)
+    fault_seed: tuple
+    fault_bit_generator: type  # the caller's kind of generator (PCG64 from default_rng)
+
+
 def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence = (), rng: np.random.Generator,
                 n_trials: int | None = None) -> tuple[GnssEpochs, GnssTruth]:
     """Draw errors, receiver clock and faults on a fixed geometry.
@@ -212,7 +229,14 @@ def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence 
     truth records them in ``fault_bias`` and ``faulty = fault_bias != 0``.
     A stacked geometry (:meth:`GnssGeometry.windows`, one start time per trial) needs
     ``n_trials`` equal to its number of windows; its arrays are used as they are.
+    The same as :func:`apply_gnss_errors` on :func:`draw_gnss_errors`.
     """
+    return apply_gnss_errors(geom, draw_gnss_errors(geom, settings, rng=rng, n_trials=n_trials), faults)
+
+
+def draw_gnss_errors(geom: GnssGeometry, settings: GnssSettings, *, rng: np.random.Generator,
+                     n_trials: int | None = None) -> GnssErrors:
+    """The noise, receiver clock and range-rate noise of :func:`sample_gnss`, without the faults."""
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     if n_trials is not None and (int(n_trials) != n_trials or n_trials < 1):
@@ -245,10 +269,22 @@ def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence 
     else:
         bias, drift = np.zeros(batch + (T,)), np.zeros(batch + (T,))
     rr_noise = settings.range_rate_sigma_m_s * g_rr.standard_normal(shape)
+    ss = g_fault.bit_generator.seed_seq
+    return GnssErrors(batch=batch, sigma=sigma, noise=noise, clock_bias=bias, clock_drift=drift, rr_noise=rr_noise,
+                      fault_seed=(ss.entropy, ss.spawn_key, ss.pool_size, ss.n_children_spawned),
+                      fault_bit_generator=type(g_fault.bit_generator))
+
+
+def apply_gnss_errors(geom: GnssGeometry, errors: GnssErrors, faults: Sequence = ()) -> tuple[GnssEpochs, GnssTruth]:
+    """The observations of ``geom`` with ``errors`` and the faults (drawn from the errors' fault stream)."""
+    batch, sigma, noise, bias, drift = errors.batch, errors.sigma, errors.noise, errors.clock_bias, errors.clock_drift
+    entropy, spawn_key, pool_size, spawned = errors.fault_seed
+    g_fault = np.random.Generator(errors.fault_bit_generator(np.random.SeedSequence(
+        entropy, spawn_key=spawn_key, pool_size=pool_size, n_children_spawned=spawned)))
     fault = _fault_bias(faults, geom, g_fault, batch)
     vis = geom.visible
     pr = np.where(vis, geom.geometric_range + bias[..., None] + noise + fault, np.nan)
-    rr = np.where(vis, geom.geometric_range_rate + drift[..., None] + rr_noise, np.nan)
+    rr = np.where(vis, geom.geometric_range_rate + drift[..., None] + errors.rr_noise, np.nan)
 
     def b(x):  # geometry per trial: stacked already, or one geometry broadcast over the trials
         return x if geom.stacked else np.broadcast_to(x, batch + x.shape)
