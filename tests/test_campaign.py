@@ -393,6 +393,42 @@ def test_campaign_caches_are_bounded():
     runner.clear_caches()
 
 
+def test_the_campaign_cache_makes_each_key_once_under_threads():
+    """A Dask worker's threads build contexts side by side: each key made once, eviction never raising."""
+    import threading
+    import time as _time
+
+    from testbed.campaign import runner
+
+    runner.clear_caches()
+    made: list[int] = []
+    errors: list[BaseException] = []
+
+    def slow(k: int) -> int:
+        made.append(k)
+        _time.sleep(0.001)
+        return k
+
+    def hammer(seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        try:
+            for _ in range(300):
+                k = int(rng.integers(0, 8)) if rng.random() < 0.7 else int(rng.integers(100, 100 + 4 * runner._CACHE_MAX))
+                assert runner._cached(("thread probe", k), lambda: slow(k)) == k
+        except BaseException as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=hammer, args=(i,)) for i in range(4)]
+    [t.start() for t in threads]
+    [t.join() for t in threads]
+    try:
+        assert not errors
+        assert sorted(k for k in made if k < 8) == list(range(8))  # the hot keys: made once each, never evicted
+        assert len(runner._CACHE) <= runner._CACHE_MAX
+    finally:
+        runner.clear_caches()
+
+
 def test_a_gps_fault_sweep_wider_than_the_cache_computes_its_geometry_once(tmp_path, monkeypatch):
     """70 GPS-step cells, each context built twice (two chunk rows): one GNSS geometry, one camera geometry
     (a GPS fault does not change what the camera sees; before, every row recomputed both)."""

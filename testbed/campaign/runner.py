@@ -22,11 +22,13 @@ coordinates per call, which a block provides.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 import contextlib
 import functools
 import json
 import os
 import time
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -59,25 +61,31 @@ def hist_edges() -> np.ndarray:
 
 # ----------------------------------------------------------------------------- caches (per process)
 
-_CACHE: dict[tuple, object] = {}
+_CACHE: OrderedDict[tuple, object] = OrderedDict()
 _CACHE_MAX = 64
+#: a Dask worker's threads build cell contexts side by side; reentrant: a ``make`` reads other entries
+_CACHE_LOCK = threading.RLock()
 
 
 def _cached(key: tuple, make: Callable[[], object]):
-    """``make()`` once per key, least recently used out first: a chunk row touches every cell's entries, so
-    with eviction by age the experiment's GNSS geometry (the first entry a row makes; 5 s for where-vision-pays'
-    1436 sky windows) was recomputed for every row once the row's cells held more than 64 entries."""
-    if key in _CACHE:
-        _CACHE[key] = _CACHE.pop(key)  # most recent last
-    else:
-        if len(_CACHE) >= _CACHE_MAX:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = make()
-    return _CACHE[key]
+    """``make()`` once per key per process, least recently used out first: a chunk row touches every cell's
+    entries, so with eviction by age the experiment's GNSS geometry (the first entry a row makes; 5 s for
+    where-vision-pays' 1436 sky windows) was recomputed for every row once the row's cells held more than 64
+    entries. Threads that want one key wait for the first to make it."""
+    with _CACHE_LOCK:
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+        else:
+            value = make()
+            if len(_CACHE) >= _CACHE_MAX:
+                _CACHE.popitem(last=False)
+            _CACHE[key] = value
+        return _CACHE[key]
 
 
 def clear_caches() -> None:
-    _CACHE.clear()
+    with _CACHE_LOCK:
+        _CACHE.clear()
 
 
 def _flight_key(cell: Cell) -> tuple:
