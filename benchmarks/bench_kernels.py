@@ -10,6 +10,8 @@ experiment (f = 1e4 px, 300 m triangle), captured as VA-RAIM passes them to its 
   (``kernels.range_gauss_newton``);
 * the cosine-rule Gauss-Newton of the vision ranges (``kernels.cosine_gauss_newton_tiles``) against
   the per-epoch kernel (``kernels.cosine_gauss_newton``);
+* what follows the cosine solve: A, A⁺, Σ_V, residual statistics and branch gate
+  (``kernels.cosine_rule_products_tiles``) against the per-epoch kernel (``kernels.cosine_rule_products``);
 * the GPS calibration of the vision ranges (``kernels.calibrate_tiles``) against the per-epoch kernel
   (``kernels.calibrate_epochs``);
 
@@ -54,6 +56,7 @@ def captured_inputs():
     got = {}
     gn, fit, cos, cal = (kernels.range_gauss_newton_tiles, kernels.wls_epochs, kernels.cosine_gauss_newton_tiles,
                          kernels.calibrate_tiles)
+    prod = kernels.cosine_rule_products_tiles
 
     def spy_gn(*a):
         if a[9].shape[1] > 0:  # the integrated solve (vision rows), not step 1
@@ -73,8 +76,13 @@ def captured_inputs():
         got["cal"] = tuple(np.array(x) for x in a[:13])
         return cal(*a)
 
+    def spy_prod(*a):
+        got["prod"] = tuple(np.array(x) for x in a[:9])
+        return prod(*a)
+
     kernels.range_gauss_newton_tiles, kernels.wls_epochs = spy_gn, spy_fit
     kernels.cosine_gauss_newton_tiles, kernels.calibrate_tiles = spy_cos, spy_cal
+    kernels.cosine_rule_products_tiles = spy_prod
     try:
         le = loaded_experiments(200)["where-vision-pays"]
         cell = next(c for c in expand_cells(le) if c.params["focal_px"] == 1e4 and c.params["landmark_set"] == 1
@@ -83,7 +91,8 @@ def captured_inputs():
     finally:
         kernels.range_gauss_newton_tiles, kernels.wls_epochs = gn, fit
         kernels.cosine_gauss_newton_tiles, kernels.calibrate_tiles = cos, cal
-    return got["gn"], got["fit"], got["cos"], got["cal"]
+        kernels.cosine_rule_products_tiles = prod
+    return got["gn"], got["fit"], got["cos"], got["cal"], got["prod"]
 
 
 def main() -> None:
@@ -92,7 +101,7 @@ def main() -> None:
     args = ap.parse_args()
     from testbed.integrity import kernels
 
-    gn_in, fit_in, cos_in, cal_in = captured_inputs()
+    gn_in, fit_in, cos_in, cal_in, prod_in = captured_inputs()
     P = gn_in[0].shape[0]
     NG, R = gn_in[2].shape[1], gn_in[8].shape[1]
 
@@ -117,11 +126,19 @@ def main() -> None:
     def cal_out():
         return [np.empty((Bt, T, L)), np.empty((Bt, T, L)), np.empty((Bt, T, L, L)), np.empty((Bt, T, L, L))]
 
+    nc = prod_in[1].shape[1]
+
+    def prod_out():
+        f = lambda *s: np.empty((P,) + s)  # noqa: E731
+        return [f(nc, L), f(nc), f(L, nc), np.empty(P, bool), f(), f(L, L), f(), f(), np.full(P, np.nan),
+                np.zeros(P, bool)]  # the gate's outputs as vision_pseudoranges sets them (untouched without a prior)
+
     rows = []
     for name, new, old, inputs, outs in (
             ("weighted fit", kernels.wls_epochs, _one_at_a_time, fit_in, fit_out),
             ("range Gauss-Newton", kernels.range_gauss_newton_tiles, kernels.range_gauss_newton, gn_in, gn_out),
             ("cosine Gauss-Newton", kernels.cosine_gauss_newton_tiles, kernels.cosine_gauss_newton, cos_in, cos_out),
+            ("cosine products", kernels.cosine_rule_products_tiles, kernels.cosine_rule_products, prod_in, prod_out),
             ("GPS calibration", kernels.calibrate_tiles, kernels.calibrate_epochs, cal_in, cal_out)):
         a, b = outs(), outs()
         new(*inputs, *a)

@@ -115,18 +115,24 @@ def _solve_or_nan(M, rhs):
     return np.where(good[:, None, None], X, np.nan), good
 
 
+def _noisy_cosine_scene(rng, P: int, L: int):
+    """Landmarks within 300 m, cameras a few km off: squared pair distances, true and noisy ranges, cosines."""
+    I, J = np.triu_indices(L, 1)
+    p_lm = rng.uniform(-300, 300, (L, 3))
+    d2 = np.sum((p_lm[I] - p_lm[J]) ** 2, -1)
+    cam = rng.uniform(-3000, 3000, (P, 3)) + [0, 0, 2000]
+    m_true = np.linalg.norm(p_lm - cam[:, None], axis=-1)
+    m = m_true * (1 + 1e-4 * rng.normal(size=(P, L)))
+    return d2, m_true, m, cosine_model(m_true, d2) + 1e-6 * rng.normal(size=(P, len(I)))
+
+
 def test_cosine_rule_products_match_the_numpy_formulas():
     """A, B (seed eq. 2), A⁺ = (AᵀWA)⁻¹AᵀW, Σ_V, the residual statistics and the branch gate."""
     rng = np.random.default_rng(7)
     P, L = 300, 4
     I, J = np.triu_indices(L, 1)
     nc = len(I)
-    p_lm = rng.uniform(-300, 300, (L, 3))
-    d2 = np.sum((p_lm[I] - p_lm[J]) ** 2, -1)
-    cam = rng.uniform(-3000, 3000, (P, 3)) + [0, 0, 2000]
-    m_true = np.linalg.norm(p_lm - cam[:, None], axis=-1)
-    m = m_true * (1 + 1e-4 * rng.normal(size=(P, L)))
-    c = cosine_model(m_true, d2) + 1e-6 * rng.normal(size=(P, nc))
+    d2, m_true, m, c = _noisy_cosine_scene(rng, P, L)
     colm = np.ones((P, L), bool)  # N_V = 3 or 4, as the monitor passes them (fewer is unavailable before)
     colm[np.arange(P), rng.integers(0, L, P)] = rng.random(P) > 0.5
     pair_mask = colm[:, I] & colm[:, J]
@@ -383,6 +389,47 @@ def test_the_side_by_side_cosine_solve_gives_the_per_epoch_one_bit_for_bit(L):
         assert a.tobytes() == b.tobytes(), k
     steps = ref[1]
     assert ref[2].mean() > 0.8 and steps.max() >= 5 and 0 in set(steps.tolist()) and not ref[3][10:13].all()
+
+
+@pytest.mark.parametrize("L, gate", [(3, True), (4, True), (3, False)])
+def test_the_side_by_side_cosine_products_give_the_per_epoch_ones_bit_for_bit(L, gate):
+    """cosine_rule_products_tiles against the per-epoch kernel, byte for byte: landmarks and pairs left out
+    (identity pad), NaN ranges and cosines, singular and NaN covariances, with and without the branch gate,
+    over several tiles."""
+    from testbed.integrity.kernels.vision import TILE
+
+    rng = np.random.default_rng(53 + L)
+    P = 3 * TILE + 5
+    I, J = np.triu_indices(L, 1)
+    nc = len(I)
+    d2, m_true, m, c = _noisy_cosine_scene(rng, P, L)
+    colm = rng.random((P, L)) > 0.1
+    colm[[5, 7, 11]] = True
+    colm[9] = False
+    pair_mask = colm[:, I] & colm[:, J]
+    X = rng.normal(size=(P, nc, nc))
+    Sc = 1e-12 * X @ np.swapaxes(X, -1, -2) * (pair_mask[:, :, None] & pair_mask[:, None, :])
+    W = np.einsum("pi,ij->pij", pair_mask.astype(float), np.eye(nc)) * rng.uniform(0.5, 2.0, (P, 1, 1))
+    m_pred = m_true + rng.normal(size=(P, L))
+    Y = rng.normal(size=(P, L, L))
+    S_pred = Y @ np.swapaxes(Y, -1, -2) if gate else np.zeros((0, L, L))
+    m[5, 0] = np.nan
+    c[7] = np.nan
+    W[11] = 0.0  # singular normal equations
+    if gate:
+        S_pred[13] = np.nan
+        S_pred[14] = 0.0
+    shapes = ((nc, L), (nc,), (L, nc), (), (), (L, L), (), (), (), ())
+    kinds = (float, float, float, bool, float, float, float, float, float, bool)
+    ref = [np.full((P,) + s, 7, k) for s, k in zip(shapes, kinds)]
+    got = [a.copy() for a in ref]
+    kernels.cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred, *ref)
+    kernels.cosine_rule_products_tiles(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred, *got)
+    for k, (a, b) in enumerate(zip(got, ref)):
+        assert a.tobytes() == b.tobytes(), k
+    good, gok = ref[3], ref[9]
+    assert good.mean() > 0.7 and not good[[5, 7, 11]].any()
+    assert not gate or (gok.mean() > 0.7 and not gok[13])
 
 
 def test_the_side_by_side_calibration_gives_the_per_epoch_one_bit_for_bit():

@@ -333,11 +333,11 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     A, Bd, Ap = np.empty((P, nc, L)), np.empty((P, nc)), np.empty((P, L, nc))
     Sigma_V, good, cond = np.empty((P, L, L)), np.empty(P, bool), np.empty(P)
     r_norm, r_w, gate_stat, gok = np.empty(P), np.empty(P), np.full(P, np.nan), np.zeros(P, bool)
-    kernels.cosine_rule_products(flat(m, (L,)), flat(c, (nc,)), kernels.kernel_input(d2, d2.shape),
-                                 flat(colm, (L,), np.bool_), flat(pair_mask, (nc,), np.bool_), flat(W, (nc, nc)),
-                                 flat(Sigma_c, (nc, nc)), flat(mp, (L,)),
-                                 flat(Sp, (L, L)) if gate else kernels.kernel_input(Sp, Sp.shape),
-                                 A, Bd, Ap, good, cond, Sigma_V, r_norm, r_w, gate_stat, gok)
+    kernels.cosine_rule_products_tiles(flat(m, (L,)), flat(c, (nc,)), kernels.kernel_input(d2, d2.shape),
+                                       flat(colm, (L,), np.bool_), flat(pair_mask, (nc,), np.bool_), flat(W, (nc, nc)),
+                                       flat(Sigma_c, (nc, nc)), flat(mp, (L,)),
+                                       flat(Sp, (L, L)) if gate else kernels.kernel_input(Sp, Sp.shape),
+                                       A, Bd, Ap, good, cond, Sigma_V, r_norm, r_w, gate_stat, gok)
     A, Bd, Ap = A.reshape(batch + (nc, L)), Bd.reshape(batch + (nc,)), Ap.reshape(batch + (L, nc))
     Sigma_V, good, cond = Sigma_V.reshape(batch + (L, L)), good.reshape(batch), cond.reshape(batch)
     r_norm, r_w, gate_stat, gok = (a.reshape(batch) for a in (r_norm, r_w, gate_stat, gok))

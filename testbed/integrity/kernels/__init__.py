@@ -41,13 +41,14 @@ from testbed.integrity.kernels.vision import (
     cosine_gauss_newton,
     cosine_gauss_newton_tiles,
     cosine_rule_products,
+    cosine_rule_products_tiles,
     cosines_and_covariance,
     vision_prior,
     vision_rows,
 )
 
 __all__ = ["calibrate_epochs", "calibrate_tiles", "compile_all", "cosine_gauss_newton",
-           "cosine_gauss_newton_tiles", "cosine_rule_products", "cosines_and_covariance", "gather_used_rows",
+           "cosine_gauss_newton_tiles", "cosine_rule_products", "cosine_rule_products_tiles", "cosines_and_covariance", "gather_used_rows",
            "kernel_input", "range_gauss_newton", "range_gauss_newton_tiles", "scatter_used_rows",
            "vision_prior", "vision_rows", "wls_epochs", "wls_one", "_lu_solve"]
 
@@ -93,9 +94,9 @@ def compile_all() -> None:
     wls_epochs(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e10, w(1, 4, 4), w(1, 4, 5),
                w(1, 5), w(1), w(1, 5), w(1), w(1, 5), w(1, 5), w(1), w(1), w(1, dt=i), w(1, dt=i),
                w(1, dt=np.int8))
-    cosine_rule_products(r(1, 3), r(1, 3), r(3), r(1, 3, dt=b), r(1, 3, dt=b), r(1, 3, 3), r(1, 3, 3), r(1, 3),
-                         r(1, 3, 3), w(1, 3, 3), w(1, 3), w(1, 3, 3), w(1, dt=b), w(1), w(1, 3, 3), w(1), w(1), w(1),
-                         w(1, dt=b))
+    for products in (cosine_rule_products, cosine_rule_products_tiles):
+        products(r(1, 3), r(1, 3), r(3), r(1, 3, dt=b), r(1, 3, dt=b), r(1, 3, 3), r(1, 3, 3), r(1, 3), r(1, 3, 3),
+                 w(1, 3, 3), w(1, 3), w(1, 3, 3), w(1, dt=b), w(1), w(1, 3, 3), w(1), w(1), w(1), w(1, dt=b))
     vision_rows(r(1, 3, 3), r(1, 3), r(1, 3, 3), r(1, 3, dt=b), r(1, 3, dt=b), r(1, dt=b), w(1, 3, 3), w(1, 3),
                 w(1, 3, 3), w(1, 3, dt=b))
     vision_prior(r(1, 1, 4), r(1, 1, 3, 3), r(1, 1, dt=b), r(1), r(3, 3), r(1, 1, 3), 1.0, 1.0, w(1, 1, dt=i),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.integrity.kernels.small import _matmul, _offset_range, _sandwich, _tile_matmul
+from testbed.integrity.kernels.small import _matmul, _offset_range, _sandwich, _tile_matmul, _tile_sandwich
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -83,21 +83,6 @@ def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
 TILE = 64
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _tile_sandwich_add(n, X, C, out, tmp, acc):
-    """out += X C Xᵀ for ``n`` systems side by side, in :func:`~.small._sandwich`'s order (tmp: X C)."""
-    _tile_matmul(n, X, C, tmp, acc, False)
-    for l in range(out.shape[0]):
-        for j in range(out.shape[1]):
-            for q in range(n):
-                acc[q] = 0.0
-            for k in range(X.shape[1]):
-                for q in range(n):
-                    acc[q] += tmp[l, k, q] * X[j, k, q]
-            for q in range(n):
-                out[l, j, q] = out[l, j, q] + acc[q]
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def calibrate_tiles(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd, beta_out, beta0_out, Sh_out, Su_out):
     """:func:`calibrate_epochs`, epochs ``TILE`` at a time side by side: the same numbers bit for bit."""
@@ -163,10 +148,10 @@ def calibrate_tiles(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd, beta_out
                     Ld[l, c, q] = AB[l, c, q] - MP0[l, c, q] * Bk[c, q]
         Sh[:, :, :n] = SVt[:, :, :n]
         Su[:, :, :n] = SVt[:, :, :n]
-        _tile_sandwich_add(n, MP0, Sck, Sh, tmp, acc)
-        _tile_sandwich_add(n, Ld, Sdt, Sh, tmp, acc)
-        _tile_sandwich_add(n, AB, Sdt, Su, tmp, acc)
-        _tile_sandwich_add(n, MAH, Pgk, Sh, tmp3, acc)
+        _tile_sandwich(n, MP0, Sck, Sh, tmp, acc, True)
+        _tile_sandwich(n, Ld, Sdt, Sh, tmp, acc, True)
+        _tile_sandwich(n, AB, Sdt, Su, tmp, acc, True)
+        _tile_sandwich(n, MAH, Pgk, Sh, tmp3, acc, True)
         for q in range(n):  # -- scatter
             b, t = divmod(p0 + q, T)
             beta_out[b, t] = bet[:, 0, q]

@@ -151,3 +151,18 @@ def _end_failed_lanes(n, active, solved, flag):
             flag[q] = False
             active[q] = False
 
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _tile_sandwich(n, X, C, out, tmp, acc, accumulate):
+    """out = X C Xᵀ (or out += with ``accumulate``) for ``n`` systems side by side, in :func:`_sandwich`'s
+    order (tmp: X C)."""
+    _tile_matmul(n, X, C, tmp, acc, False)
+    for l in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            for q in range(n):
+                acc[q] = 0.0
+            for k in range(X.shape[1]):
+                for q in range(n):
+                    acc[q] += tmp[l, k, q] * X[j, k, q]
+            for q in range(n):
+                out[l, j, q] = out[l, j, q] + acc[q] if accumulate else acc[q]

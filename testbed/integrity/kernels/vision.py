@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit
 
 from testbed.integrity.kernels.small import (_end_failed_lanes, _lu_solve, _matmul, _offset_range, _sandwich, _tile_lu_solve,
-                                            _tile_matmul)
+                                            _tile_matmul, _tile_sandwich)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -277,6 +277,30 @@ def cosines_and_covariance(uv, used, sigma_px, Kinv, c_out, Sc_out):
                 Sc_out[p, k, k2] = s
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cosine_residuals(p, c, d2, pair_mask, Sc, W, I, J, ms, r):
+    """Epoch p's cosine residuals at the ranges ``ms`` (written to r (N_C,)): (max |r|/σ_c over the used
+    pairs, rᵀWr)."""
+    nc = r.shape[0]
+    rn = 0.0
+    for k in range(nc):
+        i, j = I[k], J[k]
+        cm = (ms[i] * ms[i] + ms[j] * ms[j] - d2[k]) / (2.0 * ms[i] * ms[j])
+        r[k] = c[p, k] - cm if pair_mask[p, k] else 0.0
+        if pair_mask[p, k]:
+            sc = np.sqrt(Sc[p, k, k])
+            v = abs(r[k]) / (sc if sc > 0.0 else 1.0)
+            if np.isnan(v) or v > rn:  # NaN propagates, as numpy's max
+                rn = v
+    rw = 0.0
+    for k in range(nc):
+        s = 0.0
+        for q in range(nc):
+            s += W[p, k, q] * r[q]
+        rw += r[k] * s
+    return rn, rw
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
                          A_out, B_out, Ap_out, good_out, cond_out, SigV_out, r_norm_out, r_w_out, gate_out,
@@ -346,25 +370,7 @@ def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
         cond = np.sqrt(sa) * np.sqrt(sp)
         cond_out[p] = cond if np.isfinite(cond) else np.inf
         _sandwich(Ap_out[p], Sc[p], SigV_out[p], tmp, False)
-        # cosine residuals at the solution
-        rn = 0.0
-        for k in range(nc):
-            i, j = I[k], J[k]
-            cm = (ms[i] * ms[i] + ms[j] * ms[j] - d2[k]) / (2.0 * ms[i] * ms[j])
-            r[k] = c[p, k] - cm if pair_mask[p, k] else 0.0
-            if pair_mask[p, k]:
-                sc = np.sqrt(Sc[p, k, k])
-                v = abs(r[k]) / (sc if sc > 0.0 else 1.0)
-                if np.isnan(v) or v > rn:  # NaN propagates, as numpy's max
-                    rn = v
-        r_norm_out[p] = rn
-        rw = 0.0
-        for k in range(nc):
-            s = 0.0
-            for q in range(nc):
-                s += W[p, k, q] * r[q]
-            rw += r[k] * s
-        r_w_out[p] = rw
+        r_norm_out[p], r_w_out[p] = _cosine_residuals(p, c, d2, pair_mask, Sc, W, I, J, ms, r)
         if not gate:
             continue
         finite = True
@@ -381,6 +387,123 @@ def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
         for l in range(L):
             g += dmv[l] * dm[l, 0]
         gate_out[p] = g if ok else np.nan
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def cosine_rule_products_tiles(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
+                               A_out, B_out, Ap_out, good_out, cond_out, SigV_out, r_norm_out, r_w_out, gate_out,
+                               gok_out):
+    """:func:`cosine_rule_products`, epochs ``TILE`` at a time side by side: the same numbers bit for bit
+    (each epoch's operations in that kernel's order, its LU solves by :func:`_tile_lu_solve`)."""
+    P, L = m.shape
+    nc = c.shape[1]
+    gate = S_pred.shape[0] > 0
+    I, J = _pair_indices(L)
+    ms, A, Wt = np.empty((L, TILE)), np.empty((nc, L, TILE)), np.empty((nc, nc, TILE))
+    AtW, Nm, X = np.empty((L, nc, TILE)), np.empty((L, L, TILE)), np.empty((L, nc, TILE))
+    Sct, SV, tmp = np.empty((nc, nc, TILE)), np.empty((L, L, TILE)), np.empty((L, nc, TILE))
+    r, Cg, dm = np.empty((nc, TILE)), np.empty((L, L, TILE)), np.empty((L, TILE))
+    dmv, acc, Nw, xk = np.empty((L, TILE)), np.empty(TILE), np.empty((L, L, TILE)), np.empty((L, TILE))
+    okk = np.empty(TILE, np.bool_)
+    finite, solved, sa, sp = np.empty(TILE, np.bool_), np.empty(TILE, np.bool_), np.empty(TILE), np.empty(TILE)
+    for p0 in range(0, P, TILE):
+        n = min(TILE, P - p0)
+        for l in range(L):
+            for q in range(n):
+                ms[l, q] = m[p0 + q, l] if colm[p0 + q, l] else 1.0
+        for k in range(nc):
+            i, j = I[k], J[k]
+            for l in range(L):
+                for q in range(n):
+                    A[k, l, q] = 0.0
+            for q in range(n):
+                p = p0 + q
+                pm = 1.0 if pair_mask[p, k] else 0.0
+                A[k, i, q] = (1.0 / ms[j, q] - c[p, k] / ms[i, q]) * pm * (1.0 if colm[p, i] else 0.0)
+                A[k, j, q] = (1.0 / ms[i, q] - c[p, k] / ms[j, q]) * pm * (1.0 if colm[p, j] else 0.0)
+                B_out[p, k] = 1.0 / (2.0 * ms[i, q] * ms[j, q]) if pair_mask[p, k] else 0.0
+            for k2 in range(nc):
+                for q in range(n):
+                    Wt[k, k2, q] = W[p0 + q, k, k2]
+                    Sct[k, k2, q] = Sc[p0 + q, k, k2]
+        for k in range(nc):
+            for l in range(L):
+                for q in range(n):
+                    A_out[p0 + q, k, l] = A[k, l, q]
+        # A⁺ by the normal equations, an identity pad on unused landmarks
+        _tile_matmul(n, A, Wt, AtW, acc, True)
+        _tile_matmul(n, AtW, A, Nm, acc, False)
+        for q in range(n):
+            finite[q] = True
+        for l in range(L):
+            for q in range(n):
+                if not colm[p0 + q, l]:
+                    Nm[l, l, q] += 1.0
+            for j in range(L):
+                for q in range(n):
+                    finite[q] = finite[q] and np.isfinite(Nm[l, j, q])
+        # column by column on a fresh copy of the normal matrix: each column gets _lu_solve's operations
+        for q in range(n):
+            solved[q] = finite[q]
+        for k in range(nc):
+            Nw[:] = Nm
+            for l in range(L):
+                for q in range(n):
+                    xk[l, q] = AtW[l, k, q]
+            _tile_lu_solve(n, Nw, xk, okk)
+            for l in range(L):
+                for q in range(n):
+                    X[l, k, q] = xk[l, q]
+            for q in range(n):
+                solved[q] = solved[q] and okk[q]
+        for q in range(n):
+            good_out[p0 + q] = solved[q]
+            sa[q] = 0.0
+            sp[q] = 0.0
+        for l in range(L):
+            for k in range(nc):
+                for q in range(n):
+                    X[l, k, q] = X[l, k, q] if solved[q] else np.nan
+                    Ap_out[p0 + q, l, k] = X[l, k, q]
+        for k in range(nc):
+            for l in range(L):
+                for q in range(n):
+                    sa[q] += (A[k, l, q] * ms[l, q]) ** 2
+                    sp[q] += (X[l, k, q] / ms[l, q]) ** 2
+        for q in range(n):
+            cond = np.sqrt(sa[q]) * np.sqrt(sp[q])
+            cond_out[p0 + q] = cond if np.isfinite(cond) else np.inf
+        _tile_sandwich(n, X, Sct, SV, tmp, acc, False)
+        for l in range(L):
+            for j in range(L):
+                for q in range(n):
+                    SigV_out[p0 + q, l, j] = SV[l, j, q]
+        for q in range(n):
+            r_norm_out[p0 + q], r_w_out[p0 + q] = _cosine_residuals(p0 + q, c, d2, pair_mask, Sc, W, I, J, ms[:, q],
+                                                                    r[:, q])
+        if not gate:
+            continue
+        for q in range(n):
+            finite[q] = True
+        for l in range(L):
+            for q in range(n):
+                p = p0 + q
+                dmv[l, q] = m[p, l] - m_pred[p, l] if colm[p, l] else 0.0
+                dm[l, q] = dmv[l, q]
+            for j in range(L):
+                for q in range(n):
+                    p = p0 + q
+                    v = SV[l, j, q] + S_pred[p, l, j] if colm[p, l] and colm[p, j] else 0.0
+                    Cg[l, j, q] = v + (1.0 if l == j and not colm[p, l] else 0.0)
+                    finite[q] = finite[q] and np.isfinite(Cg[l, j, q])
+        _tile_lu_solve(n, Cg, dm, solved)
+        for q in range(n):
+            ok = finite[q] and solved[q]
+            gok_out[p0 + q] = ok
+            g = 0.0
+            for l in range(L):
+                g += dmv[l, q] * dm[l, q]
+            gate_out[p0 + q] = g if ok else np.nan
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
