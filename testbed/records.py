@@ -10,6 +10,7 @@ axes (zero or more). Missing measurements are NaN *and* masked out.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, fields, replace
 from enum import IntEnum
 
@@ -40,8 +41,15 @@ class Diagnostics:
 
 def _record_fields(rec):
     """(name, value, metadata) of a MonitorOutput or Diagnostics record's fields."""
-    for f in fields(rec):
-        yield f.name, getattr(rec, f.name), f.metadata
+    for name, meta in _field_plan(type(rec)):
+        yield name, getattr(rec, name), meta
+
+
+@functools.cache
+def _field_plan(cls) -> tuple[tuple[str, object], ...]:
+    """(name, metadata) of a record class's fields, looked up once per class (records are walked per
+    block and per monitor: :func:`dataclasses.fields` each time was most of a walk's cost)."""
+    return tuple((f.name, f.metadata) for f in fields(cls))
 
 
 def _is_nested(v) -> bool:
@@ -66,13 +74,23 @@ def _is_epoch_array(rec, name: str, v, meta) -> bool:
 def map_epoch_arrays(rec, fn):
     """``rec`` (an observation record, a MonitorOutput or a Diagnostics) with ``fn(array,
     metadata)`` applied to every per-epoch array, nested records included; constants kept."""
+    return _map_records([rec], lambda vs, meta: fn(vs[0], meta))
+
+
+def _map_records(recs: list, fn):
+    """The first of ``recs`` (records of one layout) with ``fn([its array, the others' arrays...],
+    metadata)`` in place of every per-epoch array, nested records included, in one walk."""
+    first = recs[0]
+    if any(type(r) is not type(first) for r in recs):
+        raise ValueError(f"records of different types: {', '.join(type(r).__name__ for r in recs)}")
     kw = {}
-    for name, v, meta in _record_fields(rec):
+    for name, meta in _field_plan(type(first)):
+        v = getattr(first, name)
         if _is_nested(v):
-            kw[name] = map_epoch_arrays(v, fn)
-        elif _is_epoch_array(rec, name, v, meta):
-            kw[name] = fn(v, meta)
-    return replace(rec, **kw)
+            kw[name] = _map_records([getattr(r, name) for r in recs], fn)
+        elif _is_epoch_array(first, name, v, meta):
+            kw[name] = fn([v] + [getattr(r, name) for r in recs[1:]], meta)
+    return replace(first, **kw)
 
 
 def epoch_array_pairs(a, b):
@@ -105,21 +123,16 @@ def concat_epochs(recs: list):
     Ragged fields are padded to the widest block (NaN for floats, -1 for integers,
     False for booleans), so no block's values are lost.
     """
-    first = recs[0]
     if len(recs) == 1:
-        return first
-    leaves = [list(epoch_array_pairs(first, r)) for r in recs]
-    it = iter(range(len(leaves[0])))
+        return recs[0]
 
-    def join(a, meta):
-        k = next(it)
-        parts = [lv[k][1] for lv in leaves]
+    def join(parts: list, meta) -> NDArray:
         if meta["ragged"]:
             width = max(p.shape[-1] for p in parts)
             parts = [_pad_last(p, width) for p in parts]
-        return np.concatenate(parts, axis=epoch_axis(a, meta))
+        return np.concatenate(parts, axis=epoch_axis(parts[0], meta))
 
-    return map_epoch_arrays(first, join)
+    return _map_records(recs, join)
 
 
 def _pad_last(a: NDArray, width: int) -> NDArray:

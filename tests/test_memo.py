@@ -55,9 +55,31 @@ def test_a_sweep_gives_the_same_tables_with_and_without_shared_draws(tmp_path):
     # reused at 40 m (2 hits), the dithering drawn with the first frames and reused by the second camera's
     # (1 hit), the landmark survey new for each camera and reused at 40 m (2 misses, 2 hits), VA-RAIM's vision
     # step new in every cell (4 misses; it reads both records), the fault-free GNSS errors drawn for 0 m and
-    # reused at 40 m (1 miss, 1 hit): 10 hits and 14 misses a block, 4 blocks a cell
-    assert shared["hits"] == 4 * 10 and shared["misses"] == 4 * 14
+    # reused at 40 m (1 miss, 1 hit), GPS RAIM's own table columns (its output is step 1's) new for each
+    # magnitude and reused by its second camera (2 misses, 2 hits): 12 hits and 16 misses a block, 4 blocks a cell
+    assert shared["hits"] == 4 * 12 and shared["misses"] == 4 * 16
     _same_tables_without_sharing(spec, tmp_path)
+
+
+def test_a_camera_sweep_tabulates_gps_raim_once_per_magnitude_and_holds_no_unshared_output(tmp_path, monkeypatch):
+    """GPS RAIM's output is VA-RAIM's shared step 1, so its table columns are made once per magnitude and
+    block; VA-RAIM's own output differs per cell and is tabulated every time without being held."""
+    from collections import Counter
+
+    from testbed.campaign import runner
+
+    made, tabulate = Counter(), runner._trial_columns
+
+    def counted(ctx, d, out, he, ve):
+        made[out.name] += 1
+        return tabulate(ctx, d, out, he, ve)
+
+    monkeypatch.setattr(runner, "_trial_columns", counted)
+    spec = tmp_path / "shared.toml"
+    spec.write_text(SWEEP)
+    run_campaign(spec, tmp_path / "on", progress=False)
+    assert made == {"gps_raim": 4 * 2, "va_raim": 4 * 4}  # 4 blocks: 2 magnitudes, 4 cells
+    assert {k[1] for k in memo._store if k[0] == "monitor_tables"} == {"gps_raim"}
 
 
 def test_va_raim_settings_after_the_vision_step_share_it(tmp_path):
@@ -67,10 +89,10 @@ def test_va_raim_settings_after_the_vision_step_share_it(tmp_path):
         "camera_focal_px = [992.0, 1e4]", 'va_raim_variant = ["seed", "gated"]\ncalibration = ["gps", "none"]'))
     run_campaign(spec, tmp_path / "on", progress=False)
     # per block, 4 cells on one pseudorange draw and one camera draw; misses: the GNSS errors, pseudoranges,
-    # frames, dithering, the survey, step 1, the vision step; the other 3 cells reuse the pseudoranges, frames,
-    # survey, step 1 and vision step
+    # frames, dithering, the survey, step 1, the vision step, GPS RAIM's table columns; the other 3 cells reuse
+    # the pseudoranges, frames, survey, step 1, vision step and GPS RAIM's table columns
     shared = memo.counts()
-    assert shared["misses"] == 4 * 7 and shared["hits"] == 4 * 3 * 5
+    assert shared["misses"] == 4 * 8 and shared["hits"] == 4 * 3 * 6
     _same_tables_without_sharing(spec, tmp_path)
 
 

@@ -30,6 +30,7 @@ import os
 import time
 import threading
 from concurrent.futures import ThreadPoolExecutor
+import dataclasses
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
@@ -459,18 +460,42 @@ def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndar
     with memo.sharing() if spec.common_random_numbers else contextlib.nullcontext():
         d = draw_block(ctx, spec, block)
         outs = monitor_block(ctx.setup.monitors, d.obs, lambda mon: correlator_monitor(mon, ctx, d))
-    keep_ep = d.trials < spec.per_epoch_trials
-    rows, ep, hist = {}, {}, {}
-    for mon in ctx.setup.monitors:
-        out = outs[mon.name]
-        ref = ctx.truth_ant_enu if mon.reference == ANTENNA else ctx.truth_cg_enu
-        he, ve = position_errors(out, ref)  # (n, T)
-        rows[mon.name] = _trial_columns(ctx, d, out, he, ve)
-        rows[mon.name].update(_paired_columns(ctx, d, out, outs))
-        hist.update(_stanford_counts(mon.name, out, he, ve))
-        if keep_ep.any():
-            ep[mon.name] = _epoch_columns(ctx, d, np.flatnonzero(keep_ep), out, he, ve)
+        keep_ep = d.trials < spec.per_epoch_trials
+        rows, ep, hist = {}, {}, {}
+        for mon in ctx.setup.monitors:
+            out = outs[mon.name]
+            ref = ctx.truth_ant_enu if mon.reference == ANTENNA else ctx.truth_cg_enu
+            own_rows, own_hist, own_ep = _shared_tables(ctx, d, out, ref, keep_ep)
+            rows[mon.name] = {"cell": np.full(d.trials.size, ctx.cell.index, np.int32), **own_rows,
+                              **_paired_columns(ctx, d, out, outs)}
+            hist.update(own_hist)
+            if own_ep is not None:
+                ep[mon.name] = {"cell": np.full(own_ep["trial"].size, ctx.cell.index, np.int32), **own_ep}
     return {"trials": rows, "epochs": ep, "hist": hist}
+
+
+def _shared_tables(ctx: CellContext, d: BlockDraw, out: MonitorOutput, ref: np.ndarray, keep_ep: np.ndarray
+                   ) -> tuple[dict, dict, dict | None]:
+    """A monitor's own trial columns, Stanford counts and per-epoch records of one block (not its
+    paired columns, nor the cell), computed once for the cells handing it the very same output
+    fields (:mod:`testbed.memo`): GPS RAIM's, which VA-RAIM provides from its shared step 1, is
+    one output across a camera sweep. Keyed on those fields' identity and on the content of
+    everything else the tables read. An output that is not itself shared (its arrays are writeable: the
+    memo freezes what it holds) is not kept either: no other cell can hand it in."""
+    own = tuple(getattr(out, f.name) for f in dataclasses.fields(out) if f.name != "name")
+    extra = getattr(out.diagnostics, "trial_columns", None)
+
+    def make() -> tuple[dict, dict, dict | None]:
+        he, ve = position_errors(out, ref)  # (n, T)
+        ep = _epoch_columns(ctx, d, np.flatnonzero(keep_ep), out, he, ve) if keep_ep.any() else None
+        return _trial_columns(ctx, d, out, he, ve), _stanford_counts(out.name, out, he, ve), ep
+
+    if not memo.active() or any(isinstance(v, np.ndarray) and v.flags.writeable for v in own):
+        return make()
+    read = (ctx.t, ref, ctx.onset_s, ctx.hal, ctx.val, ctx.levels, keep_ep, d.trials, d.start_offset_s, d.sky_window,
+            d.fault_target, d.fault_present)
+    guard = own + ((d.vision_truth,) if extra is not None else ())
+    return memo.shared(("monitor_tables", out.name, tuple(id(v) for v in guard), memo.digest(*read)), make, guard=guard)
 
 
 def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.ndarray, ve: np.ndarray) -> dict:
@@ -494,7 +519,7 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
         mi = misleading(he, ve, hpl, vpl, alert, out.dimensions)
         hmi = rh["hazardous"] | rv["hazardous"]  # alerted epochs are in their own region
         col = {
-            "cell": np.full(n, ctx.cell.index, np.int32), "trial": d.trials.astype(np.int64),
+            "trial": d.trials.astype(np.int64),
             "monitor": np.full(n, out.name, object), "epochs": np.full(n, t.size, np.int32),
             "start_offset_s": d.start_offset_s, "sky_window": d.sky_window,
             "fault_target": d.fault_target, "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
@@ -567,7 +592,7 @@ def _epoch_columns(ctx: CellContext, d: BlockDraw, k_idx: np.ndarray, out: Monit
     trials = d.trials
     t, T, nk = ctx.t, ctx.t.size, k_idx.size
     avail = np.asarray(out.available, bool)
-    e = {"cell": np.full(nk * T, ctx.cell.index, np.int32), "trial": np.repeat(trials[k_idx], T),
+    e = {"trial": np.repeat(trials[k_idx], T),
          "monitor": np.full(nk * T, out.name, object), "t": np.tile(t, nk),
          "he": he[k_idx].ravel(), "ve": ve[k_idx].ravel(), "hpl": np.asarray(out.hpl, float)[k_idx].ravel(),
          "vpl": np.asarray(out.vpl, float)[k_idx].ravel(), "test_stat": np.asarray(out.test_stat, float)[k_idx].ravel(),

@@ -539,7 +539,8 @@ class VaRaimMonitor:
                        threads=self.context.threads)
         keep = _context_epochs(full)
         new_ctx = Observations(take_epochs(full_obs.gnss, keep), take_epochs(full_obs.vision, keep))
-        return take_epochs(full, slice(n_ctx, None)), VaRaimState(new_ctx)
+        # (the first step's output as it is: its step-1 arrays stay the shared ones, and so do the tables)
+        return (take_epochs(full, slice(n_ctx, None)) if n_ctx else full), VaRaimState(new_ctx)
 
     def provides(self, other, out: MonitorOutput) -> MonitorOutput | None:
         """GPS RAIM's output: step 1 is that monitor (same rows, weights, settings and solve)."""
