@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_campaign.py [--trials 2000] [--block 100] [--chunk 1000] [--per-experiment 1000]
+    python benchmarks/bench_campaign.py [--trials 2000] [--block 100] [--chunk 1000] [--per-experiment 1000] [--repeats 3]
 
 Runs a fault-free + GPS-step campaign on the seed-000 sortie (approach
 ``va-raim-2015``, 61 epochs at 1 Hz, 720 dpi, DE 1 px) in-process, into a
@@ -14,7 +14,10 @@ setting): chunk 0 (``--per-experiment`` sorties) of every setting of every
 experiment, run as the driver runs it (one chunk row, block-major:
 :func:`testbed.campaign.runner.run_chunk_row`) with the cells' shared draws
 (:mod:`testbed.memo`) and again without them, and cell by cell (each cell's whole
-chunk in turn), side by side; each experiment's geometry is paid once.
+chunk in turn), side by side; each experiment's geometry is paid once. The shared-draws
+run is repeated (``--repeats``, interleaved with the others): the projection is the sum of
+the experiments' medians, with the range their fastest and slowest runs give (one run
+of an experiment moves by up to ~15 % on this shared machine).
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ import dataclasses
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 SPEC = """
 name = "bench"
@@ -58,6 +63,8 @@ def main() -> None:
     ap.add_argument("--chunk", type=int, default=1000)
     ap.add_argument("--per-experiment", type=int, default=1000,
                     help="sorties timed per reproduction experiment (one chunk of its first setting)")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="timed runs with shared draws per experiment (the projection is their median)")
     args = ap.parse_args()
 
     from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments
@@ -93,6 +100,7 @@ def main() -> None:
           "sorties) of every setting timed as one chunk row (block-major), shared draws on / off, and cell by cell:")
     modes = (("on", memo.DEFAULT_LIMIT_BYTES, True), ("off", 0, True), ("cell by cell", memo.DEFAULT_LIMIT_BYTES, False))
     total = {m: 0.0 for m, _, _ in modes}
+    low = high = 0.0
     n_settings = 0
     for name, le in loaded_experiments(2 * args.per_experiment).items():
         le = dataclasses.replace(le, spec=le.spec.model_copy(update={"chunk_trials": args.per_experiment}))
@@ -102,8 +110,8 @@ def main() -> None:
             cell_context(c, le.spec)
         setup_s = time.perf_counter() - t0
         run_chunk(le, 0, 1)  # warm (kernels, chi-square tables) on blocks the timed chunk does not draw
-        rates = {}
-        for mode, cap, row in modes:
+        runs = {m: [] for m, _, _ in modes}
+        for mode, cap, row in _schedule(modes, args.repeats):
             memo.clear()
             with memo.limit(cap):
                 t0 = time.perf_counter()
@@ -113,17 +121,37 @@ def main() -> None:
                     tables = [run_chunk(le, i, 0) for i in range(len(cells))]
                 dt = time.perf_counter() - t0
             epochs = args.per_experiment * len(cells) * int(tables[0]["trials"].column("epochs")[0].as_py())
-            rates[mode] = epochs / dt
-            total[mode] += FULL_TRIALS * 61 * len(cells) / rates[mode] + setup_s
+            runs[mode].append(epochs / dt)
+        rates = {m: float(np.median(r)) for m, r in runs.items()}
+        proj = {m: FULL_TRIALS * 61 * len(cells) / np.array(r) + setup_s for m, r in runs.items()}
+        for m in total:
+            total[m] += float(np.median(proj[m]))
+        low += float(proj["on"].min())
+        high += float(proj["on"].max())
         n_settings += len(cells)
-        full = FULL_TRIALS * 61 * len(cells) / rates["on"] + setup_s
+        full = float(np.median(proj["on"]))
         print(f"  {name:26s} {'+'.join(le.spec.monitors):16s} {len(cells):3d} settings: "
               f"{rates['on']:9,.0f} sortie-epochs/s shared ({rates['on'] / rates['off']:.2f}x unshared "
               f"{rates['off']:,.0f}; {rates['on'] / rates['cell by cell']:.2f}x cell by cell "
-              f"{rates['cell by cell']:,.0f}) -> {full / 60:6.1f} min (geometry {setup_s:.1f} s once)")
+              f"{rates['cell by cell']:,.0f}) -> {full / 60:6.1f} min (median of {len(runs['on'])}: "
+              f"{proj['on'].min() / 60:.1f}-{proj['on'].max() / 60:.1f}; geometry {setup_s:.1f} s once)")
     memo.clear()
-    print(f"  all {n_settings} settings: {total['on'] / 3600:.2f} h on this machine ({cores} cores, one process); "
-          f"{total['off'] / 3600:.2f} h without shared draws; {total['cell by cell'] / 3600:.2f} h cell by cell")
+    print(f"  all {n_settings} settings: {total['on'] / 3600:.2f} h on this machine ({cores} cores, one process; "
+          f"the sum of the experiments' medians; {low / 3600:.2f}-{high / 3600:.2f} h from their fastest and "
+          f"slowest runs); {total['off'] / 3600:.2f} h without shared draws; {total['cell by cell'] / 3600:.2f} h "
+          "cell by cell")
+
+
+def _schedule(modes: tuple, repeats: int) -> list:
+    """The timed runs of one experiment: the shared-draws run ``repeats`` times, the others once, interleaved
+    (on, off, on, cell by cell, on, ...) so a slow spell of the shared machine does not fall on one mode."""
+    on, rest = modes[0], list(modes[1:])
+    order = [on]
+    for i in range(1, max(repeats, 1)):
+        if rest:
+            order.append(rest.pop(0))
+        order.append(on)
+    return order + rest
 
 
 if __name__ == "__main__":
