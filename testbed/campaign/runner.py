@@ -637,7 +637,7 @@ def run_chunk_row(loaded: LoadedSpec, chunk: int, cells: list[int], threads: int
 
     Block-major: each draw block runs every cell in turn (blocks side by side on
     ``threads``), so what a sweep's cells draw alike for a block (:mod:`testbed.memo`) is
-    drawn once and reused while it is still in the processor's cache: 1.05–1.21× the
+    drawn once and reused while it is still in the processor's cache: 0.98–1.36× the
     cell-by-cell order per experiment of the VA-RAIM reproduction (``benchmarks/bench_campaign.py``).
     """
     spec = loaded.spec
