@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import threading
+import weakref
 from collections import OrderedDict
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator
@@ -32,6 +33,10 @@ _lock = threading.Lock()
 _store: OrderedDict[tuple, tuple[Any, int, object]] = OrderedDict()
 _state = {"bytes": 0, "limit": DEFAULT_LIMIT_BYTES, "hits": 0, "misses": 0}
 _on = threading.local()  # per thread: a flight beside a campaign chunk in one process shares nothing
+#: every array a shared value holds, by id, weakly (an entry leaves with its array): :func:`is_shared` tells
+#: a caller that an array it was handed is one the store shares, not merely read-only (a broadcast view is
+#: read-only too). Single dict operations, atomic under the GIL: no lock, which a collection could re-enter.
+_held: dict[int, weakref.ref] = {}
 
 
 @contextmanager
@@ -135,11 +140,28 @@ def digest(*arrays: Any) -> bytes:
     return h.digest()
 
 
+def is_shared(a: np.ndarray) -> bool:
+    """Whether ``a`` is an array of a value the store has shared (frozen by :func:`shared`)."""
+    ref = _held.get(id(a))
+    return ref is not None and ref() is a
+
+
+def _hold(a: np.ndarray) -> None:
+    key = id(a)
+
+    def gone(ref, key=key):
+        if _held.get(key) is ref:
+            _held.pop(key, None)
+
+    _held[key] = weakref.ref(a, gone)
+
+
 def _freeze(value: Any, depth: int = 0) -> int:
     """Make the arrays of a value read-only (dataclasses, tuples, lists, dicts: three levels deep);
     the bytes they own (a view counts nothing: its base is the geometry's, held elsewhere)."""
     if isinstance(value, np.ndarray):
         value.flags.writeable = False
+        _hold(value)
         return value.nbytes if value.flags.owndata else 0
     if depth > 3:
         return 0

@@ -154,6 +154,22 @@ def test_a_shared_value_is_frozen_and_served_again():
         a[1]["b"][0] = 1.0
 
 
+def test_is_shared_names_the_stores_arrays_not_any_read_only_one():
+    import gc
+
+    with memo.sharing():
+        a = memo.shared(("k", 2), lambda: (np.arange(4.0), {"b": np.ones(2)}))
+    assert memo.is_shared(a[0]) and memo.is_shared(a[1]["b"])
+    view = np.broadcast_to(np.ones(3), (2, 3))  # read-only, not the store's
+    assert not view.flags.writeable and not memo.is_shared(view) and not memo.is_shared(np.ones(2))
+    key = id(a[0])
+    ref = memo._held[key]
+    memo.clear()
+    del a
+    gc.collect()
+    assert ref() is None and memo._held.get(key) is not ref  # the entry left with its array
+
+
 def test_a_guarded_entry_serves_only_the_very_object_it_was_made_for():
     x, y = np.zeros(2), np.zeros(2)
     with memo.sharing():

@@ -480,8 +480,8 @@ def _shared_tables(ctx: CellContext, d: BlockDraw, out: MonitorOutput, ref: np.n
     paired columns, nor the cell), computed once for the cells handing it the very same output
     fields (:mod:`testbed.memo`): GPS RAIM's, which VA-RAIM provides from its shared step 1, is
     one output across a camera sweep. Keyed on those fields' identity and on the content of
-    everything else the tables read. An output that is not itself shared (its arrays are writeable: the
-    memo freezes what it holds) is not kept either: no other cell can hand it in."""
+    everything else the tables read. An output that is not itself shared (an array of it the memo does
+    not hold) is not kept either: no other cell can hand it in, and the entry would keep it alive."""
     own = tuple(getattr(out, f.name) for f in dataclasses.fields(out) if f.name != "name")
     extra = getattr(out.diagnostics, "trial_columns", None)
 
@@ -490,7 +490,7 @@ def _shared_tables(ctx: CellContext, d: BlockDraw, out: MonitorOutput, ref: np.n
         ep = _epoch_columns(ctx, d, np.flatnonzero(keep_ep), out, he, ve) if keep_ep.any() else None
         return _trial_columns(ctx, d, out, he, ve), _stanford_counts(out.name, out, he, ve), ep
 
-    if not memo.active() or any(isinstance(v, np.ndarray) and v.flags.writeable for v in own):
+    if not memo.active() or not all(memo.is_shared(v) for v in own if isinstance(v, np.ndarray)):
         return make()
     read = (ctx.t, ref, ctx.onset_s, ctx.hal, ctx.val, ctx.levels, keep_ep, d.trials, d.start_offset_s, d.sky_window,
             d.fault_target, d.fault_present)
