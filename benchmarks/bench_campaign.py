@@ -58,15 +58,20 @@ sortie_s = 60.0
 
 
 def main() -> None:
+    from testbed.campaign.cli_commands import _positive_int  # argparse prints its message and exits 2
+
     ap = argparse.ArgumentParser()
-    ap.add_argument("--trials", type=int, default=2000, help="trials per cell (2 cells)")
-    ap.add_argument("--block", type=int, default=100)
-    ap.add_argument("--chunk", type=int, default=1000)
-    ap.add_argument("--per-experiment", type=int, default=1000,
-                    help="sorties timed per reproduction experiment (one chunk of its first setting)")
-    ap.add_argument("--repeats", type=int, default=3,
+    ap.add_argument("--trials", type=_positive_int, default=2000, help="trials per cell (2 cells)")
+    ap.add_argument("--block", type=_positive_int, default=100)
+    ap.add_argument("--chunk", type=_positive_int, default=1000)
+    ap.add_argument("--per-experiment", type=_positive_int, default=1000,
+                    help="sorties timed per reproduction experiment (one chunk of its first setting; a multiple of 100)")
+    ap.add_argument("--repeats", type=_positive_int, default=3,
                     help="timed runs with shared draws per experiment (the projection is their median)")
     args = ap.parse_args()
+    if args.chunk % args.block or args.per_experiment % 100:  # the specs' own rule, said before any work
+        ap.error(f"--chunk ({args.chunk}) must be a multiple of --block ({args.block}), and --per-experiment "
+                 f"({args.per_experiment}) of the reproduction's 100-sortie blocks")
 
     from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments
     from testbed.campaign.runner import cell_context, run_campaign, run_chunk, run_chunk_row
@@ -88,7 +93,7 @@ def main() -> None:
             setup_s[kind] = time.perf_counter() - t0
             run_campaign(loaded[kind], Path(tmp) / f"warm{i}", progress=False)  # kernels, tables: not timed
         walls = {kind: [] for kind in kinds}
-        for r in range(max(args.repeats, 1)):  # alternating, so a slow spell does not fall on one kind
+        for r in range(args.repeats):  # alternating, so a slow spell does not fall on one kind
             for i, kind in enumerate(kinds):
                 res = run_campaign(loaded[kind], Path(tmp) / f"out{i}-{r}", progress=False)
                 walls[kind].append(res.wall_s)
@@ -155,7 +160,7 @@ def _schedule(modes: tuple, repeats: int) -> list:
     (on, off, on, cell by cell, on, ...) so a slow spell of the shared machine does not fall on one mode."""
     on, rest = modes[0], list(modes[1:])
     order = [on]
-    for i in range(1, max(repeats, 1)):
+    for i in range(1, repeats):
         if rest:
             order.append(rest.pop(0))
         order.append(on)

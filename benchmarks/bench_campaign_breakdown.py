@@ -32,10 +32,16 @@ PARTS = (
 
 
 def main() -> None:
+    from testbed.campaign.cli_commands import _positive_int  # argparse prints its message and exits 2
+    from testbed.campaign.reproduce import experiments
+
     ap = argparse.ArgumentParser()
-    ap.add_argument("--experiment", default="where-vision-pays")
-    ap.add_argument("--sorties", type=int, default=300, help="sorties per setting (chunk 0)")
+    ap.add_argument("--experiment", default="where-vision-pays", choices=sorted(experiments(200)))
+    ap.add_argument("--sorties", type=_positive_int, default=300,
+                    help="sorties per setting (chunk 0; a multiple of the reproduction's 100-sortie blocks)")
     args = ap.parse_args()
+    if args.sorties % 100:
+        ap.error(f"--sorties: expected a multiple of 100, got {args.sorties}")
 
     from testbed import memo
     from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments

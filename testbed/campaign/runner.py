@@ -22,16 +22,15 @@ coordinates per call, which a block provides.
 
 from __future__ import annotations
 
-from collections import OrderedDict
 import contextlib
 import functools
 import json
 import os
-import time
 import threading
+import time
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
-import dataclasses
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
 
@@ -482,7 +481,7 @@ def _shared_tables(ctx: CellContext, d: BlockDraw, out: MonitorOutput, ref: np.n
     one output across a camera sweep. Keyed on those fields' identity and on the content of
     everything else the tables read. An output that is not itself shared (an array of it the memo does
     not hold) is not kept either: no other cell can hand it in, and the entry would keep it alive."""
-    own = tuple(getattr(out, f.name) for f in dataclasses.fields(out) if f.name != "name")
+    own = tuple(getattr(out, f.name) for f in fields(out) if f.name != "name")
     extra = getattr(out.diagnostics, "trial_columns", None)
 
     def make() -> tuple[dict, dict, dict | None]:
