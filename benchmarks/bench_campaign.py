@@ -11,22 +11,27 @@ wall time, trials/s, sortie-epochs/s (after the one-off flight and geometry,
 which are timed separately, and an untimed warm-up run of each; the median of
 ``--repeats`` alternating runs) and their ratio. Then the projected time of
 ``testbed reproduce va-raim-2015 --full`` (1e5 sorties x 60 s = ~6e6 epochs per
-setting): chunk 0 (``--per-experiment`` sorties) of every setting of every
-experiment, run as the driver runs it (one chunk row, block-major:
-:func:`testbed.campaign.runner.run_chunk_row`) with the cells' shared draws
+setting): one chunk (``--per-experiment`` sorties) of every setting of every
+experiment on each of one worker process per core, side by side, as the driver runs a
+``--full`` reproduction (``--workers auto``: a chunk row per worker, block-major,
+:func:`testbed.campaign.runner.run_chunk_row`), with the cells' shared draws
 (:mod:`testbed.memo`) and again without them, and cell by cell (each cell's whole
-chunk in turn), side by side; each experiment's geometry is paid once. The shared-draws
-run is repeated (``--repeats``, interleaved with the others): the projection is the sum of
-the experiments' medians, with the range their fastest and slowest runs give (one run
-of an experiment moves by up to ~15 % on this shared machine).
+chunk in turn); each experiment's geometry is paid once (by each worker, side by side).
+Beside it, the same rows one after the other in this process, each row's blocks on
+threads (how the driver ran them before ``--workers``). The shared-draws runs on
+workers and on threads are repeated (``--repeats``, interleaved with the others): the
+projection is the sum of the experiments' medians, with the range their fastest and
+slowest runs give (one run of an experiment moves by up to ~15 % on this shared machine).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import multiprocessing
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -73,8 +78,8 @@ def main() -> None:
         ap.error(f"--chunk ({args.chunk}) must be a multiple of --block ({args.block}), and --per-experiment "
                  f"({args.per_experiment}) of the reproduction's 100-sortie blocks")
 
-    from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments
-    from testbed.campaign.runner import cell_context, run_campaign, run_chunk, run_chunk_row
+    from testbed.campaign.reproduce import FULL_TRIALS, experiments
+    from testbed.campaign.runner import cell_context, run_campaign
     from testbed.campaign.spec import expand_cells, load_spec
     from testbed import memo
     from testbed.integrity.batching import available_cores
@@ -106,64 +111,107 @@ def main() -> None:
     ratio = float(np.median(walls["consecutive 60 s sorties"])) / float(np.median(walls["fixed start"]))
     print(f"start times spread / fixed, after the one-off geometry: {ratio:.2f}x")
 
-    # the --full reproduction: chunk 0 of every setting, as the driver runs it (one chunk row, block-major:
-    # each block through every cell in turn), with the cells' shared draws (testbed.memo) and without
-    # them; and cell by cell (each cell's whole chunk in turn, the order before run_chunk_row), shared
-    print(f"--full reproduction ({FULL_TRIALS} sorties x 61 epochs per setting), chunk 0 ({args.per_experiment} "
-          "sorties) of every setting timed as one chunk row (block-major), shared draws on / off, and cell by cell:")
-    modes = (("on", memo.DEFAULT_LIMIT_BYTES, True), ("off", 0, True), ("cell by cell", memo.DEFAULT_LIMIT_BYTES, False))
+    # the --full reproduction as the driver runs it (--workers auto): chunk rows on one worker process per core,
+    # each row block-major (each block through every cell in turn), with the cells' shared draws (testbed.memo)
+    # and without them; and cell by cell (each cell's whole chunk in turn, the order before run_chunk_row), shared
+    print(f"--full reproduction ({FULL_TRIALS} sorties x 61 epochs per setting): chunks 0-{cores - 1} "
+          f"({args.per_experiment} sorties each) of every setting, one chunk row on each of {cores} worker "
+          "processes side by side (as the driver runs a --full reproduction), shared draws on / off, and cell by cell:")
+    modes = (("on", memo.DEFAULT_LIMIT_BYTES, True), ("threads", memo.DEFAULT_LIMIT_BYTES, True),
+             ("off", 0, True), ("cell by cell", memo.DEFAULT_LIMIT_BYTES, False))
     total = {m: 0.0 for m, _, _ in modes}
     low = high = 0.0
     n_settings = 0
-    for name, le in loaded_experiments(2 * args.per_experiment).items():
-        le = dataclasses.replace(le, spec=le.spec.model_copy(update={"chunk_trials": args.per_experiment}))
-        cells = expand_cells(le)
-        t0 = time.perf_counter()
-        for c in cells:
-            cell_context(c, le.spec)
-        setup_s = time.perf_counter() - t0
-        run_chunk(le, 0, 1)  # warm (kernels, chi-square tables) on blocks the timed chunk does not draw
-        runs = {m: [] for m, _, _ in modes}
-        for mode, cap, row in _schedule(modes, args.repeats):
-            memo.clear()
-            with memo.limit(cap):
+    for name in experiments(200):
+        with ProcessPoolExecutor(cores, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_setup,
+                                 initargs=(name, args.per_experiment, cores)) as pool:
+            n_cells, setup_s = max(pool.map(_setup_of, range(cores)))  # the workers' geometry, side by side
+            _worker_setup(name, args.per_experiment, cores)  # and here, for the same rows on threads
+            runs = {m: [] for m, _, _ in modes}
+            for mode, cap, row in _schedule(modes, args.repeats):
                 t0 = time.perf_counter()
-                if row:
-                    tables = list(run_chunk_row(le, 0, list(range(len(cells)))).values())
+                if mode == "threads":  # the rows one after the other in this process, each one's blocks on threads
+                    epochs = sum(_timed_row(k, cap, row, threads=cores) for k in range(cores))
                 else:
-                    tables = [run_chunk(le, i, 0) for i in range(len(cells))]
-                dt = time.perf_counter() - t0
-            epochs = args.per_experiment * len(cells) * int(tables[0]["trials"].column("epochs")[0].as_py())
-            runs[mode].append(epochs / dt)
+                    epochs = sum(pool.map(_timed_row, range(cores), [cap] * cores, [row] * cores))
+                runs[mode].append(epochs / (time.perf_counter() - t0))
+            _WORKER.clear()
         rates = {m: float(np.median(r)) for m, r in runs.items()}
-        proj = {m: FULL_TRIALS * 61 * len(cells) / np.array(r) + setup_s for m, r in runs.items()}
+        proj = {m: FULL_TRIALS * 61 * n_cells / np.array(r) + setup_s for m, r in runs.items()}
         for m in total:
             total[m] += float(np.median(proj[m]))
         low += float(proj["on"].min())
         high += float(proj["on"].max())
-        n_settings += len(cells)
+        n_settings += n_cells
         full = float(np.median(proj["on"]))
-        print(f"  {name:26s} {'+'.join(le.spec.monitors):16s} {len(cells):3d} settings: "
-              f"{rates['on']:9,.0f} sortie-epochs/s shared ({rates['on'] / rates['off']:.2f}x unshared "
+        print(f"  {name:26s} {n_cells:3d} settings: "
+              f"{rates['on']:9,.0f} sortie-epochs/s shared ({rates['on'] / rates['threads']:.2f}x the same rows on "
+              f"threads in one process {rates['threads']:,.0f}; {rates['on'] / rates['off']:.2f}x unshared "
               f"{rates['off']:,.0f}; {rates['on'] / rates['cell by cell']:.2f}x cell by cell "
               f"{rates['cell by cell']:,.0f}) -> {full / 60:6.1f} min (median of {len(runs['on'])}: "
               f"{proj['on'].min() / 60:.1f}-{proj['on'].max() / 60:.1f}; geometry {setup_s:.1f} s once)")
-    memo.clear()
-    print(f"  all {n_settings} settings: {total['on'] / 3600:.2f} h on this machine ({cores} cores, one process; "
+    print(f"  all {n_settings} settings: {total['on'] / 3600:.2f} h on this machine ({cores} worker processes; "
           f"the sum of the experiments' medians; {low / 3600:.2f}-{high / 3600:.2f} h from their fastest and "
-          f"slowest runs); {total['off'] / 3600:.2f} h without shared draws; {total['cell by cell'] / 3600:.2f} h "
-          "cell by cell")
+          f"slowest runs); {total['threads'] / 3600:.2f} h on threads in one process; {total['off'] / 3600:.2f} h "
+          f"without shared draws; {total['cell by cell'] / 3600:.2f} h cell by cell")
+
+
+#: a bench worker's experiment: (loaded spec with chunks of --per-experiment sorties, cells, geometry seconds)
+_WORKER: dict = {}
+
+
+def _worker_setup(name: str, per_experiment: int, cores: int) -> None:
+    """Pool initializer: experiment ``name`` with one chunk per worker and one more, which warms the kernels and
+    tables here (not timed, on blocks no timed row draws); the cells' flight and geometry timed."""
+    from testbed import memo
+    from testbed.campaign.reproduce import loaded_experiments
+    from testbed.campaign.runner import cell_context, run_chunk
+    from testbed.campaign.spec import expand_cells
+    from testbed.heap import keep_freed_memory
+
+    keep_freed_memory()  # as a campaign worker runs
+    le = loaded_experiments((cores + 1) * per_experiment)[name]
+    le = dataclasses.replace(le, spec=le.spec.model_copy(update={"chunk_trials": per_experiment}))
+    cells = expand_cells(le)
+    t0 = time.perf_counter()
+    for c in cells:
+        cell_context(c, le.spec)
+    _WORKER.update(loaded=le, cells=len(cells), setup_s=time.perf_counter() - t0)
+    run_chunk(le, 0, cores, threads=1)
+    memo.clear()
+
+
+def _setup_of(_: int) -> tuple[int, float]:
+    return _WORKER["cells"], _WORKER["setup_s"]
+
+
+def _timed_row(chunk: int, cap: int, row: bool, threads: int = 1) -> int:
+    """Chunk ``chunk`` of every setting on this worker (a chunk row, or cell by cell; its blocks on ``threads``);
+    its sortie-epochs."""
+    from testbed import memo
+    from testbed.campaign.runner import run_chunk, run_chunk_row
+
+    le, n = _WORKER["loaded"], _WORKER["cells"]
+    memo.clear()
+    with memo.limit(cap):
+        if row:
+            tables = list(run_chunk_row(le, chunk, list(range(n)), threads=threads).values())
+        else:
+            tables = [run_chunk(le, i, chunk, threads=threads) for i in range(n)]
+    memo.clear()
+    return le.spec.chunk_trials * n * int(tables[0]["trials"].column("epochs")[0].as_py())
 
 
 def _schedule(modes: tuple, repeats: int) -> list:
-    """The timed runs of one experiment: the shared-draws run ``repeats`` times, the others once, interleaved
-    (on, off, on, cell by cell, on, ...) so a slow spell of the shared machine does not fall on one mode."""
-    on, rest = modes[0], list(modes[1:])
-    order = [on]
+    """The timed runs of one experiment: the first two modes (worker processes and threads, shared draws)
+    ``repeats`` times each, side by side, the others once, interleaved (on, threads, off, on, threads, cell by
+    cell, on, threads, ...) so a slow spell of the shared machine does not fall on one mode."""
+    pair, rest = list(modes[:2]), list(modes[2:])
+    order = list(pair)
     for i in range(1, repeats):
         if rest:
             order.append(rest.pop(0))
-        order.append(on)
+        order += pair
     return order + rest
 
 

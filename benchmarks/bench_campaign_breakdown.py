@@ -10,7 +10,7 @@ draws on), on one thread under :mod:`cProfile`, and splits its time into: the co
 kernels (:mod:`testbed.integrity.kernels`, their own time), the monitors' numpy glue (the
 rest of the monitors' time), the draws, the tables, and the rest. Prints milliseconds per
 block-cell (100 sorties of one setting) and, for each part, the experiment's ``--full``
-projection on two threads if that part were all that remained (the kernels' share is
+projection on two worker processes if that part were all that remained (the kernels' share is
 the floor that only faster kernels lower). The profiler adds a few per cent to the Python
 parts; the shares, not the absolute times, are the figures to read
 (``benchmarks/bench_campaign.py`` times the projection itself).
@@ -73,12 +73,15 @@ def main() -> None:
               "tables": parts["tables"]}
     shares["rest"] = total - sum(shares.values())
     block_cells = len(cells) * args.sorties / le.spec.block_trials
-    full_s = total * FULL_TRIALS / args.sorties / 2  # two threads: the chunk row's blocks side by side
+    full_s = total * FULL_TRIALS / args.sorties / 2  # two worker processes: two chunk rows side by side
     print(f"{args.experiment}: {len(cells)} settings x {args.sorties} sorties, one thread under cProfile: "
           f"{total:.2f} s, {total / block_cells * 1e3:.1f} ms per block-cell")
     for label, s in shares.items():
         print(f"  {label:17s} {s / block_cells * 1e3:6.2f} ms per block-cell ({100 * s / total:4.1f} %) -> "
-              f"--full {full_s * s / total / 60:5.1f} min on two threads if it were all that remained")
+              f"--full {full_s * s / total / 60:5.1f} min on two workers if it were all that remained")
+    floor = total - shares["monitor glue"] - shares["rest"]  # what fusing the glue into the kernels would leave
+    print(f"  kernels + draws + tables together: {100 * floor / total:4.1f} % -> --full {full_s * floor / total / 60:5.1f} "
+          "min: the floor while the kernels, draws and tables stay as they are")
 
 
 if __name__ == "__main__":

@@ -5,18 +5,23 @@ Usage::
     python benchmarks/bench_dask.py [--experiment where-vision-pays] [--trials 2000] [--workers 2]
 
 Runs one experiment of the VA-RAIM reproduction (``--trials`` sorties per setting, chunks of
-1000) three ways, each into a fresh temporary folder, and prints the wall time of each and
+1000) four ways, each into a fresh temporary folder, and prints the wall time of each and
 their ratios:
 
-1. in-process (the default driver: chunk rows, draw blocks on threads);
-2. a local Dask cluster of ``--workers`` single-threaded worker processes, one task per
-   chunk row (:func:`testbed.campaign.runner.dask_tasks`: the cells of a row share their
+1. in-process (``workers=1``: chunk rows, draw blocks on threads);
+2. the local pool (``workers=--workers``: chunk rows on that many spawned single-threaded
+   worker processes, each paying its start, the flight and the sky geometry inside the clock,
+   as a run does);
+3. a local Dask cluster of ``--workers`` single-threaded worker processes, one task per
+   chunk row (:func:`testbed.campaign.runner.worker_tasks`: the cells of a row share their
    draws on the worker);
-3. the same cluster, one task per (cell, chunk) (how the Dask path ran before: every
+4. the same cluster, one task per (cell, chunk) (how the Dask path ran before: every
    task draws what the cells would share).
 
-The three stores hold the same tables (checked, bit for bit, NaN equal to NaN). The flight
-and the sky geometry are computed before the clock starts, in the driver and in every worker.
+The stores hold the same tables (checked, bit for bit, NaN equal to NaN). The flight and the
+sky geometry are computed before the clock starts in the driver and in every Dask worker.
+With fewer than two chunk rows per worker the rows are cut (``worker_tasks``), and the cut
+rows share less: use ``--trials`` of at least 2000 per worker.
 """
 
 from __future__ import annotations
@@ -61,24 +66,27 @@ def main() -> None:
     epochs = args.trials * len(cells) * 61
     print(f"{args.experiment}: {len(cells)} settings x {args.trials} sorties x 61 epochs = {epochs:.3g} sortie-epochs")
 
-    by_row = runner.dask_tasks
+    by_row = runner.worker_tasks
     one_cell = lambda todo, workers: [(k, [(c, n)]) for c, k, n in todo]  # noqa: E731
     walls, tables = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         runner.run_campaign(le, Path(tmp) / "in-process", progress=False)
         walls["in-process"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        runner.run_campaign(le, Path(tmp) / "local pool", progress=False, workers=args.workers)
+        walls["local pool"] = time.perf_counter() - t0
         with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                           dashboard_address=None) as cluster, Client(cluster) as client:
             client.run(_warm, le.spec.model_dump_json(), str(le.source))  # as the driver: before the clock
             for name, tasks in (("dask, a task per chunk row", by_row), ("dask, a task per cell", one_cell)):
-                runner.dask_tasks = tasks
+                runner.worker_tasks = tasks
                 try:
                     t0 = time.perf_counter()
                     runner.run_campaign(le, Path(tmp) / name, scheduler=client, progress=False)
                     walls[name] = time.perf_counter() - t0
                 finally:
-                    runner.dask_tasks = by_row
+                    runner.worker_tasks = by_row
         for name in walls:
             tables[name] = pq.read_table(Path(tmp) / name / "trials.parquet")
     ref = walls["in-process"]

@@ -345,7 +345,7 @@ def test_options_that_cannot_apply_are_refused_not_ignored(work, capsys):
         main(["campaign", str(spec), "--out", str(inputs / "o"), "--resume", "--restart"])
     assert exc.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
     for paper in ("won-2013", "dpe-vertical"):
-        for extra in (["--scheduler", "tcp://127.0.0.1:9"], ["--resume"]):
+        for extra in (["--scheduler", "tcp://127.0.0.1:9"], ["--resume"], ["--workers", "2"]):
             code, out = run(capsys, "reproduce", paper, "--out", inputs / "r", *extra)
             assert code == 2 and extra[0] in out and paper in out, out
     assert not (inputs / "o").exists() and not (inputs / "r").exists() and not any(cwd.iterdir())
@@ -562,6 +562,15 @@ def test_new_campaign_options_are_checked(work, capsys):
         with pytest.raises(SystemExit) as ei:  # argparse: usage message, exit 2
             main(["campaign", "quick-look", "--trials", bad, "--out", str(inputs / "o")])
         assert ei.value.code == 2 and bad in capsys.readouterr().err
+    for cmd in (["campaign", "quick-look"], ["reproduce", "va-raim-2015"]):
+        for bad in ("0", "-2", "1.5", "many"):
+            with pytest.raises(SystemExit) as ei:
+                main([*cmd, "--workers", bad, "--out", str(inputs / "o")])
+            err = capsys.readouterr().err
+            assert ei.value.code == 2 and "--workers" in err and repr(bad) in err and "auto" in err, err
+    code, out = run(capsys, "campaign", "quick-look", "--workers", "2", "--scheduler", "tcp://127.0.0.1:9",
+                    "--out", inputs / "o")
+    assert code == 2 and "--workers" in out and "--scheduler" in out, out
     spec = inputs / "v.toml"
     spec.write_text(SPEC + '[sweep]\nva_raim_variant = ["nope"]\n')
     code, out = run(capsys, "campaign", spec, "--out", inputs / "o")

@@ -143,13 +143,50 @@ def test_dask_local_cluster_gives_the_same_tables(reference, tmp_path):
     assert same(table(reference), table(tmp_path / "out"))
 
 
-def test_dask_tasks_are_chunk_rows_cut_only_to_keep_every_worker_busy():
-    from testbed.campaign.runner import chunk_rows, dask_tasks
+def test_local_worker_processes_give_the_same_tables(reference, tmp_path):
+    spec = write_spec(tmp_path, chunk=10)  # 4 chunk rows of 2 cells
+    res = run_campaign(spec, tmp_path / "out", progress=False, workers=2)
+    assert res.chunks_run == 8
+    assert same(table(reference), table(tmp_path / "out"))
+    assert same(table(reference, "stanford_hist.parquet"), table(tmp_path / "out", "stanford_hist.parquet"))
+    assert same(table(reference, "epochs.parquet"), table(tmp_path / "out", "epochs.parquet"))
+    assert {p.name for p in tmp_path.iterdir()} == {"tiny.toml", "out"}  # the workers wrote nothing beside it
+
+
+def test_local_workers_auto_only_for_a_run_that_repays_their_start():
+    from testbed.campaign.runner import POOL_MIN_CELL_SORTIES, local_workers
+
+    big = POOL_MIN_CELL_SORTIES // 4
+    two_rows = [(c, k, big) for c in range(2) for k in range(2)]  # 4 x big cell-sorties over 2 chunk rows
+    assert local_workers("auto", two_rows, 2) == 2
+    assert local_workers("auto", two_rows, 1) == 1  # one core: this process
+    assert local_workers("auto", two_rows[:3], 2) == 1  # below the threshold
+    assert local_workers("auto", [(c, 0, big) for c in range(8)], 2) == 1  # one chunk row: its blocks on threads
+    assert local_workers(3, two_rows, 2) == 3  # as asked, whatever the cores
+    assert local_workers(8, [(0, 0, 10)], 2) == 1  # at most one per task
+    assert local_workers(2, [], 2) == 1
+
+
+@pytest.mark.parametrize("workers", [0, -1, 1.5, "two", True])
+def test_bad_workers_are_refused_before_any_work(tmp_path, workers):
+    with pytest.raises(ConfigError, match="--workers"):
+        run_campaign(write_spec(tmp_path), tmp_path / "out", progress=False, workers=workers)
+    assert not (tmp_path / "out").exists()
+
+
+def test_workers_and_a_scheduler_are_refused_together(tmp_path):
+    with pytest.raises(ConfigError, match="--scheduler"):
+        run_campaign(write_spec(tmp_path), tmp_path / "out", progress=False, workers=2, scheduler="tcp://127.0.0.1:1")
+    assert not (tmp_path / "out").exists()
+
+
+def test_worker_tasks_are_chunk_rows_cut_only_to_keep_every_worker_busy():
+    from testbed.campaign.runner import chunk_rows, worker_tasks
 
     todo = [(c, k, 10) for c in range(5) for k in range(3) if (c, k) != (2, 1)]  # one chunk already stored
-    assert dask_tasks(todo, 1) == chunk_rows(todo)  # 3 rows >= 2 tasks per worker: whole rows
-    assert dask_tasks([], 4) == []
-    tasks = dask_tasks(todo, 4)  # 3 rows < 8 wanted: each row cut into runs of consecutive cells
+    assert worker_tasks(todo, 1) == chunk_rows(todo)  # 3 rows >= 2 tasks per worker: whole rows
+    assert worker_tasks([], 4) == []
+    tasks = worker_tasks(todo, 4)  # 3 rows < 8 wanted: each row cut into runs of consecutive cells
     assert len(tasks) >= 8
     assert sorted((c, k, n) for k, row in tasks for c, n in row) == sorted(todo)  # every chunk exactly once
     for k, row in tasks:

@@ -2,4 +2,5 @@ import sys
 
 from testbed.campaign.cli_commands import main
 
-sys.exit(main())
+if __name__ == "__main__":  # a spawned campaign worker process imports the main module: it must not run it
+    sys.exit(main())

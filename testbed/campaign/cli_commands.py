@@ -25,6 +25,20 @@ def _positive_int(text: str) -> int:
     return n
 
 
+def _workers(text: str) -> int | str:
+    """``--workers``: a positive whole number or ``auto``."""
+    if text == "auto":
+        return text
+    try:
+        return _positive_int(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected a positive whole number or auto, got {text!r}") from None
+
+
+WORKERS_HELP = ("local worker processes running the chunk rows: a number, or auto (the default: one per core when "
+                "the run is big enough to repay their start, else this process with draw blocks on threads)")
+
+
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from testbed.campaign.report import write_report
     from testbed.campaign.runner import run_campaign
@@ -38,7 +52,7 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("campaigns") / loaded.spec.name
     try:
         res = run_campaign(loaded, out, resume=args.resume, scheduler=args.scheduler, progress=not args.quiet,
-                           restart=args.restart)
+                           restart=args.restart, workers=args.workers)
     except ConfigError as exc:
         print(exc)
         return 2
@@ -69,7 +83,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     if args.paper not in PAPERS:
         print(f"unknown paper {args.paper!r}; expected one of {sorted(PAPERS)}")
         return 2
-    ignored = [o for o, v in (("--scheduler", args.scheduler), ("--resume", args.resume)) if v]
+    ignored = [o for o, v in (("--scheduler", args.scheduler), ("--resume", args.resume),
+                              ("--workers", args.workers != "auto")) if v]
     if args.paper != "va-raim-2015" and ignored:  # refused, not silently ignored
         print(f"{' and '.join(ignored)}: only va-raim-2015's campaigns take them; {args.paper} runs in-process "
               "from the start")
@@ -84,8 +99,12 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
         idx = reproduce_won_2013(out, trials=200 if args.full else 50, progress=not args.quiet)
     else:
-        idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
-                                     progress=not args.quiet)
+        try:
+            idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
+                                         progress=not args.quiet, workers=args.workers)
+        except ConfigError as exc:
+            print(exc)
+            return 2
     print(f"reproduction: {idx}")
     return 0
 
@@ -96,7 +115,8 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("spec", help="campaign spec: a shipped name (see `testbed approaches`) or a TOML file")
     p.add_argument("--trials", type=_positive_int, help="override the spec's trials per cell (a quick look)")
     p.add_argument("--out", help="result folder (default: campaigns/<spec name>)")
-    p.add_argument("--scheduler", help="Dask scheduler address (default: batched in-process)")
+    p.add_argument("--scheduler", help="Dask scheduler address (default: this machine, see --workers)")
+    p.add_argument("--workers", type=_workers, default="auto", help=WORKERS_HELP)
     again = p.add_mutually_exclusive_group()  # both at once would discard what --resume means to keep
     again.add_argument("--resume", action="store_true", help="complete an interrupted run in --out (same spec and "
                                                              "inputs)")
@@ -116,7 +136,8 @@ def add_campaign_parsers(subparsers) -> None:
                                                       "(dpe-vertical: DPE.md's 2000 sorties per cell; "
                                                       "won-2013: 200 runs per case, else 50)")
     p.add_argument("--out", help="result folder (default: campaigns/reproduce-<paper>)")
-    p.add_argument("--scheduler", help="va-raim-2015: Dask scheduler address (default: in-process)")
+    p.add_argument("--scheduler", help="va-raim-2015: Dask scheduler address (default: this machine, see --workers)")
+    p.add_argument("--workers", type=_workers, default="auto", help="va-raim-2015: " + WORKERS_HELP)
     p.add_argument("--resume", action="store_true", help="va-raim-2015: complete the experiments stored in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_reproduce)

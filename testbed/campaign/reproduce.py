@@ -154,7 +154,8 @@ def loaded_experiments(trials: int) -> dict[str, LoadedSpec]:
 
 
 def reproduce_va_raim_2015(out_dir: str | Path, *, full: bool = False, trials: int | None = None,
-                           scheduler=None, resume: bool = False, progress: bool = True) -> Path:
+                           scheduler=None, resume: bool = False, progress: bool = True,
+                           workers: int | str = 1) -> Path:
     """Run the four campaigns into ``out_dir/<experiment>``, draw their reports, write ``reproduce.md``."""
     from testbed.campaign.report import write_report
     from testbed.campaign.runner import run_campaign
@@ -168,7 +169,8 @@ def reproduce_va_raim_2015(out_dir: str | Path, *, full: bool = False, trials: i
         man = d / "manifest.json"
         if not (man.exists() and json.loads(man.read_text()).get("spec_hash") == loaded.hash
                 and ResultStore(d).complete()):  # a stored part of another scale is refused by the store (spec hash)
-            run_campaign(loaded, d, resume=resume or man.exists(), scheduler=scheduler, progress=progress)
+            run_campaign(loaded, d, resume=resume or man.exists(), scheduler=scheduler, progress=progress,
+                         workers=workers)
         walls[name] = ResultStore(d).wall_s()  # every run's, a resumed experiment's too
         write_report(d)
     return write_summary(out, n, walls)

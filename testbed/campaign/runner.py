@@ -706,11 +706,11 @@ def chunk_rows(todo: list[tuple[int, int, int]]) -> list[tuple[int, list[tuple[i
     return sorted(rows.items())
 
 
-def dask_tasks(todo: list[tuple[int, int, int]], workers: int) -> list[tuple[int, list[tuple[int, int]]]]:
-    """The Dask tasks of ``todo``: chunk rows (:func:`chunk_rows`), so a worker draws once what a row's cells
-    share (:mod:`testbed.memo`; a task per cell would draw it once per cell: 1.7-2.3x the work in the VA-RAIM
-    reproduction). Rows are cut into runs of consecutive cells when there are fewer than two tasks per
-    worker, so a campaign of few chunks still keeps every worker busy."""
+def worker_tasks(todo: list[tuple[int, int, int]], workers: int) -> list[tuple[int, list[tuple[int, int]]]]:
+    """The tasks of ``todo`` for worker processes (Dask's or the local pool's): chunk rows (:func:`chunk_rows`), so a
+    worker draws once what a row's cells share (:mod:`testbed.memo`; a task per cell would draw it once per cell:
+    1.7-2.3x the work in the VA-RAIM reproduction). Rows are cut into runs of consecutive cells when there are fewer
+    than two tasks per worker, so a campaign of few chunks still keeps every worker busy."""
     rows = chunk_rows(todo)
     want = 2 * max(int(workers), 1)
     if not rows or len(rows) >= want:
@@ -723,9 +723,32 @@ def dask_tasks(todo: list[tuple[int, int, int]], workers: int) -> list[tuple[int
     return out
 
 
-def _dask_row(spec_json: str, source: str, chunk: int, cells: list[int]) -> dict:
-    """Entry point on a Dask worker: rebuild the spec from its JSON (cheap, cached per process) and run
-    chunk ``chunk`` of ``cells`` (:func:`run_chunk_row`)."""
+#: The local pool's worker processes start in a few seconds (interpreter, imports, the kernels from numba's cache)
+#: and each rebuilds the cells' flight and sky geometry (side by side, so no later than the driver would), then
+#: compute 1.13-1.30x as fast as threads: measured end to end (``benchmarks/bench_dask.py``), gps-faults at 4000
+#: sorties per setting (160 000 cell-sorties, ~35 s) took 40.4 s on the pool and 35.1 s in-process, so a pool
+#: needs a few minutes of computing to pay for itself: below this many cell-sorties a campaign stays in-process.
+POOL_MIN_CELL_SORTIES = 500_000
+
+
+def local_workers(workers: int | str, todo: list[tuple[int, int, int]], cores: int) -> int:
+    """How many local worker processes run ``todo`` (1: the driver's own process, blocks on threads).
+
+    ``workers`` a number: that many, at most one per task (:func:`worker_tasks`). ``"auto"``: one per core when
+    there are at least two chunk rows and :data:`POOL_MIN_CELL_SORTIES` cell-sorties to run, else 1. Processes
+    rather than threads because the monitors' numpy steps hold the interpreter lock: two worker processes ran
+    the reproduction's chunk rows 1.13-1.30x as fast as the same rows on two threads, side by side
+    (``benchmarks/bench_campaign.py``).
+    """
+    if workers == "auto":
+        big = len(chunk_rows(todo)) >= 2 and sum(n for _, _, n in todo) >= POOL_MIN_CELL_SORTIES
+        return max(int(cores), 1) if big else 1
+    return max(min(int(workers), len(worker_tasks(todo, int(workers)))), 1)
+
+
+def _worker_row(spec_json: str, source: str, chunk: int, cells: list[int]) -> dict:
+    """Entry point on a worker process (Dask's or the local pool's): rebuild the spec from its JSON (cheap, cached
+    per process) and run chunk ``chunk`` of ``cells`` (:func:`run_chunk_row`)."""
     from testbed.heap import keep_freed_memory
 
     keep_freed_memory()  # a worker process runs nothing but campaign chunks
@@ -738,6 +761,36 @@ def worker_spec(spec_json: str, source: str) -> LoadedSpec:
 
     return _cached(("loaded", spec_json, source),
                    lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
+
+
+@contextlib.contextmanager
+def _local_pool(workers: int):
+    """``(submit, as_completed, workers)`` of a pool of ``workers`` local processes (spawned: a fresh interpreter
+    each, no network listener; a script calling :func:`run_campaign` with ``workers`` > 1 needs the usual
+    ``if __name__ == "__main__":`` guard)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        yield (lambda fn, *a, key: pool.submit(fn, *a)), as_completed, workers
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)  # an interrupt does not wait for the queued rows
+        raise
+    pool.shutdown()
+
+
+@contextlib.contextmanager
+def _dask_pool(client, own: bool):
+    """``(submit, as_completed, workers)`` of a Dask client (closed at the end if ``own``)."""
+    try:
+        from distributed import as_completed
+
+        yield ((lambda fn, *a, key: client.submit(fn, *a, pure=False, key=key)), as_completed,
+               sum(client.nthreads().values()))
+    finally:
+        if own:
+            client.close()
 
 
 # ----------------------------------------------------------------------------- driver
@@ -759,7 +812,7 @@ class CampaignResult:
 
 def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: bool = False,
                  scheduler: str | object | None = None, progress: bool = True,
-                 max_chunks: int | None = None, restart: bool = False) -> CampaignResult:
+                 max_chunks: int | None = None, restart: bool = False, workers: int | str = 1) -> CampaignResult:
     """Run (or resume) a campaign into ``out_dir``.
 
     Parameters
@@ -768,10 +821,13 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     out_dir : result folder (manifest, Parquet parts, consolidated tables).
     resume : continue a run in ``out_dir`` (same spec and inputs), skipping stored chunks.
     restart : discard a stored run in ``out_dir`` and start over.
-    scheduler : None = batched in-process; a Dask scheduler address, or a
+    scheduler : None = on this machine (``workers``); a Dask scheduler address, or a
         ``distributed.Client`` / ``LocalCluster``, sends the same chunk tasks there.
     progress : show a rich progress bar (trials/s, ETA).
     max_chunks : stop after this many new chunks (tests; the run stays resumable).
+    workers : without a scheduler: 1 = in this process (a chunk's draw blocks on one thread per
+        core); N = chunk rows on N local worker processes; ``"auto"`` = one per core for a campaign
+        big enough to repay their start (:func:`local_workers`). The tables are the same bit for bit.
     """
     from testbed.campaign.spec import load_spec
     from testbed.campaign.store import ResultStore
@@ -781,6 +837,7 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
 
     from testbed.sim.preflight import check_output_folder
 
+    check_workers(workers, scheduler)
     loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)
     check_output_folder(out_dir, "--out")
     client, own = _client(scheduler) if scheduler is not None else (None, False)  # reachable before any work
@@ -800,46 +857,50 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
         todo = todo[:max_chunks]
     total_trials = sum(n for _, _, n in plan)
     done_trials = total_trials - sum(n for c, k, n in plan if (c, k) not in done)
+    n_local = local_workers(workers, todo, available_cores()) if client is None else 0
     wall0 = time.perf_counter()
     epochs_run = chunks_run = 0
     run_index = store.start_run()
     bar = _Progress(total_trials, done_trials, loaded.spec.name, enabled=progress)
-    with bar:
-        if scheduler is None:
-            for k, row in chunk_rows(todo):
-                row_tables = run_chunk_row(loaded, k, [c for c, _ in row])
-                for c, n in row:
-                    store.write_chunk(c, k, row_tables[c])
-                    epochs_run += n * _epochs_of(row_tables[c])
-                    chunks_run += 1
-                    bar.advance(n)
-                store.update_run(run_index, time.perf_counter() - wall0, chunks_run, epochs_run)
-        else:
-            try:
-                from distributed import as_completed
 
-                sj = loaded.spec.model_dump_json()
-                workers = sum(client.nthreads().values())
-                futs = {client.submit(_dask_row, sj, str(loaded.source), k, [c for c, _ in row], pure=False,
-                                      key=f"campaign-{loaded.hash}-{k}-{row[0][0]}-{row[-1][0]}"): (k, row)
-                        for k, row in dask_tasks(todo, workers)}
-                for fut in as_completed(list(futs)):
-                    k, row = futs[fut]
-                    tables = fut.result()
-                    for c, n in row:
-                        store.write_chunk(c, k, tables[c])
-                        epochs_run += n * _epochs_of(tables[c])
-                        chunks_run += 1
-                        bar.advance(n)
-                    store.update_run(run_index, time.perf_counter() - wall0, chunks_run, epochs_run)
-            finally:
-                if own:
-                    client.close()
+    def stored(k: int, row: list[tuple[int, int]], tables: dict) -> None:
+        nonlocal epochs_run, chunks_run
+        for c, n in row:
+            store.write_chunk(c, k, tables[c])
+            epochs_run += n * _epochs_of(tables[c])
+            chunks_run += 1
+            bar.advance(n)
+        store.update_run(run_index, time.perf_counter() - wall0, chunks_run, epochs_run)
+
+    with bar:
+        if n_local == 1:
+            for k, row in chunk_rows(todo):
+                stored(k, row, run_chunk_row(loaded, k, [c for c, _ in row]))
+        else:
+            sj, src = loaded.spec.model_dump_json(), str(loaded.source)
+            with (_local_pool(n_local) if client is None else _dask_pool(client, own)) as (submit, completed, n):
+                futs = {submit(_worker_row, sj, src, k, [c for c, _ in row],
+                               key=f"campaign-{loaded.hash}-{k}-{row[0][0]}-{row[-1][0]}"): (k, row)
+                        for k, row in worker_tasks(todo, n)}
+                for fut in completed(list(futs)):
+                    stored(*futs[fut], fut.result())
     if len(store.done_chunks()) == len(plan):
         store.finalize()
     wall = time.perf_counter() - wall0
     store.update_run(run_index, wall, chunks_run, epochs_run, finished=True)
     return CampaignResult(Path(out_dir), len(cells), total_trials, len(todo), len(done), wall, epochs_run)
+
+
+def check_workers(workers: int | str, scheduler=None) -> None:
+    """A ``workers`` value :func:`run_campaign` takes: a positive whole number or ``"auto"``, and only without a
+    Dask scheduler (whose workers are the parallelism); else a :class:`ConfigError` before any work."""
+    ok = workers == "auto" or (isinstance(workers, (int, np.integer)) and not isinstance(workers, bool)
+                               and workers >= 1)
+    if not ok:
+        raise ConfigError("command line", [f"--workers {workers!r}: expected a positive whole number or 'auto'"])
+    if scheduler is not None and workers not in (1, "auto"):
+        raise ConfigError("command line", [f"--workers {workers!r} and --scheduler: the Dask scheduler's workers "
+                                           "run the chunks; give one or the other"])
 
 
 def _epochs_of(tables: dict) -> int:
