@@ -278,6 +278,55 @@ def test_kill_and_resume_equals_an_uninterrupted_run(reference, tmp_path):
     assert same(table(reference, "stanford_hist.parquet"), table(out, "stanford_hist.parquet"))
 
 
+def test_ctrl_c_on_worker_processes_stops_them_keeps_the_stored_chunks_and_resumes(reference, tmp_path):
+    spec = write_spec(tmp_path)
+    out = tmp_path / "out"
+    env = dict(os.environ, TESTBED_CAMPAIGN_THROTTLE_S="1.0", PYTHONPATH=str(ROOT))
+    # a terminal's Ctrl-C: SIGINT to the foreground process group (the driver and its workers); SIGINT restored to
+    # its default in case this suite runs where it is ignored (a background job)
+    proc = subprocess.Popen([sys.executable, "-m", "testbed.campaign", "campaign", str(spec), "--out", str(out),
+                             "--quiet", "--no-report", "--workers", "2"], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    parts = out / "parts"
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 60:
+            if parts.exists() and [p for p in parts.glob("c*-k*") if ".tmp-" not in p.name]:
+                break
+            assert proc.poll() is None, proc.stderr.read().decode()
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)
+        said, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, (said, err)
+    assert b"interrupted" in said and b"--resume" in said and str(out).encode() in said
+    assert b"Traceback" not in err, err.decode()
+    assert _live_in_group(proc.pid) == []  # no worker left running (exited ones may wait a moment to be reaped)
+    stored = [p for p in parts.glob("c*-k*") if ".tmp-" not in p.name]
+    assert 1 <= len(stored) < 4, "the run was not interrupted mid-way"
+    res = run_campaign(spec, out, resume=True, progress=False)
+    assert res.chunks_skipped == len(stored) and res.chunks_run == 4 - len(stored)
+    assert same(table(reference), table(out))
+
+
+def _live_in_group(pgid: int) -> list[str]:
+    """Processes of group ``pgid`` that are not zombies (Linux /proc): ``pid state command`` each."""
+    live = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:  # gone meanwhile
+            continue
+        name_end = text.rindex(")")
+        state, _, group = text[name_end + 2:].split()[:3]
+        if int(group) == pgid and state != "Z":
+            live.append(f"{stat.parent.name} {state} {text[:name_end + 1]}")
+    return live
+
+
 def test_resume_with_another_spec_is_refused(reference, tmp_path):
     import shutil
 

@@ -39,6 +39,13 @@ WORKERS_HELP = ("local worker processes running the chunk rows: a number, or aut
                 "the run is big enough to repay their start, else this process with draw blocks on threads)")
 
 
+def _interrupted(out: Path) -> int:
+    """Ctrl-C: what is kept and how to go on, instead of a traceback (exit 130, the shell's code for SIGINT)."""
+    print(f"interrupted: the chunks finished so far are stored in {out}; the same command with --resume completes "
+          "the run")
+    return 130
+
+
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from testbed.campaign.report import write_report
     from testbed.campaign.runner import run_campaign
@@ -56,6 +63,8 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(exc)
         return 2
+    except KeyboardInterrupt:
+        return _interrupted(out)
     print(f"{res.cells} cells, {res.trials} trials: {res.chunks_run} chunks run, {res.chunks_skipped} already stored; "
           f"{res.wall_s:.1f} s ({res.epochs_per_s:,.0f} sortie-epochs/s)")
     if not args.no_report:
@@ -105,6 +114,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         except ConfigError as exc:
             print(exc)
             return 2
+        except KeyboardInterrupt:
+            return _interrupted(out)
     print(f"reproduction: {idx}")
     return 0
 

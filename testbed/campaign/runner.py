@@ -763,19 +763,32 @@ def worker_spec(spec_json: str, source: str) -> LoadedSpec:
                    lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
 
 
+def _ignore_interrupts() -> None:
+    """A local worker's initializer: Ctrl-C is the driver's to handle (it stops the workers, which print nothing)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 @contextlib.contextmanager
 def _local_pool(workers: int):
     """``(submit, as_completed, workers)`` of a pool of ``workers`` local processes (spawned: a fresh interpreter
-    each, no network listener; a script calling :func:`run_campaign` with ``workers`` > 1 needs the usual
-    ``if __name__ == "__main__":`` guard)."""
+    each; a script calling :func:`run_campaign` with ``workers`` > 1 needs the usual ``if __name__ == "__main__":``
+    guard). Interrupted, the pool stops at once: the rows in flight were not stored, and a resume runs them."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupts)
     try:
         yield (lambda fn, *a, key: pool.submit(fn, *a)), as_completed, workers
     except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)  # an interrupt does not wait for the queued rows
+        stop = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+        if stop is not None:
+            stop()
+        else:  # before: the executor's own table of its processes
+            for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                proc.terminate()
+        pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown()
 
