@@ -135,6 +135,12 @@ def main() -> None:
                 else:
                     epochs = sum(pool.map(_timed_row, range(cores), [cap] * cores, [row] * cores))
                 runs[mode].append(epochs / (time.perf_counter() - t0))
+            peaks: dict[int, float] = {}
+            for _ in range(20):  # ask until every worker has answered (a quick task can go to the same one twice)
+                peaks.update(pool.map(_peak_rss_gb, range(cores)))
+                if len(peaks) >= cores:
+                    break
+            peak_gb = max(peaks.values())
             _WORKER.clear()
         rates = {m: float(np.median(r)) for m, r in runs.items()}
         proj = {m: FULL_TRIALS * 61 * n_cells / np.array(r) + setup_s for m, r in runs.items()}
@@ -149,7 +155,8 @@ def main() -> None:
               f"threads in one process {rates['threads']:,.0f}; {rates['on'] / rates['off']:.2f}x unshared "
               f"{rates['off']:,.0f}; {rates['on'] / rates['cell by cell']:.2f}x cell by cell "
               f"{rates['cell by cell']:,.0f}) -> {full / 60:6.1f} min (median of {len(runs['on'])}: "
-              f"{proj['on'].min() / 60:.1f}-{proj['on'].max() / 60:.1f}; geometry {setup_s:.1f} s once)")
+              f"{proj['on'].min() / 60:.1f}-{proj['on'].max() / 60:.1f}; geometry {setup_s:.1f} s once; a worker's "
+              f"peak resident memory {peak_gb:.2f} GB)")
     print(f"  all {n_settings} settings: {total['on'] / 3600:.2f} h on this machine ({cores} worker processes; "
           f"the sum of the experiments' medians; {low / 3600:.2f}-{high / 3600:.2f} h from their fastest and "
           f"slowest runs); {total['threads'] / 3600:.2f} h on threads in one process; {total['off'] / 3600:.2f} h "
@@ -179,6 +186,14 @@ def _worker_setup(name: str, per_experiment: int, cores: int) -> None:
     _WORKER.update(loaded=le, cells=len(cells), setup_s=time.perf_counter() - t0)
     run_chunk(le, 0, cores, threads=1)
     memo.clear()
+
+
+def _peak_rss_gb(_: int) -> tuple[int, float]:
+    """(this worker's pid, its peak resident memory so far in GB; Linux reports ru_maxrss in KiB)."""
+    import os
+    import resource
+
+    return os.getpid(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e9
 
 
 def _setup_of(_: int) -> tuple[int, float]:

@@ -162,6 +162,10 @@ def test_local_workers_auto_only_for_a_run_that_repays_their_start():
     assert local_workers("auto", two_rows, 1) == 1  # one core: this process
     assert local_workers("auto", two_rows[:3], 2) == 1  # below the threshold
     assert local_workers("auto", [(c, 0, big) for c in range(8)], 2) == 1  # one chunk row: its blocks on threads
+    gib = 2**30
+    assert local_workers("auto", two_rows, 64, memory_bytes=8 * gib) == 2  # no more than the memory holds (3 GiB)
+    assert local_workers("auto", two_rows, 2, memory_bytes=2 * gib) == 1
+    assert local_workers("auto", two_rows, 2, memory_bytes=24 * gib) == 2
     assert local_workers(3, two_rows, 2) == 3  # as asked, whatever the cores
     assert local_workers(8, [(0, 0, 10)], 2) == 1  # at most one per task
     assert local_workers(2, [], 2) == 1
@@ -278,12 +282,14 @@ def test_kill_and_resume_equals_an_uninterrupted_run(reference, tmp_path):
     assert same(table(reference, "stanford_hist.parquet"), table(out, "stanford_hist.parquet"))
 
 
-def test_ctrl_c_on_worker_processes_stops_them_keeps_the_stored_chunks_and_resumes(reference, tmp_path):
+@pytest.mark.parametrize("to", ["group", "driver"])
+def test_ctrl_c_on_worker_processes_stops_them_keeps_the_stored_chunks_and_resumes(reference, tmp_path, to):
+    """SIGINT as a terminal's Ctrl-C sends it (to the whole foreground group: driver and workers) and as
+    ``kill -INT`` does (to the driver alone, whose workers must still stop at once)."""
     spec = write_spec(tmp_path)
     out = tmp_path / "out"
-    env = dict(os.environ, TESTBED_CAMPAIGN_THROTTLE_S="1.0", PYTHONPATH=str(ROOT))
-    # a terminal's Ctrl-C: SIGINT to the foreground process group (the driver and its workers); SIGINT restored to
-    # its default in case this suite runs where it is ignored (a background job)
+    env = dict(os.environ, TESTBED_CAMPAIGN_THROTTLE_S="5.0", PYTHONPATH=str(ROOT))  # each task 5 s: one in flight
+    # SIGINT restored to its default in case this suite runs where it is ignored (a background job)
     proc = subprocess.Popen([sys.executable, "-m", "testbed.campaign", "campaign", str(spec), "--out", str(out),
                              "--quiet", "--no-report", "--workers", "2"], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
@@ -296,15 +302,21 @@ def test_ctrl_c_on_worker_processes_stops_them_keeps_the_stored_chunks_and_resum
                 break
             assert proc.poll() is None, proc.stderr.read().decode()
             time.sleep(0.02)
-        os.killpg(proc.pid, signal.SIGINT)
+        (os.killpg if to == "group" else os.kill)(proc.pid, signal.SIGINT)
+        t_int = time.monotonic()
         said, err = proc.communicate(timeout=30)
+        stopped_s = time.monotonic() - t_int
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, (said, err)
     assert b"interrupted" in said and b"--resume" in said and str(out).encode() in said
     assert b"Traceback" not in err, err.decode()
-    assert _live_in_group(proc.pid) == []  # no worker left running (exited ones may wait a moment to be reaped)
+    assert stopped_s < 3.0  # at once, not after the 5 s rows in flight (0.2-0.3 s measured)
+    t0 = time.monotonic()  # a terminated worker takes a few ms to leave; a running one would stay seconds
+    while _live_in_group(proc.pid) and time.monotonic() - t0 < 1.0:
+        time.sleep(0.01)
+    assert _live_in_group(proc.pid) == []
     stored = [p for p in parts.glob("c*-k*") if ".tmp-" not in p.name]
     assert 1 <= len(stored) < 4, "the run was not interrupted mid-way"
     res = run_campaign(spec, out, resume=True, progress=False)

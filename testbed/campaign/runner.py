@@ -40,7 +40,7 @@ import pyarrow as pa
 from testbed import memo
 from testbed.campaign.sorties import sky_windows, sortie_offsets, window_offsets
 from testbed.campaign.spec import CampaignSpec, Cell, LoadedSpec, expand_cells, resolve_spec
-from testbed.integrity.batching import available_cores, map_trial_chunks
+from testbed.integrity.batching import available_cores, map_trial_chunks, physical_memory_bytes
 from testbed.integrity.monitor import ANTENNA, Observations, provided_output
 from testbed.integrity.levels import service_level
 from testbed.records import MonitorOutput, map_epoch_arrays
@@ -725,24 +725,34 @@ def worker_tasks(todo: list[tuple[int, int, int]], workers: int) -> list[tuple[i
 
 #: The local pool's worker processes start in a few seconds (interpreter, imports, the kernels from numba's cache)
 #: and each rebuilds the cells' flight and sky geometry (side by side, so no later than the driver would), then
-#: compute 1.13-1.30x as fast as threads: measured end to end (``benchmarks/bench_dask.py``), gps-faults at 4000
+#: compute 0.99-1.30x as fast as threads (two runs): measured end to end (``benchmarks/bench_dask.py``), gps-faults at 4000
 #: sorties per setting (160 000 cell-sorties, ~35 s) took 40.4 s on the pool and 35.1 s in-process, so a pool
 #: needs a few minutes of computing to pay for itself: below this many cell-sorties a campaign stays in-process.
 POOL_MIN_CELL_SORTIES = 500_000
 
 
-def local_workers(workers: int | str, todo: list[tuple[int, int, int]], cores: int) -> int:
+#: memory a local worker may take: one peaked at 1.2-2.5 GB resident on the reproduction's experiments (its cells'
+#: contexts, the memo's 512 MiB, the blocks' arrays), so "auto" starts no more workers than the memory holds
+WORKER_MEMORY_BYTES = 3 * 2**30
+
+
+def local_workers(workers: int | str, todo: list[tuple[int, int, int]], cores: int,
+                  memory_bytes: int | None = None) -> int:
     """How many local worker processes run ``todo`` (1: the driver's own process, blocks on threads).
 
-    ``workers`` a number: that many, at most one per task (:func:`worker_tasks`). ``"auto"``: one per core when
-    there are at least two chunk rows and :data:`POOL_MIN_CELL_SORTIES` cell-sorties to run, else 1. Processes
-    rather than threads because the monitors' numpy steps hold the interpreter lock: two worker processes ran
-    the reproduction's chunk rows 1.13-1.30x as fast as the same rows on two threads, side by side
-    (``benchmarks/bench_campaign.py``).
+    ``workers`` a number: that many, at most one per task (:func:`worker_tasks`). ``"auto"``: one per core, at most
+    one per :data:`WORKER_MEMORY_BYTES` of ``memory_bytes`` (the machine's, when known), when there are at least
+    two chunk rows and :data:`POOL_MIN_CELL_SORTIES` cell-sorties to run, else 1. Processes rather than threads
+    because the monitors' numpy steps hold the interpreter lock: two worker processes ran the reproduction's
+    chunk rows 0.99-1.30x as fast as the same rows on two threads, side by side in two runs of
+    ``benchmarks/bench_campaign.py`` (0.79 h vs 0.93 h and 0.79 h vs 0.86 h for the ``--full`` reproduction).
     """
     if workers == "auto":
         big = len(chunk_rows(todo)) >= 2 and sum(n for _, _, n in todo) >= POOL_MIN_CELL_SORTIES
-        return max(int(cores), 1) if big else 1
+        n = max(int(cores), 1)
+        if memory_bytes is not None:
+            n = min(n, max(int(memory_bytes // WORKER_MEMORY_BYTES), 1))
+        return n if big else 1
     return max(min(int(workers), len(worker_tasks(todo, int(workers)))), 1)
 
 
@@ -839,8 +849,9 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     progress : show a rich progress bar (trials/s, ETA).
     max_chunks : stop after this many new chunks (tests; the run stays resumable).
     workers : without a scheduler: 1 = in this process (a chunk's draw blocks on one thread per
-        core); N = chunk rows on N local worker processes; ``"auto"`` = one per core for a campaign
-        big enough to repay their start (:func:`local_workers`). The tables are the same bit for bit.
+        core); N = chunk rows on N local worker processes; ``"auto"`` = one per core (no more than the
+        memory holds) for a campaign big enough to repay their start (:func:`local_workers`). The tables
+        are the same bit for bit.
     """
     from testbed.campaign.spec import load_spec
     from testbed.campaign.store import ResultStore
@@ -870,7 +881,7 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
         todo = todo[:max_chunks]
     total_trials = sum(n for _, _, n in plan)
     done_trials = total_trials - sum(n for c, k, n in plan if (c, k) not in done)
-    n_local = local_workers(workers, todo, available_cores()) if client is None else 0
+    n_local = local_workers(workers, todo, available_cores(), physical_memory_bytes()) if client is None else 0
     wall0 = time.perf_counter()
     epochs_run = chunks_run = 0
     run_index = store.start_run()

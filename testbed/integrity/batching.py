@@ -32,6 +32,14 @@ def available_cores() -> int:
         return max(os.cpu_count() or 1, 1)
 
 
+def physical_memory_bytes() -> int | None:
+    """This machine's physical memory, or None where the system does not say."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):  # not POSIX, or the name is unknown here
+        return None
+
+
 def trial_chunks(batch_shape: tuple[int, ...], chunk_epochs: int | None = None, multiple_of: int = 1) -> list[slice]:
     """Equal slices of the first axis of ``batch_shape = (B..., T)``, about ``chunk_epochs`` epochs each.
 
