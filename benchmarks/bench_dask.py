@@ -44,10 +44,13 @@ def _warm(spec_json: str, source: str) -> int:
 
 
 def main() -> None:
+    from testbed.campaign.cli_commands import _positive_int  # argparse prints its message and exits 2
+    from testbed.campaign.reproduce import experiments
+
     ap = argparse.ArgumentParser()
-    ap.add_argument("--experiment", default="where-vision-pays")
-    ap.add_argument("--trials", type=int, default=2000, help="sorties per setting")
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--experiment", default="where-vision-pays", choices=sorted(experiments(200)))
+    ap.add_argument("--trials", type=_positive_int, default=2000, help="sorties per setting")
+    ap.add_argument("--workers", type=_positive_int, default=2)
     args = ap.parse_args()
 
     import pyarrow.parquet as pq

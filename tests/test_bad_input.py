@@ -595,3 +595,24 @@ def test_a_path_too_steep_to_trim_names_the_speed_and_the_path(tmp_path):
     p.write_text(text)
     problems = check_file(p)
     assert problems and any("glide_path_deg = 8" in q and "speed_kt" in q for q in problems), problems
+
+
+@pytest.mark.parametrize("script,args,named", [
+    ("bench_campaign.py", ["--repeats", "0"], "--repeats"),
+    ("bench_campaign.py", ["--per-experiment", "150"], "--per-experiment"),
+    ("bench_campaign_breakdown.py", ["--sorties", "-3"], "--sorties"),
+    ("bench_campaign_breakdown.py", ["--experiment", "nope"], "--experiment"),
+    ("bench_dask.py", ["--workers", "0"], "--workers"),
+    ("bench_dask.py", ["--trials", "nan"], "--trials"),
+    ("bench_dask.py", ["--experiment", "nope"], "--experiment"),
+])
+def test_campaign_benchmarks_refuse_bad_options_before_any_work(tmp_path, script, args, named):
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, str(root / "benchmarks" / script), *args], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert named in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    assert not any(tmp_path.iterdir())
