@@ -60,12 +60,12 @@ def captured_inputs():
 
     def spy_gn(*a):
         if a[9].shape[1] > 0:  # the integrated solve (vision rows), not step 1
-            got["gn"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:14])
+            got["gn"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:12] + a[13:15])  # not epochs
         return gn(*a)
 
     def spy_fit(*a):
         if a[4].shape[1] > 0:
-            got["fit"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:7])
+            got["fit"] = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in a[:7])  # not epochs
         return fit(*a)
 
     def spy_cos(*a):
@@ -133,10 +133,18 @@ def main() -> None:
         return [f(nc, L), f(nc), f(L, nc), np.empty(P, bool), f(), f(L, L), f(), f(), np.full(P, np.nan),
                 np.zeros(P, bool)]  # the gate's outputs as vision_pseudoranges sets them (untouched without a prior)
 
+    every = np.arange(P)  # the tiled kernels solve the epochs listed: all of them here
+
+    def fit_tiles(*a):
+        return kernels.wls_epochs(*a[:7], every, *a[7:])
+
+    def gn_tiles(*a):
+        return kernels.range_gauss_newton_tiles(*a[:12], every, *a[12:])
+
     rows = []
     for name, new, old, inputs, outs in (
-            ("weighted fit", kernels.wls_epochs, _one_at_a_time, fit_in, fit_out),
-            ("range Gauss-Newton", kernels.range_gauss_newton_tiles, kernels.range_gauss_newton, gn_in, gn_out),
+            ("weighted fit", fit_tiles, _one_at_a_time, fit_in, fit_out),
+            ("range Gauss-Newton", gn_tiles, kernels.range_gauss_newton, gn_in, gn_out),
             ("cosine Gauss-Newton", kernels.cosine_gauss_newton_tiles, kernels.cosine_gauss_newton, cos_in, cos_out),
             ("cosine products", kernels.cosine_rule_products_tiles, kernels.cosine_rule_products, prod_in, prod_out),
             ("GPS calibration", kernels.calibrate_tiles, kernels.calibrate_epochs, cal_in, cal_out)):

@@ -283,25 +283,37 @@ def _fit_outputs(P, N):
     return [f(4, 4), f(4, N), f(N), f(), f(N), f(), f(N), f(N), f(), f(), i(np.int64), i(np.int64), i(np.int8)]
 
 
+def _listed(rng, P: int, subset: bool) -> np.ndarray:
+    """The epochs a tiled kernel is asked for: all, or the first 8 (the batches' special cases) and a random
+    two thirds of the rest (sorted, as lsq lists them)."""
+    return np.flatnonzero((rng.random(P) < 2 / 3) | (np.arange(P) < 8)) if subset else np.arange(P)
+
+
+@pytest.mark.parametrize("subset", [False, True])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_side_by_side_fit_gives_the_one_epoch_fit_bit_for_bit(seed):
+def test_the_side_by_side_fit_gives_the_one_epoch_fit_bit_for_bit(seed, subset):
     """wls_epochs (epochs in vector lanes) against wls_one called on each epoch alone, byte for byte (the
-    sign of a zero included), on a batch with every reason code, both weight forms, and more epochs than a tile."""
+    sign of a zero included), on a batch with every reason code, both weight forms, and more epochs than a tile;
+    asked for a subset of the epochs, it writes those, the same bytes, and leaves the others alone."""
     from testbed.integrity.kernels.geometry import TILE
 
     h, G, z, wd, Wb, mask = _fit_batch(np.random.default_rng(seed), P=3 * TILE + 17)
     N = G.shape[1]
+    listed = _listed(np.random.default_rng(seed + 100), len(G), subset)
+    others = np.setdiff1d(np.arange(len(G)), listed)
     for wdiag, W_block in ((wd, Wb), (np.concatenate([wd, np.full(Wb.shape[:-1], 2.0)], -1), np.zeros((len(G), 0, 0)))):
         got = _fit_outputs(len(G), N)
-        kernels.wls_epochs(G, h, z, wdiag, W_block, mask, 1e10, *got)
+        kernels.wls_epochs(G, h, z, wdiag, W_block, mask, 1e10, listed, *got)
         ref = _fit_outputs(len(G), N)
         scratch = (np.empty((4, 4, 4)), np.empty((3, 4)), np.empty(4))
-        for p in range(len(G)):
+        for p in listed:
             kernels.wls_one(G[p], h[p], z[p], wdiag[p], W_block[p], mask[p], 1e10,
                             *(o[p] if o.ndim > 1 else o[p:p + 1] for o in ref), *scratch)
         for k, (a, b) in enumerate(zip(got, ref)):
             assert a.tobytes() == b.tobytes(), k
-        assert (got[-1] == 0).sum() > 2 * TILE and len(set(got[-1].tolist())) == 5  # the common path and every reason
+            assert (a[others] == 7).all(), k  # not written
+        codes = got[-1][listed]
+        assert (codes == 0).sum() > (1 if subset else 2) * TILE and len(set(codes.tolist())) == 5  # every reason
 
 
 def _range_problem(rng, P, NG=8, L=3):
@@ -334,10 +346,12 @@ def _range_problem(rng, P, NG=8, L=3):
     return (sats, off_g, z_g, w_g, mask_g, lm, off_v, Tm, z_v, W_v, mask_v, x0)
 
 
+@pytest.mark.parametrize("subset", [False, True])
 @pytest.mark.parametrize("vision", [True, False])
-def test_the_side_by_side_gauss_newton_gives_the_per_epoch_one_bit_for_bit(vision):
+def test_the_side_by_side_gauss_newton_gives_the_per_epoch_one_bit_for_bit(vision, subset):
     """range_gauss_newton_tiles (epochs in vector lanes, stragglers finished alone) against the per-epoch kernel,
-    byte for byte, on epochs that converge in 2, 3 or more steps, fail or never start, over several tiles."""
+    byte for byte, on epochs that converge in 2, 3 or more steps, fail or never start, over several tiles; asked
+    for a subset of the epochs, it writes those, the same bytes, and leaves the others alone."""
     from testbed.integrity.kernels.ranges import TILE
 
     P = 3 * TILE + 5
@@ -351,10 +365,13 @@ def test_the_side_by_side_gauss_newton_gives_the_per_epoch_one_bit_for_bit(visio
         return [np.full((P, 4), 7.0), np.zeros(P, bool), np.full(P, 7), np.full((P, Nr), 7.0), np.full((P, Nr, 4), 7.0)]
 
     ref, got = outs(), outs()
+    listed = _listed(np.random.default_rng(5), P, subset)
+    others = np.setdiff1d(np.arange(P), listed)
     kernels.range_gauss_newton(*args, 8, 1e-3, *ref)
-    kernels.range_gauss_newton_tiles(*args, 8, 1e-3, *got)
+    kernels.range_gauss_newton_tiles(*args, listed, 8, 1e-3, *got)
     for k, (a, b) in enumerate(zip(got, ref)):
-        assert a.tobytes() == b.tobytes(), k
+        assert a[listed].tobytes() == b[listed].tobytes(), k
+        assert (a[others] == outs()[k][others]).all(), k  # not written
     steps = ref[2]
     assert ref[1].mean() > 0.9 and not ref[1][:2].any() and steps.max() >= 4 and {0, 2, 3} <= set(steps.tolist())
 
@@ -555,3 +572,35 @@ def test_every_serial_kernel_releases_the_gil_so_campaign_blocks_run_side_by_sid
                 if not opts.get("nogil"):
                     holding.append(f"{mod.__name__}.{name}")
     assert checked >= 15 and not holding, holding
+
+
+def test_fit_and_solve_where_leave_the_other_epochs_unfitted():
+    """lsq.wls_fit / gauss_newton_ranges with ``where``: the listed epochs as the whole batch gives them, bit for
+    bit; the others not fitted (NaN, counts 0, reason NO_POSITION) and not solved (NaN, not converged, 0 steps)."""
+    from testbed.integrity.kernels.geometry import TILE
+
+    P = 2 * TILE + 9
+    h, G, z, wd, Wb, mask = _fit_batch(np.random.default_rng(3), P=P)
+    where = np.random.default_rng(4).random(P) < 0.5
+    full = lsq.wls_fit(h, G, z, wd, Wb, mask)
+    part = lsq.wls_fit(h, G, z, wd, Wb, mask, where=where)
+    for f in ("J", "A", "ws_diag", "cond", "residual", "sse", "hslope", "vslope", "hmax", "vmax", "n_used",
+              "n_states", "reason"):
+        a, b = getattr(part, f), getattr(full, f)
+        assert a[where].tobytes() == b[where].tobytes(), f
+        if f == "reason":
+            assert (a[~where] == lsq.Reason.NO_POSITION).all()
+        elif f in ("n_used", "n_states"):
+            assert (a[~where] == 0).all()
+        else:
+            assert np.isnan(a[~where]).all(), f
+
+    sats, off_g, z_g, w_g, mask_g, lm, off_v, Tm, z_v, W_v, mask_v, x0 = _range_problem(np.random.default_rng(6), P)
+    gps, vision = (sats, off_g, z_g, w_g, mask_g), (lm, off_v, Tm, z_v, W_v, mask_v)
+    full = lsq.gauss_newton_ranges(x0, 8, 1e-3, gps, vision)
+    part = lsq.gauss_newton_ranges(x0, 8, 1e-3, gps, vision, where=where)
+    for k, (a, b) in enumerate(zip(part, full)):
+        assert a[where].tobytes() == b[where].tobytes(), k
+    x, conv, steps, hh, GG = part
+    assert np.isnan(x[~where]).all() and not conv[~where].any() and (steps[~where] == 0).all()
+    assert np.isnan(hh[~where]).all() and np.isnan(GG[~where]).all()

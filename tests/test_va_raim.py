@@ -284,6 +284,49 @@ def test_gps_baseline_equals_the_gps_raim_module():
         np.testing.assert_allclose(getattr(ref, f), getattr(at_cg, f), rtol=1e-6, atol=1e-9, err_msg=f)
 
 
+def test_epochs_without_a_vision_row_are_gps_raims_fix_bit_for_bit(monkeypatch):
+    """Where no vision row is used (the calibration epoch, too few landmarks, a trial without any), VA-RAIM's
+    rows are GPS RAIM's, and so is its answer, bit for bit: PLs, SSE, threshold, alert, reason, slopes, and
+    the fix moved through the lever arm. The integrated solve of those same rows (what it ran before it took
+    step 1's answer there) agrees within its iteration tolerance, and every other epoch is untouched."""
+    from dataclasses import replace
+
+    from testbed.frames import q_to_R
+    from testbed.integrity import va_raim as va_raim_module
+    sc = make_scenario(np.random.default_rng(31), (6,), t0=30.0, t1=60.0, rate_hz=1.0)
+    det = sc.vision.detected.copy()
+    det[1, 5:9, 2] = False  # too few landmarks
+    det[3] = False  # no landmark in the whole sortie
+    pr = sc.gnss.pseudorange.copy()
+    pr[3, 12:, np.flatnonzero(sc.gnss.visible[3, 12])[0]] += 80.0  # a GPS step where vision is not used
+    gnss, vision = replace(sc.gnss, pseudorange=pr), replace(sc.vision, detected=det)
+    out = va_raim(gnss, vision, sc.frame, VaRaimSettings(variant="seed"))
+    d, gps = out.diagnostics, out.diagnostics.gps
+    gps_only = ~d.vision_rows_used
+    assert 30 < gps_only.sum() < gps_only.size - 60 and gps_only[3].all() and gps_only[:, 0].all()
+    assert (gps.alert & gps_only).any()  # the step is seen
+    for f in ("hpl", "vpl", "test_stat", "threshold", "alert", "reason", "n_used", "clock"):
+        np.testing.assert_array_equal(getattr(out, f)[gps_only], getattr(gps, f)[gps_only], err_msg=f)
+    S = gps.diagnostics.hslope.shape[-1]
+    for f in ("hslope", "vslope", "residual", "hpl_seed", "vpl_seed", "hpl_pbias", "vpl_pbias", "lam_det", "cond"):
+        a, b = getattr(d, f), getattr(gps.diagnostics, f)
+        np.testing.assert_array_equal(a[gps_only][..., :S] if a.ndim > 2 else a[gps_only], b[gps_only], err_msg=f)
+    assert np.isnan(d.hslope[gps_only][:, S:]).all()
+    off = q_to_R(sc.vision.q_body_to_enu_ref) @ gnss.antenna.lever_arm_body
+    np.testing.assert_array_equal(out.pos_enu[gps_only], (gps.pos_enu - off)[gps_only])
+
+    solve_all = va_raim_module._integrated_fix
+    monkeypatch.setattr(va_raim_module, "_integrated_fix", lambda need, *a: solve_all(np.ones_like(need), *a))
+    solved = va_raim(gnss, vision, sc.frame, VaRaimSettings(variant="seed"))
+    np.testing.assert_allclose(solved.pos_enu[gps_only], out.pos_enu[gps_only], atol=1e-6)
+    for f in ("hpl", "vpl", "test_stat", "threshold"):
+        np.testing.assert_allclose(getattr(solved, f)[gps_only], getattr(out, f)[gps_only], rtol=1e-6, err_msg=f)
+    for f in ("alert", "reason", "n_used"):
+        np.testing.assert_array_equal(getattr(solved, f), getattr(out, f), err_msg=f)
+    for f in ("pos_enu", "hpl", "vpl", "test_stat", "threshold"):
+        np.testing.assert_array_equal(getattr(solved, f)[~gps_only], getattr(out, f)[~gps_only], err_msg=f)
+
+
 # --------------------------------------------------------------------------- batching
 
 

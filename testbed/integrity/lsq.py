@@ -191,7 +191,7 @@ _FIT_FIELDS = ("J", "A", "ws_diag", "cond", "residual", "sse", "hslope", "vslope
 
 
 def wls_fit(h: ArrayLike, G: ArrayLike, z: ArrayLike, w_diag: ArrayLike, W_block: ArrayLike | None,
-            mask: ArrayLike | None, max_cond: float = MAX_COND) -> WlsFit:
+            mask: ArrayLike | None, max_cond: float = MAX_COND, where: ArrayLike | None = None) -> WlsFit:
     """The weighted LS of every epoch at predictions h (..., N) with partials G (..., N, 4).
 
     z : (..., N) measurements; mask : (..., N) rows used (None: all; unused rows may hold
@@ -200,6 +200,8 @@ def wls_fit(h: ArrayLike, G: ArrayLike, z: ArrayLike, w_diag: ArrayLike, W_block
     rest (e.g. a vision block), or None when ``n1 = N``. One compiled pass per epoch
     (:func:`kernels.wls_epochs`) decides every epoch, degenerate ones included, on its
     own: a chunk of a batch gives the same numbers, bit for bit, as the whole.
+    where : (...) bool, the epochs to fit (None: all); the others are not fitted: NaN, counts 0,
+    reason NO_POSITION (their inputs are not read).
     """
     G = np.asarray(G, float)
     if G.ndim < 2 or G.shape[-1] != N_STATES:
@@ -225,9 +227,22 @@ def wls_fit(h: ArrayLike, G: ArrayLike, z: ArrayLike, w_diag: ArrayLike, W_block
            "hslope": (N,), "vslope": (N,), "hmax": (), "vmax": (), "n_used": (), "n_states": (), "reason": ()}
     dtypes = {"n_used": np.int64, "n_states": np.int64, "reason": np.int8}
     out = {k: np.empty((P,) + tail, dtypes.get(k, np.float64)) for k, tail in out.items()}
+    epochs, skipped = _listed_epochs(where, batch, P)
+    for k, v in out.items():
+        v[skipped] = Reason.NO_POSITION if k == "reason" else (0 if k in dtypes else np.nan)
     kernels.wls_epochs(flat(G, (N, N_STATES)), flat(h, (N,)), flat(z, (N,)), flat(wd, (n1,)), flat(Wb, (R, R)),
-                       flat(m, (N,), np.bool_), float(max_cond), *(out[k] for k in _FIT_FIELDS))
+                       flat(m, (N,), np.bool_), float(max_cond), epochs, *(out[k] for k in _FIT_FIELDS))
     return WlsFit(mask=np.broadcast_to(m, batch + (N,)), **{k: v.reshape(batch + v.shape[1:]) for k, v in out.items()})
+
+
+def _listed_epochs(where: ArrayLike | None, batch: tuple, P: int) -> tuple[NDArray, NDArray]:
+    """The flat indices of the epochs ``where`` lists (all when None) and of the others."""
+    if where is None:
+        listed, others = np.arange(P, dtype=np.int64), np.zeros(0, np.int64)
+    else:
+        w = np.broadcast_to(np.asarray(where, bool), batch).reshape(-1)
+        listed, others = np.flatnonzero(w), np.flatnonzero(~w)
+    return kernels.kernel_input(listed, listed.shape, dtype=np.int64), others
 
 
 def wls_fit_any(G: ArrayLike, W: ArrayLike, mask: ArrayLike | None = None, max_cond: float = MAX_COND,
@@ -547,8 +562,8 @@ def _solution_at(x: NDArray, geom: WlsGeometry, converged: NDArray, frozen: NDAr
                        n_iter=np.broadcast_to(np.asarray(n_iter, np.int64), reason.shape).copy(), reason=reason)
 
 
-def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, vision: tuple | None = None
-                        ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, vision: tuple | None = None,
+                        where: NDArray | None = None) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
     """Iterated WLS of stacked range rows, each epoch stopping on its own (compiled, :mod:`.kernels`; epochs
     side by side in vector lanes, the per-epoch kernel's numbers bit for bit).
 
@@ -558,7 +573,8 @@ def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, visi
     at the solution, for the reasons, SSE, slopes and PLs (:func:`wls_fit`).
     Returns the state (..., 4), a converged flag (...), the steps taken (...), and the
     stacked predictions h (..., N) and partials G (..., N, 4) at that state (N = NG + R;
-    masked rows zero).
+    masked rows zero). where : (...) bool, the epochs to solve (None: all); the others are
+    not solved (NaN, not converged, 0 steps) and their inputs not read.
     """
     batch = x0.shape[:-1]
     P = int(np.prod(batch, dtype=np.int64))
@@ -580,9 +596,12 @@ def gauss_newton_ranges(x0: NDArray, n_iter: int, tol_m: float, gps: tuple, visi
     conv = np.empty(P, bool)
     iters = np.empty(P, np.int64)
     h, G = np.empty((P, Nr)), np.empty((P, Nr, 4))
+    epochs, skipped = _listed_epochs(where, batch, P)
+    for a, v in ((x, np.nan), (conv, False), (iters, 0), (h, np.nan), (G, np.nan)):
+        a[skipped] = v
     kernels.range_gauss_newton_tiles(flat(ag, (NG, 3)), flat(og, (3,)), flat(zg, (NG,)), flat(wg, (NG,)),
-                               flat(mg, (NG,), np.bool_), av, ov, Tm, zv, Wv, mv, flat(x0, (4,)),
-                               n_iter, tol_m, x, conv, iters, h, G)
+                                     flat(mg, (NG,), np.bool_), av, ov, Tm, zv, Wv, mv, flat(x0, (4,)), epochs,
+                                     n_iter, tol_m, x, conv, iters, h, G)
     return (x.reshape(batch + (4,)), conv.reshape(batch), iters.reshape(batch), h.reshape(batch + (Nr,)),
             G.reshape(batch + (Nr, 4)))
 

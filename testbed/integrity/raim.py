@@ -139,7 +139,11 @@ def fix_at_solution(h: NDArray, G: NDArray, z: NDArray, W: tuple, mask: NDArray,
     the block-diagonal weight of :func:`lsq.wls_fit` (GPS rows first, then the vision block;
     W_block None for GPS rows only).
     """
-    ft = lsq.wls_fit(h, G, z, W[0], W[1], mask, ist.max_cond)
+    return solution_verdict(lsq.wls_fit(h, G, z, W[0], W[1], mask, ist.max_cond), x, conv, ist)
+
+
+def solution_verdict(ft: lsq.WlsFit, x: NDArray, conv: NDArray, ist: IntegritySettings):
+    """:func:`fix_at_solution` from the fit at the solution: (fit, PLs, reason, ok, x)."""
     with np.errstate(invalid="ignore", over="ignore"):
         pls = {v: ft.protection_levels(ist.p_fa, ist.p_md, v) for v in ("seed", "pbias")}
     reason = np.where((ft.reason == lsq.Reason.OK) & ~conv, lsq.Reason.NOT_CONVERGED, ft.reason)

@@ -58,6 +58,7 @@ from testbed.integrity.raim import (
     scatter_rows,
     snapshot_output,
     snapshot_verdict,
+    solution_verdict,
 )
 from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.vision_ranges import (
@@ -438,13 +439,10 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tupl
     use_v = use_v & rows.mask.any(-1)
 
     # --- 4. integrated iterated WLS
-    z_all = np.concatenate([zg, rows.z], axis=-1)
-    mask_all = np.concatenate([mg, rows.mask], axis=-1)
-    W_blocks = (wg, rows.W)  # block-diagonal weight: GPS diagonal, vision block
     x0 = _take_t(x_g0, li)
-    x_it, conv, _, h, G = lsq.gauss_newton_ranges(x0, ist.max_iter, ist.tol_m, (anchor_g, off_ant, zg, wg, mg),
-                                                  (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask))
-    ft, pls, reason, ok, x = fix_at_solution(h, G, z_all, W_blocks, mask_all, x_it, conv, ist)
+    gps_rows = (anchor_g, off_ant, zg, wg, mg)
+    vision_rows = (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask)
+    ft, pls, reason, ok, x, conv = _integrated_fix(use_v, fix_g, x_g, x0, gps_rows, vision_rows, ist)
     extra = {
         "gps": gps_exclusion(fix_g, gps, None, ist) if ist.fde else gps,
         "vision_m": vr.m, "vision_Sigma_V": vr.Sigma_V, "vision_reason": vr.reason,
@@ -459,9 +457,65 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tupl
     out = _monitor_output(name, t, x, ft, pls, reason, ok, ist, extra, (idx, mg, pr.shape[-1]))
     if not ist.fde:
         return out
-    gps_rows = (anchor_g, off_ant, zg, wg, mg)
-    vision_rows = (p_enu, off_cam, rows.Tm, rows.z, rows.W, rows.mask)
     return _exclusion(out, gps_rows, vision_rows, idx, np.where(ok[..., None], x, x0), ist)
+
+
+#: What an unused row holds in the fit's per-row fields on a solvable epoch (``kernels.wls_one``;
+#: every row is NaN on an unsolvable one)
+_UNUSED_ROW = {"A": 0.0, "residual": 0.0, "ws_diag": np.nan, "hslope": np.nan, "vslope": np.nan}
+
+
+def _flat_epochs(a: NDArray, nb: int) -> NDArray:
+    """``a`` (B..., T, ...) as (B·T, ...), a view (it raises rather than copy)."""
+    v = a.view()
+    v.shape = (-1,) + a.shape[nb:]
+    return v
+
+
+def _put_gps_fit(ft: lsq.WlsFit, gps: lsq.WlsFit, epochs: NDArray, nb: int) -> None:
+    """Write step 1's fit into ``ft`` at the flat ``epochs``, in place: its rows, then the vision
+    block's rows unused."""
+    ng = gps.residual.shape[-1]
+    reason = flat_take(gps.reason, nb, epochs)
+    solvable = (reason == lsq.Reason.OK) | (reason == lsq.Reason.NO_REDUNDANCY)  # lsq.SolvedEpochs.solvable
+    for f in dataclasses.fields(ft):
+        if f.name == "mask":  # the stacked mask, given: step 1's rows and no vision row there
+            continue
+        dst, src = _flat_epochs(getattr(ft, f.name), nb), flat_take(getattr(gps, f.name), nb, epochs)
+        if f.name not in _UNUSED_ROW:
+            dst[epochs] = src
+            continue
+        fill = np.where(solvable, _UNUSED_ROW[f.name], np.nan)
+        dst[epochs, ..., :ng] = src
+        dst[epochs, ..., ng:] = fill.reshape(fill.shape + (1,) * (src.ndim - 1))
+
+
+def _integrated_fix(need: NDArray, fix_g: GpsFix, x_g: NDArray, x0: NDArray, gps_rows: tuple,
+                    vision_rows: tuple, ist: IntegritySettings):
+    """Step 4, the integrated solve and its fit, on the epochs with a vision row (``need``).
+
+    Elsewhere the rows are step 1's, and so are the solve and its fit: GPS RAIM's fix moved to
+    the reference point (``x_g``) and its fit, the vision block's rows unused. (The integrated
+    solve of those rows, started at that fix, stops within its tolerance of it: the same answer
+    to 1e-6 m and 1e-6 relative, tested; the gated default leaves whole cells of a camera sweep
+    without a vision row.) An epoch's path depends on its own rows only, so chunks and workers
+    give the same numbers bit for bit.
+
+    Returns :func:`solution_verdict`'s (fit, PLs, reason, ok, x) and the converged flags.
+    """
+    where = None if need.all() else need
+    zg, wg, mg = gps_rows[2:]
+    zv, Wv, mv = vision_rows[3:]
+    x, conv, _, h, G = lsq.gauss_newton_ranges(x0, ist.max_iter, ist.tol_m, gps_rows, vision_rows, where=where)
+    ft = lsq.wls_fit(h, G, np.concatenate([zg, zv], -1), wg, Wv, np.concatenate([mg, mv], -1), ist.max_cond,
+                     where=where)
+    if where is not None:
+        nb = need.ndim
+        rest = np.flatnonzero(~need)
+        _put_gps_fit(ft, fix_g.fit, rest, nb)
+        _flat_epochs(x, nb)[rest] = flat_take(x_g, nb, rest)
+        _flat_epochs(conv, nb)[rest] = flat_take(fix_g.converged, nb, rest)
+    return solution_verdict(ft, x, conv, ist) + (conv,)
 
 
 def _exclusion(out: MonitorOutput, gps_rows: tuple, vision_rows: tuple, idx: NDArray, x_start: NDArray,

@@ -87,11 +87,11 @@ def compile_all() -> None:
                      w(1, 3, 3))
     scatter_used_rows(r(1, 3), r(1, 2, dt=i), r(1, 2, dt=b), w(1, 5))
     range_gauss_newton_tiles(r(1, 4, 3), r(1, 3), r(1, 4), r(1, 4), r(1, 4, dt=b), r(1, 3), r(1, 3), r(1, 0, 1),
-                             r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
+                             r(1, 0), r(1, 0, 0), r(1, 0, dt=b), r(1, 4), r(1, dt=i), 1, 1e-3, w(1, 4), w(1, dt=b), w(1, dt=i),
                              w(1, 4), w(1, 4, 4))
     cosine_gauss_newton_tiles(r(1, 3), r(1, 3, 3), r(3), r(1, 3), r(1, 3, dt=b), r(1, 3, dt=b), 1, 1e-4, w(1, 3),
                               w(1, dt=i), w(1, dt=b), w(1, dt=b))
-    wls_epochs(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e10, w(1, 4, 4), w(1, 4, 5),
+    wls_epochs(r(1, 5, 4), r(1, 5), r(1, 5), r(1, 2), r(1, 3, 3), r(1, 5, dt=b), 1e10, r(1, dt=i), w(1, 4, 4), w(1, 4, 5),
                w(1, 5), w(1), w(1, 5), w(1), w(1, 5), w(1, 5), w(1), w(1), w(1, dt=i), w(1, dt=i),
                w(1, dt=np.int8))
     for products in (cosine_rule_products, cosine_rule_products_tiles):

@@ -342,9 +342,10 @@ def _wls_at(p, G, h, z, wd, Wb, mask, max_cond, J, A, ws, cond, r, sse, hslope, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def wls_epochs(G, h, z, wd, Wb, mask, max_cond,
+def wls_epochs(G, h, z, wd, Wb, mask, max_cond, epochs,
                J, A, ws, cond, r, sse, hslope, vslope, hmax, vmax, n_used, n_states, reason):
-    """:func:`wls_one` for every epoch of a flat batch (P, ...), the same numbers bit for bit, faster.
+    """:func:`wls_one` for the epochs ``epochs`` (int64 indices) of a flat batch (P, ...), the same numbers
+    bit for bit, faster; the other epochs' outputs are not written.
 
     Epochs are solved ``TILE`` at a time with the epoch as the innermost (vectorised) axis: the
     arithmetic of each epoch is :func:`wls_one`'s, operation for operation and in its order. An
@@ -352,7 +353,8 @@ def wls_epochs(G, h, z, wd, Wb, mask, max_cond,
     bit. An epoch off the common path (a non-finite used input, no clock term, no redundancy, a
     singular or rejected normal matrix) is solved again by :func:`wls_one` itself.
     """
-    P, N, K = G.shape
+    N, K = G.shape[1:]
+    P = epochs.shape[0]
     n1 = wd.shape[1]
     R = N - n1
     work, vec, wg = np.empty((4, K, K)), np.empty((3, K)), np.empty(K)
@@ -367,12 +369,13 @@ def wls_epochs(G, h, z, wd, Wb, mask, max_cond,
                                 np.empty(TILE))
     bad = np.empty(TILE, np.bool_)
     used = np.empty((N, TILE), np.bool_)
-    p0 = 0
-    while p0 < P:
+    e0 = 0
+    while e0 < P:
         # -- the tile's common-path epochs, gathered with unused rows as zeros ------------
         n = 0
-        p = p0
-        while p < P and n < TILE:
+        e = e0
+        while e < P and n < TILE:
+            p = epochs[e]
             nu = 0
             chk = 0.0  # stays 0 while every used input is finite (x·0 is NaN for inf and NaN)
             clock = False
@@ -407,8 +410,8 @@ def wls_epochs(G, h, z, wd, Wb, mask, max_cond,
             else:
                 _wls_at(p, G, h, z, wd, Wb, mask, max_cond, J, A, ws, cond, r, sse, hslope, vslope, hmax, vmax, n_used,
                         n_states, reason, work, vec, wg)
-            p += 1
-        p0 = p
+            e += 1
+        e0 = e
         if n == 0:
             continue
         _tile_solve(n, n1, max_cond, Gt, WG, wdt, Wbt, wkk, rt, M, S, Lf, Si, Jt, At, d, piv, y, bad, kap, wst, hst, vst,

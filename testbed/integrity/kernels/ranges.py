@@ -297,14 +297,17 @@ def _tile_normal(n, h, G, zg, wg, zv, Wv, dz, Nm, g):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def range_gauss_newton_tiles(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v, Tm, z_v, W_v, mask_v,
-                             x0, n_iter, tol_m, x_out, conv_out, iter_out, h_out, G_out):
+                             x0, epochs, n_iter, tol_m, x_out, conv_out, iter_out, h_out, G_out):
     """:func:`range_gauss_newton`, epochs ``TILE`` at a time side by side: the same numbers bit for bit.
+
+    Only the epochs listed in ``epochs`` (int64 indices into the batch) are solved and written.
 
     Each epoch keeps its own iteration: it stops, as there, when its step is below ``tol_m`` or its
     normal matrix is singular, and later passes leave it alone. An unused row or pair of rows
     enters with a zero weight, and adding an exact zero to a sum that starts at +0 changes no bit.
     """
-    P, NG = z_g.shape
+    P = epochs.shape[0]
+    NG = z_g.shape[1]
     R = z_v.shape[1]
     L = anchor_v.shape[0]
     Nr = NG + R
@@ -323,7 +326,7 @@ def range_gauss_newton_tiles(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v,
     for p0 in range(0, P, TILE):
         n = min(TILE, P - p0)
         for q in range(n):  # -- gather; a skipped row or pair gets weight 0
-            p = p0 + q
+            p = epochs[p0 + q]
             mg[:, q] = mask_g[p]
             zg[:, q] = z_g[p]
             ag[:, :, q] = anchor_g[p]
@@ -369,14 +372,14 @@ def range_gauss_newton_tiles(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v,
                 for q in range(n):
                     if active[q]:
                         x1[:] = x[:, q]
-                        conv[q], steps[q] = _gn_steps(p0 + q, x1, steps[q], n_iter, tol_m, anchor_g, off_g, z_g, w_g,
+                        conv[q], steps[q] = _gn_steps(epochs[p0 + q], x1, steps[q], n_iter, tol_m, anchor_g, off_g, z_g, w_g,
                                                       mask_g, anchor_v, off_v, Tm, z_v, W_v, mask_v, Nm1, g1, hv1, Gv1,
                                                       h1, G1, dz1)
                         x[:, q] = x1
                 break
         _tile_rows(n, x, ag, og, mg, anchor_v, ov, Tt, mv, hv, Gv, h, G)
         for q in range(n):  # -- scatter
-            p = p0 + q
+            p = epochs[p0 + q]
             for c in range(4):
                 x_out[p, c] = x[c, q]
             conv_out[p] = conv[q]
