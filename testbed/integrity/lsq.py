@@ -198,8 +198,8 @@ def wls_fit(h: ArrayLike, G: ArrayLike, z: ArrayLike, w_diag: ArrayLike, W_block
     anything). Weights ``W = blockdiag(diag(w_diag), W_block)``: w_diag (..., n1) for the
     first, uncorrelated rows (e.g. pseudoranges), W_block (..., N − n1, N − n1) for the
     rest (e.g. a vision block), or None when ``n1 = N``. One compiled pass per epoch
-    (:func:`kernels.wls_epochs`) decides every epoch, degenerate ones included, on its
-    own: a chunk of a batch gives the same numbers, bit for bit, as the whole.
+    (:func:`kernels.wls_epochs`) decides every epoch it fits, degenerate ones included, on
+    its own: a chunk of a batch gives the same numbers, bit for bit, as the whole.
     where : (...) bool, the epochs to fit (None: all); the others are not fitted: NaN, counts 0,
     reason NO_POSITION (their inputs are not read).
     """

@@ -133,7 +133,8 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
 def fix_at_solution(h: NDArray, G: NDArray, z: NDArray, W: tuple, mask: NDArray, x: NDArray, conv: NDArray,
             ist: IntegritySettings):
     """Geometry, residuals, SSE, both PL variants and the reason code at the solution x of an
-    iterated solve (GPS RAIM, and VA-RAIM's GPS and integrated solves).
+    iterated solve (GPS RAIM and its exclusion solves; VA-RAIM's exclusion solves; VA-RAIM's
+    integrated solve runs its two halves, :func:`lsq.wls_fit` and :func:`solution_verdict`).
 
     h (..., N), G (..., N, 4): the predictions and partials at x. W = ``(w_diag, W_block)``:
     the block-diagonal weight of :func:`lsq.wls_fit` (GPS rows first, then the vision block;
