@@ -22,7 +22,9 @@ also monitored from the onset on only (its observations from there, cut once per
 cells share records), against the whole sortie. Under common random numbers those cells'
 observations before the onset are the zero-size cell's, and the monitors are causal, so the
 difference is an upper bound: it leaves out the few epochs a stateful monitor carries over
-(VA-RAIM's calibration and last-fix epochs) and joining the two parts of each output.
+(VA-RAIM's calibration and last-fix epochs, which differ between the cameras of a sweep and so
+also keep them from sharing VA-RAIM's step 1 after the onset) and joining the two parts of
+each output.
 """
 
 from __future__ import annotations
