@@ -327,6 +327,26 @@ def test_epochs_without_a_vision_row_are_gps_raims_fix_bit_for_bit(monkeypatch):
         np.testing.assert_array_equal(getattr(solved, f)[~gps_only], getattr(out, f)[~gps_only], err_msg=f)
 
 
+def test_a_batch_without_any_vision_row_is_gps_raim_and_one_with_all_of_them_solves_every_epoch():
+    """The two ends of the step-1 substitution: no landmark anywhere (nothing to solve: every epoch is GPS
+    RAIM's, bit for bit), and no calibration with every epoch's rows used (every epoch solved)."""
+    from dataclasses import replace
+
+    from testbed.frames import q_to_R
+    sc = make_scenario(np.random.default_rng(32), (3,), t0=30.0, t1=50.0, rate_hz=1.0)
+    blind = va_raim(sc.gnss, replace(sc.vision, detected=np.zeros_like(sc.vision.detected)), sc.frame)
+    gps = blind.diagnostics.gps
+    assert not blind.diagnostics.vision_rows_used.any()
+    for f in ("hpl", "vpl", "test_stat", "threshold", "alert", "reason", "n_used"):
+        np.testing.assert_array_equal(getattr(blind, f), getattr(gps, f), err_msg=f)
+    off = q_to_R(sc.vision.q_body_to_enu_ref) @ sc.gnss.antenna.lever_arm_body
+    np.testing.assert_array_equal(blind.pos_enu, gps.pos_enu - off)
+    every = va_raim(sc.gnss, sc.vision, sc.frame, VaRaimSettings(variant="seed", calibration="none"))
+    d = every.diagnostics
+    assert d.vision_rows_used.all() and (every.n_used == d.n_gps + d.n_vision_rows).all()
+    assert not np.array_equal(every.hpl, d.gps.hpl)
+
+
 # --------------------------------------------------------------------------- batching
 
 
