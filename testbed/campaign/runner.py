@@ -735,7 +735,7 @@ def worker_tasks(todo: list[tuple[int, int, int]], workers: int) -> list[tuple[i
 
 #: The local pool's worker processes start in a few seconds (interpreter, imports, the kernels from numba's cache)
 #: and each rebuilds the cells' flight and sky geometry (side by side, so no later than the driver would), then
-#: compute 0.99-1.30x as fast as threads (two runs): measured end to end (``benchmarks/bench_dask.py``), gps-faults at 4000
+#: compute faster than threads (README, Performance): measured end to end (``benchmarks/bench_dask.py``), gps-faults at 4000
 #: sorties per setting (160 000 cell-sorties, ~35 s) took 40.4 s on the pool and 35.1 s in-process, so a pool
 #: needs a few minutes of computing to pay for itself: below this many cell-sorties a campaign stays in-process.
 POOL_MIN_CELL_SORTIES = 500_000
@@ -753,9 +753,9 @@ def local_workers(workers: int | str, todo: list[tuple[int, int, int]], cores: i
     ``workers`` a number: that many, at most one per task (:func:`worker_tasks`). ``"auto"``: one per core, at most
     one per :data:`WORKER_MEMORY_BYTES` of ``memory_bytes`` (the machine's, when known), when there are at least
     two chunk rows and :data:`POOL_MIN_CELL_SORTIES` cell-sorties to run, else 1. Processes rather than threads
-    because the monitors' numpy steps hold the interpreter lock: two worker processes ran the reproduction's
-    chunk rows 0.99-1.30x as fast as the same rows on two threads, side by side in two runs of
-    ``benchmarks/bench_campaign.py`` (0.79 h vs 0.93 h and 0.79 h vs 0.86 h for the ``--full`` reproduction).
+    because the monitors' numpy steps hold the interpreter lock: two worker processes run the reproduction's
+    chunk rows faster than the same rows on two threads, side by side in ``benchmarks/bench_campaign.py``
+    (its figures: README, Performance).
     """
     if workers == "auto":
         big = len(chunk_rows(todo)) >= 2 and sum(n for _, _, n in todo) >= POOL_MIN_CELL_SORTIES

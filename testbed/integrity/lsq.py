@@ -123,7 +123,12 @@ class SolvedEpochs:
     @property
     def solvable(self) -> NDArray:
         """(...) bool: a position solution exists (reason OK or NO_REDUNDANCY)."""
-        return (self.reason == Reason.OK) | (self.reason == Reason.NO_REDUNDANCY)
+        return solvable(self.reason)
+
+
+def solvable(reason: NDArray) -> NDArray:
+    """Whether reason codes leave a position solution (OK or NO_REDUNDANCY)."""
+    return (reason == Reason.OK) | (reason == Reason.NO_REDUNDANCY)
 
 
 @dataclass(frozen=True)

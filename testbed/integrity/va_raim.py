@@ -476,8 +476,7 @@ def _put_gps_fit(ft: lsq.WlsFit, gps: lsq.WlsFit, epochs: NDArray, nb: int) -> N
     """Write step 1's fit into ``ft`` at the flat ``epochs``, in place: its rows, then the vision
     block's rows unused."""
     ng = gps.residual.shape[-1]
-    reason = flat_take(gps.reason, nb, epochs)
-    solvable = (reason == lsq.Reason.OK) | (reason == lsq.Reason.NO_REDUNDANCY)  # lsq.SolvedEpochs.solvable
+    solvable = lsq.solvable(flat_take(gps.reason, nb, epochs))  # at those epochs only
     for f in dataclasses.fields(ft):
         if f.name == "mask":  # the stacked mask, given: step 1's rows and no vision row there
             continue
