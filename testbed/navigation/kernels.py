@@ -7,8 +7,12 @@ live flight) numpy spends ~0.6 ms of dispatch per IMU step, the kernel ~15 µs.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from numba import njit
+
+from testbed.kernel_cache import keep_in_step
 
 # WGS84 (testbed.inertial): normal gravity and Bowring's latitude
 _GE, _K, _E2 = 9.7803253359, 0.00193185265241, 6.69437999014e-3
@@ -222,3 +226,7 @@ def predict_batch(C, v, p, ba, bg, cb, cd, P, dtheta, dvel, dt, R, origin, w_ie,
             for j in range(3):
                 C[b, i, j] = C1[i, j]
         cb[b] = cb[b] + cd[b] * dt
+
+
+# numba compiles a kernel again when its own file changes, not when a helper's does
+keep_in_step(sys.modules[__name__])

@@ -8,11 +8,14 @@ step is small and never touches the satellite slots it does not use.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from numba import njit, prange
 
 from testbed.frames import C_LIGHT, OMEGA_EARTH
 from testbed.integrity.kernels.small import _lu_solve
+from testbed.kernel_cache import keep_in_step
 
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
@@ -64,3 +67,7 @@ def ecef_fix(sat, z, use, r0, max_iter, tol_m, r_out, b_out):
                 break
         if good:
             r_out[e, 0], r_out[e, 1], r_out[e, 2], b_out[e] = x, y, w, b
+
+
+# numba compiles a kernel again when its own file changes, not when a helper's does
+keep_in_step(sys.modules[__name__])

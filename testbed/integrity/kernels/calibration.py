@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from numba import njit
 
 from testbed.integrity.kernels.small import _matmul, _offset_range, _sandwich, _tile_matmul, _tile_sandwich
+from testbed.kernel_cache import keep_in_step
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -158,3 +161,7 @@ def calibrate_tiles(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd, beta_out
             beta0_out[b, t] = b0[:, 0, q]
             Sh_out[b, t] = Sh[:, :, q]
             Su_out[b, t] = Su[:, :, q]
+
+
+# numba compiles a kernel again when its own file changes, not when a helper's does
+keep_in_step(sys.modules[__name__])

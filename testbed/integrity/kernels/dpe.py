@@ -10,8 +10,12 @@ reference these kernels equal to rounding.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from numba import njit, prange
+
+from testbed.kernel_cache import keep_in_step
 
 
 @njit(cache=True, inline="always")
@@ -240,3 +244,7 @@ def deposit_marginal_threads(weights, spacing, n, coef, origin, width, bins):
     for i0 in prange(n):
         _deposit_slab(weights, spacing, n, coef, origin, width, i0, part[i0])
     _bins_from_slabs(part, bins)
+
+
+# numba compiles a kernel again when its own file changes, not when a helper's does
+keep_in_step(sys.modules[__name__])

@@ -9,8 +9,12 @@ the residuals, SSE and the slopes, with the epoch's :class:`~testbed.integrity.l
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from numba import njit
+
+from testbed.kernel_cache import keep_in_step
 
 # lsq.Reason codes (kernels cannot import lsq: lsq imports the kernels)
 _OK, _NAN_INPUT, _NO_POSITION, _NO_REDUNDANCY, _SINGULAR = 0, 1, 2, 3, 4
@@ -445,3 +449,7 @@ def wls_epochs(G, h, z, wd, Wb, mask, max_cond, epochs,
                     vm = max(vm, vst[k, q])
             hmax[p] = hm
             vmax[p] = vm
+
+
+# numba compiles a kernel again when its own file changes, not when a helper's does
+keep_in_step(sys.modules[__name__])

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from numba import njit
 
 from testbed.integrity.kernels.small import _end_failed_lanes, _lu_solve, _offset_range, _tile_lu_solve
+from testbed.kernel_cache import keep_in_step
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -388,3 +391,7 @@ def range_gauss_newton_tiles(anchor_g, off_g, z_g, w_g, mask_g, anchor_v, off_v,
                 h_out[p, k] = h[k, q]
                 for c in range(4):
                     G_out[p, k, c] = G[k, c, q]
+
+
+# numba compiles a kernel again when its own file changes, not when a helper's does
+keep_in_step(sys.modules[__name__])

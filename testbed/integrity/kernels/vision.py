@@ -3,11 +3,14 @@ the vision prior and the integrated solve's vision block."""
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from numba import njit
 
 from testbed.integrity.kernels.small import (_end_failed_lanes, _lu_solve, _matmul, _offset_range, _sandwich, _tile_lu_solve,
                                             _tile_matmul, _tile_sandwich)
+from testbed.kernel_cache import keep_in_step
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -599,3 +602,7 @@ def vision_prior(x_g, P_g, fix, t, p, off, speed, floor, li_out, m_out, S_out):
                 H[l, 1] = -d1 / rng
                 H[l, 2] = -d2 / rng
             _sandwich(H, Pp, S_out[b, k], HP, False)
+
+
+# numba compiles a kernel again when its own file changes, not when a helper's does
+keep_in_step(sys.modules[__name__])
