@@ -50,12 +50,13 @@ def monitor_rinex(obs_path: str | Path, nav_path: str | Path, **kw):
 
 
 def is_campaign_file(path: str | Path) -> bool:
-    """A campaign spec names ``approaches`` and ``trials``; an approach file has a ``[path]``."""
+    """A campaign spec names ``approaches`` and ``trials`` (either will do: a spec missing one is still a
+    spec, to be told what it misses); an approach file has a ``[path]``."""
     try:
         data = read_toml(Path(path))
     except ConfigError:
         return False
-    return "trials" in data and "path" not in data
+    return ("trials" in data or "approaches" in data) and "path" not in data
 
 
 def check_file(path: str | Path) -> list[str]:

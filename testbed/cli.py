@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from testbed.integrity.registry import monitor_names
-from testbed.schema import ConfigError
+from testbed.schema import ConfigError, exit_code
 
 
 def _cmd_approaches(args: argparse.Namespace) -> int:
@@ -43,9 +43,10 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_fly(args: argparse.Namespace) -> int:
-    from testbed.api import fly_approach, print_flight_summary, print_run_summary, run_approach
+    from testbed.api import check_run_arguments, fly_approach, print_flight_summary, print_run_summary, run_approach
 
     if args.flight_only:
+        check_run_arguments(seed=args.seed)  # unused without sensors, but not nonsense either
         result = fly_approach(args.approach, gust_seed=args.gust_seed, truth_path=args.truth)
         print_flight_summary(result)
     else:
@@ -81,22 +82,31 @@ def _cmd_monitor(args: argparse.Namespace) -> int:
 
 
 def _cmd_observability(args: argparse.Namespace) -> int:
+    from testbed.api import check_run_arguments
     from testbed.navigation.observability import format_tables
 
+    check_run_arguments(seed=args.seed)
     print(format_tables(seed=args.seed))
     return 0
 
 
 def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
+    from testbed.api import check_run_arguments
     from testbed.campaign.dpe_calibration import SET_C_TRAJECTORIES, calibrate_dpe, write_record
     from testbed.config import load_approach
     from testbed.sim.preflight import check_output_folder
 
+    check_run_arguments(seed=args.seed)
     out = Path(args.out)
     if out.exists() and out.is_dir():
         raise ConfigError(out, ["--out: expected a file path for the calibration record, got a folder"])
+    if out.parent.exists() and not out.parent.is_dir():
+        raise ConfigError(out, [f"--out: {out.parent} is a file, not a folder"])
     if not out.parent.is_dir():
         raise ConfigError(out, [f"--out: the folder {out.parent} does not exist"])
+    if args.resume and args.work is None:
+        raise ConfigError("command line", ["--resume: expected --work DIR too (the chunks a run stored are resumed "
+                                           "from its work folder; without one nothing is stored)"])
     trajectories = SET_C_TRAJECTORIES if args.trajectories == ["set-c"] else tuple(args.trajectories or ())
     for t in (args.approach, *trajectories):
         load_approach(t)  # every named approach reads before any work (exit 2 naming the file and key)
@@ -221,10 +231,7 @@ def main(argv: list[str] | None = None) -> int:
 
     keep_freed_memory()  # a process setting: the command applies it, library calls never do (testbed.heap)
     try:
-        return args.func(args)
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return exit_code(lambda: args.func(args))
     except BrokenPipeError:  # output piped into `head` and the like: stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit-time flush goes nowhere
         return 0

@@ -30,7 +30,7 @@ from testbed.integrity.registry import MonitorName
 from testbed.integrity.settings import IntegritySettings
 from testbed.sensors.imu.settings import ImuSettings
 from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir, shipped_or_path
-from testbed.schema import ConfigError, StrictModel, format_validation_error
+from testbed.schema import ConfigError, FileName, StrictModel, format_validation_error
 from testbed.sensors.faults import Fault
 from testbed.sensors.gnss.settings import GnssSettings
 from testbed.sensors.vision.settings import LandmarkSettings, VisionSettings
@@ -44,7 +44,7 @@ LAST_START = dt.datetime(2100, 1, 1, tzinfo=dt.timezone.utc)
 class ApproachConfig(StrictModel):
     """One approach file (``approaches/<name>.toml``)."""
 
-    name: str
+    name: FileName
     description: str
     illustrative: bool = Field(False, description="True when the procedure is not a published one")
     aircraft: str = Field("b737", description="aircraft folder name under aircraft/, or a path to an aircraft.toml")
@@ -104,6 +104,8 @@ class Approach:
 def read_toml(path: Path) -> dict:
     """Read a TOML file; syntax errors become a ConfigError naming the file and line."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(path, ["is a folder: expected a TOML file"])
     if not path.is_file():
         raise ConfigError(path, ["file not found"])
     try:
@@ -154,7 +156,9 @@ def load_approach(name_or_path: str | Path) -> Approach:
 
 
 def _relative_to(cfg: ApproachConfig, base: Path) -> ApproachConfig:
-    """Data paths the file names, resolved against the file's folder (not the working directory)."""
+    """Data paths the file names, resolved against the file's folder (not the working directory) into
+    absolute ones: a relative folder would be joined again by whoever reads them."""
+    base = base.resolve()
     g, t = cfg.gnss, cfg.terrain
     update = {}
     if g.almanac_path is not None and not g.almanac_path.is_absolute():

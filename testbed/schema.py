@@ -8,13 +8,15 @@ that names the key path, and nothing can be changed after validation.
 
 from __future__ import annotations
 
+import sys
 import types
 import typing
 from pathlib import Path
+from typing import Callable
 
 import re
 
-from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationError, model_validator
 
 
 class StrictModel(BaseModel):
@@ -79,6 +81,17 @@ def _kind_problem(value, tp) -> tuple[str, str, object] | None:
     return None
 
 
+def _file_name(v: str) -> str:
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}", v):
+        raise ValueError(f"expected a name of letters, digits, '.', '_' and '-', starting with a letter or digit "
+                         f"(it names default output files and folders, so no '/' or '..'), got {v!r}")
+    return v
+
+
+#: a name the default output paths are made of (``runs/<name>-seed0.rrd``, ``campaigns/<name>``)
+FileName = typing.Annotated[str, AfterValidator(_file_name)]
+
+
 class ConfigError(ValueError):
     """A configuration file failed to load or validate.
 
@@ -90,6 +103,15 @@ class ConfigError(ValueError):
         self.problems = list(problems)
         lines = "\n".join(f"  {self.source}: {p}" for p in self.problems)
         super().__init__(f"{len(self.problems)} problem(s) in {self.source}:\n{lines}")
+
+
+def exit_code(command: Callable[[], int]) -> int:
+    """Run a command-line command: its exit code, or 2 with the ConfigError's message on stderr (never a traceback)."""
+    try:
+        return command()
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
 
 def _file_path(loc: tuple, data) -> list:

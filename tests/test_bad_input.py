@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +91,21 @@ FILE_CASES = [
      "gnss.almanac_path", "nav.rnx"),
     ("binary-approach-file", lambda d: ((d / "bin.toml").write_bytes(b"\xff\xfe\x00\x81" * 50), d / "bin.toml")[1],
      "bin.toml", "not a text"),
+    ("name-that-leaves-its-folder", lambda d: approach(d, replace=('name = "va-raim-2015"', 'name = "../../etc/x"')),
+     "name", "../../etc/x"),
+    ("broadcast-records-of-another-day", lambda d: approach(  # RTKLIB's 2005 sample beside a 2026 flight
+        d, tail=f'[gnss]\nalmanac_source = "rinex_nav"\nalmanac_path = '
+                f'"{Path(__file__).parent / "references" / "rinex" / "07590920.05n"}"'),
+     "gnss.almanac_path", "expected a navigation file with records within 2 h of the flight"),
+    ("empty-prn-list", lambda d: approach(d, tail=FAULT.format(kind="gps_step", body="prn = []\nbias_m = 10.0")),
+     "faults.0.prn", "at least 1 PRN"),
+    ("no-service-level", lambda d: approach(d, tail="[integrity]\nservice_levels = []"),
+     "integrity.service_levels", "at least one service level"),
+    ("gust-intensity-and-w20", lambda d: approach(d, tail='[gusts]\nintensity = "light"\nw20_kt = 30.0'),
+     "gusts", "not both"),
+    ("glide-path-and-constraints", lambda d: approach(
+        d, replace=("glide_path_deg = 4.86", "glide_path_deg = 4.86\nconstraints = [[0.0, 3150.0], [5000.0, 3500.0]]")),
+     "vertical", "not both"),
     ("nan-fault-bias", lambda d: approach(d, tail=FAULT.format(kind="gps_step", body="bias_m = nan")),
      "faults.0.bias_m", "nan"),
     ("inf-ramp", lambda d: approach(d, tail=FAULT.format(kind="gps_ramp", body="rate_m_s = inf")),
@@ -185,8 +202,16 @@ FILE_CASES = [
      "gnss.correlators", "mag"),
     ("zero-bandwidth", lambda d: approach(d, tail="[gnss.correlators]\nbandwidth_chips = 0.0"),
      "gnss.correlators.bandwidth_chips", "0"),
-    ("cn0-out-of-range", lambda d: approach(d, tail="[gnss.correlators]\ncn0_by_elevation = { 10.0 = 400.0 }"),
-     "gnss.correlators.cn0_by_elevation", "400"),
+    ("cn0-out-of-range", lambda d: approach(d, tail='[gnss.correlators]\ncn0_by_elevation = { "10" = 400.0 }'),
+     "gnss.correlators.cn0_by_elevation", "C/N0 in [10, 70] dB-Hz, got 10.0: 400.0"),
+    # the option table of a monitor the file does not list is checked all the same
+    ("unlisted-va-raim-typo", lambda d: approach(d, top='monitors = ["gps_raim"]', tail='[va_raim]\nvarient = "seed"'),
+     "va_raim", "varient"),
+    ("unlisted-ekf-bad-value", lambda d: approach(d, top='monitors = ["gps_raim"]', tail="[ekf]\nwindow_s = -1.0"),
+     "ekf.window_s", "-1"),
+    ("unlisted-dpe-typo", lambda d: approach(d, top='monitors = ["gps_raim"]',
+                                             tail='[dpe]\nk_factor = "calibration/dpe-k.json"\ngrid = 3'),
+     "dpe", "grid"),
     ("dpe-k-file-missing", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]', tail='[dpe]\nk_factor = "missing.json"'),
      "dpe.k_factor", "missing.json"),
     ("dpe-k-file-for-other-settings", lambda d: ((d / "k.json").write_text(
@@ -368,12 +393,20 @@ def test_campaign_inputs_are_checked_before_any_work(work, capsys):
                              ('[sweep]\nmultipath_echo_db = ["on"]\n', "sweep.multipath_echo_db", "on"),
                              ('[sweep]\nmax_satellites = [-1]\n', "sweep.max_satellites", "-1"),
                              ('[sweep]\nmax_satellites = [2.5]\n', "sweep.max_satellites", "2.5"),
-                             ('[sweep]\nground_features = ["yes"]\n', "sweep.ground_features", "yes")):
+                             ('[sweep]\nground_features = ["yes"]\n', "sweep.ground_features", "yes"),
+                             ('[[faults]]\nkind = "gps_step"\nmagnitudes = [0.0, 20.0]\nonset_s = 20.0\n',
+                              "faults.0.onset_s", "no epoch would be faulty: expected an onset before 10 s (got 20)")):
         bad = inputs / "bad-axis.toml"
         bad.write_text(SPEC.replace("duration_s", "# duration_s") + text if "duration_s" in value else SPEC + text)
         code, out = run(capsys, "campaign", bad, "--out", inputs / "o3")
         assert code == 2 and key in out and value in out and str(bad) in out, (text, out)
         assert not (inputs / "o3").exists()
+    for name in ("../escaped", "/tmp/absolute", ".hidden"):  # the name makes the default output folder
+        bad = inputs / "bad-name.toml"
+        bad.write_text(SPEC.replace('name = "s"', f'name = "{name}"'))
+        code, out = run(capsys, "campaign", bad, "--quiet")
+        assert code == 2 and "name" in out and name in out and "no '/' or '..'" in out, out
+    assert listing(cwd) == {}
 
 
 def test_report_on_a_bad_folder_is_a_message(work, capsys):
@@ -616,3 +649,85 @@ def test_campaign_benchmarks_refuse_bad_options_before_any_work(tmp_path, script
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert named in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("argv", [["observability", "--seed", "-1"], ["fly", "va-raim-2015", "--flight-only", "--seed", "-1"],
+                                  ["calibrate-dpe", "--out", "k.json", "--seed", "-1"]],
+                         ids=["observability", "fly-flight-only", "calibrate-dpe"])
+def test_every_seed_option_is_checked_before_any_work(argv, work, capsys):
+    cwd, _ = work
+    code, out = run(capsys, *argv)
+    assert code == 2 and "--seed = -1: expected a whole number from 0 to 2^63 - 1" in out, out
+    assert listing(cwd) == {}
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_an_output_folder_where_nothing_can_be_created_is_refused(work, capsys):
+    """/proc passes os.access for root but refuses a new folder: the check tries one."""
+    code, out = run(capsys, "export-rinex", "va-raim-2015", "/proc/testbed-out")
+    assert code == 2 and "/proc/testbed-out" in out and "cannot create anything in /proc" in out, out
+
+
+def test_campaign_commands_report_bad_input_on_stderr_also_as_a_module(work):
+    """`python -m testbed.campaign` is the campaign commands' own entry: the same message and exit code."""
+    cwd, _ = work
+    for argv in (["report", str(cwd / "nothing")], ["reproduce", "no-such-paper"]):
+        res = subprocess.run([sys.executable, "-m", "testbed.campaign", *argv], cwd=cwd, capture_output=True,
+                             text=True, timeout=120)
+        assert res.returncode == 2 and res.stderr.startswith("error: ") and "Traceback" not in res.stderr, res
+        assert res.stdout == ""
+
+
+def test_calibrate_dpe_with_too_few_sorties_for_the_tail_fit_is_refused_before_they_run(work, capsys):
+    """6 sorties pass --sorties' range (one per stratum) but cannot reach the tail fit's 1000 epochs on this
+    150-epoch trajectory: said after the one flight, not after the sorties."""
+    cwd, _ = work
+    code, out = run(capsys, "calibrate-dpe", "--out", cwd / "k.json", "--sorties", "6")
+    assert code == 2 and "--sorties = 6: at most 900 calibration epochs" in out and "at least 7 sorties" in out, out
+    assert "chunks of" not in out  # no sortie ran
+    assert listing(cwd) == {}
+
+
+def test_a_dem_beside_an_approach_named_by_a_relative_path_is_found(work, capsys):
+    """`testbed check sub/a.toml` with dem_paths = ["dem.npz"] in sub/: the DEM is sub/dem.npz (it was joined
+    to sub/ twice, sub/sub/dem.npz, and a good file was refused)."""
+    cwd, _ = work
+    sub = cwd / "sub"
+    sub.mkdir()
+    lat, lon = np.linspace(29.0, 29.6, 61), np.linspace(93.9, 94.7, 81)
+    np.savez(sub / "dem.npz", lat_deg=lat, lon_deg=lon, height_m=np.full((lat.size, lon.size), 2900.0))
+    approach(sub, replace=('[terrain]\nkind = "two_ridges"', '[terrain]\nkind = "dem"\ndem_paths = ["dem.npz"]'),
+             name="a.toml")
+    code, out = run(capsys, "check", "sub/a.toml")
+    assert code == 0 and "sub/a.toml: ok" in out, out
+
+
+def test_a_navigation_file_of_the_flights_own_day_is_accepted(work, capsys):
+    """The other side of 'broadcast-records-of-another-day': the flight's own exported navigation file checks clean."""
+    cwd, inputs = work
+    assert run(capsys, "export-rinex", "va-raim-2015", inputs / "rx")[0] == 0
+    p = approach(inputs, tail=f'[gnss]\nalmanac_source = "rinex_nav"\nalmanac_path = "{inputs / "rx" / "va-raim-2015.nav"}"')
+    code, out = run(capsys, "check", p)
+    assert code == 0 and f"{p}: ok" in out, out
+
+
+def test_more_bad_paths_and_options_are_named_before_any_work(work, capsys):
+    cwd, inputs = work
+    a_file = inputs / "taken"
+    a_file.write_text("mine")
+    cases = [
+        (["reproduce", "won-2013", "--out", a_file], "is a file"),
+        (["reproduce", "dpe-vertical", "--out", a_file / "x"], "is a file"),
+        (["calibrate-dpe", "--out", a_file / "k.json"], f"--out: {a_file} is a file, not a folder"),
+        (["calibrate-dpe", "--out", cwd / "k.json", "--resume"], "--resume: expected --work DIR too"),
+        (["fly", inputs], "is a folder: expected a TOML file"),
+        (["campaign", inputs, "--out", cwd / "o"], "is a folder: expected a TOML file"),
+    ]
+    for argv, said in cases:
+        code, out = run(capsys, *argv)
+        assert code == 2 and said in out, (argv, out)
+    assert a_file.read_text() == "mine" and listing(cwd) == {}
+    spec = inputs / "no-trials.toml"
+    spec.write_text(SPEC.replace("trials = 10\n", "", 1))  # a spec missing one key is still a spec
+    code, out = run(capsys, "check", spec)
+    assert code == 1 and "1 problem(s)" in out and "trials: Field required" in out, out

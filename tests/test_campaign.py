@@ -430,8 +430,11 @@ def test_cli_parsers_register_three_subcommands(tmp_path, capsys):
     assert parser.parse_args(["report", "d"]).func is not None
     assert parser.parse_args(["reproduce", "va-raim-2015", "--full"]).full
     bad = write_spec(tmp_path, "bad.toml", text='name = "x"\n')
-    assert args.func(parser.parse_args(["campaign", str(bad), "--out", str(tmp_path / "o")])) == 2
-    assert "approaches" in capsys.readouterr().out
+    from testbed.campaign.cli_commands import main
+
+    assert main(["campaign", str(bad), "--out", str(tmp_path / "o")]) == 2  # python -m testbed.campaign
+    said = capsys.readouterr()
+    assert said.err.startswith("error: ") and "approaches" in said.err and said.out == ""
     assert not (tmp_path / "o").exists()
 
 

@@ -101,3 +101,25 @@ def test_bad_campaign_spec_lists_every_problem(tmp_path):
     probs = check_file(p)
     assert any(q.startswith("trials:") and "greater than or equal to 1" in q for q in probs)
     assert any(q.startswith("bogus: unknown key") for q in probs)
+
+
+def _readme_config_block() -> str:
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text.split("\n## Configuration\n", 1)[1]
+    return section.split("```toml\n", 1)[1].split("\n```", 1)[0]
+
+
+@pytest.mark.parametrize("monitors", [None, '["gps_raim", "va_raim", "pixel", "ekf", "dpe"]'])
+def test_the_readmes_configuration_example_is_a_valid_approach(tmp_path, monitors):
+    """The README's annotated approach file checks clean as written, and with every monitor it names on."""
+    import shutil
+
+    block = _readme_config_block()
+    assert "[gnss.correlators]" in block and "[dpe]" in block  # the whole example, not a fragment
+    if monitors is not None:
+        block, n = re.subn(r'^monitors = \[[^\]]*\]', f"monitors = {monitors}", block, count=1, flags=re.M)
+        assert n == 1
+    shutil.copytree(approaches_dir() / "calibration", tmp_path / "calibration")  # [dpe] k_factor's file
+    p = tmp_path / "example.toml"
+    p.write_text(block)
+    assert check_file(p) == []

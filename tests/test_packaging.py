@@ -75,3 +75,34 @@ def test_a_shipped_campaign_is_found_by_name_and_trials_can_be_overridden():
     assert (loaded.spec.trials, loaded.spec.block_trials, loaded.spec.chunk_trials) == (150, 100, 200)
     with pytest.raises(ConfigError, match="quick-look"):  # the message lists what is shipped
         load_spec("no-such-campaign")
+
+
+def test_testbed_home_replaces_the_shipped_folders(tmp_path, monkeypatch, capsys):
+    import shutil
+
+    from testbed.cli import main
+    from testbed.config import load_approach
+
+    (tmp_path / "approaches").mkdir()
+    shutil.copytree(ROOT / "aircraft", tmp_path / "aircraft")
+    mine = (ROOT / "approaches" / "zunz-rwy05-final.toml").read_text().replace(
+        'name = "zunz-rwy05-final"', 'name = "my-final"', 1)
+    assert 'name = "my-final"' in mine
+    (tmp_path / "approaches" / "my-final.toml").write_text(mine)
+    monkeypatch.setenv("TESTBED_HOME", str(tmp_path))
+    assert main(["approaches"]) == 0
+    listing = capsys.readouterr().out
+    assert f"{tmp_path / 'approaches'} (TESTBED_HOME)" in listing
+    assert "my-final" in listing and "zunz-rwy05-final" not in listing
+    loaded = load_approach("my-final")
+    assert loaded.source == tmp_path / "approaches" / "my-final.toml"
+    assert loaded.aircraft_source.is_relative_to(tmp_path / "aircraft")
+
+
+def test_the_readme_states_the_python_the_package_requires():
+    import re
+    import tomllib
+
+    need = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    assert need == ">=3.11"  # tomllib (testbed.config)
+    assert re.search(r"Python ≥ 3\.11\b", (ROOT / "README.md").read_text())

@@ -272,3 +272,42 @@ def test_an_exclusion_is_logged_and_marked(tmp_path):
     assert t[0] == pytest.approx(first)
     assert res.summaries["gps_raim"].excluded_epochs == int((out.excluded >= 0).sum()) > 0
     assert res.summaries["gps_raim"].time_to_alert_s == pytest.approx(0.0)  # a detection, though no alert
+
+
+def _listening_sockets_of_this_process() -> set[str]:
+    """Inodes of the TCP sockets this process has listening (Linux /proc)."""
+    mine = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            mine.add(target[8:-1])
+    listening = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        if os.path.exists(table):
+            for line in open(table).read().splitlines()[1:]:
+                f = line.split()
+                if f[3] == "0A":  # LISTEN
+                    listening.add(f[9])
+    return mine & listening
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="needs Linux's /proc")
+def test_no_listener_is_opened_without_live(tmp_path, monkeypatch):
+    """README: 'no listener is opened without --live'. A recorded flight never builds Rerun's server sink,
+    and this process has no more listening sockets during the flight than before it."""
+    import rerun as rr
+
+    def refuse(*a, **k):
+        raise AssertionError("a live server was started without --live")
+
+    for name in ("GrpcServerSink", "serve_grpc", "serve_web_viewer", "start_web_viewer_server", "spawn"):
+        monkeypatch.setattr(rr, name, refuse)
+    before = _listening_sockets_of_this_process()
+    seen = []
+    res = run_approach("va-raim-2015", seed=1, rrd_path=tmp_path / "r.rrd", monitors=["gps_raim"],
+                       on_landed=lambda r: seen.append(_listening_sockets_of_this_process()))
+    assert res.live_url is None and (tmp_path / "r.rrd").is_file()
+    assert seen and seen[0] <= before

@@ -392,6 +392,7 @@ BAD_CONFIG = [
     ('[rinex]\nsigma_a_m = nan\n', ["rinex.sigma_a_m", "nan"]),
     ('[rinex]\nsigma_b_m = -1.0\n', ["rinex.sigma_b_m", "-1"]),
     ('[rinex]\nsigma_ura_m = 0.0\n', ["rinex.sigma_ura_m", "0"]),
+    ('[rinex]\nerror_model = "user"\nsigma_a_m = 0.0\nsigma_b_m = 0.0\n', ["rinex", "sigma_a_m = sigma_b_m = 0"]),
     ('[rinex]\nsigma_tropo_zenith_m = "x"\n', ["rinex.sigma_tropo_zenith_m", "x"]),
     ('[rinex]\ntroposphere = "hopfield"\n', ["rinex.troposphere", "hopfield"]),
     ('[rinex]\nerror_model = "gauss"\n', ["rinex.error_model", "gauss"]),
@@ -428,6 +429,11 @@ def test_bad_reference_and_outputs_exit_2(tmp_path, capsys):
                header="t_gps,pos_ecef_x,pos_ecef_y,pos_ecef_z")
     assert main(["monitor", str(obs), str(nav), "--reference", str(short)]) == 2
     assert "spanning them" in capsys.readouterr().err
+    for body, said in (("", "0 data rows"), ("1,2\n3,4\n", "2 data rows of 2 columns under a header of 4")):
+        bare = tmp_path / "bare.csv"
+        bare.write_text("t_gps,pos_ecef_x,pos_ecef_y,pos_ecef_z\n" + body)  # a header only; rows short of it
+        assert main(["monitor", str(obs), str(nav), "--reference", str(bare)]) == 2
+        assert said in capsys.readouterr().err
     a_file = tmp_path / "file"
     a_file.write_text("x")
     assert main(["monitor", str(obs), str(nav), "--out", str(a_file)]) == 2

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from testbed.schema import ConfigError
+from testbed.schema import ConfigError, exit_code
 
 
 def _positive_int(text: str) -> int:
@@ -51,18 +51,11 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
 
-    try:
-        loaded = load_spec(args.spec, trials=args.trials)  # every spec problem is reported before any work starts
-    except ConfigError as exc:
-        print(exc)
-        return 2
+    loaded = load_spec(args.spec, trials=args.trials)  # every spec problem is reported before any work starts
     out = Path(args.out) if args.out else Path("campaigns") / loaded.spec.name
     try:
         res = run_campaign(loaded, out, resume=args.resume, scheduler=args.scheduler, progress=not args.quiet,
                            restart=args.restart, workers=args.workers)
-    except ConfigError as exc:
-        print(exc)
-        return 2
     except KeyboardInterrupt:
         return _interrupted(out)
     print(f"{res.cells} cells, {res.trials} trials: {res.chunks_run} chunks run, {res.chunks_skipped} already stored; "
@@ -79,26 +72,25 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     try:
         idx = write_report(args.dir)
-    except (ConfigError, FileNotFoundError) as exc:
-        print(exc)
-        return 2
+    except FileNotFoundError as exc:
+        raise ConfigError(Path(args.dir), [f"not a campaign folder: {exc}"]) from None
     print(f"report: {idx}")
     return 0
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from testbed.campaign.reproduce import PAPERS, reproduce_va_raim_2015
+    from testbed.sim.preflight import check_output_folder
 
     if args.paper not in PAPERS:
-        print(f"unknown paper {args.paper!r}; expected one of {sorted(PAPERS)}")
-        return 2
+        raise ConfigError("command line", [f"unknown paper {args.paper!r}; expected one of {sorted(PAPERS)}"])
     ignored = [o for o, v in (("--scheduler", args.scheduler), ("--resume", args.resume),
                               ("--workers", args.workers != "auto")) if v]
     if args.paper != "va-raim-2015" and ignored:  # refused, not silently ignored
-        print(f"{' and '.join(ignored)}: only va-raim-2015's campaigns take them; {args.paper} runs in-process "
-              "from the start")
-        return 2
+        raise ConfigError("command line", [f"{' and '.join(ignored)}: only va-raim-2015's campaigns take them; "
+                                           f"{args.paper} runs in-process from the start"])
     out = Path(args.out) if args.out else Path("campaigns") / f"reproduce-{args.paper}"
+    check_output_folder(out, "--out")
     if args.paper == "dpe-vertical":
         from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
 
@@ -111,9 +103,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         try:
             idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
                                          progress=not args.quiet, workers=args.workers)
-        except ConfigError as exc:
-            print(exc)
-            return 2
         except KeyboardInterrupt:
             return _interrupted(out)
     print(f"reproduction: {idx}")
@@ -155,9 +144,9 @@ def add_campaign_parsers(subparsers) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m testbed.campaign <campaign|report|reproduce> ...`` (until the lead wires testbed/cli.py)."""
+    """``python -m testbed.campaign <campaign|report|reproduce> ...``: the same commands as ``testbed campaign`` ..."""
     parser = argparse.ArgumentParser(prog="python -m testbed.campaign")
     sub = parser.add_subparsers(dest="command", required=True)
     add_campaign_parsers(sub)
     args = parser.parse_args(argv)
-    return args.func(args)
+    return exit_code(lambda: args.func(args))

@@ -32,7 +32,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, KFit, fit_k_tail, settings_fingerprint, validate
+from testbed.integrity.dpe.calibration import (DEFAULT_P_HMI, MIN_TAIL_EPOCHS, KFit, fit_k_tail,
+                                               settings_fingerprint, validate)
 from testbed.schema import ConfigError
 
 #: strata cycled over the sorties (DPE.md §6's set C)
@@ -262,6 +263,16 @@ def strata(c: dict[str, np.ndarray], trajectories: tuple[str, ...]) -> dict[str,
     return out
 
 
+def _enough_epochs(approach: str, names: tuple[str, ...], sorties: int) -> None:
+    """A ValueError before the sorties run when they cannot give the tail fit its epochs, even if every
+    epoch of every sortie had a solution (the trajectories are flown here: the chunks reuse them)."""
+    per = max(len(_trajectory(approach, t)[2].t) for t in names)
+    if sorties * per <= MIN_TAIL_EPOCHS:
+        raise ValueError(f"--sorties = {sorties}: at most {sorties * per} calibration epochs ({per} a sortie at "
+                         f"most), and the tail fit needs more than {MIN_TAIL_EPOCHS}: expected at least "
+                         f"{MIN_TAIL_EPOCHS // per + 1} sorties")
+
+
 def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60, p_hmi: float = DEFAULT_P_HMI, seed: int = 0,
                   trajectories: tuple[str | Path, ...] = (), chunk: int = CHUNK_SORTIES, work: Path | None = None,
                   resume: bool = False, scheduler=None, max_chunks: int | None = None,
@@ -285,6 +296,7 @@ def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60,
     run = CalibrationRun(src, trajs if trajs != (src,) else (), sorties, seed, chunk)
     names = run.trajectories or (src,)
     ap = load_approach(src)  # the settings K is for
+    _enough_epochs(src, names, sorties)
     fingerprint, cover = settings_fingerprint(DpeSettings.model_validate({**ap.config.dpe, "k_factor": 1.0}),
                                               ap.config.gnss.correlators)
     sets = run_chunks(run, work=work, resume=resume, scheduler=scheduler, max_chunks=max_chunks, progress=progress)

@@ -39,7 +39,7 @@ from testbed.config import Approach, ApproachConfig, load_approach, read_toml, v
 from testbed.integrity.levels import service_level
 from testbed.integrity.registry import MonitorName, reads_vision
 from testbed.sim.preflight import preflight
-from testbed.schema import ConfigError, StrictModel
+from testbed.schema import ConfigError, FileName, StrictModel
 from testbed.sensors.vision.settings import LandmarkSet
 
 FaultKindName = Literal["none", "gps_step", "gps_ramp", "pixel_bias", "landmark_moved"]
@@ -216,7 +216,7 @@ class ReportSettings(StrictModel):
 class CampaignSpec(StrictModel):
     """A fault-injection Monte Carlo campaign (``approaches/campaigns/<name>.toml``)."""
 
-    name: str = Field(..., min_length=1)
+    name: FileName = Field(..., min_length=1)
     description: str = ""
     approaches: list[str] = Field(..., min_length=1, description="approach names or paths (relative to the spec)")
     monitors: list[MonitorName] = Field(..., min_length=1, description="monitor names (testbed.integrity.registry)")
@@ -248,6 +248,14 @@ class CampaignSpec(StrictModel):
         length = so.sortie_s if so.sortie_s is not None else self.duration_s
         if so.span_s is not None and length is not None and so.span_s < length:
             raise ValueError(f"sorties.span_s = {so.span_s:g} s is shorter than one sortie ({length:g} s)")
+        if self.segment == "first" and self.duration_s is not None:
+            late = [k for k, f in enumerate(self.faults)
+                    if f.kind != "none" and any(m != 0 for m in f.magnitudes) and f.onset_s >= self.duration_s]
+            if late:
+                k = late[0]
+                raise ValueError(f"[faults.{k}.onset_s] at or after the end of the sortie (duration_s = "
+                                 f"{self.duration_s:g}), so no epoch would be faulty: expected an onset before "
+                                 f"{self.duration_s:g} s (got {self.faults[k].onset_s:g})")
         if self.chunk_trials % self.block_trials:
             raise ValueError(f"chunk_trials ({self.chunk_trials}) must be a multiple of block_trials "
                              f"({self.block_trials})")

@@ -68,6 +68,8 @@ class IntegritySettings(StrictModel):
     @field_validator("service_levels")
     @classmethod
     def _known_levels(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        if not v:  # availability, the calibration criterion and the tables are per level
+            raise ValueError(f"expected at least one service level, some of {list(SERVICE_LEVELS)}")
         unknown = [s for s in v if s not in SERVICE_LEVELS]
         if unknown:
             raise ValueError(f"unknown service level(s) {unknown}; expected some of {list(SERVICE_LEVELS)}")

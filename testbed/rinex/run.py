@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -78,7 +79,13 @@ def read_reference(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         else:
             with p.open() as fh:
                 names = fh.readline().strip().split(",")
-            data = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+            with warnings.catch_warnings():  # a header alone: said below, as the other problems are
+                warnings.simplefilter("ignore", UserWarning)
+                data = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+            if data.size == 0 or data.shape[1] != len(names):
+                raise ConfigError(p, [f"--reference: {data.shape[0] if data.size else 0} data rows of "
+                                      f"{data.shape[1] if data.size else 0} columns under a header of {len(names)} "
+                                      f"({', '.join(names)}); expected at least 2 rows, one value per column"])
             cols = {n: data[:, k] for k, n in enumerate(names)}
     except (OSError, ValueError) as exc:
         raise ConfigError(p, [f"--reference: cannot read the reference trajectory ({exc})"]) from None

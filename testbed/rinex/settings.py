@@ -55,6 +55,9 @@ class RinexSettings(StrictModel):
             if bad:
                 raise ValueError(f"{name}: {bad} are not {'L1' if band == '1' else 'L2/L5'} code observation names "
                                  f"(RINEX 3, such as {codes[0] if not bad else ('C1C' if band == '1' else 'C2W')})")
+        if self.error_model == "user" and self.sigma_a_m == 0.0 and self.sigma_b_m == 0.0:
+            raise ValueError("sigma_a_m = sigma_b_m = 0: the 'user' model would weight every range by 1/0; "
+                             "expected at least one of them > 0")
         if self.origin != "first_fix":
             lat, lon, h = self.origin
             if not (-90 <= lat <= 90 and -180 <= lon <= 360 and -1000 <= h <= 1e5):

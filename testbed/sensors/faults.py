@@ -16,11 +16,17 @@ from typing import Annotated, Literal, Union
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import Field, model_validator
+from pydantic import AfterValidator, Field, model_validator
 
 from testbed.schema import StrictModel
 
-SatSelector = Union[int, list[int], Literal["random"]]
+def _some_satellite(v):
+    if isinstance(v, list) and not v:
+        raise ValueError("expected a PRN, a list of at least 1 PRN, or 'random' (got an empty list)")
+    return v
+
+
+SatSelector = Annotated[Union[int, list[int], Literal["random"]], AfterValidator(_some_satellite)]
 
 
 class _Timed(StrictModel):

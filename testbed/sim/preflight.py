@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +65,15 @@ def _constellation(approach: Approach, problems: list[str]):
         return None
     if len(np.unique(eph.prn)) < 4:
         problems.append(f"gnss.almanac_path: {len(np.unique(eph.prn))} satellite(s) in the file: expected at least 4")
+    if g.almanac_source == "rinex_nav":  # broadcast records hold about their toe only (an almanac for weeks)
+        from testbed.sensors.gnss.navfile import MAX_AGE_S
+
+        t0 = utc_to_gps_seconds(approach.config.start_time_utc)
+        age = float(np.min(np.abs(eph.toe_gps - t0))) if eph.prn.size else np.inf
+        if age > MAX_AGE_S:
+            problems.append(f"gnss.almanac_path = {str(g.almanac_path)!r}: its nearest broadcast record is "
+                            f"{age / 3600:.0f} h from start_time_utc = {approach.config.start_time_utc:%Y-%m-%dT%H:%M:%SZ}: "
+                            f"expected a navigation file with records within {MAX_AGE_S / 3600:.0f} h of the flight")
     return eph
 
 
@@ -214,4 +224,9 @@ def _unwritable(folder: Path, target: Path, option: str) -> str | None:
         return f"{option} {target}: {place} is a file, not a folder"
     if not os.access(place, os.W_OK | os.X_OK):
         return f"{option} {target}: cannot write in {place} (permission denied)"
+    if place != folder.resolve():  # the folder is to be made: permissions do not tell all (root passes
+        try:                          # os.access in /proc), so try (an existing folder is left untouched)
+            os.rmdir(tempfile.mkdtemp(prefix=".testbed-probe-", dir=place))
+        except OSError as exc:
+            return f"{option} {target}: cannot create anything in {place} ({exc.strerror or exc})"
     return None

@@ -5,6 +5,7 @@ Nothing here flies or draws random numbers; :mod:`testbed.sim.loop` does.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,7 @@ from testbed.flight.path import ApproachPath
 from testbed.frames import LocalFrame, euler_to_R_body_to_ned
 from testbed.integrity.levels import service_level
 from testbed.integrity.monitor import Monitor, MonitorContext
-from testbed.integrity.registry import build_monitor, reads_correlators, reads_features, reads_imu, reads_vision
+from testbed.integrity.registry import build_monitor, monitor_names, reads_correlators, reads_features, reads_imu, reads_vision
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount
 from testbed.schema import ConfigError, format_validation_error
@@ -159,19 +160,29 @@ def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = 
     """The approach's monitors, from the registry; a bad option table is a ConfigError naming its key."""
     c = approach.config
     names = tuple(dict.fromkeys(c.monitors))
-    options = {n: getattr(c, n) for n in names if isinstance(getattr(c, n, None), dict)}
+    tables = {n: getattr(c, n) for n in monitor_names() if isinstance(getattr(c, n, None), dict)}
+    options = {n: t for n, t in tables.items() if n in names}
     if "dpe" in options and isinstance(options["dpe"].get("k_factor"), str):
         options["dpe"] = {**options["dpe"], "k_factor": _dpe_k_from_file(approach)}
     ctx = MonitorContext(frame=frame, integrity=c.integrity, options=options, threads=threads)
-    out = []
-    for name in names:
-        try:
-            out.append(build_monitor(name, ctx))
-        except ValidationError as exc:
-            raise ConfigError(approach.source, [f"{name}." + p for p in format_validation_error(exc)]) from None
-        except ValueError as exc:
-            raise ConfigError(approach.source, [f"{name}: {exc}"]) from None
-    return tuple(out)
+    out = tuple(_built(name, ctx, approach) for name in names)
+    # the option table of a monitor not listed is checked too: a typo in it must not wait until the
+    # monitor is switched on (a K file is read only then)
+    for name in (n for n, t in tables.items() if t and n not in names):
+        table = tables[name] if name != "dpe" or not isinstance(tables[name].get("k_factor"), str) \
+            else {**tables[name], "k_factor": 1.0}
+        _built(name, dataclasses.replace(ctx, options={name: table}), approach)
+    return out
+
+
+def _built(name: str, ctx: MonitorContext, approach: Approach) -> Monitor:
+    """The monitor from the registry; a bad option table is a ConfigError naming its key."""
+    try:
+        return build_monitor(name, ctx)
+    except ValidationError as exc:
+        raise ConfigError(approach.source, [f"{name}." + p for p in format_validation_error(exc)]) from None
+    except ValueError as exc:
+        raise ConfigError(approach.source, [f"{name}: {exc}"]) from None
 
 
 def prepare_monitors(setup: RunSetup) -> None:

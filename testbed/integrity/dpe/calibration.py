@@ -68,6 +68,10 @@ def gaussian_k(p_hmi: float) -> float:
     return float(_q_inv(p_hmi / 2.0))
 
 
+#: the tail levels run from 10 % down to 100/N_eff: more independent epochs than this are needed for one
+MIN_TAIL_EPOCHS = 1000
+
+
 def fit_k_tail(z: ArrayLike, p_hmi: float, n_eff: float | None = None) -> KFit:
     """The ``tail`` estimator (module doc)."""
     z = _clean(z)
@@ -75,8 +79,8 @@ def fit_k_tail(z: ArrayLike, p_hmi: float, n_eff: float | None = None) -> KFit:
     n_eff = float(n if n_eff is None else min(n_eff, n))
     b = float(np.median(z))
     deepest = 100.0 / n_eff
-    if deepest >= 0.1:
-        raise ValueError(f"K calibration: N_eff = {n_eff:.0f} leaves no tail levels (need N_eff > 1000)")
+    if n_eff <= MIN_TAIL_EPOCHS:
+        raise ValueError(f"K calibration: N_eff = {n_eff:.0f} leaves no tail levels (need N_eff > {MIN_TAIL_EPOCHS})")
     levels = np.geomspace(0.1, deepest, LEVELS_PER_SIDE)
     best = (0.0, "", float("nan"))
     for side, x in (("upper", np.sort(z - b)[::-1]), ("lower", np.sort(b - z)[::-1])):
