@@ -1,20 +1,22 @@
 """numba's on-disk kernel cache, kept in step with every kernel source, not only each kernel's own file.
 
 numba's ``cache=True`` compiles a function again when *its own* file changes (the cache index
-holds that file's modification time and size), not when a helper it calls from another file
-does: after an edit of ``integrity/kernels/small.py``, the cached machine code of
-``integrity/kernels/vision.py`` still holds the old helper, and runs it without a word. Each
-module that defines cached kernels therefore ends with ``keep_in_step(sys.modules[__name__])``:
-a digest of all kernel sources is kept beside the module's cache, and when it differs the
-indexes of the module's kernels are emptied, so numba compiles them afresh (once, ~15-20 s).
-An installed package never changes under its cache; this is for the working copy.
+holds that file's modification time and size, its "source stamp"), not when a helper it calls
+from another file does: after an edit of ``integrity/kernels/small.py``, the cached machine code
+of ``integrity/kernels/vision.py`` still holds the old helper, and runs it without a word. Each
+module that defines cached kernels therefore ends with ``keep_in_step(sys.modules[__name__])``,
+which adds a digest of every kernel source (and of the constants they compile in) to the stamp
+its kernels' indexes are written with and checked against. An index written before an edit no
+longer matches, and numba compiles afresh (once, ~15-20 s). A process started before the edit
+keeps writing its own (old) stamp, which the next new process does not trust either: each
+process runs code built from the sources it imported. An installed package never changes under
+its cache; this is for the working copy.
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
-import os
 import types
 from pathlib import Path
 from typing import Iterable
@@ -24,7 +26,7 @@ from numba.core.registry import CPUDispatcher
 PACKAGE = Path(__file__).resolve().parent
 
 #: Every module of the package with ``cache=True`` kernels, relative to the package
-#: (``tests/test_architecture.py`` checks that the list is complete and each calls :func:`keep_in_step`).
+#: (``tests/test_kernel_cache.py`` checks that the list is complete and each calls :func:`keep_in_step`).
 KERNEL_SOURCES = (
     "integrity/kernels/calibration.py",
     "integrity/kernels/dpe.py",
@@ -35,6 +37,8 @@ KERNEL_SOURCES = (
     "navigation/kernels.py",
     "rinex/kernels.py",
 )
+#: what the digest covers: the kernels and the module whose constants they compile in (C_LIGHT, OMEGA_EARTH)
+DIGESTED = KERNEL_SOURCES + ("frames.py",)
 
 
 @functools.lru_cache(maxsize=8)
@@ -48,32 +52,23 @@ def sources_digest(paths: tuple[Path, ...]) -> str:
 
 
 def keep_in_step(module: types.ModuleType, sources: Iterable[Path] | None = None) -> int:
-    """Empty the cache indexes of ``module``'s kernels if a kernel source changed since they were written.
+    """Stamp the cache indexes of ``module``'s kernels with a digest of ``sources`` as well as their own file.
 
     sources : the files whose edits must reach the module's compiled code (default: the package's
-        :data:`KERNEL_SOURCES`, every kernel module: a helper of any of them may be inlined).
+        :data:`DIGESTED`: a helper of any kernel module may be compiled into any other).
 
-    Returns the number of kernels whose index was emptied (0 when the digest matches). A cache
-    directory that cannot be written is left alone: numba cannot cache there either.
+    Returns the number of kernels stamped. (numba's index file keeps the stamp it was written
+    with and ignores its entries when the stamp differs: ``IndexDataCacheFile._source_stamp``;
+    the test in ``tests/test_kernel_cache.py`` fails if a numba release renames it.)
     """
-    paths = tuple(Path(p) for p in sources) if sources is not None else tuple(PACKAGE / s for s in KERNEL_SOURCES)
+    paths = tuple(Path(p) for p in sources) if sources is not None else tuple(PACKAGE / s for s in DIGESTED)
     digest = sources_digest(paths)
-    caches = [d._cache for d in vars(module).values()
-              if isinstance(d, CPUDispatcher) and d.__module__ == module.__name__ and d._cache.cache_path is not None]
-    if not caches:
-        return 0
-    stamp = Path(caches[0].cache_path) / f"{module.__name__.rsplit('.', 1)[-1]}.sources"
-    try:
-        if stamp.read_text() == digest:
-            return 0
-    except OSError:
-        pass  # no stamp yet: the cache may predate this check, so it is not trusted
-    try:
-        for c in caches:
-            c.flush()
-        tmp = stamp.with_name(f"{stamp.name}.{os.getpid()}.tmp")
-        tmp.write_text(digest)
-        os.replace(tmp, stamp)  # atomic: a worker process starting beside this one reads either digest
-    except OSError:
-        return 0
-    return len(caches)
+    n = 0
+    for d in vars(module).values():
+        if isinstance(d, CPUDispatcher) and d.__module__ == module.__name__ and d._cache.cache_path is not None:
+            index = d._cache._cache_file
+            own = getattr(index, "_testbed_own_stamp", index._source_stamp)  # idempotent on a second call
+            index._testbed_own_stamp = own
+            index._source_stamp = (own, digest)
+            n += 1
+    return n

@@ -82,9 +82,9 @@ def _kind_problem(value, tp) -> tuple[str, str, object] | None:
 
 
 def _file_name(v: str) -> str:
-    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}", v):
-        raise ValueError(f"expected a name of letters, digits, '.', '_' and '-', starting with a letter or digit "
-                         f"(it names default output files and folders, so no '/' or '..'), got {v!r}")
+    if not v or v.startswith(".") or "/" in v or "\\" in v or not v.isprintable() or len(v) > 100:
+        raise ValueError("expected a name without '/' or '\\' that does not start with '.' (it names the default "
+                         "output files and folders, which must stay inside theirs), at most 100 printable characters")
     return v
 
 
@@ -106,12 +106,17 @@ class ConfigError(ValueError):
 
 
 def exit_code(command: Callable[[], int]) -> int:
-    """Run a command-line command: its exit code, or 2 with the ConfigError's message on stderr (never a traceback)."""
+    """Run a command-line command: its exit code; 2 with the ConfigError's message on stderr; 130 on Ctrl-C
+    (the shell's code for SIGINT). Never a traceback for either."""
     try:
         return command()
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("interrupted: outputs are moved into place only when a command completes, so the files there "
+              "before are as they were", file=sys.stderr)
+        return 130
 
 
 def _file_path(loc: tuple, data) -> list:
@@ -148,6 +153,7 @@ def format_validation_error(err: ValidationError, data=None) -> list[str]:
             out.append(f"{loc + '.' if loc else ''}{kind.group(1)}: {kind.group(2)}")
             continue
         loc = loc or "<top level>"
+        msg = msg.removeprefix("Value error, ")  # pydantic's wrapping of a validator's message
         if e["type"] == "extra_forbidden":
             msg = "unknown key (check the spelling; see README 'Configuration')"
         got = e.get("input")

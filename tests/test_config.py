@@ -123,3 +123,13 @@ def test_the_readmes_configuration_example_is_a_valid_approach(tmp_path, monitor
     p = tmp_path / "example.toml"
     p.write_text(block)
     assert check_file(p) == []
+
+
+def test_the_readmes_campaign_example_is_a_valid_spec(tmp_path):
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text.split("\n## Campaigns\n", 1)[1]
+    block = section.split("An example (the shipped specs", 1)[1].split("```toml\n", 1)[1].split("\n```", 1)[0]
+    assert "[[faults]]" in block and "[sweep]" in block
+    p = tmp_path / "example.toml"
+    p.write_text(block)
+    assert check_file(p) == []

@@ -94,7 +94,7 @@ def test_rtklib_agrees_with_truth_within_noise(flight, tmp_path):
     # The tight check (issue 19): RTKLIB's fix is the truth moved by RTKLIB's own weighted LS of the
     # range errors we drew, A·ε. Left over: C1C's 1 mm rounding through A (~1 mm) and the
     # linearisation (ε/ρ ~ 1e-7 of ε). Before the export carried satellite clocks RTKLIB
-    # de-weighted the first satellite of every epoch and this gap was 1.85 m.
+    # de-weighted the first satellite of every epoch and this gap was metres (issue 19).
     eps = np.where(g.visible[k], ep.pseudorange[k] - g.geometric_range[k] - tr.clock_bias[k, None], 0.0)
     gap = np.linalg.norm(err - np.einsum("tis,ts->ti", A, eps)[:, :3], axis=-1)
     print(f"RTKLIB fix vs truth + A·ε (RTKLIB's weights): max {gap.max() * 1e3:.2f} mm, "

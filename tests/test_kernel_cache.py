@@ -2,7 +2,7 @@
 
 Each run is a fresh interpreter on a scratch package: ``user_guarded`` and ``user_plain``
 define the same cached kernel over a cached helper of ``helper.py``; only the first calls
-:func:`testbed.kernel_cache.keep_in_step`. After the helper is edited, numba alone keeps
+the stamp of :func:`testbed.kernel_cache.keep_in_step`. After the helper is edited, numba alone keeps
 running the old helper (the hazard, checked so that the guard's test means something); the
 guarded kernel runs the new one, and an unchanged tree is served from the cache.
 """
@@ -43,13 +43,13 @@ def f(x):
 
 
 HERE = Path(__file__).parent
-FLUSHED = keep_in_step(sys.modules[__name__], [HERE / "helper.py", HERE / "user_guarded.py"]) if {guard} else None
+STAMPED = keep_in_step(sys.modules[__name__], [HERE / "helper.py", HERE / "user_guarded.py"]) if {guard} else None
 """
 
 RUN = """
 import json
 import pkgx.user_guarded as g, pkgx.user_plain as p
-print(json.dumps({"guarded": g.f(1), "plain": p.f(1), "flushed": g.FLUSHED,
+print(json.dumps({"guarded": g.f(1), "guarded_float": g.f(1.5), "plain": p.f(1), "stamped": g.STAMPED,
                   "hits": sum(g.f.stats.cache_hits.values())}))
 """
 
@@ -77,10 +77,10 @@ def test_an_edited_helper_reaches_a_cached_kernel_in_another_file(tmp_path):
     edited = _run(tmp_path)
     assert edited["plain"] == 4, "numba now follows helpers itself: testbed.kernel_cache may go"
     assert edited["guarded"] == 6
-    assert edited["flushed"] == 1
+    assert edited["stamped"] == 1
 
     again = _run(tmp_path)
-    assert (again["guarded"], again["flushed"]) == (6, 0)
+    assert again["guarded"] == 6
     assert again["hits"] >= 1  # served from the cache: the guard does not defeat it
 
 
@@ -94,3 +94,28 @@ def test_every_module_with_cached_kernels_keeps_in_step():
     for rel in with_cache:
         last = ast.parse((PACKAGE / rel).read_text()).body[-1]
         assert ast.unparse(last) == "keep_in_step(sys.modules[__name__])", rel
+
+
+def test_a_process_started_before_the_edit_cannot_pass_its_old_code_on(tmp_path):
+    """A long-lived process (a Dask worker, a notebook) imported the old helper; after the edit it compiles
+    a new signature and writes the index with its own, old stamp. The next new process does not trust it."""
+    pkg = tmp_path / "pkgx"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "helper.py").write_text(HELPER.format(add=1))
+    (pkg / "user_guarded.py").write_text(USER.format(guard=True))
+    (pkg / "user_plain.py").write_text(USER.format(guard=False))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env["PYTHONPATH"] = str(tmp_path)
+    old = subprocess.Popen([sys.executable, "-c", "import sys, pkgx.user_guarded as g; print(g.f(1), flush=True); "
+                                                  "sys.stdin.readline(); print(g.f(1.5), flush=True)"],
+                           env=env, cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert old.stdout.readline().strip() == "4"
+        (pkg / "helper.py").write_text(HELPER.format(add=2))
+        assert _run(tmp_path)["guarded"] == 6  # a new process sees the edit (and compiles only the int signature)
+        out, _ = old.communicate("go\n", timeout=300)
+        assert out.strip() == "5.0"  # the old process, a new signature, old code: 2 * (1.5 + 1)
+    finally:
+        old.kill()
+    assert _run(tmp_path)["guarded_float"] == 7.0  # its entry for that signature (old stamp) is not trusted

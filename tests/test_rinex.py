@@ -134,14 +134,22 @@ def test_reader_agrees_with_georinex_convbin_and_compression(tmp_path):
     lines = [ln for ln in GSI_OBS.read_text().splitlines() if re.match(r"^ 05  4  2 ", ln) and ln[28] == "0"]
     secs = np.array([int(ln[10:12]) * 3600 + int(ln[13:15]) * 60 + float(ln[15:26]) for ln in lines])
     np.testing.assert_allclose(ours.t_tag - ours.t_tag[0], secs - secs[0], rtol=0, atol=1e-6)
-    # the same file compressed: Hatanaka then gzip, and gzip alone
+    # the same file compressed: Hatanaka then gzip, gzip, bzip2 and zip
     import hatanaka
 
     crx = tmp_path / "0759.crx.gz"
     crx.write_bytes(hatanaka.compress(GSI_OBS.read_bytes()))
     gz = tmp_path / "0759.05o.gz"
     gz.write_bytes(gzip.compress(GSI_OBS.read_bytes()))
-    for p in (crx, gz):
+    import bz2
+    import zipfile
+
+    bz = tmp_path / "0759.05o.bz2"
+    bz.write_bytes(bz2.compress(GSI_OBS.read_bytes()))
+    zp = tmp_path / "0759.05o.zip"
+    with zipfile.ZipFile(zp, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("07590920.05o", GSI_OBS.read_bytes())
+    for p in (crx, gz, bz, zp):
         back = read_obs(p)
         np.testing.assert_array_equal(back.values["C1C"], ours.values["C1C"])
         np.testing.assert_array_equal(back.t_tag, ours.t_tag)
@@ -466,3 +474,48 @@ def test_compiled_fix_equals_its_numpy_reference():
     np.testing.assert_allclose(r_c[1:], r_n[1:], rtol=0, atol=1e-6)
     np.testing.assert_allclose(r_c[1:], r_true[1:], rtol=0, atol=1e-4)
     np.testing.assert_allclose(b_c[1:], 1234.5, rtol=0, atol=1e-4)
+
+
+def test_a_reference_reads_the_same_from_csv_parquet_and_npz(tmp_path):
+    """README: --reference takes CSV (header row), Parquet or .npz with t_gps and pos_ecef_x/y/z."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from testbed.rinex.run import read_reference
+
+    rng = np.random.default_rng(3)
+    t = 1.4e9 + np.arange(5.0)
+    pos = np.array([-3976219.5, 3382372.6, 3652513.0]) + rng.normal(0, 10, (5, 3))
+    cols = {"t_gps": t, "pos_ecef_x": pos[:, 0], "pos_ecef_y": pos[:, 1], "pos_ecef_z": pos[:, 2]}
+    csv = tmp_path / "r.csv"
+    np.savetxt(csv, np.column_stack(list(cols.values())), delimiter=",", comments="", header=",".join(cols),
+               fmt="%.17g")
+    np.savez(tmp_path / "r.npz", **cols)
+    pq.write_table(pa.table(cols), tmp_path / "r.parquet")
+    for p in (csv, tmp_path / "r.npz", tmp_path / "r.parquet"):
+        tt, pp = read_reference(p)
+        np.testing.assert_array_equal(tt, t)
+        np.testing.assert_array_equal(pp, pos)
+
+
+def test_cycle_slip_and_event_records_are_skipped_and_counted(tmp_path):
+    """README: event records (flags 2-5) and cycle-slip records (flag 6) are skipped and counted. The GSI
+    file with its first epoch's block repeated as flag-6 records, and a flag-4 record of one header line,
+    reads the same measurements and counts both."""
+    from testbed.rinex.obs import read_obs
+
+    lines = GSI_OBS.read_text().splitlines()
+    head = next(k for k, ln in enumerate(lines) if "END OF HEADER" in ln)
+    n_types = int(next(ln for ln in lines if "# / TYPES OF OBSERV" in ln)[:6])
+    first = head + 1
+    nsat = int(lines[first][29:32])
+    block = lines[first:first + -(-nsat // 12) + nsat * -(-n_types // 5)]
+    slips = [block[0][:28] + "6" + block[0][29:]] + block[1:]
+    event = [lines[first][:28] + "4" + "  1", "event: a comment line".ljust(60) + "COMMENT"]
+    edited = lines[:first + len(block)] + slips + event + lines[first + len(block):]
+    p = tmp_path / "0759-events.05o"
+    p.write_text("\n".join(edited) + "\n")
+    ours, back = read_obs(GSI_OBS), read_obs(p)
+    np.testing.assert_array_equal(back.values["C1C"], ours.values["C1C"])
+    np.testing.assert_array_equal(back.t_tag, ours.t_tag)
+    assert back.skipped.get("event records", 0) == ours.skipped.get("event records", 0) + 2

@@ -248,14 +248,14 @@ class CampaignSpec(StrictModel):
         length = so.sortie_s if so.sortie_s is not None else self.duration_s
         if so.span_s is not None and length is not None and so.span_s < length:
             raise ValueError(f"sorties.span_s = {so.span_s:g} s is shorter than one sortie ({length:g} s)")
-        if self.segment == "first" and self.duration_s is not None:
+        if self.duration_s is not None:  # onsets count from the segment's start; its last epoch is at duration_s
             late = [k for k, f in enumerate(self.faults)
-                    if f.kind != "none" and any(m != 0 for m in f.magnitudes) and f.onset_s >= self.duration_s]
+                    if f.kind != "none" and any(m != 0 for m in f.magnitudes) and f.onset_s > self.duration_s]
             if late:
                 k = late[0]
-                raise ValueError(f"[faults.{k}.onset_s] at or after the end of the sortie (duration_s = "
-                                 f"{self.duration_s:g}), so no epoch would be faulty: expected an onset before "
-                                 f"{self.duration_s:g} s (got {self.faults[k].onset_s:g})")
+                raise ValueError(f"[faults.{k}.onset_s] after the end of the sortie (duration_s = "
+                                 f"{self.duration_s:g}), so no epoch would be faulty: expected an onset at or "
+                                 f"before {self.duration_s:g} s (got {self.faults[k].onset_s:g})")
         if self.chunk_trials % self.block_trials:
             raise ValueError(f"chunk_trials ({self.chunk_trials}) must be a multiple of block_trials "
                              f"({self.block_trials})")

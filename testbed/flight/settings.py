@@ -83,12 +83,6 @@ class Gusts(StrictModel):
     w20_kt: float | None = Field(None, ge=0, le=90, description="overrides the intensity's W20")
     seed: int = Field(0, ge=0)
 
-    @model_validator(mode="after")
-    def _one_strength(self):
-        if "intensity" in self.model_fields_set and self.w20_kt is not None:
-            raise ValueError(f"give intensity ({self.intensity!r}) or w20_kt ({self.w20_kt:g}), not both")
-        return self
-
     def w20(self) -> float:
         if self.w20_kt is not None:
             return self.w20_kt
@@ -151,8 +145,6 @@ class VerticalSettings(StrictModel):
     def _one_profile(self):
         if self.glide_path_deg is None and not self.constraints:
             raise ValueError("give glide_path_deg or constraints")
-        if "glide_path_deg" in self.model_fields_set and self.glide_path_deg is not None and self.constraints:
-            raise ValueError(f"give glide_path_deg ({self.glide_path_deg:g}) or constraints, not both")
         if self.constraints:
             d = [c[0] for c in self.constraints]
             if len(d) < 2 or any(b <= a for a, b in zip(d, d[1:])):

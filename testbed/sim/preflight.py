@@ -224,9 +224,14 @@ def _unwritable(folder: Path, target: Path, option: str) -> str | None:
         return f"{option} {target}: {place} is a file, not a folder"
     if not os.access(place, os.W_OK | os.X_OK):
         return f"{option} {target}: cannot write in {place} (permission denied)"
-    if place != folder.resolve():  # the folder is to be made: permissions do not tell all (root passes
-        try:                          # os.access in /proc), so try (an existing folder is left untouched)
-            os.rmdir(tempfile.mkdtemp(prefix=".testbed-probe-", dir=place))
+    if place != folder.resolve() and getattr(os, "geteuid", lambda: -1)() == 0:
+        # root passes os.access where nothing can be made (/proc): try making the folder's first level
+        try:
+            probe = tempfile.mkdtemp(prefix=".testbed-probe-", dir=place)
         except OSError as exc:
             return f"{option} {target}: cannot create anything in {place} ({exc.strerror or exc})"
+        try:
+            os.rmdir(probe)
+        except OSError:
+            pass  # an append-only folder: making one works, which is what was asked
     return None
