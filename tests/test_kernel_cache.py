@@ -54,21 +54,31 @@ print(json.dumps({"guarded": g.f(1), "guarded_float": g.f(1.5), "plain": p.f(1),
 """
 
 
-def _run(root: Path) -> dict:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
-    env["PYTHONPATH"] = str(root)
-    out = subprocess.run([sys.executable, "-c", RUN], env=env, cwd=root, capture_output=True, text=True,
-                         timeout=300, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
-def test_an_edited_helper_reaches_a_cached_kernel_in_another_file(tmp_path):
-    pkg = tmp_path / "pkgx"
+def _scratch_package(root: Path) -> Path:
+    """``root/pkgx``: the helper (x + 1) and the two users of it."""
+    pkg = root / "pkgx"
     pkg.mkdir()
     (pkg / "__init__.py").write_text("")
     (pkg / "helper.py").write_text(HELPER.format(add=1))
     (pkg / "user_guarded.py").write_text(USER.format(guard=True))
     (pkg / "user_plain.py").write_text(USER.format(guard=False))
+    return pkg
+
+
+def _env(root: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env["PYTHONPATH"] = str(root)
+    return env
+
+
+def _run(root: Path) -> dict:
+    out = subprocess.run([sys.executable, "-c", RUN], env=_env(root), cwd=root, capture_output=True, text=True,
+                         timeout=300, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_an_edited_helper_reaches_a_cached_kernel_in_another_file(tmp_path):
+    pkg = _scratch_package(tmp_path)
 
     first = _run(tmp_path)
     assert (first["guarded"], first["plain"]) == (4, 4)
@@ -99,17 +109,10 @@ def test_every_module_with_cached_kernels_keeps_in_step():
 def test_a_process_started_before_the_edit_cannot_pass_its_old_code_on(tmp_path):
     """A long-lived process (a Dask worker, a notebook) imported the old helper; after the edit it compiles
     a new signature and writes the index with its own, old stamp. The next new process does not trust it."""
-    pkg = tmp_path / "pkgx"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "helper.py").write_text(HELPER.format(add=1))
-    (pkg / "user_guarded.py").write_text(USER.format(guard=True))
-    (pkg / "user_plain.py").write_text(USER.format(guard=False))
-    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
-    env["PYTHONPATH"] = str(tmp_path)
+    pkg = _scratch_package(tmp_path)
     old = subprocess.Popen([sys.executable, "-c", "import sys, pkgx.user_guarded as g; print(g.f(1), flush=True); "
                                                   "sys.stdin.readline(); print(g.f(1.5), flush=True)"],
-                           env=env, cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+                           env=_env(tmp_path), cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert old.stdout.readline().strip() == "4"
         (pkg / "helper.py").write_text(HELPER.format(add=2))
