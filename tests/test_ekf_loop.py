@@ -94,7 +94,7 @@ def test_with_one_to_three_satellites_the_filter_navigates_where_snapshot_raim_c
     before the caps (≤ 21 % of the final); the filter with its default solution-separation PLs (a sub-filter
     without each satellite and each landmark) is available at APV-I on ≥ 95 % of the epochs with its error
     inside its PLs throughout and no false alert (measured: 100 %, HPL ≤ 28.6 m, VPL ≤ 14.2 m after the
-    first minute, HPE95 5.8 m)."""
+    first minute, HPE95 5.5 m)."""
     run = run_approach("zunz-rwy05-ekf", seed=0, rrd_path=None)
     s = run.summaries
     for m in ("gps_raim", "va_raim"):
