@@ -87,6 +87,8 @@ def read_reference(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                                       f"{data.shape[1] if data.size else 0} columns under a header of {len(names)} "
                                       f"({', '.join(names)}); expected at least 2 rows, one value per column"])
             cols = {n: data[:, k] for k, n in enumerate(names)}
+    except ConfigError:  # said above, as it is (a ConfigError is a ValueError too)
+        raise
     except (OSError, ValueError) as exc:
         raise ConfigError(p, [f"--reference: cannot read the reference trajectory ({exc})"]) from None
     need = ("t_gps", "pos_ecef_x", "pos_ecef_y", "pos_ecef_z")
