@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/bench_campaign.py [--trials 2000] [--block 100] [--chunk 1000] [--per-experiment 1000] [--repeats 3]
 
-Runs a fault-free + GPS-step campaign on the seed-000 sortie (approach
+Runs a fault-free + GPS-step campaign on the VA-RAIM paper's sortie (approach
 ``va-raim-2015``, 61 epochs at 1 Hz, 720 dpi, DE 1 px) in-process, into a
 temporary folder, with a fixed start and with consecutive sorties, and prints:
 wall time, trials/s, sortie-epochs/s (after the one-off flight and geometry,

@@ -1,4 +1,4 @@
-"""Benchmark: the DPE monitor (seed 004), compiled against its plain numpy reference, and in the loop.
+"""Benchmark: the DPE monitor (the DPE paper), compiled against its plain numpy reference, and in the loop.
 
 Usage::
 
@@ -12,7 +12,7 @@ Prints, side by side in one run (medians over --repeats):
   with 8 satellites, and the correlator synthesis of one epoch (fast and exact);
 * the zunz-rwy05-dpe flight (gps_raim + dpe in the loop): real-time factor and the DPE's share.
 
-DPE.md §9's targets on 2 cores: ≥ 4e7 candidates/s, ≤ 5 ms per epoch with 8 satellites,
+docs/design/dpe.md §9's targets on 2 cores: ≥ 4e7 candidates/s, ≤ 5 ms per epoch with 8 satellites,
 the approach with DPE in the loop ≥ 50× real time.
 """
 

@@ -1,5 +1,5 @@
 """Benchmark (statistics at the operating point): fault-free false alarms, misleading information and
-protection levels of the seed-002 filter (``ekf``, default options) at the default P_FA over millions
+protection levels of the Won et al. filter (``ekf``, default options) at the default P_FA over millions
 of epochs.
 
 Usage::
@@ -13,7 +13,7 @@ solution-separation tests, each at P_FA/3), the per-epoch rate, the binomial 99 
 count under P_FA, a verdict (inside / ABOVE / below), the sorties with an alert (a test on filtered
 states alerts in runs of epochs, so the count is over-dispersed against the binomial when that number
 is much smaller than the count), MI and HMI epochs, the median and maximum of the
-sorties' largest HPL and VPL, and the APV-I availability. The figures go in the README ("Measured").
+sorties' largest HPL and VPL, and the APV-I availability. Record a run with `python benchmarks/report.py run bench_ekf_fa` (docs/performance.md).
 The union bound would keep the joint rate at or below P_FA for a filter whose statistics are exactly χ².
 At 1.5e6 epochs zunz-rwy05-ekf took 63 minutes and zunz-rwy05-final (8 satellites) 97 minutes on 2 cores (shared with other work).
 """

@@ -5,7 +5,7 @@ Usage::
     python benchmarks/bench_fde.py [--repeats 5]
 
 For GPS RAIM (96 geometries over a day × 200 trials, DO-229 almanac), VA-RAIM
-(the seed 000 sortie, 3 landmarks, 2000 trials × 3 epochs; at P_FA = 1e-5
+(the VA-RAIM paper's sortie, 3 landmarks, 2000 trials × 3 epochs; at P_FA = 1e-5
 and at 1e-2, where its vision rows pass the linearity gate) and the pixel monitor (the runway-05
 scene of tests/test_pixel.py, 8 landmarks, 300 trials × 2 epochs): epochs/s
 with FDE off and on, fault-free and with a fault every epoch (a 60–80 m step

@@ -1,4 +1,4 @@
-"""Benchmark: the seed-002 EKF core, batched over trials against the same code one trial at a time.
+"""Benchmark: the GNSS/vision/INS EKF core, batched over trials against the same code one trial at a time.
 
 Usage::
 
@@ -8,7 +8,7 @@ A 17-state filter step = one IMU predict (strapdown, Φ, Q, P ← ΦPΦᵀ + Q) 
 an aiding update = 7 pseudorange rows (Joseph form) at 1 Hz. Prints median trial-steps/s
 for predict and for update, batched (B = --trials, one call per step) and per trial
 (B = 1 in a Python loop over trials, the reference a first implementation would be),
-and their ratio; and the compiled predict the filter runs (numba, 20 steps a call). NAV_FILTER.md
+and their ratio; and the compiled predict the filter runs (numba, 20 steps a call). docs/design/nav-filter.md
 §13's target: ≥ 100k trial-steps/s for a 20-state step and ≥ 10× the per-trial loop. Last, the
 50-state filter with unsurveyed features (:mod:`testbed.navigation.slam`).
 """

@@ -9,7 +9,7 @@ Usage::
    ground markers as well; fault-free sorties started uniformly over a day), the same
    observations through GPS RAIM and the patent's PL rule with and without vision rows
    and H3 (:mod:`testbed.campaign.pixel_benefit`): per-epoch availability, median / p95
-   PLs, 95 % accuracy. ``--figure`` draws the markers cell's table (the README figure).
+   PLs, 95 % accuracy. ``--figure`` draws the markers cell's table (docs/img/readme-pixel-benefit.png).
 2. On the markers cell (30 landmarks in view near the threshold), the pixel monitor with
    ``pixel_max_landmarks`` = 6, 12 and 30: median epochs/s over alternating runs and APV-I
    availability (the cap's price in time and in availability).

@@ -1,7 +1,7 @@
 """Benchmark: batched GPS-only RAIM vs a straightforward per-epoch numpy loop.
 
 Geometry: the DO-229 24-satellite almanac seen from the ZUNZ RWY05 approach,
-epochs spread over a day, seed 000 eq. 27 sigmas, Gaussian noise. The
+epochs spread over a day, the VA-RAIM paper's eq. 27 sigmas, Gaussian noise. The
 reference loops over epochs with plain numpy (Gauss-Newton to 1 mm, slopes,
 seed-variant PLs, SSE); the script asserts both give the same numbers on the
 epochs the reference runs (all of them up to ``--ref-max`` epochs).

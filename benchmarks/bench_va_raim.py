@@ -4,7 +4,7 @@ Usage::
 
     /work/venv/bin/python benchmarks/bench_va_raim.py [--epochs 10000 100000] [--repeats 3]
 
-The scenario is seed 000 §3.1 (tests/test_va_raim_scenario.py): 3 landmarks,
+The scenario is the VA-RAIM paper §3.1 (tests/test_va_raim_scenario.py): 3 landmarks,
 1 Hz over the 60 s sortie, DO-229 almanac GPS with a 5° mask (8 satellites),
 1 px detections, 5 cm survey error. Batches of B trials × 61 epochs.
 

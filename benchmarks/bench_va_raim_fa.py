@@ -5,13 +5,13 @@ Usage::
 
     python benchmarks/bench_va_raim_fa.py [--trials 100000] [--variants gated seed] [--out DIR]
 
-Runs fault-free campaigns on the seed-000 sortie at every camera resolution and detection
+Runs fault-free campaigns on the VA-RAIM paper's sortie at every camera resolution and detection
 error of the reproduction (120/300/480/720 dpi x 1/2/4 px, 61 epochs per sortie: 6.1e6
 epochs per setting at the default 1e5 sorties) and on the shipped approaches
 (``zunz-rwy05-final``, ``zunz-rwy05-rnp``: sorties enough for >= 6e6 epochs), and prints per
 setting and monitor: epochs, alert epochs, the per-epoch false-alarm rate, the binomial 99 %
 interval of the count under P_FA, a verdict (inside / ABOVE / below), and HMI epochs.
-The figures go in the README ("Measured"). A full run takes about 20-25 minutes per variant
+Record a run with `python benchmarks/report.py run bench_va_raim_fa` (docs/performance.md). A full run takes about 20-25 minutes per variant
 on 2 cores.
 """
 

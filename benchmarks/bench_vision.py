@@ -2,7 +2,7 @@
 
 Run: python benchmarks/bench_vision.py [--trials 1000] [--runs 3]
 
-1. Seed scenario (seed 000 §3.1, 60 s at 10 Hz, 3 landmarks, va-raim-2015 @ 720 dpi):
+1. Seed scenario (the VA-RAIM paper §3.1, 60 s at 10 Hz, 3 landmarks, va-raim-2015 @ 720 dpi):
    median wall time of ``synthesize_vision`` for one flight and for ``--trials`` trials,
    without terrain and with the two-ridge terrain (TwoRidges).
 2. ZUNZ runway-05 3° final from 13 km (24 runway points, approach-1080p): where the

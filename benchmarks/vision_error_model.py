@@ -1,10 +1,10 @@
-"""Where the seed's linear vision-range error model holds (README, "What the physics says").
+"""Where the seed's linear vision-range error model holds (docs/findings/va-raim-2015.md, What the physics says).
 
 Usage::
 
     python benchmarks/vision_error_model.py [--trials 2000] [--repro DIR]
 
-1. On the seed-000 scenario (tests/test_va_raim_scenario.py: 3400 px focal length,
+1. On the VA-RAIM paper's scenario (tests/test_va_raim_scenario.py: 3400 px focal length,
    3 landmarks at 6-8 km), for growing pixel noise: the vision-range error's spread and
    excess kurtosis, and a KS test of VA-RAIM's fault-free SSE against chi-square(n - 4)
    over the epochs with vision rows.

@@ -21,7 +21,7 @@ from testbed.sim.truth_io import write_truth
 if TYPE_CHECKING:  # pragma: no cover
     from testbed.sim.loop import LoopResult
 
-__all__ = ["Approach", "FlightResult", "RunResult", "check_file", "fly_approach", "list_approaches",
+__all__ = ["Approach", "FlightResult", "RunResult", "check_file", "export_rinex", "fly_approach", "list_approaches",
            "load_approach", "load_terrain_for", "monitor_rinex", "print_flight_summary", "print_run_summary",
            "run_approach"]
 
@@ -127,6 +127,10 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
                  on_landed: Callable[[RunResult], None] | None = None) -> RunResult:
     """Fly an approach with sensors and monitors in the loop; record it; evaluate it.
 
+    Every input and output path is checked before the flight; the outputs are moved into
+    place only when the whole run succeeded (a failure leaves earlier files untouched and
+    removes its partial output).
+
     Parameters
     ----------
     approach : shipped name, TOML path or a loaded :class:`Approach`.
@@ -139,10 +143,6 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     truth_path : also write the full-rate truth (.npz, .csv, .parquet).
     linger_s : with ``live``, keep the server up this long after landing (the outputs are in
         place by then; ``on_landed(result)`` is called first, e.g. to print the summary).
-
-    Every input and output path is checked before the flight; the outputs are moved into
-    place only when the whole run succeeded (a failure leaves earlier files untouched and
-    removes its partial output).
     """
     import time
 

@@ -68,7 +68,7 @@ def _cmd_export_rinex(args: argparse.Namespace) -> int:
 
     obs, nav = export_rinex(args.approach, args.dir, seed=args.seed, gust_seed=args.gust_seed)
     print(f"wrote {obs}\nwrote {nav}")
-    print(f"check with RTKLIB: rnx2rtkp -p 0 -sys G -o out.pos {obs} {nav}  (iono/tropo models off: see README)")
+    print(f"check with RTKLIB: rnx2rtkp -p 0 -sys G -o out.pos {obs} {nav}  (iono/tropo models off: see docs/guide/rinex.md)")
     return 0
 
 
@@ -195,8 +195,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_campaign_parsers(sub)
 
-    o = sub.add_parser("observability", help="seed 002's observability tables: the seed's model and the consistent "
-                                             "one along a racetrack, an RF turn and the straight final (~15 s)")
+    o = sub.add_parser("observability", help="the Won et al. paper's observability tables: its simplified model and "
+                                             "the consistent one along a racetrack, an RF turn and the straight "
+                                             "final (~15 s)")
     o.add_argument("--seed", type=int, default=0, help="seed of the random lines of sight, features and h_V")
     o.set_defaults(func=_cmd_observability)
 
@@ -212,7 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--seed", type=int, default=0, help="seed of the sorties' draws (default %(default)s)")
     k.add_argument("--trajectories", nargs="+", metavar="APPROACH",
                    help="approaches whose trajectories the sorties fly, with APPROACH's DPE and correlator settings "
-                        "(default: its own; set-c: DPE.md's zunz-rwy05-final zunz-rwy05-rnp va-raim-2015)")
+                        "(default: its own; set-c: zunz-rwy05-final zunz-rwy05-rnp va-raim-2015, docs/design/dpe.md §6.4)")
     k.add_argument("--chunk", type=_in_range(int, 1, 100_000), default=25, help="sorties per chunk (a unit of work; default %(default)s)")
     k.add_argument("--work", type=Path, help="folder keeping every chunk as it finishes (a killed run resumes)")
     k.add_argument("--resume", action="store_true", help="continue the calibration stored in --work")

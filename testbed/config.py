@@ -44,29 +44,42 @@ LAST_START = dt.datetime(2100, 1, 1, tzinfo=dt.timezone.utc)
 class ApproachConfig(StrictModel):
     """One approach file (``approaches/<name>.toml``)."""
 
-    name: FileName
-    description: str
+    name: FileName = Field(..., description="approach name; it names the default outputs (`runs/<name>-seed0.rrd`): "
+                                            "no slash or backslash, not starting with a dot, at most 100 "
+                                            "printable characters")
+    description: str = Field(..., description="shown by `testbed approaches` (its first line)")
     illustrative: bool = Field(False, description="True when the procedure is not a published one")
     aircraft: str = Field("b737", description="aircraft folder name under aircraft/, or a path to an aircraft.toml")
-    start_time_utc: dt.datetime = Field(dt.datetime(2026, 3, 1, 4, 0, tzinfo=dt.timezone.utc))
-    frame: FrameSettings
-    path: PathSettings
-    vertical: VerticalSettings = VerticalSettings()
-    flight: FlightSettings = FlightSettings()
-    wind: Wind = Wind()
-    gusts: Gusts = Gusts()
-    terrain: TerrainSettings = TerrainSettings()
-    gnss: GnssSettings = GnssSettings()
+    start_time_utc: dt.datetime = Field(dt.datetime(2026, 3, 1, 4, 0, tzinfo=dt.timezone.utc),
+                                        description="time of the start of the approach, UTC with an offset "
+                                                    "(e.g. 2026-03-01T04:00:00Z), from the GPS epoch (1980-01-06) "
+                                                    "to 2100: it sets the satellites' sky")
+    frame: FrameSettings = Field(..., description="origin of the world frame (local ENU)")
+    path: PathSettings = Field(..., description="lateral path: legs in flying order, ending at the threshold")
+    vertical: VerticalSettings = Field(VerticalSettings(), description="vertical profile: a glide path or "
+                                                                      "altitude constraints")
+    flight: FlightSettings = Field(FlightSettings(), description="JSBSim step, start, rates and overrides of "
+                                                               "the aircraft's approach configuration")
+    wind: Wind = Field(Wind(), description="steady wind")
+    gusts: Gusts = Field(Gusts(), description="gust model")
+    terrain: TerrainSettings = Field(TerrainSettings(), description="terrain model")
+    gnss: GnssSettings = Field(GnssSettings(), description="GPS sensor: constellation, masks, error model, "
+                                                         "correlators")
     vision: VisionSettings = Field(default_factory=VisionSettings,
                                    description="camera sensor; its mount defaults to the aircraft's camera")
-    landmarks: LandmarkSettings = LandmarkSettings()
-    integrity: IntegritySettings = IntegritySettings()
+    landmarks: LandmarkSettings = Field(LandmarkSettings(), description="the surveyed landmarks the camera "
+                                                                       "detects, and their survey error")
+    integrity: IntegritySettings = Field(IntegritySettings(), description="integrity risk allocation, PL "
+                                                                          "variant, service levels, FDE and "
+                                                                          "solver tolerances, shared by the "
+                                                                          "monitors")
     va_raim: dict[str, Any] = Field(default_factory=dict, description="VA-RAIM options (VaRaimSettings without integrity)")
     imu: ImuSettings = Field(default_factory=ImuSettings, description="the IMU (read when a monitor uses it: ekf)")
     ekf: dict[str, Any] = Field(default_factory=dict, description="ekf monitor options (navigation.monitor.EkfSettings)")
     dpe: dict[str, Any] = Field(default_factory=dict, description="dpe monitor options (integrity.dpe.monitor.DpeSettings)")
     monitors: list[MonitorName] = Field(default_factory=lambda: list(MONITORS), min_length=1,
-                                description="monitor names (testbed.integrity.registry)")
+                                description="monitor names: gps_raim, va_raim, pixel, ekf, dpe, or one "
+                                            "registered with testbed.integrity.registry.register")
     faults: list[Fault] = Field(default_factory=list, description="fault schedule ([[faults]] tables)")
 
     @field_validator("start_time_utc")

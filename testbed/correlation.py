@@ -1,4 +1,4 @@
-"""GPS L1 C/A code correlation after a band-limited front end (DPE.md §2): shared physics.
+"""GPS L1 C/A code correlation after a band-limited front end (docs/design/dpe.md §2.3): shared physics.
 
 Both the correlator sensor (which synthesises correlograms) and the DPE monitor
 (which interprets them) need the same correlation function and Cramér-Rao bound,

@@ -1,4 +1,4 @@
-"""Strapdown inertial equations in the approach's world frame (NAV_FILTER.md §2–§3).
+"""Strapdown inertial equations in the approach's world frame (docs/design/nav-filter.md §3).
 
 One set of equations for both sides of the IMU: the sensor synthesises
 error-free increments by *inverse* strapdown of the true pose, and the
@@ -18,7 +18,7 @@ the Earth; b: body FRD; ``C = C_b^w``. Over an interval Δt (k−1 → k)::
 the accelerometer's with the trapezoid ½(C_{k−1} + C_k) as the mean attitude);
 g^w: WGS84 normal gravity (Somigliana, with the second-order free-air
 correction) along the local down; ω_ie^w: the Earth's rate in w. With
-``earth_rotation = False`` ω_ie = 0 on both sides (the seed's model).
+``earth_rotation = False`` ω_ie = 0 on both sides (the Won et al. paper's model).
 
 Position error of the trapezoid against a smooth truth: Δt²/12 · |v̈| per second
 of flight (a jerk of 1 m/s³ at 120 Hz: 0.6 mm over 100 s).

@@ -299,7 +299,7 @@ class GnssTruth:
 
 @dataclass(frozen=True)
 class CorrelatorEpochs:
-    """Correlator outputs per satellite and epoch on a code-delay grid (no truth; DPE.md §2, §8).
+    """Correlator outputs per satellite and epoch on a code-delay grid (no truth; docs/design/dpe.md §2, §8).
 
     Delays in metres. Satellite k's grid is ``rho_ref[..., k] + delay0_m + j·delay_step_m``,
     j < M, with rho_ref the channel's scalar pseudorange rounded to the grid (corrected like
@@ -421,7 +421,7 @@ class ImuSamples:
 
 @dataclass(frozen=True)
 class NavInit:
-    """The alignment pseudo-sensor (NAV_FILTER.md §3): an initial navigation state with its published 1σ.
+    """The alignment pseudo-sensor (docs/design/nav-filter.md §4): an initial navigation state with its published 1σ.
 
     t : start time (s).  C : (B..., 3, 3) body → world.  v, p : (B..., 3) world frame, IMU point.
     clock_bias, clock_drift : (B...) m, m/s.  sigma : (17,) 1σ of position, velocity, attitude

@@ -155,7 +155,7 @@ def format_validation_error(err: ValidationError, data=None) -> list[str]:
         loc = loc or "<top level>"
         msg = msg.removeprefix("Value error, ")  # pydantic's wrapping of a validator's message
         if e["type"] == "extra_forbidden":
-            msg = "unknown key (check the spelling; see README 'Configuration')"
+            msg = "unknown key (check the spelling; see docs/reference/configuration.md)"
         got = e.get("input")
         got_s = "" if e["type"] in ("missing", "extra_forbidden") else f" (got {got!r})"
         if len(got_s) > 120:

@@ -18,7 +18,7 @@ from testbed.sensors.gnss.correlators import synthesize_correlators
 from testbed.sensors.gnss.settings import GnssSettings
 
 FRAME = LocalFrame(29.2958478, 94.3224478, 2939.0)
-#: DPE.md §4's epoch: 8 satellites at 75 ... 10 deg
+#: the reference epoch of docs/design/dpe.md §4.3: 8 satellites at 75 ... 10 deg
 ELEVATIONS = (75.0, 55.0, 40.0, 35.0, 25.0, 20.0, 15.0, 10.0)
 TRUTH_ENU = np.array([120.0, -80.0, 450.0])
 CLOCK_M = 5000.0

@@ -1,4 +1,4 @@
-"""The house: imports flow one way between the rooms (ARCHITECTURE.md, README "Design").
+"""The house: imports flow one way between the rooms (docs/design/architecture.md §the-import-rule).
 
 Every ``import`` in a room's modules, function-level ones included, is read from the
 source (ast) and checked against the rooms above it.

@@ -23,6 +23,7 @@ def test_approaches_lists_the_shipped_ones(cwd, capsys):
     out = capsys.readouterr().out
     for name in ("zunz-rwy05-final", "zunz-rwy05-rnp", "va-raim-2015"):
         assert name in out
+    assert "docs/design/dpe.md" in out  # the DPE campaigns cite the documentation page
     assert os.listdir(cwd) == []
 
 

@@ -103,18 +103,17 @@ def test_bad_campaign_spec_lists_every_problem(tmp_path):
     assert any(q.startswith("bogus: unknown key") for q in probs)
 
 
-def _readme_config_block() -> str:
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = text.split("\n## Configuration\n", 1)[1]
-    return section.split("```toml\n", 1)[1].split("\n```", 1)[0]
+def _guide_config_block() -> str:
+    text = (Path(__file__).resolve().parents[1] / "docs" / "guide" / "configuration.md").read_text()
+    return text.split("```toml\n", 1)[1].split("\n```", 1)[0]
 
 
 @pytest.mark.parametrize("monitors", [None, '["gps_raim", "va_raim", "pixel", "ekf", "dpe"]'])
-def test_the_readmes_configuration_example_is_a_valid_approach(tmp_path, monitors):
-    """The README's annotated approach file checks clean as written, and with every monitor it names on."""
+def test_the_guides_configuration_example_is_a_valid_approach(tmp_path, monitors):
+    """The configuration guide's annotated approach file checks clean as written, and with every monitor it names on."""
     import shutil
 
-    block = _readme_config_block()
+    block = _guide_config_block()
     assert "[gnss.correlators]" in block and "[dpe]" in block  # the whole example, not a fragment
     if monitors is not None:
         block, n = re.subn(r'^monitors = \[[^\]]*\]', f"monitors = {monitors}", block, count=1, flags=re.M)
@@ -125,10 +124,9 @@ def test_the_readmes_configuration_example_is_a_valid_approach(tmp_path, monitor
     assert check_file(p) == []
 
 
-def test_the_readmes_campaign_example_is_a_valid_spec(tmp_path):
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = text.split("\n## Campaigns\n", 1)[1]
-    block = section.split("An example (the shipped specs", 1)[1].split("```toml\n", 1)[1].split("\n```", 1)[0]
+def test_the_guides_campaign_example_is_a_valid_spec(tmp_path):
+    text = (Path(__file__).resolve().parents[1] / "docs" / "guide" / "campaigns.md").read_text()
+    block = text.split("An example (the shipped specs", 1)[1].split("```toml\n", 1)[1].split("\n```", 1)[0]
     assert "[[faults]]" in block and "[sweep]" in block
     p = tmp_path / "example.toml"
     p.write_text(block)

@@ -1,4 +1,4 @@
-"""The correlator sensor against what no one here wrote (DPE.md §2, §10 T1-T4, T8).
+"""The correlator sensor against what no one here wrote (docs/design/dpe.md §2, §10 T1-T4, T8).
 
 The band-limited correlation against numerical integration and against a sample-level
 C/A-code simulation (Gold codes from their shift registers, an FFT brick-wall filter);
@@ -27,7 +27,7 @@ def test_the_closed_form_equals_quadrature(b):
 
 
 def test_peak_values_and_the_infinite_bandwidth_triangle():
-    # DPE.md §2's table, 5 digits
+    # docs/design/dpe.md §2.3's values, 5 digits
     for b, r0 in ((0.5, 0.77370), (1.0, 0.90282), (2.0, 0.94994), (8.0, 0.98734)):
         assert round(peak(b), 5) == r0
     x = np.linspace(-1.5, 1.5, 31) * CHIP_M

@@ -1,4 +1,4 @@
-"""The DPE monitor (seed 004) against closed forms, brute force and the Cramér-Rao bound (DPE.md §10)."""
+"""The DPE monitor (the DPE paper) against closed forms, brute force and the Cramér-Rao bound (docs/design/dpe.md §10)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from testbed.sim.evaluate import misleading, summarise_monitor
 QUIET_SIS = dict(sigma_ura_m=0.0, sigma_tropo_zenith_m=0.0)
 
 
-#: the scene's satellites (dpe_scene: 8 at DPE.md's elevations, azimuths 17° + 45° k)
+#: the scene's satellites (dpe_scene: docs/design/dpe.md §4.3's reference epoch, azimuths 17° + 45° k)
 SCENE_EL = np.radians([75.0, 55.0, 40.0, 35.0, 25.0, 20.0, 15.0, 10.0])
 SCENE_G = np.column_stack([-np.cos(SCENE_EL) * np.sin(np.radians(np.arange(8) * 45.0 + 17.0)),
                            -np.cos(SCENE_EL) * np.cos(np.radians(np.arange(8) * 45.0 + 17.0)),
@@ -147,8 +147,8 @@ def test_vpl_is_k_sigma_plus_the_median_and_needs_a_k():
 
 
 def test_the_overbound_of_the_marginal_is_close_to_the_posterior_sd():
-    """On DPE.md §4's epoch (8 satellites, 45 dB-Hz, N_b = 50) σ_ob / posterior sd is 1.01-1.06 (the
-    marginal is near Gaussian; the overbound's inflation is small)."""
+    """On the reference epoch (docs/design/dpe.md §4.3: 8 satellites, 45 dB-Hz, N_b = 50) σ_ob / posterior sd
+    is 1.01-1.06 (the marginal is near Gaussian; the overbound's inflation is small)."""
     obs, _, _ = scene(20, seed=3)
     out, _ = monitor().step(obs, None)
     r = out.diagnostics.sigma_ob / out.diagnostics.posterior_sd_u
@@ -250,7 +250,7 @@ def test_linearised_delays_equal_exact_ranges(delay):
 
 
 def test_with_exactly_four_satellites_raim_has_no_redundancy_and_dpe_still_gives_a_vpl():
-    """DPE.md F6: four satellites leave snapshot RAIM no redundancy (no test, no PL); the DPE's VPL stands
+    """docs/design/dpe.md F6: four satellites leave snapshot RAIM no redundancy (no test, no PL); the DPE's VPL stands
     (it bounds the fault-free error; it detects nothing either way)."""
     from testbed.integrity.lsq import Reason
     from testbed.integrity.raim import gps_raim

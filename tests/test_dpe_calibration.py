@@ -1,4 +1,4 @@
-"""K calibration of the DPE's VPL (DPE.md §6, §10 C1-C3): known σ recovered, the seed's estimator's
+"""K calibration of the DPE's VPL (docs/design/dpe.md §6, §10 C1-C3): known σ recovered, the seed's estimator's
 refusal, held-out validation catching an under-calibrated K, and the record the monitor reads."""
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ def test_strata_cover_the_set_and_name_what_they_hold():
 
 
 def test_a_chunked_killed_and_resumed_calibration_equals_one_run(tmp_path):
-    """6 + 6 sorties of the DPE's settings on the seed-000 sortie (61 epochs each): chunks of 2 stopped after
+    """6 + 6 sorties of the DPE's settings on the VA-RAIM paper's sortie (61 epochs each): chunks of 2 stopped after
     3 chunks and resumed from the work folder give the sets one chunk of 6 gives, bit for bit."""
     from testbed.campaign.dpe_calibration import CalibrationRun, run_chunks
     from testbed.config import resolve_approach

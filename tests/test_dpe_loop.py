@@ -154,8 +154,8 @@ def test_a_campaign_can_fly_the_last_segment_of_the_final(tmp_path):
 def test_the_dpe_variant_axis_runs_the_seed_over_sorties_beside_the_likelihood(tmp_path):
     """``sweep.dpe_variant``: a 'seed' cell's receiver reports the seed's magnitude statistic (exact
     synthesis; the monitor refuses any other) and its K is Q⁻¹(P/2) = 5.33 at P = 1e-7; a 'likelihood' cell
-    keeps the approach's calibrated K. In the loop the seed's VPL is set by its ±110 m grid (DPE.md F2: ~6× the
-    likelihood's here, measured 322 m against 12.7 m over 10 sorties); a bad variant is refused naming the key."""
+    keeps the approach's calibrated K. In the loop the seed's VPL is set by its ±110 m grid
+    (docs/design/dpe.md F2: ~6× the likelihood's here, measured 322 m against 12.7 m over 10 sorties); a bad variant is refused naming the key."""
     import pyarrow.parquet as pq
     import pytest
 

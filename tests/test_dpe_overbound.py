@@ -1,4 +1,4 @@
-"""The DeCleene overbound against closed forms and brute force (DPE.md §5, §10 O1-O9)."""
+"""The DeCleene overbound against closed forms and brute force (docs/design/dpe.md §5, §10 O1-O9)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def test_a_uniform_gives_its_known_value():
 def test_an_offset_gaussian_is_overbound_about_its_median_only():
     ob = gaussian_overbound(U, stats.norm.pdf(U, 0.7, 2))  # O3
     assert abs(ob.sigma / 2 - 1) <= 1e-3 and abs(ob.median - 0.7) < 1e-9
-    assert not ob.about_solution  # Φ(0/σ) = ½ ≠ F(0) for every σ (DPE.md F3)
+    assert not ob.about_solution  # Φ(0/σ) = ½ ≠ F(0) for every σ (docs/design/dpe.md F3)
 
 
 def test_heavy_tails_need_the_notes_sigmas():

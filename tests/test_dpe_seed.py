@@ -1,4 +1,4 @@
-"""The seed's DPE as written (variant ``seed``), reproducing what DPE.md §4 found: F1 the weighted
+"""The seed's DPE as written (variant ``seed``), reproducing docs/design/dpe.md §4.4: F1 the weighted
 mean returns the initialisation, F2 σ_ob is set by the grid's extent and is blind to faults."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from testbed.integrity.dpe.monitor import DpeMonitor, DpeSettings
 from testbed.integrity.dpe.overbound import gaussian_overbound
 from testbed.integrity.dpe.seed_variant import SPREAD_STEPS, solve_epoch_seed
 
-OFFSET = np.array([8.0, -5.0, 12.0, 20.0])  # DPE.md §4: the grid centre off the truth (E, N, U, clock)
+OFFSET = np.array([8.0, -5.0, 12.0, 20.0])  # docs/design/dpe.md §4.3: the grid centre off the truth (E, N, U, clock)
 MAG = dict(synthesis="exact", statistic="mag")
 
 
@@ -40,7 +40,7 @@ def test_f1_the_weighted_mean_barely_leaves_the_initialisation():
 
 
 def test_f2_sigma_ob_is_set_by_the_grid_extent_and_blind_to_a_fault():
-    """σ_ob of the conditional slice: ≈ 60.8 m read as the seed's `sum`, ≈ 90 m as a density (DPE.md F2),
+    """σ_ob of the conditional slice: ≈ 60.8 m read as the seed's `sum`, ≈ 90 m as a density (docs/design/dpe.md F2),
     against a CRB of ~1.4 m; a 300 m code bias on the 35° satellite leaves it within 2 %."""
     nominal = solve_epoch_seed(_manifold(), passes=1)
     biased = solve_epoch_seed(_manifold(bias_m={3: 300.0}), passes=1)

@@ -1,5 +1,5 @@
-"""The seed-002 EKF core (testbed.navigation.ekf, .run): Jacobians against finite differences through ⊕,
-and Monte Carlo consistency (NEES, NIS) against χ² bands at fixed seeds (NAV_FILTER.md §12)."""
+"""The GNSS/vision/INS EKF core (testbed.navigation.ekf, .run): Jacobians against finite differences through ⊕,
+and Monte Carlo consistency (NEES, NIS) against χ² bands at fixed seeds (test ids: docs/design/nav-filter.md §12)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The seed-002 filter in the loop: the ekf monitor through testbed fly, live blocks = one flight,
+"""The GNSS/vision/INS filter in the loop: the ekf monitor through testbed fly, live blocks = one flight,
 its recording tab, and in campaigns (each trial its own IMU and alignment)."""
 
 from __future__ import annotations

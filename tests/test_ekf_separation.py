@@ -1,4 +1,4 @@
-"""Solution separation for the seed-002 filter (testbed.navigation.separation, NAV_FILTER.md §7.3):
+"""Solution separation for the GNSS/vision/INS filter (testbed.navigation.separation, docs/design/nav-filter.md §8.3):
 the linearised sub-filter bank against independently run filters, the separations' distribution against
 N(0, P_i − P₀) over Monte Carlo runs, detection of a satellite step, the PLs bounding the faulted error,
 and the windowed test catching a ramp the snapshot test lets through."""

@@ -134,7 +134,7 @@ def test_too_few_measurements_to_exclude_leaves_the_alert_and_no_service():
 def test_two_faults_are_excluded_as_a_pair_when_allowed():
     """Steps of ±60 m on two satellites: single exclusions fail; with fde_max_excluded = 2 the right pair
     is excluded at epochs with at least 8 satellites. (With 7 the reduced test has one dof and a wrong
-    pair passes at 19 % of the epochs: the figure the README quotes.)"""
+    pair passes at about 19 % of the epochs: docs/design/integrity.md §6 quotes the bounds below.)"""
     bias, first, last = _first_visible_fault(10, 60.0, second=True)
     one, g = day_epochs(96, 10, seed=4, bias=bias, settings=FDE)
     two, _ = day_epochs(96, 10, seed=4, bias=bias, settings=FDE.model_copy(update={"fde_max_excluded": 2}))
@@ -143,7 +143,7 @@ def test_two_faults_are_excluded_as_a_pair_when_allowed():
     pair = np.sort(two.fde.excluded, -1)
     want = np.sort(np.stack([np.broadcast_to(first, pair.shape[:-1]), np.broadcast_to(last, pair.shape[:-1])], -1), -1)
     assert ((pair == want).all(-1)[enough]).mean() >= 0.99
-    # the README's figures for 7 satellites (one dof left): 19 % wrong pairs, 6.7 % of exclusions past the PL
+    # docs/design/integrity.md §6: 7 satellites (one dof left): 19 % wrong pairs, 6.7 % of exclusions past the PL
     seven = (g.visible.sum(-1) == 7) & (two.fde.outcome == fde.EXCLUDED)
     wrong = float((~(pair == want).all(-1))[seven].mean())
     he, ve = _horizontal_error(two)

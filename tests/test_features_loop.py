@@ -1,4 +1,4 @@
-"""Unsurveyed ground features in the loop (seed 002): the corridor scene, the tracker's selection against a
+"""Unsurveyed ground features in the loop (the GNSS/vision/INS filter): the corridor scene, the tracker's selection against a
 brute force, its noise and prefix stability, the ekf monitor on the SLAM filter through testbed fly (live
 blocks = one flight, recording) and in campaigns (consistency, determinism)."""
 

@@ -1,4 +1,5 @@
-"""The IMU sensor and the strapdown equations (testbed.inertial, testbed.sensors.imu; NAV_FILTER.md §3, §12).
+"""The IMU sensor and the strapdown equations (testbed.inertial, testbed.sensors.imu;
+docs/design/nav-filter.md §3–§4, test ids §12).
 
 References: scipy's rotations, the published WGS84 normal gravity, JSBSim's own
 CG specific force, closed-form noise statistics (Allan deviation of white

@@ -3,7 +3,7 @@
 Independent of ``testbed.sensors.gnss`` (written in parallel): circular-orbit
 satellite positions straight from the RTCA DO-229 24-satellite almanac
 (testbed/data/do229_gps_almanac_24sat.tsv; IS-GPS-200 Table 20-IV equations
-with e = 0, ω = 0), the seed 000 eq. 27 sigma model, and Gaussian noise.
+with e = 0, ω = 0), the VA-RAIM paper's eq. 27 sigma model, and Gaussian noise.
 The file also checks the helpers against published orbit facts.
 """
 
@@ -46,7 +46,7 @@ def sat_pos_ecef(t_week_s: np.ndarray) -> np.ndarray:
 
 
 def sigma_seed(el_rad: np.ndarray) -> np.ndarray:
-    """Seed 000 eq. 27 pseudorange sigma (m) at elevation ``el_rad``."""
+    """The VA-RAIM paper's eq. 27 pseudorange sigma (m) at elevation ``el_rad``."""
     el_deg = np.degrees(el_rad)
     s_ura = 0.75
     s_tropo = 0.12 * 1.001 / np.sqrt(0.002001 + np.sin(el_rad) ** 2)
@@ -101,7 +101,7 @@ def test_almanac_orbits_match_published_gps_facts():
 
 
 def test_sigma_seed_iono_free_factor():
-    """INTEGRITY_MATH.md §1: the iono-free factor is about 2.59."""
+    """docs/design/integrity.md §1 (eq. 1.4): the iono-free factor is about 2.59."""
     f = np.sqrt((F_L1**4 + F_L5**4) / (F_L1**2 - F_L5**2) ** 2)
     assert abs(f - 2.59) < 0.01
     s = sigma_seed(np.radians(np.array([5.0, 90.0])))

@@ -1,4 +1,4 @@
-"""T-LIN (NAV_FILTER.md): the filter's measurement update reduced to a linear problem equals filterpy's
+"""T-LIN (docs/design/nav-filter.md §12): the filter's measurement update reduced to a linear problem equals filterpy's
 ``KalmanFilter`` run per trial and the batch information solution, to 1e-9.
 
 The reduction: rows that do not touch the attitude error (so the injected correction stays additive), a

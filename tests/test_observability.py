@@ -1,6 +1,6 @@
-"""Seed 002's observability analysis (testbed.navigation.observability) against NAV_FILTER.md §9.
+"""The observability analysis (testbed.navigation.observability) against docs/design/nav-filter.md §9.
 
-The note's tables were computed by an independent model; these are exact
+The tables were first computed by an independent model; these are exact
 integer counts, so the checks are equalities, plus the null spaces against the
 analytic unobservable directions (a common translation of vehicle and features,
 the yaw about gravity, and on an unaccelerated flight the scale).
@@ -23,7 +23,7 @@ TABLE_A = {"vision/INS, J = 1": (12, 8, 9, 9), "vision/INS, J = 2": (15, 11, 12,
 
 
 def test_table_a_the_seeds_model_gives_its_table_1_as_ranks():
-    """Erratum E1: the seed's "unobservable states" 11/12/13/14 and 10/11/12/12 are TOM ranks."""
+    """E1 (docs/design/nav-filter.md §10): the paper's "unobservable states" 11/12/13/14 and 10/11/12/12 are TOM ranks."""
     rows = {r["case"]: (r["n"], r["lom"], r["som"], r["tom"]) for r in table_a()}
     assert rows == TABLE_A
 

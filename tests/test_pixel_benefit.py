@@ -1,4 +1,4 @@
-"""Seed 003's claimed benefit, measured: the patent's PL rule with and without vision rows and H3, beside GPS RAIM.
+"""The vision-integrity patent's claimed benefit, measured: the patent's PL rule with and without vision rows and H3, beside GPS RAIM.
 
 20 fault-free sorties of the JSBSim-flown runway-05 final (runway outline
 landmarks) started uniformly over a day, the same observations through every

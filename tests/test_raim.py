@@ -1,7 +1,7 @@
 """GPS-only RAIM (testbed.integrity.raim) against distributions and binomial bounds.
 
 Geometry: the RTCA DO-229 24-satellite almanac seen from the ZUNZ RWY05
-approach, epochs spread over a day; noise from the seed 000 eq. 27 sigma
+approach, epochs spread over a day; noise from the VA-RAIM paper's eq. 27 sigma
 model. Fixed seeds; every statistical check is a KS test or a binomial 99%
 interval, so a correct implementation fails each with probability ≈ 1%.
 """

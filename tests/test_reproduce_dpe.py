@@ -1,5 +1,5 @@
 """``testbed reproduce dpe-vertical``: the experiments' pieces and the claims table (the full command,
-2-3 min, is run by hand: README "Seed 004")."""
+2-3 min, is run by hand: docs/design/dpe.md §7.3)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""Unsurveyed features in the seed-002 filter (testbed/navigation/slam.py) and the won-2013 reproduction:
-the triangulation and its Jacobians against finite differences and Monte Carlo, the static block's predict
-against the dense numpy reference, consistency on the seed's racetrack, satellites' effect along their
-lines of sight (paired), degenerate inputs and determinism."""
+"""Unsurveyed features in the GNSS/vision/INS filter (testbed/navigation/slam.py, docs/design/nav-filter.md §7) and the
+won-2013 reproduction: the triangulation and its Jacobians against finite differences and Monte Carlo, the static
+block's predict against the dense numpy reference, consistency on the paper's racetrack, satellites' effect along
+their lines of sight (paired), degenerate inputs and determinism."""
 
 from __future__ import annotations
 

@@ -223,7 +223,7 @@ def test_flat_masks_below_the_geometric_horizon():
 
 
 # --------------------------------------------------------------------------------------
-# The synthetic valley meets its parameters (FACTS.md)
+# The synthetic valley meets its parameters (docs/design/physics-notes.md §the-synthetic-valley)
 # --------------------------------------------------------------------------------------
 def test_valley_is_labelled_synthetic(valley):
     assert valley.synthetic

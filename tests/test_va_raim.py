@@ -1,6 +1,6 @@
 """VA-RAIM: calibration, calibrated covariances, false-alarm rate, detection power, degenerate epochs.
 
-The scenario is seed 000 §3.1 (tests/test_va_raim_scenario.py). References:
+The scenario is the VA-RAIM paper §3.1 (tests/test_va_raim_scenario.py). References:
 Monte Carlo sample statistics with binomial / standard-error bounds at fixed
 seeds, the non-central chi-square detection probability (scipy), and a
 brute-force calibration epoch choice.

@@ -2,7 +2,7 @@
 as variant "seed", does not where the vision-range error is not small next to the range.
 
 The full check at the default P_FA over >= 6e6 epochs per setting is
-``benchmarks/bench_va_raim_fa.py`` (figures in the README); here the same property at a
+``benchmarks/bench_va_raim_fa.py`` (figures: docs/performance.md); here the same property at a
 fast P_FA = 1e-2, and the limit's derivation against a Monte Carlo of its model.
 """
 

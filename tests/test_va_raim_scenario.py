@@ -1,6 +1,7 @@
-"""The seed-000 VA-RAIM scenario for tests and the benchmark (not a test module).
+"""The VA-RAIM paper's scenario for tests and the benchmark (not a test module).
 
-Seed 000 §3.1 with the longitude typo corrected (FACTS.md): landmark centre
+The VA-RAIM paper §3.1 with the longitude typo corrected
+(docs/design/physics-notes.md §va-raim-scenario-longitudes): landmark centre
 29.3065 N, 94.3359 E, 2950 m; three landmarks on a 100 m circle at azimuths
 0/120/240°; a straight path due east from 94.2539 E / 3650 m to
 94.3144 E / 3150 m in 60 s. Pixels are synthesised here by projecting the
@@ -8,7 +9,7 @@ Seed 000 §3.1 with the longitude typo corrected (FACTS.md): landmark centre
 parallel); the monitor gets the *surveyed* positions (true + survey error).
 
 Camera assumption (the seed gives none usable): 2448 × 2048 px, f = 3400 px
-(the public runway-detection dataset of FACTS.md), looking forward and 5° down
+(the public runway-detection dataset of docs/design/physics-notes.md §camera-references), looking forward and 5° down
 from the body x axis, 4 m ahead of and 1 m below the reference point. GPS:
 the DO-229 almanac helpers of ``test_integrity_core_helpers.py`` with an
 elevation mask standing in for the valley walls.

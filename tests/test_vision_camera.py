@@ -60,7 +60,7 @@ def test_hand_computed_pixel(cam):
 
 
 def test_patent_T_pix_to_c_matches_Kinv(cam):
-    """Seed 003's T_pix^c (x up, y right, z fwd; 1-based m row, n column) is K^-1 relabelled."""
+    """The vision-integrity patent's T_pix^c (x up, y right, z fwd; 1-based m row, n column) is K^-1 relabelled."""
     T = patent_T_pix_to_c(cam)
     rng = np.random.default_rng(1)
     uv = rng.uniform(0, 1000, size=(20, 2))
@@ -168,7 +168,8 @@ def test_runway_outline_facts():
     assert np.linalg.norm(enu["RWY05L"] - enu["RWY05R"]) == pytest.approx(45.0, abs=1 * MM)
     mid05 = (enu["RWY05L"] + enu["RWY05R"]) / 2
     mid23 = (enu["RWY23L"] + enu["RWY23R"]) / 2
-    # FACTS.md: geodesic 2999.6 m on the ellipsoid; at ~2943 m height lengths grow by (1 + h/R)
+    # docs/design/physics-notes.md §airport-and-runway: geodesic 2999.6 m on the ellipsoid;
+    # at ~2943 m height lengths grow by (1 + h/R)
     assert np.linalg.norm(mid23 - mid05) == pytest.approx(2999.6 * (1 + 2943.0 / 6.371e6), abs=0.1)
     course = math.degrees(math.atan2(*(mid23 - mid05)[:2])) % 360
     assert course == pytest.approx(54.65, abs=0.05)

@@ -22,7 +22,7 @@ P_TAIL = 1e-4
 
 
 def seed_truth(rate_hz=10.0):
-    """Seed 000 §3.1 leg, with a varying body rate so the motion blur changes along the flight."""
+    """The VA-RAIM paper §3.1 leg, with a varying body rate so the motion blur changes along the flight."""
     fr = LocalFrame(*airport.VA_RAIM_CENTRE)
     a = fr.geodetic_to_enu(29.3065, 94.2539, 3650.0)
     b = fr.geodetic_to_enu(29.3065, 94.3144, 3150.0)

@@ -2,7 +2,7 @@
 
 What one would write first: a Python loop over trials and epochs, small numpy
 matrices per epoch, the calibration as a running state, textbook formulas
-(seed 000 eq. 12-23) with no masking machinery. Used by
+(the VA-RAIM paper's eq. 12-23) with no masking machinery. Used by
 ``tests/test_va_raim.py`` (a sample of trials) and ``benchmarks/bench_va_raim.py``
 (speed side by side). Nominal data only: every epoch well posed.
 """

@@ -1,6 +1,6 @@
 """Numpy oracles of the compiled vision stage (:mod:`testbed.integrity.kernels.vision`).
 
-The seed 000 eq. 1-10 formulas (INTEGRITY_MATH.md §2) written as plain batched numpy:
+The VA-RAIM paper's eq. 1-10 (docs/design/integrity.md §7) written as plain batched numpy:
 bearings and their pixel Jacobian, pair cosines, the cosines ranges imply, the
 cosine-rule matrices A and B, and Σ_c from pixel noise. The kernels are tested against
 these; these are tested against finite differences and Monte Carlo in

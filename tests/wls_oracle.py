@@ -1,7 +1,7 @@
 """The test oracle for the weighted-LS kernel (:func:`testbed.integrity.kernels.wls_epochs`).
 
-Textbook numpy/LAPACK, one epoch at a time, written from INTEGRITY_MATH.md §4 and
-seed 000 eq. 20-26 without looking at the kernel: the used rows are selected (not
+Textbook numpy/LAPACK, one epoch at a time, written from docs/design/integrity.md §2-§4
+and the VA-RAIM paper's eq. 20-26 without looking at the kernel: the used rows are selected (not
 zero-weighted), W is formed in full, J by ``np.linalg.inv``, S = I − G A, the
 condition numbers by ``np.linalg.cond`` (1-norm for the SINGULAR rule, 2-norm to
 check the kernel's bound κ₂ ≤ κ₁ ≤ 4κ₂). Slow and obvious on purpose.

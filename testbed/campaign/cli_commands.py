@@ -129,11 +129,11 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("dir", help="campaign result folder")
     p.set_defaults(func=_cmd_report)
 
-    p = subparsers.add_parser("reproduce", help="reproduce a seed paper's experiments "
+    p = subparsers.add_parser("reproduce", help="reproduce a source paper's experiments "
                                                       "(va-raim-2015, won-2013, dpe-vertical)")
     p.add_argument("paper", help="va-raim-2015 | won-2013 | dpe-vertical")
     p.add_argument("--full", action="store_true", help="the paper's scale: 1e5 sorties x 60 s per setting "
-                                                      "(dpe-vertical: DPE.md's 2000 sorties per cell; "
+                                                      "(dpe-vertical: 2000 sorties per cell, docs/design/dpe.md §7.3; "
                                                       "won-2013: 200 runs per case, else 50)")
     p.add_argument("--out", help="result folder (default: campaigns/reproduce-<paper>)")
     p.add_argument("--scheduler", help="va-raim-2015: Dask scheduler address (default: this machine, see --workers)")

@@ -1,8 +1,8 @@
-"""``testbed calibrate-dpe``: K of the DPE's VPL from fault-free sorties, validated on held-out ones (DPE.md §6).
+"""``testbed calibrate-dpe``: the DPE's K from fault-free sorties, checked on held-out ones (docs/design/dpe.md §6).
 
 The DPE and correlator settings are the approach's; the sorties fly its trajectory or, with
-``trajectories``, those approaches' (DPE.md §6's set C: the runway-05 final, the RNP approach
-and the seed-000 sortie), each flown once. Sortie j of a set flies trajectory ``(j // 6) mod n``
+``trajectories``, those approaches' (set C of docs/design/dpe.md §6.4: the runway-05 final, the RNP
+approach and the VA-RAIM paper's sortie), each flown once. Sortie j of a set flies trajectory ``(j // 6) mod n``
 at ``j · 24 h / sorties`` after the approach's start (the validation set half a spacing later),
 with its own GNSS and correlator draws (``SeedSequence(seed, spawn_key=(set, j))``) and the
 C/N0 offset ``j mod 3`` and multipath setting ``(j // 3) mod 2`` of the strata; the dpe monitor
@@ -13,8 +13,8 @@ the file records K with its provenance, and the monitor reads it (``[dpe] k_fact
 
 Work is cut in chunks of sorties, each a pure function of (run, set, chunk): with a work folder
 they are stored as they finish (atomically), a killed run resumes where it stopped, and a Dask
-scheduler can run them (DPE.md §6's full size, 36 000 sorties a set, is ~12 h of this 2-core
-machine at the 0.6 s a sortie measured on set C). The result does not depend on the chunk size or on where chunks ran.
+scheduler can run them (the full size of docs/design/dpe.md §6.7, 36 000 sorties a set, is ~12 h on
+two cores at the ~0.6 s a sortie set C took). The result does not depend on the chunk size or on where chunks ran.
 
 Epochs count as independent (N_eff = N): the SIS error and the correlator noise are white from
 epoch to epoch in this model (stated in the file). A short run extrapolates from shallower tails,
@@ -36,12 +36,12 @@ from testbed.integrity.dpe.calibration import (DEFAULT_P_HMI, MIN_TAIL_EPOCHS, K
                                                settings_fingerprint, validate)
 from testbed.schema import ConfigError
 
-#: strata cycled over the sorties (DPE.md §6's set C)
+#: strata cycled over the sorties (docs/design/dpe.md §6.4)
 CN0_OFFSETS_DB = (0.0, -3.0, -6.0)
 MULTIPATH = ("off", "ground")
 ASSUMPTION = ("the normalised errors' tails beyond the deepest measured level are no heavier than the Gaussian "
               "fitted to the measured ones; epochs independent (white SIS and correlator noise per epoch)")
-#: DPE.md §6's set C: the trajectories its sorties fly
+#: set C of docs/design/dpe.md §6.4: the trajectories its sorties fly
 SET_C_TRAJECTORIES = ("zunz-rwy05-final", "zunz-rwy05-rnp", "va-raim-2015")
 CHUNK_SORTIES = 25
 #: a stratum is fitted on its own from this many epochs
@@ -250,7 +250,7 @@ def run_chunks(run: CalibrationRun, *, work: Path | None = None, resume: bool = 
 
 
 def strata(c: dict[str, np.ndarray], trajectories: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """Masks of the calibration set's strata (DPE.md §6 (ii)): C/N0 × multipath, trajectory (more than
+    """Masks of the calibration set's strata (docs/design/dpe.md §6.5 (ii)): C/N0 × multipath, trajectory (more than
     one), satellites in view (4-5, 6-7, 8+), VDOP tercile (bounds from the set)."""
     out = {f"cn0 {CN0_OFFSETS_DB[s % 3]:+g} dB, multipath {MULTIPATH[s // 3]}": c["stratum"] == s for s in range(6)}
     if len(trajectories) > 1:

@@ -1,6 +1,6 @@
 """What the patent's monitor buys: its protection-level rule with and without vision rows and H3, beside GPS RAIM.
 
-Seed 003 claims that adding landmark pixels to the GNSS rows improves integrity
+The vision-integrity patent claims that adding landmark pixels to the GNSS rows improves integrity
 availability. Its monitor bundles two things: the *rows* (pixels next to the
 pseudoranges) and the *rule* (three hypotheses, H3 = two simultaneous faults,
 combined as sqrt(max(H1, H2)² + H3²)). To see what each costs and buys, the same

@@ -320,8 +320,8 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
     acc_rows = []
     for m in monitors:
         sel = tc["monitor"] == m
-        fig, axs = _figure(1, 2, figsize=(11, 4.8))
-        for ax, dim, al in ((axs[0], "H", hal), (axs[1], "V", val)):
+        panels = []
+        for dim, al in (("H", hal), ("V", val)):
             counts = {r: int(tc[f"{dim.lower()}_{r}"][sel].sum()) for r in REGIONS}
             total = int(tc["epochs"][sel].sum())
             region_rows.append({"monitor": m, "dim": dim, **counts, "epochs": total})
@@ -333,9 +333,9 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
             hc = None if hist is None else _cols(hist)
             e95 = hist_quantile(hc, None if hc is None else (hc["monitor"] == m) & (hc["dim"] == dim), 0.95)
             acc_rows.append({"monitor": m, "dim": dim, "e95": e95})
-            stanford_panel(fig, ax, H, edges, counts, total, m, dim, al)
+            panels.append((dim, H, counts, total, al))
         name = f"stanford_{m}.png"
-        _save(fig, figdir / name)
+        _save(stanford_figure(m, panels, edges), figdir / name)
         figures.append((f"Stanford diagrams, {m}", name))
     md += ["## Integrity regions (all cells, all epochs; most demanding service level)", "",
            "| monitor | dim | " + " | ".join(REGIONS) + " | epochs |", "|---|---|" + "---|" * (len(REGIONS) + 1)]
@@ -351,21 +351,57 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
     return md, figures
 
 
+def _no_solution(counts: dict[str, int], total: int) -> bool:
+    """Every epoch of the panel without a solution: the monitor gives no PL in that dimension."""
+    return bool(total) and counts["no_solution"] == total
+
+
+def stanford_figure(monitor: str, panels: list[tuple[str, np.ndarray, dict[str, int], int, float]],
+                    edges: np.ndarray, suptitle: str | None = None):
+    """A monitor's Stanford diagrams side by side, one per ``(dim, H, counts, total, alert limit)`` of
+    ``panels``. A dimension in which the monitor gives no PL at any epoch (the DPE bounds the vertical
+    only) gets no panel: the others' titles say so. With no PL in any dimension every panel is drawn,
+    each saying it is empty."""
+    from matplotlib.figure import Figure
+
+    empty = [_no_solution(p[2], p[3]) for p in panels]
+    if all(empty):
+        empty = [False] * len(panels)
+    shown = [p for p, e in zip(panels, empty) if not e]
+    absent = [p[0] for p, e in zip(panels, empty) if e]
+    fig = Figure(figsize=(5.5 * len(shown), 4.8 + 0.25 * bool(absent)))
+    axs = np.atleast_1d(fig.subplots(1, len(shown)))
+    for ax, (dim, H, counts, total, al) in zip(axs, shown):
+        stanford_panel(fig, ax, H, edges, counts, total, monitor, dim, al)
+        if absent:
+            ax.set_title(ax.get_title() + "\n" + f"({monitor} gives no {', '.join(d + 'PL' for d in absent)}: "
+                         f"no {', '.join(absent)} diagram)", fontsize=10)
+    if suptitle:
+        fig.suptitle(suptitle)
+    return fig
+
+
 def stanford_panel(fig, ax, H: np.ndarray, edges: np.ndarray, counts: dict[str, int], total: int, monitor: str,
                    dim: str, al: float) -> None:
     """One Stanford diagram: the (error, PL) histogram ``H`` [error bin, PL bin] on log axes, the alert
     limit, the y = x line and the region counts."""
     from matplotlib.colors import LogNorm
+    from matplotlib.ticker import LogFormatter
 
     if H.sum() > 0:
         # H is indexed [error bin, PL bin]; pcolormesh wants rows = y (PL)
         pcm = ax.pcolormesh(edges, edges, H.T, norm=LogNorm(vmin=1, vmax=max(H.max(), 2)), cmap="viridis",
                             shading="flat")
-        fig.colorbar(pcm, ax=ax, label="epochs")
-    lim = (edges[0], edges[-1])
-    ax.plot(lim, lim, "k-", lw=0.8)
-    ax.axhline(al, color="r", lw=0.8)
-    ax.axvline(al, color="r", lw=0.8)
+        cb = fig.colorbar(pcm, ax=ax, label="epochs")
+        plain = LogFormatter(labelOnlyBase=False, minor_thresholds=(1.5, 0.5))  # 2, 3, 10, 100 rather than 2x10^0
+        cb.ax.yaxis.set_major_formatter(plain)
+        cb.ax.yaxis.set_minor_formatter(plain)
+    empty = _no_solution(counts, total)  # e.g. the DPE's H panel: HPL NaN by design
+    if not empty:  # the limit lines and y = x only where there is something to read against them
+        lim = (edges[0], edges[-1])
+        ax.plot(lim, lim, "k-", lw=0.8)
+        ax.axhline(al, color="r", lw=0.8)
+        ax.axvline(al, color="r", lw=0.8)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlim(1e-2, 1e3)
@@ -380,9 +416,9 @@ def stanford_panel(fig, ax, H: np.ndarray, edges: np.ndarray, counts: dict[str, 
     ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", fontsize=7,
             bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
     ax.set_title(f"{monitor}: {dim} Stanford diagram ({dim}AL {al:g} m)")
-    if total and counts["no_solution"] == total:  # e.g. the DPE: vertical only, HPL NaN by design
-        ax.text(0.5, 0.5, f"{monitor} gives no {dim}PL\n(it bounds the other dimension only)", ha="center",
-                va="center", transform=ax.transAxes, fontsize=10)
+    if empty:
+        ax.text(0.5, 0.5, f"{monitor} gives no {dim}PL", ha="center", va="center", transform=ax.transAxes,
+                fontsize=10)
 
 
 def hist_quantile(hist: dict[str, np.ndarray] | None, select: np.ndarray | None, q: float) -> float:

@@ -1,4 +1,4 @@
-"""``testbed reproduce va-raim-2015``: the experiments of seed 000 (VA-RAIM, sec. 3) as campaigns.
+"""``testbed reproduce va-raim-2015``: the experiments of the VA-RAIM paper (Fu et al. 2015, sec. 3) as campaigns.
 
 The paper's section 3 design, on its scenario (approach ``va-raim-2015``: the 60 s
 straight sortie from 94.2539 E / 3650 m to 94.3144 E / 3150 m towards the 100 m
@@ -29,7 +29,7 @@ camera, a verdict, and the assumption behind any difference.
 Scale: the default quick run uses 200 sorties per setting (a few minutes on two
 cores); ``--full`` uses the paper's 1e5 sorties x 60 s = 6e6 s per setting.
 
-Assumptions the paper leaves open (also in the README):
+Assumptions the paper leaves open (also in docs/findings/va-raim-2015.md):
 
 - Landmark centre and sortie longitudes: printed as 90.xx E, taken as 94.xx E
   (the LinZhi valley; see the approach file).
@@ -70,7 +70,7 @@ Assumptions the paper leaves open (also in the README):
 - VA-RAIM variant: the paper's method as written (``variant = "seed"``) in every
   experiment; the resolution experiment also runs the testbed's default
   ``"gated"`` variant, which admits vision rows only where sigma_V/m keeps the
-  false-alarm budget (README, "Departures"), so both can be set side by side.
+  false-alarm budget (docs/design/integrity.md §9, §11), so both can be set side by side.
 - Minimal detectable bias: smallest swept bias at which the empirical detection
   rate reaches 99 %, linearly interpolated between swept biases (also given from
   the lower Clopper-Pearson bound).
@@ -178,7 +178,7 @@ def reproduce_va_raim_2015(out_dir: str | Path, *, full: bool = False, trials: i
 
 def write_summary(out: Path, trials: int, walls: dict[str, float]) -> Path:
     """``reproduce.md``: the headline numbers of the campaigns, the break-even figure, the claims table."""
-    md = [f"# Reproduction of seed 000 (VA-RAIM, 2015), section 3: {trials} sorties x 60 s per setting", "",
+    md = [f"# Reproduction of the VA-RAIM paper (Fu et al. 2015), section 3: {trials} sorties x 60 s per setting", "",
           "Assumptions: see `testbed/campaign/reproduce.py` (module docstring).", ""]
     for name, w in walls.items():
         md.append(f"- [{name}]({name}/report.md) ({w:.0f} s of computing, over every run of it)")

@@ -1,8 +1,8 @@
-"""``testbed reproduce dpe-vertical``: seed 004's claims (Chu & Gao, DPE vertical integrity) with a verdict each.
+"""``testbed reproduce dpe-vertical``: the DPE paper's claims (Chu & Gao, DPE vertical integrity) with a verdict each.
 
-Experiments (DPE.md §4, §7):
+Experiments (docs/design/dpe.md §4.3, §7.3):
 
-1. **The note's epoch** (8 satellites at 75…10°, 45.25–39.5 dB-Hz, N_b = 50, no SIS, the grid
+1. **The reference epoch** (8 satellites at 75…10°, 45.25–39.5 dB-Hz, N_b = 50, no SIS, the grid
    centre [8, −5, 12, 20] m off the truth), both variants: the solution's error, σ_ob, its median,
    whether an overbound about the solution is feasible, against √J_UU; nominal, a 60 m and a 300 m
    code bias on the 35° satellite, and a −6 dB in-phase echo at 0.1 chip on the two lowest.
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-#: the seed's claims, in the abstract's order (DPE.md §1)
+#: the DPE paper's claims, in the abstract's order (docs/design/dpe.md §1)
 CLAIMS = (
     ("position-domain overbound", "The overbounding distribution is derived in the position domain, without "
                                   "Gaussian pseudorange error models"),
@@ -132,9 +132,10 @@ def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int
 
 def summary(cases: list[dict], k_rec: dict, hmi: list[dict], trials: int) -> list[str]:
     """``reproduce.md``: the experiments' tables and the claims table."""
-    md = ["# Reproduction of seed 004 (Chu & Gao, DPE vertical integrity)", "",
-          "Experiments and assumptions: `testbed/campaign/reproduce_dpe.py` (module docstring) and DPE.md.", "",
-          "## 1. The note's epoch, both variants (medians over the draws)", "",
+    md = ["# Reproduction of the DPE paper (Chu & Gao, DPE vertical integrity)", "",
+          "Experiments and assumptions: `testbed/campaign/reproduce_dpe.py` (module docstring) and "
+          "docs/design/dpe.md §7.3.", "",
+          "## 1. The reference epoch, both variants (medians over the draws)", "",
           "| case | variant | vertical error (m) | RMS (m) | σ_ob (m) | median (m) | about-solution feasible | √J_UU (m) |",
           "|---|---|---|---|---|---|---|---|"]
     for r in cases:
@@ -168,8 +169,8 @@ def _claim(key: str, cases, k_rec, hmi) -> tuple[str, str, str]:
         return (f"seed: σ_ob {nom_s['sigma_ob_m']:.1f} m against √J_UU {nom_l['crb_u_m']:.2f} m (the grid's extent); "
                 f"likelihood: σ_ob {nom_l['sigma_ob_m']:.2f} m, RMS error {nom_l['rms_vertical_error_m']:.2f} m",
                 "holds with the likelihood form; not as written",
-                "the seed's weighted mean over a ±110 m grid of a ≥ 293 m-wide correlation stays at the "
-                "initialisation and its σ_ob measures the grid (DPE.md F1, F2)")
+                "the paper's weighted mean over a ±110 m grid of a ≥ 293 m-wide correlation stays at the "
+                "initialisation and its σ_ob measures the grid (docs/design/dpe.md F1, F2)")
     if key == "receiver-side effects":
         e = _case(cases, "−6 dB echo at 0.1 chip, 2 lowest", "likelihood")
         b60 = _case(cases, "60 m bias, 35° satellite", "likelihood")
@@ -177,7 +178,7 @@ def _claim(key: str, cases, k_rec, hmi) -> tuple[str, str, str]:
                 f"{nom_l['sigma_ob_m']:.2f}); 60 m bias: σ_ob {b60['sigma_ob_m']:.2f} m, error {b60['vertical_error_m']:+.2f} m",
                 "partly: the manifold moves, the overbound hardly widens",
                 "an echo or bias shifts the peak coherently; the likelihood's width is set by C/N0 and geometry, "
-                "not by the shift (DPE.md F6)")
+                "not by the shift (docs/design/dpe.md F6)")
     if key == "no convolution-born HMI":
         free = [r for r in hmi if r["fault_size"] == 0.0 and r["monitor"] == "dpe"]
         worst = max((r for r in hmi if r["monitor"] == "dpe"), key=lambda r: r["hmi_epochs"] / max(r["epochs"], 1))
@@ -195,5 +196,5 @@ def _claim(key: str, cases, k_rec, hmi) -> tuple[str, str, str]:
             f"{v['epochs']} above the VPL; about-solution overbound feasible in "
             f"{100 * nom_l['about_solution_feasible']:.0f} % of epochs",
             "holds with a calibrated K and the median term",
-            "a zero-mean Gaussian about the solution cannot bound a curve whose median is not 0 (DPE.md F3); "
+            "a zero-mean Gaussian about the solution cannot bound a curve whose median is not 0 (docs/design/dpe.md F3); "
             "K extrapolates the measured tails (stated in the record)")

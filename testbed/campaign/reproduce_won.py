@@ -1,13 +1,13 @@
-"""``testbed reproduce won-2013``: seed 002's simulation (Won et al. 2013) with a verdict per claim.
+"""``testbed reproduce won-2013``: the Won et al. paper's simulation with a verdict per claim.
 
-The seed's set-up (NAV_FILTER.md §11): a UAV flies a racetrack of two 150 m straights and two 30 m-radius
-half circles twice in 300 s, 10 m over flat ground; HG-1700 IMU (Earth rate off); a Guppy F-080
+The paper's set-up (docs/design/nav-filter.md §11): a UAV flies a racetrack of two 150 m straights and two
+30 m-radius half circles twice in 300 s, 10 m over flat ground; HG-1700 IMU (Earth rate off); a Guppy F-080
 (1032 × 776 px, 28° horizontal field of view) looking 45° down, 1 px; ground features at random, at most
 seven used, by delayed initialisation (:mod:`testbed.navigation.slam`); 1, 2, 3 satellites with the
 receiver clock estimated and known. Here the satellites are the DO-229 almanac's over Seoul at
 2012-01-15 03:00 UTC (the YUMA almanac of that day is not shipped): PRN 19 (41° elevation, 47° azimuth),
-then 11 (37°, 314°), then 5 (28°, 207°) — three mid-elevation satellites ~120° apart as in the seed's
-Fig. 4. Pseudoranges at 1 Hz (σ_URA 1.5 m, the seed's "GPS position error 1.5 m", plus the model's
+then 11 (37°, 314°), then 5 (28°, 207°) — three mid-elevation satellites ~120° apart as in the paper's
+Fig. 4. Pseudoranges at 1 Hz (σ_URA 1.5 m, the paper's "GPS position error 1.5 m", plus the model's
 receiver noise and multipath), range rates 0.05 m/s; vision and updates at 10 Hz, IMU at 120 Hz.
 
 Every case flies the same trials with the same draws (IMU errors, pixel noise, initial error, GNSS
@@ -29,8 +29,8 @@ CASES = (("INS only", None, False, False), ("vision/INS", None, False, True),
          ("2 sat, clock known", 2, True, True), ("3 sat, clock known", 3, True, True))
 PRNS = (19, 11, 5)
 START_UTC = "2012-01-15T03:00:00Z"
-ORIGIN = (37.5408, 127.0793, 60.0)  # Konkuk University, Seoul (the seed's origin)
-PRIOR_POS_M = 10.0  # the initial position 1σ (NAV_FILTER.md T-SAT-2's prior)
+ORIGIN = (37.5408, 127.0793, 60.0)  # Konkuk University, Seoul (the paper's origin)
+PRIOR_POS_M = 10.0  # the initial position 1σ (docs/design/nav-filter.md §11)
 CHUNK = 100
 
 CLAIMS = (
@@ -75,7 +75,7 @@ def won_scene(duration_s: float = 300.0, n_points: int = 9000, seed: int = 2013)
     frame = LocalFrame(*ORIGIN)
     tr = racetrack_truth(frame, rate_hz=120.0)
     tr = tr.at_indices(np.flatnonzero(tr.t <= duration_s + 1e-9))
-    # ~0.24 features per m² around the track: 7–20 in view (the seed: at most seven used)
+    # ~0.24 features per m² around the track: 7–20 in view (the paper: at most seven used)
     pts = ground_features(n_points, (-60.0, 210.0), (-40.0, 100.0), np.random.default_rng(seed))
     truth_g = tr.decimate(1.0)
     geom = gnss_geometry(truth_g, Mount(lever_arm_body=np.zeros(3)), _gnss_settings(False), start_utc=START_UTC)
@@ -293,14 +293,14 @@ def verdicts(res: dict) -> list[tuple[str, str, str, str, str]]:
                  "holds" if all(w == "lower" for *_, w in ce) else "holds from the second satellite on"
                  if all(w == "lower" for *_, w in ce[1:]) else "does not hold",
                  "with the clock estimated the first satellite only calibrates the clock: it cannot lower the absolute "
-                 "error (NAV_FILTER.md T-SAT-2)"))
+                 "error (docs/design/nav-filter.md §9.5)"))
     three = c["3 sat, clock estimated"]
     rows.append((f"per-run max 3-D error: median {three['max3_median']:.1f} m, largest {three['max3_max']:.1f} m over "
                  f"{three['trials']} runs (vertical RMS {three['v_rms']:.1f} m)",
                  "holds" if three["max3_max"] <= 16.0 else "holds for the median run" if three["max3_median"] <= 16.0
                  else "does not hold",
                  "three satellites and an estimated clock leave one direction (mostly vertical, with the clock) "
-                 "unobserved: its share of the 10 m start error stays; the seed shows one run"))
+                 "unobserved: its share of the 10 m start error stays; the paper shows one run"))
     rows.append((f"2 satellites (clock estimated): {d['along e1−e2']:.2f} m RMS along e1−e2 against "
                  f"{d['across (e1×e2)']:.2f} m across", "holds" if d["along e1−e2"] < 0.5 * d["across (e1×e2)"]
                  else "does not hold", "with the clock estimated only the difference e1 − e2 of the two lines of sight "
@@ -308,7 +308,7 @@ def verdicts(res: dict) -> list[tuple[str, str, str, str, str]]:
     m, se, w = _compare(res, "1 sat, clock estimated", "vision/INS")
     rows.append((f"1 satellite against none (clock estimated): {m:+.2f} ± {se:.2f} m² ({w})",
                  "holds" if w == "higher" else "does not hold",
-                 "a consistent filter is not made worse by a correctly modelled measurement; the seed's case is one "
+                 "a consistent filter is not made worse by a correctly modelled measurement; the paper's case is one "
                  "run with its own satellite and path"))
     m2, se2, w2 = _compare(res, "2 sat, clock known", "2 sat, clock estimated")
     rows.append(("clock known, each satellite against one fewer — " + fmt(kno, ck) + f"; 2 satellites known against "
@@ -321,14 +321,14 @@ def verdicts(res: dict) -> list[tuple[str, str, str, str, str]]:
                  "holds" if o[0] == 3 and all(o[k] == o[k - 1] - 1 for k in (1, 2, 3)) else
                  "holds in part: each satellite removes one; vision/INS has four" if all(
                      o[k] == o[k - 1] - 1 for k in (1, 2, 3)) else "does not hold",
-                 "vision/INS has four unobservable directions (translation and yaw about gravity); the seed's "
-                 "Table 1 counts ranks (NAV_FILTER.md §10, `testbed observability`)"))
+                 "vision/INS has four unobservable directions (translation and yaw about gravity); the paper's "
+                 "Table 1 counts ranks (docs/design/nav-filter.md §10, `testbed observability`)"))
     return [(short, claim, fig, verdict, why) for (short, claim), (fig, verdict, why) in zip(CLAIMS, rows)]
 
 
 def _report(res: dict) -> str:
     c = res["cases"]
-    lines = [f"# Seed 002 (Won et al. 2013) reproduced: {res['trials']} runs per case, {res['duration_s']:g} s",
+    lines = [f"# The Won et al. paper reproduced: {res['trials']} runs per case, {res['duration_s']:g} s",
              "", f"Satellites: DO-229 PRN {', '.join(map(str, res['prns']))} over Seoul at {START_UTC} "
              "(module doc of `testbed/campaign/reproduce_won.py` for the set-up). Every case flies the same draws.", "",
              "| case | horizontal RMS, last 60 s (m) | vertical RMS (m) | 3-D RMS (m) | per-run max 3-D, median / max (m) "
@@ -341,7 +341,7 @@ def _report(res: dict) -> str:
     for name, vals in res["paired"].items():
         lines.append(f"- {name}: " + "; ".join(f"{m:+.2f} ± {se:.2f} m²" for m, se in vals))
     lines += ["", "![position errors](won2013_errors.png)", "", "## Claims", "",
-              "| claim | the seed | ours | verdict | assumption behind a difference |", "|---|---|---|---|---|"]
+              "| claim | the paper | ours | verdict | assumption behind a difference |", "|---|---|---|---|---|"]
     for short, claim, fig, verdict, why in verdicts(res):
         lines.append(f"| {short} | {claim} | {fig} | {verdict} | {why} |")
     return "\n".join(lines) + "\n"

@@ -129,7 +129,7 @@ class CellContext:
     truth_g: object = None  # Truth at the GNSS epochs (the correlators' ground echo reads AGL and climb)
     sky: np.ndarray | None = None  # (W,) sorted sky windows of the sorties (g_geom stacked); None: fixed start
     #: the error-free IMU increments (t, Δθ, Δv, Δt) along the segment, and its first pose (C, v, p):
-    #: only when a monitor reads the IMU (the seed-002 filter)
+    #: only when a monitor reads the IMU (the Won et al. filter)
     imu_increments: tuple | None = None
     imu_start: tuple | None = None
     #: what fixes the cell's GNSS / vision draws besides seed, faults and sky windows (memo keys: a sweep's
@@ -137,7 +137,7 @@ class CellContext:
     gnss_draw_key: tuple = ()
     vision_draw_key: tuple = ()
     #: the ground features the tracker follows at the GNSS epochs (T, W) and the tracker's camera: only when
-    #: the approach's ``[vision.features]`` is enabled and a monitor reads them (the seed-002 filter)
+    #: the approach's ``[vision.features]`` is enabled and a monitor reads them (the Won et al. filter)
     feature_ids: np.ndarray | None = None
     feature_camera: tuple | None = None
 
@@ -735,7 +735,7 @@ def worker_tasks(todo: list[tuple[int, int, int]], workers: int) -> list[tuple[i
 
 #: The local pool's worker processes start in a few seconds (interpreter, imports, the kernels from numba's cache)
 #: and each rebuilds the cells' flight and sky geometry (side by side, so no later than the driver would), then
-#: compute faster than threads (README, Performance): measured end to end (``benchmarks/bench_dask.py``), gps-faults at 4000
+#: compute faster than threads (docs/performance.md): measured end to end (``benchmarks/bench_dask.py``), gps-faults at 4000
 #: sorties per setting (160 000 cell-sorties, ~35 s) took 40.4 s on the pool and 35.1 s in-process, so a pool
 #: needs a few minutes of computing to pay for itself: below this many cell-sorties a campaign stays in-process.
 POOL_MIN_CELL_SORTIES = 500_000
@@ -755,7 +755,7 @@ def local_workers(workers: int | str, todo: list[tuple[int, int, int]], cores: i
     two chunk rows and :data:`POOL_MIN_CELL_SORTIES` cell-sorties to run, else 1. Processes rather than threads
     because the monitors' numpy steps hold the interpreter lock: two worker processes run the reproduction's
     chunk rows faster than the same rows on two threads, side by side in ``benchmarks/bench_campaign.py``
-    (its figures: README, Performance).
+    (its figures: docs/performance.md).
     """
     if workers == "auto":
         big = len(chunk_rows(todo)) >= 2 and sum(n for _, _, n in todo) >= POOL_MIN_CELL_SORTIES

@@ -107,7 +107,7 @@ class Sweep(StrictModel):
                                                             description="VA-RAIM variants (testbed default 'gated')")
     dpe_variant: list[Literal["likelihood", "seed"]] = Field(
         default_factory=list, description="DPE variants (testbed default 'likelihood'); a 'seed' cell's receiver "
-                                          "reports the seed's magnitude statistic (exact synthesis) and its VPL "
+                                          "reports the DPE paper's magnitude statistic (exact synthesis) and its VPL "
                                           "factor is the Gaussian K = Q⁻¹(P/2) at P = 1e-7 (5.33)")
     multipath_echo_db: list[float | Literal["off"]] = Field(
         default_factory=list, description="the correlators' ground multipath: 'off', or the specular echo's amplitude "
@@ -117,7 +117,7 @@ class Sweep(StrictModel):
                                           "[gnss] schedule; which ones: its [gnss] keep): the satellites-in-view axis")
     ground_features: list[bool] = Field(
         default_factory=list, description="the tracked unsurveyed ground features off / on ([vision.features] "
-                                          "enabled; the seed-002 filter reads them): the SLAM axis")
+                                          "enabled; the ekf monitor reads them): the SLAM axis")
 
     @field_validator("start_time_utc")
     @classmethod
@@ -208,20 +208,28 @@ class SortieStarts(StrictModel):
 
 
 class ReportSettings(StrictModel):
+    """The statistics of the campaign report (``[report]`` in a spec)."""
+
     power: float = Field(0.99, gt=0, lt=1, description="detection power for the minimal detectable bias")
     confidence: float = Field(0.95, gt=0, lt=1, description="confidence of the binomial bands")
-    interval: Literal["clopper-pearson", "wilson"] = "clopper-pearson"
+    interval: Literal["clopper-pearson", "wilson"] = Field(
+        "clopper-pearson", description="binomial confidence interval of the rates: Clopper-Pearson (exact) or "
+                                       "Wilson")
 
 
 class CampaignSpec(StrictModel):
     """A fault-injection Monte Carlo campaign (``approaches/campaigns/<name>.toml``)."""
 
-    name: FileName = Field(..., min_length=1)
-    description: str = ""
+    name: FileName = Field(..., min_length=1, description="campaign name; it names the default output folder "
+                                                          "(`campaigns/<name>`)")
+    description: str = Field("", description="shown by `testbed approaches` (its first line)")
     approaches: list[str] = Field(..., min_length=1, description="approach names or paths (relative to the spec)")
-    monitors: list[MonitorName] = Field(..., min_length=1, description="monitor names (testbed.integrity.registry)")
+    monitors: list[MonitorName] = Field(..., min_length=1, description="monitor names: gps_raim, va_raim, pixel, "
+                                                                       "ekf, dpe, or one registered with "
+                                                                       "testbed.integrity.registry.register")
     trials: int = Field(..., ge=1, le=10_000_000, description="trials (sorties) per cell")
-    base_seed: int = Field(0, ge=0)
+    base_seed: int = Field(0, ge=0, description="random seed of the campaign: every trial's draws derive from it, "
+                                                "the cell and the draw block")
     block_trials: int = Field(100, ge=1, le=100_000, description="trials per draw block (share a landmark survey)")
     chunk_trials: int = Field(1000, ge=1, description="trials per stored chunk/task (a multiple of block_trials)")
     common_random_numbers: bool = Field(False, description="same noise draws in every cell (smoother sweeps)")
@@ -233,9 +241,9 @@ class CampaignSpec(StrictModel):
                              "segment's time starts at 0 (fault onsets count from it)")
     faults: list[FaultSweep] = Field(default_factory=lambda: [FaultSweep(kind="none")], min_length=1,
                                      description="fault families; [{kind = \"none\"}] for fault-free trials only")
-    sweep: Sweep = Field(default_factory=Sweep)
-    sorties: SortieStarts = Field(default_factory=SortieStarts)
-    report: ReportSettings = Field(default_factory=ReportSettings)
+    sweep: Sweep = Field(default_factory=Sweep, description="sensor and scenario axes")
+    sorties: SortieStarts = Field(default_factory=SortieStarts, description="when each sortie is flown")
+    report: ReportSettings = Field(default_factory=ReportSettings, description="statistics of the report")
 
     @model_validator(mode="after")
     def _chunks(self):
@@ -483,7 +491,7 @@ def _dpe_variant(d: dict, variant: str) -> None:
     """Set a cell's DPE variant. The seed's receiver reports (1/N_b)Σ|y_b| (``statistic = "mag"``,
     exact synthesis: GPS RAIM reads its peaks too when the approach derives pseudoranges from the
     correlators); its K is the Gaussian one its "factoring the overbound" implies, Q⁻¹(P/2) at the
-    calibration's P = 1e-7 (the seed's own empirical K needs N·P ≥ 10, 1e8 epochs: DPE.md §6)."""
+    calibration's P = 1e-7 (the seed's own empirical K needs N·P ≥ 10, 1e8 epochs: docs/design/dpe.md §6.3)."""
     from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, gaussian_k
 
     dpe = d.setdefault("dpe", {})

@@ -1,6 +1,6 @@
 """The JSBSim border: the only module that speaks feet, knots and property names.
 
-Safety rules from FACTS.md, enforced here:
+Safety rules (docs/design/physics-notes.md §jsbsim-pitfalls), enforced here:
 - the global debug level is set to 0 before any FGFDMExec is built (no chatter);
 - ``disable_input()`` before ``load_model`` (the stock 737 would listen on
   TCP 5137 / UDP 5139 on all interfaces);
@@ -95,7 +95,7 @@ class JSBSimAircraft:
     Parameters
     ----------
     model : JSBSim model name (a stock aircraft, or one under ``aircraft_dir``).
-    engines : number of engines (throttle commands go to each, FACTS.md).
+    engines : number of engines (throttle commands go to each: docs/design/physics-notes.md §throttle-of-every-engine).
     dt : integration step, s (default 1/120).
     aircraft_dir : optional directory holding ``<model>/<model>.xml``.
     """

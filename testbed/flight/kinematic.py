@@ -1,6 +1,6 @@
 """Kinematic trajectories: a Truth record without flight dynamics.
 
-For tests, for the seed paper's stylised straight sortie, and for campaigns
+For tests, for the VA-RAIM paper's stylised straight sortie, and for campaigns
 that want geometry without flying. Constant-velocity straight segment in the
 world frame with a steady attitude (wings level, flight-path pitch plus an
 optional angle of attack). The specific force is that of unaccelerated flight
@@ -60,7 +60,7 @@ def straight_truth(frame: LocalFrame, start_enu: ArrayLike, end_enu: ArrayLike, 
 
 def racetrack_truth(frame: LocalFrame, duration_s: float = 300.0, rate_hz: float = 120.0,
                     straight_m: float = 150.0, radius_m: float = 30.0, height_m: float = 10.0) -> Truth:
-    """Seed 002's simulated route: two straights (east, then west) joined by two left half circles,
+    """The Won et al. paper's simulated route: two straights (east, then west) joined by two left half circles,
     flown twice in ``duration_s`` at constant speed and height, wings level, nose along the track.
 
     The straights run from the world origin east for ``straight_m`` and back ``2·radius_m`` to the north;

@@ -1,7 +1,8 @@
 """Steady wind and a seeded gust model of our own.
 
 JSBSim's built-in turbulence chooses its altitude band from height above MSL,
-so at ZUNZ (2949 m) it gives almost nothing near the ground (FACTS.md). We
+so at ZUNZ (2949 m) it gives almost nothing near the ground
+(docs/design/physics-notes.md §jsbsim-turbulence-at-high-elevation). We
 drive ``atmosphere/gust-*`` with first-order Markov gusts that use the
 MIL-F-8785C low-altitude length scales and intensities (a "Markov
 approximation" of the Dryden spectra: same variance and correlation length,

@@ -1,4 +1,4 @@
-"""GPS-based calibration of vision pseudoranges (seed 000 eq. 12-18, INTEGRITY_MATH.md §3).
+"""GPS-based calibration of vision pseudoranges (the VA-RAIM paper, eq. 12-18; docs/design/integrity.md §8).
 
 At a calibration epoch k = 0 (GPS-only RAIM available, its PLs within the alert
 limits, no alert, vision ranges available) the GPS fix ``x̃(0)`` with
@@ -18,11 +18,11 @@ the current detections, of the calibration-epoch detections and of the GPS fix::
     Σ̂_V(k) = Σ_V(k) + M P₀ Σ_c(0) P₀ᵀ Mᵀ + M A(0) H_V(0) Δ_G(0) H_V(0)ᵀ A(0)ᵀ Mᵀ
              + L_d Σ_d L_dᵀ,   L_d = A⁺(k) B(k) − M P₀ B(0).
 
-For N_V = 3 (the seed's case) A(0) is square, ``P₀ = I``, ``L_d = 0`` and this
-is exactly the seed's Σ̂_V (eq. 17). For N_V > 3 the seed's cancellation is
+For N_V = 3 (the paper's case) A(0) is square, ``P₀ = I``, ``L_d = 0`` and this
+is exactly the paper's Σ̂_V (eq. 17). For N_V > 3 the paper's cancellation is
 incomplete — ``A(0)A⁺(0)`` is a projector, not the identity, so ``δc(0)`` enters
 through ``P₀`` and a residual survey term ``L_d δd²`` remains; both are carried
-here (a deliberate extension: the seed only derives N_V = 3). ``Δ_G`` is the
+here (a deliberate extension: the paper only derives N_V = 3). ``Δ_G`` is the
 position block of the GPS ``J`` (``H_V`` has no clock column).
 
 Calibration is a sequential choice in time, implemented without an epoch
@@ -114,7 +114,8 @@ class CalibratedRanges:
 
 def calibrate(vr: VisionRanges, cal_idx: ArrayLike, x_gps_enu: ArrayLike, P_gps: ArrayLike,
               cam_offset_enu: ArrayLike, landmark_enu: ArrayLike, survey_sigma_m: float) -> CalibratedRanges:
-    """Apply the GPS calibration (seed eq. 16-17, generalised to N_V ≥ 3).
+    """Apply the GPS calibration (the VA-RAIM paper, eq. 16-17, generalised to N_V ≥ 3;
+    docs/design/integrity.md §8).
 
     Parameters
     ----------

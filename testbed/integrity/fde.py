@@ -1,7 +1,7 @@
 """Fault detection and exclusion (FDE): one mechanism for every snapshot monitor.
 
 A monitor that alerts at an epoch may try to exclude the faulty measurement
-instead of losing the epoch (seed 003's "故障检测和排除"; RAIM-FDE of every
+instead of losing the epoch (the vision-integrity patent's "故障检测和排除"; RAIM-FDE of every
 receiver). The monitor describes its measurements as *units* — a satellite's
 pseudorange row, a landmark's (u, v) pixel pair, VA-RAIM's vision block — and
 gives a function that re-solves chosen epochs with some rows left out and

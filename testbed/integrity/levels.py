@@ -1,6 +1,6 @@
 """Aviation service levels and the integrity constants of the monitors.
 
-Figures from seed 000 Table 1 ("The performance requirements for aviation",
+Figures from the VA-RAIM paper's Table 1 ("The performance requirements for aviation",
 after ICAO Annex 10 / RTCA DO-229): alert limits, 95% accuracy and time to
 alert of the three approach operations the testbed evaluates against.
 """
@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 @dataclass(frozen=True)
 class ServiceLevel:
-    """One approach operation's requirements (seed 000 Table 1).
+    """One approach operation's requirements (the VA-RAIM paper's Table 1).
 
     name : e.g. "LPV-200".  hal, val : m, horizontal/vertical alert limits.
     ha95, va95 : m, 95% horizontal/vertical accuracy.  tta : s, time to alert.
@@ -36,7 +36,7 @@ APV_II = ServiceLevel("APV-II", hal=40.0, val=20.0, ha95=16.0, va95=8.0, tta=6.0
 #: All levels the testbed knows, by name, in Table 1 order.
 SERVICE_LEVELS: dict[str, ServiceLevel] = {s.name: s for s in (APV_I, LPV_200, APV_II)}
 
-#: Defaults from INTEGRITY_MATH.md §4 (the seed states no values).
+#: Defaults (docs/design/integrity.md §3; the VA-RAIM paper states no values).
 DEFAULT_P_FA = 1e-5
 DEFAULT_P_MD = 1e-3
 

@@ -1,8 +1,8 @@
 """Batched weighted least squares, detection test and slope-based protection levels.
 
 The one numerical core every snapshot monitor (GPS-only RAIM, VA-RAIM, the
-pixel-domain monitor) builds on. Notation follows INTEGRITY_MATH.md §4 and seed
-000 eq. 19-26:
+pixel-domain monitor) builds on. Notation follows docs/design/integrity.md §2-§4 and the
+VA-RAIM paper's eq. 19-26:
 
 * ``G`` ``(..., N, 4)`` linearised observation matrix, state ``x = [E, N, U, clock]``
   (clock in metres; a row without a clock term has a zero last column).
@@ -143,8 +143,8 @@ class WlsFit(SolvedEpochs):
     ws_diag : (..., N) ``(WS)ᵢᵢ``, NaN on unused rows.
     cond : (...) 1-norm condition number of the Jacobi-scaled GᵀWG (inf: numerically singular).
     reason : (...) int8 :class:`Reason` (OK, NAN_INPUT, NO_POSITION, NO_REDUNDANCY, SINGULAR).
-    residual : (..., N) ``z − h`` (0 on unused rows).  sse : (...) ``rᵀWr`` (seed eq. 26).
-    hslope, vslope : (..., N) slopes (INTEGRITY_MATH.md §4), NaN on unused rows, inf where
+    residual : (..., N) ``z − h`` (0 on unused rows).  sse : (...) ``rᵀWr`` (the VA-RAIM paper's eq. 26).
+    hslope, vslope : (..., N) slopes (docs/design/integrity.md §4, eq. 4.1-4.2), NaN on unused rows, inf where
         (WS)ᵢᵢ = 0 (a fault there is undetectable); hmax, vmax : (...) their maxima.
     J, A, residual, sse, slopes and ws_diag are NaN where the epoch has no solution.
     """
@@ -353,7 +353,7 @@ def lambda_det(dof: ArrayLike, p_fa: float, p_md: float) -> NDArray:
 
 @lru_cache(maxsize=64)
 def k_md(p_md: float) -> float:
-    """Two-sided missed-detection multiplier ``Φ⁻¹(1 − P_MD/2)`` (seed eq. 22-23)."""
+    """Two-sided missed-detection multiplier ``Φ⁻¹(1 − P_MD/2)`` (the VA-RAIM paper's eq. 22-23)."""
     return float(stats.norm.isf(_check_prob(p_md, "p_md") / 2))
 
 
@@ -450,9 +450,9 @@ class ProtectionLevels:
 
 def protection_levels(geom: WlsFit, p_fa: float, p_md: float,
                       variant: PlVariant = "pbias") -> ProtectionLevels:
-    """HPL/VPL by the slope method (INTEGRITY_MATH.md §4), two variants.
+    """HPL/VPL by the slope method (docs/design/integrity.md §4), two variants.
 
-    * ``"seed"`` (seed 000 eq. 22-23): ``HPL = max Hslope·T + k_md·sqrt(J₁₁ + J₂₂)``,
+    * ``"seed"`` (the VA-RAIM paper, eq. 22-23): ``HPL = max Hslope·T + k_md·sqrt(J₁₁ + J₂₂)``,
       ``VPL = max Vslope·T + k_md·sqrt(J₃₃)``, T = sqrt(T²), k_md = Φ⁻¹(1 − P_MD/2).
     * ``"pbias"``: ``PL = max slope · sqrt(λ_det)``.
 
@@ -540,7 +540,7 @@ def iterate_wls(model: Model, z: ArrayLike, W: ArrayLike, mask: ArrayLike | None
         h, G = model(x)
         geom, _ = wls_fit_any(G, W, mask, max_cond, h, z)  # the masked G and W only at the solution
         dz = np.where(np.isfinite(geom.residual), geom.residual, 0.0)
-        dx = np.einsum("...ij,...j->...i", geom.A, dz)  # x̂ = x + A (z − h(x)) (seed eq. 24)
+        dx = np.einsum("...ij,...j->...i", geom.A, dz)  # x̂ = x + A (z − h(x)) (the VA-RAIM paper's eq. 24)
         stepping = ~(frozen | converged)  # a converged element stops where it converged
         frozen = frozen | (stepping & ~geom.solvable)
         stepping &= geom.solvable
@@ -618,7 +618,7 @@ def range_model(anchor_enu: ArrayLike, clock_col: ArrayLike,
     Covers both row kinds of the integrated solution:
     * pseudorange rows: aᵢ = satellite position, cᵢ = 1, oᵢ = antenna lever arm (ENU);
     * vision range rows: aᵢ = landmark position, cᵢ = 0, oᵢ = camera lever arm (ENU),
-      so the camera is at ĉ(x) = x + oᵢ (INTEGRITY_MATH.md §2).
+      so the camera is at ĉ(x) = x + oᵢ (docs/design/integrity.md §2, eq. 2.1).
 
     Parameters
     ----------

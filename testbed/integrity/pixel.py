@@ -1,4 +1,4 @@
-"""Pixel-domain vision integrity (seed 003, the patent; INTEGRITY_MATH.md §5).
+"""Pixel-domain vision integrity (the vision-integrity patent; docs/design/integrity.md §10).
 
 Measurements are the pixel coordinates of surveyed landmarks, two rows per
 detected landmark, stacked with the GPS pseudorange rows: ``H′ = [H; G]``.
@@ -542,7 +542,7 @@ class PixelState:
 
 @dataclass(frozen=True)
 class PixelMonitor:
-    """The patent's pixel-domain monitor (seed 003) in the loop: state = :class:`PixelState`."""
+    """The vision-integrity patent's pixel-domain monitor in the loop: state = :class:`PixelState`."""
 
     name: str
     context: MonitorContext

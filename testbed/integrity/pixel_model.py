@@ -1,4 +1,5 @@
-"""The pixel measurement model of seed 003: projection, its Jacobians, the pixel covariance, a vision-only fix.
+"""The vision-integrity patent's pixel measurement model: projection, its Jacobians, the pixel covariance,
+a vision-only fix (docs/design/integrity.md §10).
 
 Everything here is geometry of one camera and a set of surveyed landmarks,
 batched over leading axes; the monitor (:mod:`.pixel`) stacks it with the GPS

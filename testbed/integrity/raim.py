@@ -1,7 +1,7 @@
 """GPS-only snapshot RAIM: WLS fix, chi-square detection, slope protection levels.
 
-The baseline every VA-RAIM figure is compared with (INTEGRITY_MATH.md §4 with
-GPS rows only). Batched over any leading (trial) axes and the epoch axis; a
+The baseline every VA-RAIM figure is compared with (docs/design/integrity.md §2-§5
+with GPS rows only). Batched over any leading (trial) axes and the epoch axis; a
 bad epoch gets NaN and a reason code, never an exception.
 """
 

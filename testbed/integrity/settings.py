@@ -1,8 +1,8 @@
 """Settings of the integrity monitors (GPS-only RAIM, pixel-domain monitor).
 
 Composed by ``testbed/config.py`` into the run configuration (section
-``[integrity]``). Defaults are INTEGRITY_MATH.md's; the seeds do not state
-P_FA / P_MD, so the values here are the testbed's recorded choice.
+``[integrity]``). Defaults are those of docs/design/integrity.md §3-§4 and §10; the sources do
+not state P_FA / P_MD, so the values here are the testbed's recorded choice.
 """
 
 from __future__ import annotations
@@ -22,10 +22,11 @@ class IntegritySettings(StrictModel):
                          description="Probability of false alarm per epoch; sets the chi-square threshold "
                                      "T² = χ²⁻¹(1 − P_FA; n − 4).")
     p_md: float = Field(DEFAULT_P_MD, gt=0.0, lt=1.0,
-                        description="Probability of missed detection; sets k_md = Φ⁻¹(1 − P_MD/2) (seed PL) and "
+                        description="Probability of missed detection; sets k_md = Φ⁻¹(1 − P_MD/2) ('seed' PL) and "
                                     "λ_det with P(χ²_nc(n − 4, λ_det) < T²) = P_MD (pbias PL and the pixel monitor).")
     pl_variant: Literal["seed", "pbias"] = Field(
-        "seed", description="GPS/VA-RAIM protection level: 'seed' = max slope·T + k_md·σ (seed 000 eq. 22-23); "
+        "seed", description="GPS/VA-RAIM protection level: 'seed' = max slope·T + k_md·σ (the VA-RAIM paper's eq. "
+                            "22-23); "
                             "'pbias' = max slope·sqrt(λ_det).")
     service_levels: tuple[str, ...] = Field(
         ("APV-I", "LPV-200", "APV-II"),

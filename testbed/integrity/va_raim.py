@@ -1,4 +1,4 @@
-"""Vision-aided RAIM (VA-RAIM, seed 000 §2.3; INTEGRITY_MATH.md §2-§4).
+"""Vision-aided RAIM (VA-RAIM: the VA-RAIM paper §2.3; docs/design/integrity.md §7-§9).
 
 Per epoch (batched over trials and epochs, no epoch loop):
 
@@ -10,7 +10,8 @@ Per epoch (batched over trials and epochs, no epoch loop):
    jumps make vision unavailable for that epoch.
 3. GPS calibration (:mod:`.calibration`) removes the landmark-survey bias.
 4. Integrated iterated WLS on the stacked rows (:mod:`.lsq`):
-   * N_V = 3: the modified, single-fault-preserving equation (seed eq. 18)
+   * N_V = 3: the modified, single-fault-preserving equation (the VA-RAIM paper, eq. 18;
+     docs/design/integrity.md §9, eq. 9.2)
      ``z′ = A ẑ_V``, ``H′ = A H_V``, ``Σ′ = A Σ̂_V Aᵀ``;
    * N_V > 3: ``ẑ_V`` with its full covariance Σ̂_V (``A Σ̂_V Aᵀ`` would be
      N_C × N_C of rank N_V: singular);
@@ -85,7 +86,7 @@ class VaRaimSettings(StrictModel):
 
     variant: Literal["gated", "seed"] = Field(
         "gated", description="'gated' (default): vision rows only where the linearised vision-range error is "
-                             "small enough next to the range for the seed's Gaussian model to hold at the test's "
+                             "small enough next to the range for the paper's Gaussian model to hold at the test's "
                              "threshold (linear_range_limit); 'seed': the paper's method as written (every "
                              "converged vision solve), which exceeds its false-alarm budget when sigma_V/m is large.")
     linearity_inflation: float = Field(
@@ -97,7 +98,7 @@ class VaRaimSettings(StrictModel):
     vision: VisionRangeSettings = Field(default_factory=VisionRangeSettings,
                                         description="Cosine-rule solve and branch protection.")
     calibration: Literal["gps", "none"] = Field(
-        "gps", description="'gps': calibrate vision ranges with GPS (seed eq. 12-18); 'none': use raw ranges "
+        "gps", description="'gps': calibrate vision ranges with GPS (the VA-RAIM paper's eq. 12-18); 'none': use raw ranges "
                            "with the survey error in their covariance (for comparison).")
     calibration_level: str = Field(
         "APV-I", description="Service level whose alert limits the GPS-only PLs must meet at a calibration epoch.")
@@ -108,7 +109,7 @@ class VaRaimSettings(StrictModel):
     landmark_survey_sigma_m: float = Field(
         0.05, ge=0.0, description="Landmark survey error σ_g per axis (m) the monitor assumes (LPE).")
     modified_equation: bool = Field(
-        True, description="N_V = 3: use the single-fault-preserving rows z′ = A ẑ_V (seed eq. 18). False: use ẑ_V "
+        True, description="N_V = 3: use the single-fault-preserving rows z′ = A ẑ_V (the VA-RAIM paper's eq. 18). False: use ẑ_V "
                           "with Σ̂_V (same fix and SSE, different slopes).")
     prior_floor_m: float = Field(
         30.0, ge=0.0, description="1-sigma (m per axis) added to the GPS-fix covariance when it predicts the vision "
@@ -128,7 +129,7 @@ class VaRaimSettings(StrictModel):
 
 @functools.lru_cache(maxsize=64)
 def linear_range_limit(p_fa: float, inflation: float = 0.1) -> float:
-    """Largest relative vision-range error σ_V/m at which the seed's linear model keeps its tail.
+    """Largest relative vision-range error σ_V/m at which the paper's linear model keeps its tail.
 
     A range from the angle between lines of sight to landmarks a baseline b apart is
     m ≈ b/θ: with θ Gaussian the range is reciprocal-normal, not normal. At the k-sigma
@@ -413,7 +414,8 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tupl
 
     last, vr = memo.shared(shared_vision[0], vision_step, guard=shared_vision[1])
     li = np.maximum(last, 0)
-    # the seed's Gaussian vision model holds only while σ_V/m is small (linear_range_limit)
+    # the paper's Gaussian vision model holds only while σ_V/m is small (linear_range_limit;
+    # docs/design/integrity.md §9, eq. 9.5)
     rel_sigma, linear = _linear_enough(vr, linear_range_limit(ist.p_fa, st.linearity_inflation))
     vision_ok = linear if st.variant == "gated" else vr.ok
 
@@ -566,7 +568,7 @@ class VaRaimState:
 
 @dataclass(frozen=True)
 class VaRaimMonitor:
-    """VA-RAIM as a loop monitor (seed 000): state = :class:`VaRaimState`."""
+    """VA-RAIM as a loop monitor (the VA-RAIM paper): state = :class:`VaRaimState`."""
 
     name: str
     context: MonitorContext

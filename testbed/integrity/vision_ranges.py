@@ -1,14 +1,14 @@
-"""Vision pseudoranges from angles between lines of sight (seed 000, eq. 1-10).
+"""Vision pseudoranges from angles between lines of sight (the VA-RAIM paper, eq. 1-10).
 
 Landmarks with surveyed positions ``p_i`` are detected in an image. The angle
 between two lines of sight does not depend on the camera attitude, so the
 ranges ``m_i`` from the camera to the landmarks follow from the cosine rule
-(INTEGRITY_MATH.md §2)::
+(docs/design/integrity.md §7)::
 
     f_ij(m) = m_i² + m_j² − 2 m_i m_j c_ij − d_ij² = 0,   c_ij = b_i · b_j,
 
 with ``b_i = normalise(K⁻¹ [u_i, v_i, 1])`` the 3D unit bearing of detection i
-(the seed's eq. 4 uses 2D image-plane vectors; that is not the angle between
+(the paper's eq. 4 uses 2D image-plane vectors; that is not the angle between
 lines of sight — the 3D bearing is exact) and ``d_ij`` the surveyed distance.
 
 Linearisation (the differential of f divided by 2 m_i m_j)::
@@ -20,7 +20,7 @@ Equivalently ``A = ∂c_model/∂m`` with ``c_model(m) = (m_i² + m_j² − d_ij
 the cosine the ranges imply; the Gauss–Newton solve minimises the weighted
 cosine residual ``c − c_model(m)``.
 
-Rank of Σ_c (a departure from the seed, which only treats N_V = 3): the
+Rank of Σ_c (a departure from the paper, which only treats N_V = 3): the
 cosines are invariant to a common rotation of all bearings, so ``∂c/∂pixel``
 has rank ``2 N_V − 3``. For N_V = 3 that equals N_C = 3 and Σ_c is regular;
 for N_V ≥ 4 (N_C = N_V(N_V−1)/2 > 2 N_V − 3) Σ_c is *singular*. The weight is
@@ -114,7 +114,7 @@ def survey_covariance(landmark_pos: ArrayLike, sigma_g: float) -> NDArray:
     """Full covariance (N_C, N_C) of the squared landmark distances, m⁴.
 
     ``δd²_ij = 2 (p_i − p_j)ᵀ(δp_i − δp_j)`` with ``δp ~ N(0, σ_g² I)`` per landmark;
-    its diagonal is the seed's ``8 d_ij² σ_g²``; pairs sharing a landmark correlate.
+    its diagonal is the paper's ``8 d_ij² σ_g²``; pairs sharing a landmark correlate.
     """
     p = np.asarray(landmark_pos, float)
     if p.ndim != 2 or p.shape[-1] != 3:
@@ -327,7 +327,7 @@ def vision_pseudoranges(pixel_uv: ArrayLike, detected: ArrayLike, K: ArrayLike, 
     active = reason == 0
 
     # --- at the solution, compiled per epoch: the linearisation with the measured cosines
-    # (seed eq. 2), A⁺, Σ_V, the cosine residuals and the branch gate
+    # (the paper's eq. 2), A⁺, Σ_V, the cosine residuals and the branch gate
     gate = Sigma_pred is not None
     Sp = np.broadcast_to(np.asarray(Sigma_pred, float), batch + (L, L)) if gate else np.zeros((0, L, L))
     A, Bd, Ap = np.empty((P, nc, L)), np.empty((P, nc)), np.empty((P, L, nc))

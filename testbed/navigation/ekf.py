@@ -1,4 +1,5 @@
-"""Seed 002's GNSS/vision/INS error-state EKF: the core (NAV_FILTER.md §1–§6), batched over trials.
+"""The Won et al. paper's GNSS/vision/INS error-state EKF: the core, batched over trials
+(docs/design/nav-filter.md §2–§6).
 
 State (per trial): the nominal IMU-point pose and biases — ``C = C_b^w``, v, p in the
 approach's world frame, accelerometer and gyro biases, receiver clock bias and
@@ -7,7 +8,7 @@ drift — and the covariance P of the 17 error states ``[δp, δv, δψ, δb_a, 
 
 * **Predict** at the IMU rate: the strapdown step of :mod:`testbed.inertial` on
   bias-corrected increments, and ``P ← ΦPΦᵀ + Q`` with the piecewise-constant
-  transition of §2 (Earth rate, Coriolis and the vertical gravity gradient
+  transition of docs/design/nav-filter.md §5 (Earth rate, Coriolis and the vertical gravity gradient
   kept) and Q from the IMU's random walks, its Gauss–Markov biases and the
   clock's two-state model (trapezoidal discretisation: second order in Δt).
 * **Update** at the aiding epochs: pseudorange rows
@@ -306,7 +307,7 @@ def gain_update(P: NDArray, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray, 
     if joseph:
         I_KH = np.eye(P.shape[-1]) - K @ H
         P = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ R @ Kt
-    else:  # P − K H P: a third of the cost, for large states (the note's campaign form)
+    else:  # P − K H P: a third of the cost, for large states (docs/design/nav-filter.md §6 (6.9))
         P = P - K @ np.swapaxes(PHt, -1, -2)
     return dx, 0.5 * (P + np.swapaxes(P, -1, -2)), nis, m.sum(-1)
 

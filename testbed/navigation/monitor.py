@@ -1,4 +1,5 @@
-"""The seed-002 filter as a loop monitor (``ekf``): a peer of the snapshot monitors, with state.
+"""The Won et al. paper's GNSS/vision/INS filter as a loop monitor (``ekf``): a peer of the snapshot monitors,
+with state.
 
 Reads GNSS, vision and IMU observations and the alignment (``Observations.init``,
 given with the first block); steps the EKF core (:mod:`.ekf`, :mod:`.run`)
@@ -7,7 +8,7 @@ whatever satellites and surveyed landmarks are in view — 0 to 3 satellites
 included. Its output per GNSS epoch:
 
 * position and clock of the IMU point (the CG with the default zero lever arm);
-* the **tests** (NAV_FILTER.md §7), P_FA split equally between those enabled: the
+* the **tests** (docs/design/nav-filter.md §8), P_FA split equally between those enabled: the
   innovation χ² test (NIS of all rows used at the epoch against χ²⁻¹(1 − share; rows)),
   the windowed test (the NIS summed over the last ``window_s``, for slow ramps), and
   with ``pl_variant = "ss"`` the solution-separation test (:mod:`.separation`);
@@ -53,7 +54,7 @@ class EkfSettings(StrictModel):
 
     pl_variant: Literal["ss", "covariance"] = Field(
         "ss", description="protection levels: 'ss' = solution separation over sub-filters without each satellite "
-                          "and without the vision rows (fault tolerant; NAV_FILTER.md §7.3); 'covariance' = K_ff·σ "
+                          "and without the vision rows (fault tolerant); 'covariance' = K_ff·σ "
                           "(fault-free only, not fault tolerant)")
     ss_vision: Literal["landmark", "camera"] = Field(
         "landmark", description="solution separation's vision fault modes: 'landmark' = a sub-filter without each "
@@ -74,7 +75,7 @@ class EkfSettings(StrictModel):
                                                                            "gnss.range_rate_sigma_m_s)")
     features: bool = Field(True, description="update with the tracked unsurveyed ground features when the approach "
                                              "synthesises them ([vision.features] enabled): SLAM states by delayed "
-                                             "initialisation (navigation/slam.py)")
+                                             "initialisation (testbed/navigation/slam.py)")
     feature_slots: int = Field(7, ge=1, le=30, description="feature states the filter holds")
     feature_clones: int = Field(2, ge=1, le=10, description="pose clones waiting for parallax (features being "
                                                             "initialised at once)")
@@ -235,8 +236,8 @@ class EkfMonitor:
 
 
 def windowed_chi2(t: NDArray, nis: NDArray, dof: NDArray, carry, span: float, p_fa: float):
-    """The windowed test (NAV_FILTER.md §7.2): ``Q_k = Σ q_i`` over the epochs in (t_k − span, t_k] against
-    χ²⁻¹(1 − p_fa; Σ m_i), carried across blocks. Returns the statistic and threshold (B, T) and the carry
+    """The windowed test (docs/design/nav-filter.md §8.1, (8.3)): ``Q_k = Σ q_i`` over the epochs in
+    (t_k − span, t_k] against χ²⁻¹(1 − p_fa; Σ m_i), carried across blocks. Returns the statistic and threshold (B, T) and the carry
     (the last span's times (W,), NIS and dof (B, W)). Each sum is over its own slice, so where the blocks
     split the flight does not change a bit."""
     B, T = nis.shape

@@ -1,16 +1,16 @@
-"""Observability of seed 002's GNSS/vision/INS system (NAV_FILTER.md §9–§10).
+"""Observability of the Won et al. paper's GNSS/vision/INS system (docs/design/nav-filter.md §9–§10).
 
 Two models, both linear error-state models whose observability matrices are
 stacked and ranked (rank after column equilibration, relative tolerance 1e-9):
 
-* the **seed's simplified model** (its eq. 17 and 19: C = I, Φ = I + FΔt, a
+* the **paper's simplified model** (its eq. 17 and 19: C = I, Φ = I + FΔt, a
   three-row "relative position" vision sensor with a random h_V per segment,
-  one feature): LOM = [H; HF; HF²; HF³] of one segment, the seed's "TOM" =
+  one feature): LOM = [H; HF; HF²; HF³] of one segment, the paper's "TOM" =
   LOMs of several segments stacked without transitions (SOM), and the true
-  TOM = H_k Φ_{k,0} over every epoch of every segment. Its ranks are the seed's
-  Table 1 (which prints ranks as "unobservable states": erratum E1);
+  TOM = H_k Φ_{k,0} over every epoch of every segment. Its ranks are the paper's
+  Table 1 (which prints ranks as "unobservable states": docs/design/nav-filter.md §10, E1);
 * the **consistent model** along a trajectory: state [δp, δv, δψ, (δb_a, δb_g),
-  δc_b, δc_d, δm_1..δm_J], the exact piecewise-constant transition of §2 (no
+  δc_b, δc_d, δm_1..δm_J], the exact piecewise-constant transition (docs/design/nav-filter.md §5 (5.3)) (no
   Earth rate, no gravity gradient: they would make yaw and position weakly
   observable over hours, not over an approach), pseudorange rows −eᵢᵀδp + δc_b
   for static lines of sight, two bearing rows per feature (the tangent-plane
@@ -18,7 +18,8 @@ stacked and ranked (rank after column equilibration, relative tolerance 1e-9):
   no satellite a common translation of vehicle and features and the yaw about
   gravity (4), plus a scale when the flight is unaccelerated (5).
 
-:func:`tables` computes the note's Tables A–C; ``testbed observability`` prints them.
+:func:`table_a` and :func:`table_bc` compute Tables A–C (docs/design/nav-filter.md §9.4);
+``testbed observability`` prints them.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ def null_space(M: NDArray, rtol: float = RTOL) -> NDArray:
     return N / np.linalg.norm(N, axis=0)
 
 
-# --------------------------------------------------------------------------- the seed's model (Table A)
+# --------------------------------------------------------------------------- the paper's model (Table A)
 
 
 def _random_los(rng: np.random.Generator, n: int) -> NDArray:
@@ -64,7 +65,7 @@ def _random_los(rng: np.random.Generator, n: int) -> NDArray:
 
 
 def _seed_blocks(n_sat: int, clock_known: bool, J: int, f: NDArray, h_V: NDArray, e: NDArray, dt: float):
-    """(Φ, H) of the seed's eq. 17 / 19 for one segment: state [p, v, Ψ, (c_b, c_d), m_1..m_J]."""
+    """(Φ, H) of the paper's eq. 17 / 19 for one segment: state [p, v, Ψ, (c_b, c_d), m_1..m_J]."""
     nc = 0 if clock_known else 2
     n = 9 + nc + 3 * J
     F = np.eye(n)
@@ -73,7 +74,8 @@ def _seed_blocks(n_sat: int, clock_known: bool, J: int, f: NDArray, h_V: NDArray
     if nc:
         F[9, 10] = dt
     rows = []
-    for i in range(n_sat):  # pseudorange and range rate (the seed's signs, erratum E4: rank-neutral)
+    # pseudorange and range rate (the paper's signs, docs/design/nav-filter.md §10 E4: rank-neutral)
+    for i in range(n_sat):
         r = np.zeros(n)
         r[0:3] = e[i]
         if nc:
@@ -95,7 +97,7 @@ def _seed_blocks(n_sat: int, clock_known: bool, J: int, f: NDArray, h_V: NDArray
 
 def seed_observability(n_sat: int, clock_known: bool = False, J: int = 1, segments: int = 4, steps: int = 4,
                        seed: int = 0, dt: float = 0.1) -> dict[str, int]:
-    """Ranks of the seed's LOM, SOM (its "TOM") and the true TOM, and the state dimension."""
+    """Ranks of the paper's LOM, SOM (its "TOM") and the true TOM, and the state dimension."""
     rng = np.random.default_rng(seed)
     e = _random_los(rng, n_sat)
     loms, tom, Phi = [], [], None
@@ -142,7 +144,8 @@ def _level_attitude(heading: NDArray, pitch: NDArray | float = 0.0, bank: NDArra
 def _integrate(name: str, t: NDArray, accel: NDArray, p0: NDArray, v0: NDArray, pitch: float = 0.0,
                bank: NDArray | float = 0.0) -> Trajectory:
     """A trajectory whose samples obey the transition's own kinematics, p ← p + vΔt + ½aΔt², v ← v + aΔt
-    (so the analytic null vectors of §9 are null to round-off, not to the sampling's O(Δt³))."""
+    (so the analytic null vectors of docs/design/nav-filter.md §9.5 are null to round-off, not to the sampling's
+    O(Δt³))."""
     p, v = [np.asarray(p0, float)], [np.asarray(v0, float)]
     for k in range(t.size - 1):
         dt = t[k + 1] - t[k]
@@ -155,7 +158,7 @@ def _integrate(name: str, t: NDArray, accel: NDArray, p0: NDArray, v0: NDArray, 
 
 def racetrack(duration_s: float = 300.0, rate_hz: float = 2.0, straight_m: float = 150.0, radius_m: float = 30.0,
               height_m: float = 10.0) -> Trajectory:
-    """The seed's route: two straights and two left half circles at constant speed, twice in ``duration_s``."""
+    """The paper's route: two straights and two left half circles at constant speed, twice in ``duration_s``."""
     lap = 2 * straight_m + 2 * np.pi * radius_m
     speed = 2 * lap / duration_s
     t = np.arange(0.0, duration_s + 1e-9, 1.0 / rate_hz)
@@ -273,7 +276,8 @@ def _transition(f: NDArray, C: NDArray, dt: float, n: int, nb: int, nc: int) -> 
 
 
 def table_a(seed: int = 0) -> list[dict]:
-    """NAV_FILTER.md Table A: the seed's model, ranks (LOM / SOM / TOM), with the state dimension."""
+    """Table A (docs/design/nav-filter.md §9.4): the paper's model, ranks (LOM / SOM / TOM), with the state
+    dimension."""
     rows = []
     for J in (1, 2):
         r = seed_observability(0, clock_known=True, J=J, seed=seed)
@@ -303,8 +307,8 @@ def table_bc(biases: bool, J: int = 1, camera_pitch_deg: float = -45.0, seed: in
 
 def format_tables(seed: int = 0) -> str:
     """Tables A–C as text (``testbed observability``)."""
-    out = ["Table A - the seed's simplified model (eq. 17 + 19): ranks of the local (LOM), stacked-segment",
-           "(SOM = the seed's \"TOM\") and total (TOM) observability matrices; n = state dimension",
+    out = ["Table A - the Won et al. paper's simplified model (eq. 17 + 19): ranks of the local (LOM), stacked-segment",
+           "(SOM = the paper's \"TOM\") and total (TOM) observability matrices; n = state dimension",
            "", f"{'case':<28}{'n':>4}{'LOM':>6}{'SOM':>6}{'TOM':>6}{'unobservable':>14}"]
     for r in table_a(seed):
         out.append(f"{r['case']:<28}{r['n']:>4}{r['lom']:>6}{r['som']:>6}{r['tom']:>6}{r['unobservable']:>14}")

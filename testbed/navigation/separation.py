@@ -1,10 +1,10 @@
-"""Solution separation for the seed-002 filter (NAV_FILTER.md §7.3): a bank of sub-filters, each blind to one
-measurement mode, and the protection levels and detection test built on their separations.
+"""Solution separation for the GNSS/vision/INS filter (docs/design/nav-filter.md §8.3): a bank of sub-filters,
+each blind to one measurement mode, and the protection levels and detection test built on their separations.
 
 **The bank.** Sub-filter r is trial ``trial[r]`` without mode ``mode[r]``: ``j < S`` without satellite slot j's
 pseudorange and range rate; for vision either ``S + 1 + l`` without landmark l's pixel pair (``per_landmark``,
 each landmark a fault mode as each satellite is — the threat of a misidentified landmark, as in the pixel
-monitor), or ``S`` without every vision row (the note's single camera mode: it also covers a camera-wide fault,
+monitor), or ``S`` without every vision row (a single camera mode: it also covers a camera-wide fault,
 and with one satellite left its sub-filter is GNSS/INS dead reckoning, whose PL is tens of metres). One block of
 B rows (one per trial) per mode, in the order the modes were spawned.
 
@@ -25,7 +25,7 @@ repeats the main bit for bit (P_i − P₀ stays exactly 0: the difference is wh
 
 **The statistics.** Per mode i and axis q ∈ {E, N, U}: Δ_iq = x̂₀q − x̂_iq = −δ_iq, σ²_Δ,iq = (P_i − P₀)_qq. The
 test alerts on any |Δ_iq| > T_iq = K_fa σ_Δ,iq with ``K_fa = Φ⁻¹(1 − P_FA,ss / (2 · 3 · N_modes))``: the test's
-false-alarm share split over every mode *and* axis (the note splits over modes only, which spends up to three
+false-alarm share split over every mode *and* axis (a split over modes only would spend up to three
 times the share). Protection level per axis ``PL_q = max(K_ff σ₀q, max_i(T_iq + K_md σ_iq))``,
 ``HPL = √(PL_E² + PL_N²)``, ``VPL = PL_U``.
 """

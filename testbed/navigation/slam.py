@@ -1,5 +1,5 @@
-"""Unsurveyed ground features in the seed-002 filter: SLAM states with delayed initialisation by
-stochastic cloning (NAV_FILTER.md §6), batched over trials.
+"""Unsurveyed ground features in the GNSS/vision/INS filter: SLAM states with delayed initialisation by
+stochastic cloning (docs/design/nav-filter.md §7), batched over trials.
 
 The error state grows a *static block* after the 17 core states: J feature slots (δm, 3 each) and K pose
 clones (δp, δψ of the IMU, 6 each), fixed in size; a free slot's rows and columns of P are zero, which makes
@@ -18,7 +18,7 @@ it inert in every predict and update (its gain rows are zero) at no bookkeeping 
 * **Update**: two pixel rows per feature in a slot, ``∂uv/∂δm = −∂uv/∂δp``.
 * **Marginalise** a feature unseen for ``lost_frames`` frames: its rows and columns set to zero (exact).
 
-Departures from the note: the triangulation is the closed-form two-ray point, not midpoint then
+Design choices (docs/design/nav-filter.md §10): the triangulation is the closed-form two-ray point, not midpoint then
 Gauss–Newton over stored bearings (only the clone's pose is in the state, so only its bearing can be
 used consistently); no first-estimate Jacobians (``fej``).
 
@@ -50,7 +50,7 @@ _POSE = np.r_[0:3, 6:9]
 
 @dataclass(frozen=True)
 class FeatureSettings:
-    """The SLAM front of the filter (NAV_FILTER.md §6 defaults)."""
+    """The SLAM front of the filter (defaults: docs/design/nav-filter.md §7)."""
 
     slots: int = 7
     clones: int = 2

@@ -8,7 +8,7 @@
 * :func:`saastamoinen_delay` — Saastamoinen's zenith hydrostatic + wet delay
   with a standard atmosphere at the receiver height (1013.25 hPa, 15 °C and 70 %
   relative humidity at sea level, lapse −6.5 K/km), mapped by 1/cos z. The
-  same model RTKLIB applies with ``tropopt=saas``: ``tests/test_rinex_rtklib.py``
+  same model RTKLIB applies with ``tropopt=saas``: ``tests/test_rinex.py`` (test_real_receiver_file_agrees_with_rtklib)
   compares the two.
 """
 

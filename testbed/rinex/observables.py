@@ -84,7 +84,7 @@ def _resolve(obs: RinexObs, nav: NavData, s: RinexSettings) -> tuple[str, str | 
     if tropo == "auto":
         tropo = "off" if synthetic else "saastamoinen"
     if synthetic and (s.ionosphere == "auto" or s.troposphere == "auto"):
-        notes.append("testbed export: ranges are iono-free-equivalent, atmosphere models off (README, RINEX export)")
+        notes.append("testbed export: ranges are iono-free-equivalent, atmosphere models off (docs/guide/rinex.md, the export)")
     if iono == "iono_free" and second is None:
         raise RinexError(obs.path, f"[rinex] ionosphere = 'iono_free' needs a second-frequency code, but none of "
                                    f"{list(s.second_codes)} is observed (the file has {sorted(obs.values)}); expected "

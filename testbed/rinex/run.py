@@ -263,9 +263,7 @@ def write_outputs(run: RinexRun, out_dir: Path, table_format: str) -> list[Path]
 
 def stanford_figures(run: RinexRun, out_dir: Path) -> list[Path]:
     """Horizontal and vertical Stanford diagrams per monitor against the reference (most demanding level)."""
-    from matplotlib.figure import Figure
-
-    from testbed.campaign.report import stanford_panel
+    from testbed.campaign.report import stanford_figure
     from testbed.campaign.runner import hist_edges
     from testbed.integrity.levels import service_level
     from testbed.sim.evaluate import position_errors, stanford_regions
@@ -276,16 +274,15 @@ def stanford_figures(run: RinexRun, out_dir: Path) -> list[Path]:
         levels = [service_level(n) for n in out.service_levels]
         hal, val = min(lv.hal for lv in levels), min(lv.val for lv in levels)
         he, ve = position_errors(out, run.reference_enu)
-        fig = Figure(figsize=(11, 4.8))
-        axs = fig.subplots(1, 2)
-        for ax, dim, e, pl, al in ((axs[0], "H", he, out.hpl, hal), (axs[1], "V", ve, out.vpl, val)):
+        panels = []
+        for dim, e, pl, al in (("H", he, out.hpl, hal), ("V", ve, out.vpl, val)):
             reg = stanford_regions(e, pl, al, out.alert)
             counts = {k: int(v.sum()) for k, v in reg.items()}
             keep = np.isfinite(e) & np.isfinite(pl) & ~np.asarray(out.alert, bool)
             H, _, _ = np.histogram2d(np.clip(e[keep], edges[0], edges[-1] * 0.999),
                                      np.clip(np.asarray(pl)[keep], edges[0], edges[-1] * 0.999), bins=[edges, edges])
-            stanford_panel(fig, ax, H, edges, counts, int(e.size), name, dim, al)
-        fig.suptitle(f"{run.obs.path.name}: {name} against the reference (per epoch)")
+            panels.append((dim, H, counts, int(e.size), al))
+        fig = stanford_figure(name, panels, edges, f"{run.obs.path.name}: {name} against the reference (per epoch)")
         fig.tight_layout()
         p = out_dir / f"stanford-{name}.png"
         fig.savefig(p.with_name(p.name + ".part.png"), dpi=110)

@@ -20,6 +20,8 @@ SECOND_CODES = ("C2W", "C2L", "C2X", "C2S", "C2P", "C5Q", "C5X", "C5I")
 
 
 class RinexSettings(StrictModel):
+    """How pseudoranges are formed from the RINEX files and weighted (``[rinex]``)."""
+
     ionosphere: Literal["auto", "klobuchar", "iono_free", "off"] = Field(
         "auto", description="'iono_free': L1 with a second-frequency code (satellites without one are not used); "
                             "'klobuchar': the broadcast model from the navigation file's header; 'off': none (for "
@@ -29,7 +31,7 @@ class RinexSettings(StrictModel):
         "auto", description="'saastamoinen' with a standard atmosphere; 'auto': off for testbed exports, else "
                             "saastamoinen.")
     error_model: Literal["seed", "rtklib", "user"] = Field(
-        "seed", description="Pseudorange 1σ: 'seed' = σ_URA² + σ_tropo² + σ_air² (seed 000 eq. 27; the airborne "
+        "seed", description="Pseudorange 1σ: 'seed' = σ_URA² + σ_tropo² + σ_air² (the VA-RAIM paper's eq. 27; the airborne "
                             "term × 2.59 for iono-free ranges) + the DO-229 Klobuchar residual when that model is "
                             "used; 'rtklib' = RTKLIB 2.4.3's single-point variance with its default options (for "
                             "side-by-side comparisons); 'user' = sqrt(sigma_a_m² + (sigma_b_m / sin el)²).")
@@ -75,5 +77,7 @@ class MonitorIntegritySettings(IntegritySettings):
 class MonitorFileConfig(StrictModel):
     """A ``testbed monitor --config`` file."""
 
-    rinex: RinexSettings = Field(default_factory=RinexSettings)
-    integrity: MonitorIntegritySettings = Field(default_factory=MonitorIntegritySettings)
+    rinex: RinexSettings = Field(default_factory=RinexSettings, description="pseudorange formation and error "
+                                                                            "model")
+    integrity: MonitorIntegritySettings = Field(default_factory=MonitorIntegritySettings,
+                                                description="integrity settings; fault exclusion on by default")

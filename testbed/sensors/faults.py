@@ -43,51 +43,57 @@ class _Timed(StrictModel):
 class GpsStep(_Timed):
     """A constant pseudorange bias on the selected satellite(s)."""
 
-    kind: Literal["gps_step"]
+    kind: Literal["gps_step"] = Field(..., description="fault kind")
     prn: SatSelector = Field("random", description="PRN, list of PRNs, or 'random' (a visible one at onset)")
-    bias_m: float = Field(..., ge=-1e6, le=1e6, description="m (beyond 1000 km a receiver rejects the range)")
+    bias_m: float = Field(..., ge=-1e6, le=1e6, description="pseudorange bias (beyond 1000 km a receiver rejects "
+                                                               "the range)")
 
 
 class GpsRamp(_Timed):
     """A pseudorange error growing linearly from the onset."""
 
-    kind: Literal["gps_ramp"]
-    prn: SatSelector = "random"
-    rate_m_s: float = Field(..., ge=-1e4, le=1e4, description="m/s")
+    kind: Literal["gps_ramp"] = Field(..., description="fault kind")
+    prn: SatSelector = Field("random", description="PRN, list of PRNs, or 'random' (a visible one at onset)")
+    rate_m_s: float = Field(..., ge=-1e4, le=1e4, description="growth rate of the pseudorange error")
 
 
 class GpsClockRunoff(_Timed):
     """A satellite clock run-off: error = drift·τ + ½·accel·τ², τ = t − onset."""
 
-    kind: Literal["gps_clock"]
-    prn: SatSelector = "random"
-    drift_m_s: float = Field(0.0, ge=-1e4, le=1e4, description="m/s")
-    accel_m_s2: float = Field(0.05, ge=-1e3, le=1e3, description="m/s²")
+    kind: Literal["gps_clock"] = Field(..., description="fault kind")
+    prn: SatSelector = Field("random", description="PRN, list of PRNs, or 'random' (a visible one at onset)")
+    drift_m_s: float = Field(0.0, ge=-1e4, le=1e4, description="clock error rate at the onset")
+    accel_m_s2: float = Field(0.05, ge=-1e3, le=1e3, description="clock error acceleration")
 
 
 class PixelBias(_Timed):
     """A bias on one landmark's detected pixel (polar: magnitude, direction in the image)."""
 
-    kind: Literal["pixel_bias"]
-    landmark: str | Literal["random"] = "random"
-    magnitude_px: float = Field(..., ge=0.0, le=1e4)
-    angle_deg: float = Field(0.0, ge=-360.0, le=360.0)
+    kind: Literal["pixel_bias"] = Field(..., description="fault kind")
+    landmark: str | Literal["random"] = Field("random", description="landmark id, or 'random' (one detected "
+                                                                     "at onset, drawn per trial)")
+    magnitude_px: float = Field(..., ge=0.0, le=1e4, description="bias magnitude")
+    angle_deg: float = Field(0.0, ge=-360.0, le=360.0, description="bias direction in the image, from the u "
+                                                                   "axis (right) towards v (down)")
 
 
 class LandmarkMoved(_Timed):
     """The real landmark stands at surveyed + delta (the survey says otherwise)."""
 
-    kind: Literal["landmark_moved"]
-    landmark: str | Literal["random"] = "random"
+    kind: Literal["landmark_moved"] = Field(..., description="fault kind")
+    landmark: str | Literal["random"] = Field("random", description="landmark id, or 'random' (one detected "
+                                                                     "at onset, drawn per trial)")
     delta_enu_m: tuple[Annotated[float, Field(ge=-1e4, le=1e4)], Annotated[float, Field(ge=-1e4, le=1e4)],
-                       Annotated[float, Field(ge=-1e4, le=1e4)]]
+                       Annotated[float, Field(ge=-1e4, le=1e4)]] = Field(
+        ..., description="where the real landmark stands relative to its surveyed position, ENU")
 
 
 class Misassociation(_Timed):
     """Two landmarks' detections are swapped by the matcher."""
 
-    kind: Literal["misassociation"]
-    landmarks: tuple[str, str]
+    kind: Literal["misassociation"] = Field(..., description="fault kind")
+    landmarks: tuple[str, str] = Field(..., description="ids of the two landmarks whose detections the matcher "
+                                                         "swaps")
 
     @model_validator(mode="after")
     def _two(self):

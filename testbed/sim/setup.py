@@ -208,7 +208,7 @@ class Scene:
     camera_resolution: tuple[int, int]
     alert_limits: tuple[float, float] = (float("nan"), float("nan"))  # HAL, VAL of the most demanding level
     vertical_only: tuple[str, ...] = ()  # monitors that bound the vertical only (no HPL): DPE
-    several_tests: tuple[str, ...] = ()  # monitors whose alert is several tests (the seed-002 filter)
+    several_tests: tuple[str, ...] = ()  # monitors whose alert is several tests (the Won et al. filter)
     features_enu: np.ndarray | None = None  # the unsurveyed ground features' scene (n, 3), when synthesised
 
 

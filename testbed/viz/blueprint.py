@@ -46,7 +46,7 @@ def _series(name: str, origin: str) -> rrb.TimeSeriesView:
 def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool, several_tests: bool = False) -> rrb.Vertical:
     if vertical_only:  # DPE: no HPL and no test; its σ_ob and the density it bounds instead
         return rrb.Vertical(
-            _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/vertical"),
+            _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. VPE (yellow). {MARK_KEY}", f"/integrity/{m}/vertical"),
             _series(f"{m}: overbound σ_ob (blue) and median (red) of the vertical error, m", f"/integrity/{m}/overbound"),
             rrb.BarChartView(name=f"{m}: vertical error density at the cursor epoch (m; it is what σ_ob bounds)",
                              origin=f"/integrity/{m}/vertical_error_density"),
@@ -57,8 +57,8 @@ def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool, several_te
              if several_tests else
              _series(f"{m}: test statistic SSE (blue) vs threshold (red). {MARK_KEY}", f"/integrity/{m}/detection"))
     return rrb.Vertical(
-        _series(f"{m}: HPL (blue) vs HAL {hal:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/horizontal"),
-        _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. {MARK_KEY}", f"/integrity/{m}/vertical"),
+        _series(f"{m}: HPL (blue) vs HAL {hal:g} m (red), m. HPE (yellow). {MARK_KEY}", f"/integrity/{m}/horizontal"),
+        _series(f"{m}: VPL (blue) vs VAL {val:g} m (red), m. VPE (yellow). {MARK_KEY}", f"/integrity/{m}/vertical"),
         tests,
         name=m,
     )
@@ -67,28 +67,29 @@ def _monitor_tab(m: str, hal: float, val: float, vertical_only: bool, several_te
 def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
                       alert_limits: tuple[float, float] = (float("nan"), float("nan")),
                       play_state: str | None = None, vertical_only: tuple[str, ...] = (),
-                      active_monitor: str | None = None, several_tests: tuple[str, ...] = ()) -> rrb.Blueprint:
+                      active_monitor: str | None = None, several_tests: tuple[str, ...] = (),
+                      camera_view: bool = True, map_view: bool = True) -> rrb.Blueprint:
     """The layout; ``play_state`` ("following": the cursor at the newest data) for the time panel;
     ``vertical_only`` monitors (DPE) get a VPL, overbound and error-density tab; ``active_monitor``
-    the tab shown first (default: the first monitor's); ``several_tests`` monitors (the seed-002 filter) a
-    panel of their tests, each over its threshold, instead of the single test's."""
+    the tab shown first (default: the first monitor's); ``several_tests`` monitors (the Won et al. filter) a
+    panel of their tests, each over its threshold, instead of the single test's. ``camera_view=False``
+    (a flight without a camera) leaves out the camera view, ``map_view=False`` the map (its tiles come
+    from the internet: the documentation's screenshots are taken without it)."""
     hal, val = alert_limits
     monitor_tabs = [_monitor_tab(m, hal, val, m in vertical_only, m in several_tests) for m in monitors]
     # the flown trail is one point per epoch: show all of them up to the cursor
     trail = {"world/path/flown": rrb.VisibleTimeRanges(rrb.VisibleTimeRange(
         "sim_time", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()))}
     world = ["/world/**", "- /world/camera/detections/**", "- /world/camera/scene/**", "- /world/camera/features/**"]
-    left = rrb.Vertical(
-        rrb.Tabs(
-            rrb.Spatial3DView(name="world", origin="/world", eye_controls=eye, contents=world, overrides=trail),
-            # the aircraft's frame as the view's origin: the eye rides with it down the approach
-            rrb.Spatial3DView(name="follow the aircraft", origin="/world/aircraft", contents=world, overrides=trail),
-        ),
-        rrb.Spatial2DView(name="camera: detections (cyan; red: faulty), landmarks and runway where they are (white), "
-                               "tracked ground features (amber)",
-                          origin="/world/camera"),
-        row_shares=[3, 2],
+    views_3d = rrb.Tabs(
+        rrb.Spatial3DView(name="world", origin="/world", eye_controls=eye, contents=world, overrides=trail),
+        # the aircraft's frame as the view's origin: the eye rides with it down the approach
+        rrb.Spatial3DView(name="follow the aircraft", origin="/world/aircraft", contents=world, overrides=trail),
     )
+    camera = rrb.Spatial2DView(name="camera: detections (cyan; red: faulty), landmarks and runway where they are "
+                                    "(white), tracked ground features (amber)",
+                               origin="/world/camera")
+    left = rrb.Vertical(views_3d, camera, row_shares=[3, 2]) if camera_view else rrb.Vertical(views_3d)
     right = rrb.Vertical(
         rrb.Tabs(*monitor_tabs, active_tab=None if active_monitor is None else list(monitors).index(active_monitor))
         if monitor_tabs
@@ -100,8 +101,8 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
                                plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.LeftTop)),
             rrb.TextLogView(name="alerts", origin="/alerts"),
         ),
-        rrb.MapView(name="map", origin="/map"),
-        row_shares=[3, 2, 2],
+        *([rrb.MapView(name="map", origin="/map")] if map_view else []),
+        row_shares=[3, 2, 2] if map_view else [3, 2],
     )
     # the time panel on the simulation's timeline (a viewer would otherwise pick the first one it sees)
     return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[3, 2]),

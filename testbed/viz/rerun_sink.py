@@ -3,7 +3,7 @@
 The loop hands the sink one :class:`~testbed.sim.loop.LoopBlock` at a time (a
 few sensor epochs); everything time-varying is sent column-wise with
 ``send_columns`` (one call per entity per block), which is far cheaper than
-per-epoch ``log`` calls (FACTS.md: 40–170 µs per ``log``). Positions are
+per-epoch ``log`` calls (docs/design/physics-notes.md §rerun-logging-cost: 40–170 µs per ``log``). Positions are
 logged in the approach's local ENU world frame (Rerun stores float32).
 
 Entity tree (timeline ``sim_time``):
@@ -92,7 +92,7 @@ SERIES = {  # entity suffix -> (colour, line name)
     "detection/test_stat": ((80, 160, 255), "test statistic"), "detection/threshold": ((230, 60, 50), "threshold"),
     # drawn when the truth (a flight) or a reference trajectory (a recorded file) is known
     "horizontal/error": ((250, 200, 40), "HPE (error vs truth)"), "vertical/error": ((250, 200, 40), "VPE (error vs truth)"),
-    # a monitor with several tests (the seed-002 filter): each over its threshold, alert above 1
+    # a monitor with several tests (the Won et al. filter): each over its threshold, alert above 1
     "tests/innovation": ((80, 160, 255), "innovation NIS / threshold"),
     "tests/windowed": ((60, 200, 120), "windowed NIS / threshold"),
     "tests/separation": ((250, 150, 40), "separation max |Δ|/T"), "tests/limit": ((230, 60, 50), "alert limit 1"),
@@ -153,7 +153,8 @@ class RerunSink:
         self._has_features = scene.features_enu is not None
         rec.send_blueprint(default_blueprint(self.monitors, approach_eye(scene.planned_enu), tuple(scene.alert_limits),
                                              vertical_only=tuple(scene.vertical_only),
-                                             several_tests=tuple(scene.several_tests)),
+                                             several_tests=tuple(scene.several_tests),
+                                             camera_view=scene.camera_K is not None),
                            make_active=True, make_default=True)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scene.terrain_mesh is not None:
@@ -349,7 +350,7 @@ class RerunSink:
 
     def _log_normalised_tests(self, name: str, out) -> None:
         """A monitor with several tests (diagnostics with ``window_stat``, ``window_threshold``, ``ss_ratio``:
-        the seed-002 filter): each statistic over its threshold on one panel, the alert line at 1."""
+        the Won et al. filter): each statistic over its threshold on one panel, the alert line at 1."""
         d = out.diagnostics
         if not all(hasattr(d, f) for f in ("window_stat", "window_threshold", "ss_ratio")):
             return

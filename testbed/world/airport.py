@@ -1,9 +1,9 @@
 """Facts about Nyingchi Mainling airport (LinZhi, ZUNZ) used across the testbed.
 
-Sources (see FACTS.md in the design notes): airport databases for the
+Sources (see docs/design/physics-notes.md §airport-and-runway): airport databases for the
 reference point and elevation; flight-simulator scenery data for the
 threshold coordinates. Heights are used as given and treated as WGS84
-ellipsoidal (the testbed has no geoid model; see README "Heights").
+ellipsoidal (the testbed has no geoid model; see docs/design/physics-notes.md §heights).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ RUNWAY_LENGTH_M = 3000.0
 RUNWAY_WIDTH_M = 45.0
 RWY05_COURSE_DEG = 54.65  # true
 
-# The VA-RAIM paper's scenario centre (seed 000 §3.1) with its longitude typo
+# The VA-RAIM paper's scenario centre (its §3.1) with its longitude typo
 # (90.xx E) corrected to 94.xx E: 0.36 km from the ARP, same elevation.
 VA_RAIM_CENTRE = (29.3065, 94.3359, 2950.0)
 

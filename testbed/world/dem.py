@@ -5,8 +5,8 @@ latitude and longitude ascending; :class:`testbed.world.terrain.GridTerrain`
 turns them into a terrain model.
 
 Heights: SRTM heights are EGM96 orthometric (above the geoid). The testbed has
-no geoid model and treats every height as WGS84 ellipsoidal (see README
-"Heights"); near ZUNZ the EGM96 undulation is a few tens of metres, so a real
+no geoid model and treats every height as WGS84 ellipsoidal (see
+docs/design/physics-notes.md §heights); near ZUNZ the EGM96 undulation is a few tens of metres, so a real
 tile sits that much off the ellipsoidal heights JSBSim flies in. A user who
 cares converts the grid to ellipsoidal heights before saving it as ``.npz``.
 

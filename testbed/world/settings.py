@@ -29,10 +29,11 @@ class TerrainSettings(StrictModel):
     # flat
     flat_height_m: float = Field(airport.ELEVATION_M, ge=-500, le=9000,
                                  description="kind='flat': height of the plane, m ellipsoidal")
-    # two_ridges (VA-RAIM paper, seed 000 section 3.1; FACTS.md)
+    # two_ridges (the VA-RAIM paper §3.1; docs/design/physics-notes.md §va-raim-scenario-terrain)
     ridge_centre_lat_deg: float = Field(airport.VA_RAIM_CENTRE[0], ge=-89, le=89,
                                         description="kind='two_ridges': centre between the ridges")
-    ridge_centre_lon_deg: float = Field(airport.VA_RAIM_CENTRE[1], ge=-180, le=180)
+    ridge_centre_lon_deg: float = Field(airport.VA_RAIM_CENTRE[1], ge=-180, le=180,
+                                        description="kind='two_ridges': longitude of the centre")
     ridge_field_height_m: float = Field(airport.VA_RAIM_CENTRE[2], ge=-500, le=9000,
                                         description="floor height between the ridges, m ellipsoidal")
     ridge_offset_m: float = Field(3000.0, gt=0, le=50e3,

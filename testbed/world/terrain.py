@@ -434,10 +434,11 @@ class Flat(Terrain):
 class TwoRidges(Terrain):
     """The VA-RAIM paper's terrain: two ridges parallel to the approach course.
 
-    Seed 000 §3.1 says "two mountain chains of unified height 1000 m, 3000 m east
+    The VA-RAIM paper §3.1 says "two mountain chains of unified height 1000 m, 3000 m east
     and west of the centre"; taken literally the western chain stands in the
-    approach path, so (FACTS.md) we read them as two ridges *parallel to the
-    approach course*, their crests ``offset_m`` to either side of the centre.
+    approach path, so (docs/design/physics-notes.md §va-raim-scenario-terrain) we read them
+    as two ridges *parallel to the approach course*, their crests ``offset_m``
+    to either side of the centre.
 
     Cross-section (our assumption, the paper gives none): a flat floor at the
     centre's height ``h_field``; each ridge is a raised cosine

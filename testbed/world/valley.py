@@ -5,7 +5,7 @@ to north-east along the runway: a floor corridor that follows the RNP approach's
 centreline, Gaussian walls to a rough crest, and the two broad peaks of the
 eastern Himalaya, rasterised on a regular grid (:class:`terrain.GridTerrain`).
 Every constant below is part of the model's definition; the figures it is fitted
-to (floor, crest, peaks, runway elevations) are in FACTS.md (terrain).
+to (floor, crest, peaks, runway elevations) are in docs/design/physics-notes.md §the-synthetic-valley.
 """
 
 from __future__ import annotations
@@ -231,7 +231,8 @@ def _valley_grid(spacing_arcsec: float, half_lat: float, half_lon: float
 
 
 class LinZhiSyntheticValley(GridTerrain):
-    """SYNTHETIC terrain around ZUNZ built from the published figures (FACTS.md).
+    """SYNTHETIC terrain around ZUNZ built from the published figures
+    (docs/design/physics-notes.md §the-synthetic-valley).
 
     Not a survey: a valley along the runway course (054.65 deg true) through both
     thresholds, floor 2939 m at THR05 rising linearly to 2948 m at THR23 (then

@@ -1,1 +1,1 @@
-"""Seed 004: direct position estimation (DPE) and its vertical protection level (DPE.md)."""
+"""Direct position estimation (DPE) and its vertical protection level (the DPE paper; docs/design/dpe.md)."""

@@ -1,4 +1,4 @@
-"""K for the DPE's VPL = K·σ + |m| from fault-free normalised errors (DPE.md §6): the statistics.
+"""K for the DPE's VPL = K·σ + |m| from fault-free normalised errors (docs/design/dpe.md §6): the statistics.
 
 z_i = (e_i − m_i)/σ_i, e the vertical error of the solution, m and σ the epoch's median and
 overbound (σ with the SIS term when the monitor adds it). Two estimators:
@@ -30,7 +30,7 @@ from scipy.special import ndtri
 
 LEVELS_PER_SIDE = 50
 CONFIDENCE = 1.0 - 0.05 / (2 * LEVELS_PER_SIDE)
-#: the per-epoch HMI probability K is calibrated for by default (DPE.md §6: Annex 10's 2e-7 per approach)
+#: the per-epoch HMI probability K is calibrated for by default (docs/design/dpe.md §6: Annex 10's 2e-7 per approach)
 DEFAULT_P_HMI = 1e-7
 
 
@@ -129,7 +129,8 @@ class Validation:
 
 
 def validate(fit: KFit, z: ArrayLike, exceed_vpl: ArrayLike) -> Validation:
-    """Check ``fit`` on held-out ``z`` and the held-out epochs' ``|e| > VPL`` flags (DPE.md §6 (i), (iii))."""
+    """Check ``fit`` on held-out ``z`` and the held-out epochs' ``|e| > VPL`` flags
+    (docs/design/dpe.md §6.5 (i), (iii))."""
     z = _clean(z)
     n = z.size
     worst, checked, ok = 0.0, 0, True

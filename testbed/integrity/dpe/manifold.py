@@ -1,4 +1,4 @@
-"""The DPE likelihood manifold of one epoch: geometry, correlogram lookups, grids (DPE.md §1-§3).
+"""The DPE likelihood manifold of one epoch: geometry, correlogram lookups, grids (docs/design/dpe.md §3).
 
 A candidate ξ = [dE, dN, dU, db] (m) offsets the grid centre (position p_c, clock b_c).
 Satellite k expects its code at δ_k(ξ) = ‖s_k − p_c − dp‖ + b_c + db − ρ_ref,k ≈ δ_k(0) + g_kᵀξ,

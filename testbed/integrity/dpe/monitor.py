@@ -1,6 +1,6 @@
-"""Seed 004 as a loop monitor (``dpe``): direct position estimation and its vertical protection level.
+"""The DPE paper's method as a loop monitor (``dpe``): direct position estimation and its vertical protection level.
 
-Per epoch (DPE.md §1, the ``likelihood`` variant, the default):
+Per epoch (docs/design/dpe.md §1, the ``likelihood`` variant, the default):
 
 1. **Initialisation**: the same-epoch GPS-only WLS fix from the scalar pseudoranges, else the
    previous DPE solution (held: the monitor has no velocity), else ``NO_INIT``. Never truth.
@@ -9,7 +9,7 @@ Per epoch (DPE.md §1, the ``likelihood`` variant, the default):
 3. **Overbound** (:mod:`.overbound`): the tightest median-centred zero-mean Gaussian CDF
    overbound σ_ob of the marginal, and its median m.
 4. **VPL = K·σ + |m|**, σ² = σ_ob² + σ²_SIS,U with ``sis = "add"`` (the signal-in-space error
-   is outside the manifold: DPE.md F6), σ = σ_ob with ``sis = "none"``. K is ``k_factor``; without
+   is outside the manifold: docs/design/dpe.md F6), σ = σ_ob with ``sis = "none"``. K is ``k_factor``; without
    one the VPL is NaN and the epoch ``NOT_CALIBRATED``.
 
 A vertical-only monitor: HPL is NaN, availability is VPL ≤ VAL alone, and ``dimensions`` is
@@ -55,13 +55,13 @@ class DpeSettings(StrictModel):
     """Options of the ``dpe`` monitor (``[dpe]`` in an approach file)."""
 
     variant: Literal["likelihood", "seed"] = Field(
-        "likelihood", description="'likelihood': GLRT power manifold, posterior mean, marginal (DPE.md §4); 'seed': "
+        "likelihood", description="'likelihood': GLRT power manifold, posterior mean, marginal; 'seed': "
                                   "the paper as written (spread grid, magnitude sum, weighted mean, conditional "
                                   "slice), for reproduction; it needs gnss.correlators.statistic = 'mag'")
     seed_passes: int = Field(50, ge=1, le=200, description="'seed': mean-shift passes of the weighted mean")
     seed_power: float = Field(1.0, gt=0.0, le=8.0, description="'seed': f = (mean |y|)^p")
     seed_mass: Literal["sum", "density"] = Field(
-        "sum", description="'seed': the slice read as masses ('sum', the seed's literal reading) or densities")
+        "sum", description="'seed': the slice read as masses ('sum', the DPE paper's literal reading) or densities")
     k_factor: float | None = Field(
         None, gt=0.0, le=100.0, description="VPL = K·σ + |m|; a number, or in an approach file the path of a "
                                             "`testbed calibrate-dpe` record; None: VPL NaN, every epoch NOT_CALIBRATED")
@@ -106,7 +106,8 @@ class DpeState:
 
 
 def _sis_sigma(el: NDArray, st: DpeSettings) -> NDArray:
-    """σ_URA ⊕ the residual troposphere at elevations (rad): the seed's SIS terms (INTEGRITY_MATH.md §1)."""
+    """σ_URA ⊕ the residual troposphere at elevations (rad): the SIS terms
+    (docs/design/integrity.md §1, eq. 1.2-1.3)."""
     return np.hypot(st.sigma_ura_m, sigma_tropo(el, st.sigma_tropo_zenith_m))
 
 

@@ -1,4 +1,4 @@
-"""The tightest zero-mean Gaussian CDF overbound of a sampled distribution (DeCleene 2000; DPE.md §5).
+"""The tightest zero-mean Gaussian CDF overbound of a sampled distribution (DeCleene 2000; docs/design/dpe.md §5).
 
 N(0, σ²) overbounds F when Φ(x/σ) ≥ F(x) for x < 0 and Φ(x/σ) ≤ F(x) for x ≥ 0.
 Feasibility is monotone in σ, so bisection finds the smallest σ exactly.
@@ -7,7 +7,7 @@ The curve is given as values ℓ_j ≥ 0 at sorted offsets u_j. Each value owns 
 between the midpoints to its neighbours (the outer cells mirrored); its mass is ℓ_j·width_j
 (``density``: ℓ is a density) or ℓ_j (``sum``: ℓ is already a mass), and the CDF is
 piecewise linear inside the cells (a step CDF would need σ ≥ 2× the truth for fine
-cells: DPE.md F4). The curve is centred on its median m first — centring on the
+cells: docs/design/dpe.md F4). The curve is centred on its median m first — centring on the
 solution instead is infeasible whenever m ≠ 0 (at x = 0 both sides ask Φ(0) = ½ = F(0)),
 which is why the VPL is K·σ + |m|. Left tails come from a cumulative sum and right tails
 from a reverse one (1 − F would lose the far right tail to rounding).

@@ -1,4 +1,4 @@
-"""The seed's DPE as written (DPE.md §1, §3, §4 `seed`), kept for reproduction.
+"""The DPE paper's method as written (docs/design/dpe.md §4.2, variant `seed`), kept for reproduction.
 
 * grid: PyGNSS ``generate_spread_grid`` — per axis {0, ±1..±7, ±10, ±13, ±16, ±19, ±22} steps of
   5 m (E, N, U: ±110 m) and 6 m (clock: ±132 m), 25⁴ = 390 625 candidates about the initialisation;
@@ -8,7 +8,7 @@
 * slice: the conditional line M(Ê, N̂, Û + u, b̂) at the grid's U offsets, read as a CDF by the
   seed's literal ``sum`` of values (or ``density``), then the same overbound as the default.
 
-What DPE.md found running it (reproduced by ``tests/test_dpe_seed.py``): on this grid the weighted
+What running it shows (docs/design/dpe.md F1, F2; reproduced by ``tests/test_dpe_seed.py``): on this grid the weighted
 mean barely leaves the initialisation (a correlation triangle is ≥ 293 m wide in height, the grid
 ±110 m, so the weights are nearly flat: F1), and σ_ob is set by the grid's extent, not by the
 signal (F2).

@@ -1,15 +1,15 @@
-"""The `likelihood` DPE solution of one epoch: coarse-to-fine grids, posterior, vertical marginal (DPE.md §3).
+"""The `likelihood` DPE solution of one epoch: coarse-to-fine grids, posterior, vertical marginal (docs/design/dpe.md §3).
 
 1. 9⁴ candidates at 30 m about the initialisation -> the best node (recentred while it is
    on a face, at most 3 times);
 2. 9⁴ at 6 m about it -> the best node + a per-axis quadratic refine;
 3. the whitened grid x = x̂ + L·z, L·Lᵀ = J_CRB (from the receiver's C/N0 estimates),
-   z on 17⁴ nodes at 0.6875 (±5.5σ along every principal direction; DPE.md's 0.55, ±4.4σ, left
-   0.1-1 % of the posterior on the grid's faces, cutting the tails the overbound reads): it follows the
+   z on 17⁴ nodes at 0.6875 (±5.5σ along every principal direction; a ±4.4σ grid at 0.55 left
+   0.1-1 % of the posterior on its faces, cutting the tails the overbound reads): it follows the
    U-clock correlation the box grids would waste candidates on. Recentred on the best node
    while that is on a face (≤ 3 times). When the CRB is much finer than stage 2 resolves
-   (high C/N0), whitened 9⁴ grids zoom in first, ×¼ a step (a departure from DPE.md §3,
-   whose plan loses the peak off the fine grid's face above ~50 dB-Hz).
+   (high C/N0), whitened 9⁴ grids zoom in first, ×¼ a step (docs/design/dpe.md §3.3:
+   without them the peak leaves the fine grid's face above ~50 dB-Hz).
 
 The posterior is L = exp(Λ − max Λ) on the whitened grid (a uniform prior over it; the
 grid cells have equal volume, so plain weighted sums are integrals). Its mean is the

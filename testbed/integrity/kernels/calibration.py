@@ -1,4 +1,4 @@
-"""The GPS calibration of the vision ranges (INTEGRITY_MATH.md §3), every epoch."""
+"""The GPS calibration of the vision ranges (docs/design/integrity.md §8), every epoch."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from testbed.kernel_cache import keep_in_step
 @njit(cache=True, nogil=True, error_model="numpy")
 def calibrate_epochs(i0, m, A, B, Ap, Sc, SigV, used, x, Pg, off, p, Sd,
                      beta_out, beta0_out, Sh_out, Su_out):
-    """GPS calibration of the vision ranges (INTEGRITY_MATH.md §3), every epoch of every trial.
+    """GPS calibration of the vision ranges (docs/design/integrity.md §8), every epoch of every trial.
 
     Shapes (trial, epoch, ...): i0 (Bt, T) calibration epoch of each epoch (any valid index
     where uncalibrated; the caller masks); vision solve m (L), A (N_C, L), B (N_C), A⁺ (L, N_C),

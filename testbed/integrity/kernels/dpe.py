@@ -1,4 +1,4 @@
-"""Compiled DPE manifold: candidate delays -> correlogram lookups -> likelihood (DPE.md §2-§3).
+"""Compiled DPE manifold: candidate delays -> correlogram lookups -> likelihood (docs/design/dpe.md §3).
 
 Per satellite k the candidate ξ (4 offsets) has delay ``c_k + H_k·ξ`` on its correlogram
 (``poly[k]``, index units); the manifold is Σ_k f_k(delay). The lookup is Keys' cubic

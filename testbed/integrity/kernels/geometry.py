@@ -1,4 +1,4 @@
-"""The weighted-LS geometry and fit of an epoch (INTEGRITY_MATH.md §4).
+"""The weighted-LS geometry and fit of an epoch (docs/design/integrity.md §2-§4).
 
 One implementation for every monitor and every epoch, clean or not (:func:`wls_one`): the
 used rows, NaN checks, a dropped clock, GᵀWG, its Jacobi-scaled condition, J, A, (WS)ᵢᵢ,
@@ -101,7 +101,7 @@ def wls_one(G, h, z, wd, Wb, mask, max_cond,
     elif nu < ns:
         code = _NO_POSITION
     if code == _OK:
-        # -- M = GᵀWG, the normal matrix of A = (GᵀWG)⁻¹GᵀW (seed eq. 20-21); WG in A's columns for now --
+        # -- M = GᵀWG, the normal matrix of A = (GᵀWG)⁻¹GᵀW (the VA-RAIM paper's eq. 20-21); WG in A's columns for now
         M, S, L, Si = work[0], work[1], work[2], work[3]
         M[:, :] = 0.0
         for k in range(N):
@@ -188,7 +188,7 @@ def wls_one(G, h, z, wd, Wb, mask, max_cond,
             hslope[k] = np.nan
             vslope[k] = np.nan
         return
-    # -- per row: A = J (WG)ᵀ, (WS)ᵢᵢ = Wᵢᵢ − (WG)ᵢ Aᵢ, slopes (seed eq. 20-21 with (WS)ᵢᵢ, §4) --
+    # -- per row: A = J (WG)ᵀ, (WS)ᵢᵢ = Wᵢᵢ − (WG)ᵢ Aᵢ, slopes (docs/design/integrity.md §4, eq. 4.1-4.2) --
     for k in range(N):
         if not mask[k]:
             ws[k] = np.nan
@@ -215,7 +215,7 @@ def wls_one(G, h, z, wd, Wb, mask, max_cond,
             vslope[k] = abs(A[2, k]) / den
         hmax[0] = max(hmax[0], hslope[k])
         vmax[0] = max(vmax[0], vslope[k])
-    # -- SSE = rᵀWr at the solution (seed eq. 25-26) --------------------------------
+    # -- SSE = rᵀWr at the solution (the VA-RAIM paper's eq. 25-26) ----------------------------
     s = 0.0
     for k in range(n1):
         if mask[k]:

@@ -308,7 +308,7 @@ def _cosine_residuals(p, c, d2, pair_mask, Sc, W, I, J, ms, r):
 def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
                          A_out, B_out, Ap_out, good_out, cond_out, SigV_out, r_norm_out, r_w_out, gate_out,
                          gok_out):
-    """What follows the cosine-rule solve, every epoch (INTEGRITY_MATH.md §2).
+    """What follows the cosine-rule solve, every epoch (docs/design/integrity.md §7).
 
     m (P, L) solved ranges, c (P, N_C) measured cosines, d2 (N_C,) surveyed squared
     distances, colm (P, L) landmarks in the solve, pair_mask (P, N_C) pairs in it,
@@ -316,7 +316,7 @@ def cosine_rule_products(m, c, d2, colm, pair_mask, W, Sc, m_pred, S_pred,
     S_pred (P, L, L) their covariance (P = 0 rows: no branch gate). Writes, with
     ``m̄ = m`` on used landmarks and 1 elsewhere:
 
-    * A (N_C, L) of seed eq. 2 at m̄ (oracle: ``tests/vision_oracle.py``; zero outside the
+    * A (N_C, L) of the VA-RAIM paper's eq. 2 at m̄ (oracle: ``tests/vision_oracle.py``; zero outside the
       used pairs × landmarks) and the diagonal B (N_C) (zero on unused pairs);
     * ``A⁺ = (AᵀWA + pad)⁻¹AᵀW`` (L, N_C) with ``good`` False where that matrix is
       non-finite or singular; the condition ``‖A diag(m̄)‖_F ‖diag(m̄)⁻¹A⁺‖_F`` (inf if not finite);

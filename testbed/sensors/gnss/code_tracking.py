@@ -14,7 +14,7 @@ receiver's would), the same thermal noise.
 
 The 1σ the monitor is told: σ² = σ_URA² + σ_tropo² (the SIS the correlators
 draw) + σ_code² (the Cramér-Rao delay bound at the channel's *estimated*
-C/N0 and N_b) + σ_MP² (the airborne multipath term of seed 000 on one frequency:
+C/N0 and N_b) + σ_MP² (the airborne multipath term of the VA-RAIM paper on one frequency:
 the echo is in the signal, so it stays in the budget).
 """
 

@@ -1,4 +1,4 @@
-"""Correlator outputs on a code-delay grid, the DPE monitor's observations (DPE.md §2).
+"""Correlator outputs on a code-delay grid, the DPE monitor's observations (docs/design/dpe.md §2).
 
 No IF samples: per satellite and coherent block b, after carrier and data wipe-off,
 the normalised correlator output at delay δ (m, relative to the channel's reference) is
@@ -142,6 +142,10 @@ def _sqrt_psd(H: NDArray) -> NDArray:
     return Q * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
 
 
+#: working memory of one piece of the exact synthesis (its complex temporaries), bytes
+_EXACT_BYTES = 256 * 2**20
+
+
 def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid: DelayGrid, A: NDArray,
                     delay: NDArray, echo_delay: NDArray, alpha: NDArray, echo_phase: NDArray) -> NDArray:
     """(S, M) statistic of one epoch's tracked satellites (A, delays, echoes per satellite)."""
@@ -155,10 +159,17 @@ def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid
         theta = rng.uniform(0.0, 2.0 * np.pi, (S, n_b))
         c0 = np.exp(1j * theta)
         c1 = alpha[:, None] * np.exp(1j * (theta + echo_phase))
-        w = draw_noise(rng, spec, (S, n_b))
-        y = A[:, None, None] * (c0[..., None] * R0[:, None, :] + c1[..., None] * R1[:, None, :]) + w
-        mag = np.abs(y)
-        return (mag * mag).sum(axis=1) if settings.statistic == "pow" else mag.mean(axis=1)
+        out = np.empty((S, grid.size))
+        # satellites a few at a time: y is (S, N_b, M) complex, 9 GB for 2000 channels at once. The noise
+        # is drawn in satellite order, so the pieces' draws are the whole array's, bit for bit.
+        step = max(1, _EXACT_BYTES // (16 * n_b * spec.amplitude.size * 8))
+        for lo in range(0, S, step):
+            k = slice(lo, lo + step)
+            w = draw_noise(rng, spec, (min(S, lo + step) - lo, n_b))
+            y = A[k, None, None] * (c0[k, :, None] * R0[k, None, :] + c1[k, :, None] * R1[k, None, :]) + w
+            mag = np.abs(y)
+            out[k] = (mag * mag).sum(axis=1) if settings.statistic == "pow" else mag.mean(axis=1)
+        return out
     H = _path_gram(alpha, echo_phase, n_b)
     K = _sqrt_psd(H)
     U = draw_noise(rng, spec, (S, 2))

@@ -1,4 +1,4 @@
-"""GNSS pseudorange error model (INTEGRITY_MATH.md §1, seed 000 eq. 27) and receiver clock.
+"""GNSS pseudorange error model (docs/design/integrity.md §1; the VA-RAIM paper, eq. 27) and receiver clock.
 
 σᵢ² = σ_URA² + σ_tropo,i² + σ_user,i² with the airborne dual-frequency
 (L1/L5 iono-free) user term. Time correlation, when asked for, uses
@@ -43,7 +43,7 @@ def sigma_user(elevation: ArrayLike) -> NDArray:
 
 def sigma_pseudorange(elevation: ArrayLike, sigma_ura_m: float = SIGMA_URA_M,
                       tropo_zenith_m: float = 0.12) -> NDArray:
-    """Total pseudorange 1σ (m) at elevations (rad), any shape (seed 000 eq. 27)."""
+    """Total pseudorange 1σ (m) at elevations (rad), any shape (the VA-RAIM paper, eq. 27)."""
     return np.sqrt(sigma_ura_m**2 + sigma_tropo(elevation, tropo_zenith_m)**2 + sigma_user(elevation)**2)
 
 
@@ -71,7 +71,8 @@ def unit_gauss_markov(rng: np.random.Generator, shape: tuple[int, ...], dt: floa
 def receiver_clock(rng: np.random.Generator, t: ArrayLike, batch: tuple[int, ...] = (), *,
                    bias0_sigma_m: float, drift0_sigma_m_s: float, sf_m2_s: float,
                    sg_m2_s3: float) -> tuple[NDArray, NDArray]:
-    """Two-state receiver clock (bias b, drift d in m, m/s), seed 002 eq. 16.
+    """Two-state receiver clock (bias b, drift d in m, m/s), the GNSS/vision/INS paper, eq. 16
+    (docs/design/integrity.md §1, eq. 1.7).
 
     x(k+1) = [[1, Δt], [0, 1]] x(k) + η(k), with the discretised white-FM /
     random-walk-FM noise Q = [[S_f Δt + S_g Δt³/3, S_g Δt²/2], [S_g Δt²/2, S_g Δt]]

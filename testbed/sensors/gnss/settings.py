@@ -1,6 +1,6 @@
 """Settings of the GNSS sensor (the ``[gnss]`` table of an approach file).
 
-Defaults reproduce the seed error model (INTEGRITY_MATH.md §1: seed 000 eq. 27,
+Defaults reproduce the VA-RAIM paper's error model (docs/design/integrity.md §1: its eq. 27,
 DO-229 24-satellite almanac, 5° mask). Every field is documented here; the
 config loader composes this model.
 """
@@ -18,16 +18,18 @@ from testbed.schema import StrictModel
 class SatelliteCap(StrictModel):
     """From ``from_s`` (s after the approach's start) on, at most ``max_satellites`` are tracked."""
 
-    from_s: float = Field(..., ge=0.0)
-    max_satellites: int = Field(..., ge=0, le=64)
+    from_s: float = Field(..., ge=0.0, description="the cap applies from this time on, s after the approach's "
+                                                   "start")
+    max_satellites: int = Field(..., ge=0, le=64, description="satellites tracked at most (the highest kept; "
+                                                              "the rest reported EXCLUDED)")
 
 
-#: C/N0 (dB-Hz) by elevation (deg) of an airborne L1 C/A antenna: an assumption (DPE.md §2), labelled
+#: C/N0 (dB-Hz) by elevation (deg) of an airborne L1 C/A antenna: an assumption (docs/design/dpe.md §2.6), labelled
 CN0_BY_ELEVATION = {5.0: 38.0, 15.0: 41.0, 30.0: 43.5, 60.0: 45.0, 90.0: 45.5}
 
 
 class CorrelatorSettings(StrictModel):
-    """Correlator outputs on a code-delay grid (``[gnss.correlators]``; DPE.md §2), read by the ``dpe`` monitor."""
+    """Correlator outputs on a code-delay grid (``[gnss.correlators]``), read by the ``dpe`` monitor."""
 
     bandwidth_chips: float = Field(1.0, gt=0.0, le=50.0,
                                    description="one-sided brick-wall front-end bandwidth in chip rates "
@@ -42,18 +44,18 @@ class CorrelatorSettings(StrictModel):
     cn0_offset_db: float = Field(0.0, ge=-30.0, le=20.0, description="added to every C/N0 (dB)")
     residual_doppler_hz: float = Field(0.0, ge=0.0, lt=50.0,
                                        description="carrier tracking's residual frequency error |Δf| (Hz): the "
-                                                   "coherent amplitude falls by |sinc(Δf·T)| (DPE.md §2); < 1/T")
+                                                   "coherent amplitude falls by |sinc(Δf·T)|; < 1/T")
     synthesis: Literal["fast", "exact"] = Field(
         "fast", description="'exact': N_b noise draws per satellite (both statistics); 'fast': the power "
                             "statistic from (2 + echoes) draws of its exact second moments")
     statistic: Literal["pow", "mag"] = Field(
         "pow", description="what the receiver reports: Σ_b|y_b|² ('pow', the likelihood's) or "
-                           "(1/N_b)Σ_b|y_b| ('mag', the seed's; needs synthesis = 'exact')")
+                           "(1/N_b)Σ_b|y_b| ('mag', the DPE paper's; needs synthesis = 'exact')")
     multipath: Literal["off", "ground"] = Field(
         "off", description="'ground': a specular ground echo, delay 2·h_agl·sin(el), its phase from the path")
     ground_echo_db: float = Field(-20.0, le=0.0, description="ground echo amplitude relative to the direct (dB)")
     pseudorange_source: Literal["model", "correlator"] = Field(
-        "model", description="the pseudoranges every monitor reads: 'model' = the seed's error model drawn "
+        "model", description="the pseudoranges every monitor reads: 'model' = the VA-RAIM paper's error model drawn "
                              "directly; 'correlator' = each channel's correlogram peak (the DPE's signal: its SIS, "
                              "noise, code fault and echo), σ from the Cramér-Rao bound at the estimated C/N0 "
                              "(testbed.sensors.gnss.code_tracking)")
@@ -99,7 +101,7 @@ class GnssSettings(StrictModel):
                                      description="minimum elevation above the antenna plane (deg)")
     sigma_ura_m: float = Field(0.75, ge=0.0, description="σ_URA, signal-in-space error 1σ (m)")
     sigma_tropo_zenith_m: float = Field(0.12, ge=0.0,
-                                        description="residual troposphere 1σ at zenith (m), seed eq. 27 factor")
+                                        description="residual troposphere 1σ at zenith (m), the VA-RAIM paper's eq. 27 factor")
     multipath_tau_s: float | None = Field(
         None, gt=0.0, description="multipath correlation time (s), first-order Gauss-Markov; None = white")
     ura_tropo_tau_s: float | None = Field(

@@ -5,7 +5,7 @@
 draws errors, receiver clock and faults for one or ``n_trials`` trials on top;
 :func:`synthesize_gnss` does both.
 
-Signal model (consistent with the monitors' model, INTEGRITY_MATH.md §1):
+Signal model (consistent with the monitors' model, docs/design/integrity.md §1):
 the receive time t_r is the true GPS time of the epoch and the antenna is at
 r(t_r). The transmit time t_t = t_r − τ solves τ = |R₃(Ω̇e τ)·s(t_t) − r(t_r)|/c
 (3 fixed-point iterations, converged to < 1 ps). ``sat_pos_ecef`` is
@@ -16,7 +16,7 @@ effect is therefore inside the geometry), so
     range_rate  = u·(sat_vel_ecef − antenna_vel) + c·δṫ_rx + ε_ṙ,
 
 u the unit line of sight. The satellite clock and modelled atmosphere are
-taken as removed by the receiver (ε is the residual of seed eq. 27).
+taken as removed by the receiver (ε is the residual of the VA-RAIM paper's eq. 27).
 
 Truth decimation: ``synthesize_gnss`` decimates the truth to
 ``settings.rate_hz`` itself (``Truth.decimate``: nearest flight epochs from

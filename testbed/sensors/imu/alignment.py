@@ -1,4 +1,4 @@
-"""The alignment pseudo-sensor (NAV_FILTER.md §3): an initial navigation state and its published 1σ.
+"""The alignment pseudo-sensor (docs/design/nav-filter.md §4): an initial navigation state and its published 1σ.
 
 Before the filter's first epoch a real system aligns (levelling from the
 accelerometers, heading from a gyrocompass or the last known state, the clock

@@ -1,4 +1,4 @@
-"""IMU settings: grade presets and the error model (NAV_FILTER.md §3).
+"""IMU settings: grade presets and the error model (docs/design/nav-filter.md §4).
 
 Each axis of each sensor: output increment = (1 + s)·true increment + b·Δt + N·√Δt·ξ,
 with b = b₀ + β: a turn-on bias b₀ ~ N(0, σ_b0²) drawn once per flight and an
@@ -10,9 +10,9 @@ Presets (rad, s, m units inside; the table gives them as published):
 =============  ===========  ============  ==============  ====================  ===========  ==========================
 preset         gyro bias    ARW           accel bias      VRW                   GM τ         source
 =============  ===========  ============  ==============  ====================  ===========  ==========================
-hg1700         1 °/h        0.125 °/√h    1 mg            0.065 ft/s/√h         3600 s       the seed's simulation;
+hg1700         1 °/h        0.125 °/√h    1 mg            0.065 ft/s/√h         3600 s       the paper's simulation;
                                                                                              NavToolkit hg1700_model
-adis16364      25 °/h       2.0 °/√h      0.1 mg          0.12 m/s/√h           100 s        the seed's experiment;
+adis16364      25 °/h       2.0 °/√h      0.1 mg          0.12 m/s/√h           100 s        the paper's experiment;
                                                                                              datasheet (recheck)
 consumer_mems  1 °/s on,    0.3 °/√h      20 mg on,       0.24 m/s/√h           100 s        MPU-6000-class noise
                20 °/h run                 0.2 mg run                                         densities (0.005 °/s/√Hz,
@@ -57,7 +57,8 @@ class ImuSettings(StrictModel):
     """The IMU sensor: grade (preset, or every figure given), rate, placement, Earth rotation."""
 
     grade: Literal["hg1700", "adis16364", "consumer_mems", "navigation", "perfect", "custom"] = Field(
-        "hg1700", description="error preset (module table); 'custom' takes every *_sigma / random-walk figure below")
+        "hg1700", description="error preset (its figures: the table in testbed/sensors/imu/settings.py); 'custom' "
+                              "takes every bias, in-run and random-walk figure below")
     rate_hz: float = Field(120.0, gt=0.0, le=1000.0, description="increment rate, Hz; must divide the truth rate")
     gyro_bias_sigma_rad_s: float | None = Field(None, ge=0.0, description="turn-on gyro bias 1σ (custom)")
     gyro_inrun_sigma_rad_s: float | None = Field(None, ge=0.0, description="in-run Gauss-Markov σ (custom)")

@@ -1,7 +1,7 @@
 """The navigation side's attitude reference: truth plus an AHRS/IRS-like error.
 
-The monitors of the pixel-domain model (INTEGRITY_MATH §5) and the lever-arm
-correction of §2 need the aircraft attitude; they get this reference, never
+The monitors of the pixel-domain model (docs/design/integrity.md §10) and the
+lever-arm correction (§2 there) need the aircraft attitude; they get this reference, never
 the truth. Error model per Euler angle (roll, pitch, heading)::
 
     ε_k(t) = b_k + w_k(t),   b_k ~ N(0, bias_sigma_k²) once per flight,

@@ -19,7 +19,7 @@ sensor records::
     x_d = x (1 + k1 r² + k2 r⁴) + 2 p1 x y + p2 (r² + 2 x²)
     y_d = y (1 + k1 r² + k2 r⁴) + p1 (r² + 2 y²) + 2 p2 x y
 
-The seed patent (003) writes the pixel → camera map as ``T_pix^c`` with a
+The vision-integrity patent writes the pixel → camera map as ``T_pix^c`` with a
 camera frame x up, y right, z forward and 1-based pixel indices;
 :func:`patent_T_pix_to_c` gives that matrix for a camera here, and the tests
 show it is the same map as ``K⁻¹`` up to the axis relabelling. The testbed uses
@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 MM_PER_INCH = 25.4
 
-#: Assumptions of the ``va-raim-2015`` preset (seed 000 §3.1.2 gives only the dpi).
+#: Assumptions of the ``va-raim-2015`` preset (the VA-RAIM paper §3.1.2 gives only the dpi).
 VA_RAIM_FOCAL_MM = 35.0
 VA_RAIM_SENSOR_MM = (36.0, 24.0)  # width, height: a "full-frame" 3:2 sensor
 VA_RAIM_DPI = (120, 300, 480, 720)
@@ -99,7 +99,7 @@ class PinholeCamera:
     @classmethod
     def from_dpi(cls, dpi: float, focal_mm: float, sensor_width_mm: float, sensor_height_mm: float,
                  **kw) -> "PinholeCamera":
-        """The seed paper's form: resolution in dots per inch on a sensor of stated size.
+        """The VA-RAIM paper's form: resolution in dots per inch on a sensor of stated size.
 
         Pixel pitch = 25.4 mm / dpi; pixel counts = sensor size / pitch
         (rounded); focal length in px = focal_mm / pitch.
@@ -237,7 +237,7 @@ class PinholeCamera:
 
 
 def patent_T_pix_to_c(camera: PinholeCamera) -> NDArray:
-    """The seed patent's ``T_pix^c`` ``(3, 3)`` for ``camera`` (patent eq. before the linearisation).
+    """The vision-integrity patent's ``T_pix^c`` ``(3, 3)`` for ``camera`` (patent eq. before the linearisation).
 
     The patent writes, for an ``M × N`` pixel grid (M rows, N columns) of
     physical height H and width W and focal length f::
@@ -260,7 +260,7 @@ def patent_T_pix_to_c(camera: PinholeCamera) -> NDArray:
 
 def va_raim_2015_camera(dpi: float, *, focal_mm: float = VA_RAIM_FOCAL_MM,
                         sensor_mm: tuple[float, float] = VA_RAIM_SENSOR_MM) -> PinholeCamera:
-    """The camera of the VA-RAIM paper (seed 000 §3.1.2), at ``dpi`` dots per inch.
+    """The camera of the VA-RAIM paper (its §3.1.2), at ``dpi`` dots per inch.
 
     The paper states only the resolutions (120, 300, 480, 720 dpi). Assumed
     here (a testbed choice): a 35 mm lens on a 36 × 24 mm sensor, so
@@ -286,7 +286,7 @@ def approach_camera(width_px: int = APPROACH_SIZE_PX[0], height_px: int = APPROA
                     hfov_deg: float = APPROACH_HFOV_DEG) -> PinholeCamera:
     """The default approach camera: 1920 × 1080 px, 50° HFOV (f ≈ 2058.8 px, VFOV ≈ 29.4°).
 
-    Sized like common cockpit footage (FACTS.md "Camera references").
+    Sized like common cockpit footage (docs/design/physics-notes.md §camera-references).
     """
     cam = PinholeCamera.from_fov(width_px, height_px, hfov_deg)
     return PinholeCamera(cam.width_px, cam.height_px, cam.fx, cam.fy, cam.cx, cam.cy, name="approach-1080p")

@@ -1,4 +1,4 @@
-"""Unsurveyed ground features as a feature tracker reports them (seed 002's monocular front end).
+"""Unsurveyed ground features as a feature tracker reports them (the Won et al. paper's monocular front end).
 
 Points whose positions nobody surveyed (texture on the ground) are tracked from frame to frame and reported
 with an identity that persists while the point stays in view (a KLT tracker's tracks; association is

@@ -161,7 +161,7 @@ def survey(landmarks: Landmarks, rng: np.random.Generator, n_trials: int | None 
 
 
 def seed_triangle_settings(lpe_sigma_m: float = 0.05) -> LandmarkSettings:
-    """The VA-RAIM seed scene (seed 000 §3.1.2, longitude typo corrected to 94.3359 E)."""
+    """The VA-RAIM paper's scene (its §3.1.2, longitude typo corrected to 94.3359 E)."""
     return LandmarkSettings(sets=[TriangleSet(kind="triangle")], lpe_sigma_m=lpe_sigma_m)
 
 

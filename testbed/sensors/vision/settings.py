@@ -36,7 +36,7 @@ class CameraSettings(StrictModel):
     """
 
     preset: Literal["approach-1080p", "va-raim-2015", "custom"] = Field(
-        "approach-1080p", description="approach-1080p: 1920x1080, 50 deg HFOV; va-raim-2015: seed 000 camera "
+        "approach-1080p", description="approach-1080p: 1920x1080, 50 deg HFOV; va-raim-2015: the VA-RAIM paper's camera "
         "(needs dpi; 35 mm lens on a 36x24 mm sensor, assumed); custom: give the intrinsics")
     dpi: float | None = Field(None, gt=0, le=20_000, description="image resolution, dots per inch (va-raim-2015, custom form c)")
     width_px: int | None = Field(None, ge=16, le=1_000_000, description="image width, px (custom forms a, b)")
@@ -116,7 +116,9 @@ class MountSettings(StrictModel):
 class Tone(StrictModel):
     """A sinusoidal vibration of the camera: amplitude · sin(2π f t + phase) about one axis."""
 
-    axis: Literal["roll", "pitch", "yaw"]
+    axis: Literal["roll", "pitch", "yaw"] = Field(..., description="rotation axis in camera axes: roll about the "
+                                                                  "optical axis, pitch about image right, yaw "
+                                                                  "about image down")
     freq_hz: float = Field(..., gt=0, description="tone frequency, Hz")
     amplitude_deg: float = Field(..., ge=0, description="tone amplitude (peak), deg")
     phase_deg: float | None = Field(None, description="phase, deg; None = drawn uniformly per flight from the rng")
@@ -125,8 +127,8 @@ class Tone(StrictModel):
 class DitheringSettings(StrictModel):
     """Attitude dithering of the camera relative to its nominal mount (platform vibration).
 
-    Angles are a small rotation vector in camera axes (see the module docstring
-    for the axis names). Band-limited noise: white Gaussian noise through a
+    Angles are a small rotation vector in camera axes (roll about the optical axis, pitch about
+    image right, yaw about image down). Band-limited noise: white Gaussian noise through a
     2nd-order Butterworth low-pass at ``noise_bandwidth_hz``, scaled so its
     stationary RMS is ``noise_rms_deg`` per axis.
     """
@@ -162,7 +164,7 @@ class DetectionSettings(StrictModel):
     length L = |ω| t_exp f has a centroid spread of L/√12, the default factor.
     """
 
-    sigma_px: float = Field(1.0, ge=0, le=1000, description="detection error (DE) 1-sigma per axis, px (seed sweeps 1-4)")
+    sigma_px: float = Field(1.0, ge=0, le=1000, description="detection error (DE) 1-sigma per axis, px (the VA-RAIM paper sweeps 1-4)")
     margin_px: float = Field(5.0, ge=0, description="detected only this far inside the image border, px")
     max_range_m: float = Field(20_000.0, gt=0, le=500_000, description="maximum detection range, m")
     min_size_px: float = Field(0.0, ge=0, description="minimum apparent landmark size, px (0 = rule off)")
@@ -174,8 +176,8 @@ class DetectionSettings(StrictModel):
 
 
 class FeatureSceneSettings(StrictModel):
-    """Unsurveyed ground features for the seed-002 filter (``[vision.features]``): points on the terrain
-    along the approach corridor that a tracker follows from frame to frame (:mod:`.features`).
+    """Unsurveyed ground features for the GNSS/vision/INS filter (the ``ekf`` monitor; ``[vision.features]``):
+    points on the terrain along the approach corridor that a tracker follows from frame to frame (:mod:`.features`).
 
     The scene is fixed by ``seed`` (the same ground for every flight and trial); the tracker reports the
     ``max_tracks`` nearest points in view, terrain-masked, with white pixel noise ``sigma_px`` and the
@@ -201,31 +203,40 @@ class VisionSettings(StrictModel):
 
     rate_hz: float = Field(10.0, gt=0, le=120, description="vision epoch rate, Hz (the truth is decimated to it; "
                            "at most the JSBSim rate)")
-    camera: CameraSettings = Field(default_factory=CameraSettings)
-    mount: MountSettings = Field(default_factory=MountSettings)
-    dithering: DitheringSettings = Field(default_factory=DitheringSettings)
-    attitude_ref: AttitudeRefSettings = Field(default_factory=AttitudeRefSettings)
-    detection: DetectionSettings = Field(default_factory=DetectionSettings)
-    features: FeatureSceneSettings = Field(default_factory=FeatureSceneSettings)
+    camera: CameraSettings = Field(default_factory=CameraSettings, description="camera intrinsics and distortion")
+    mount: MountSettings = Field(default_factory=MountSettings,
+                                 description="where the camera sits and looks; without this table the aircraft "
+                                             "file's camera_lever_arm_m, camera_pitch_down_deg and camera_yaw_deg "
+                                             "set it (the defaults below are for keys a table leaves out)")
+    dithering: DitheringSettings = Field(default_factory=DitheringSettings,
+                                         description="vibration of the camera about its mount")
+    attitude_ref: AttitudeRefSettings = Field(default_factory=AttitudeRefSettings,
+                                              description="error model of the attitude reference the monitors use")
+    detection: DetectionSettings = Field(default_factory=DetectionSettings,
+                                         description="landmark detector: visibility rules and error model")
+    features: FeatureSceneSettings = Field(default_factory=FeatureSceneSettings,
+                                           description="unsurveyed ground features tracked for the ekf monitor")
 
 
 # --------------------------------------------------------------------------- landmarks
 class TriangleSet(StrictModel):
-    """Landmarks on a circle (the VA-RAIM seed: 3 points, radius 100 m, azimuths 0/120/240)."""
+    """Landmarks on a circle (the VA-RAIM paper's: 3 points, radius 100 m, azimuths 0/120/240)."""
 
-    kind: Literal["triangle"]
+    kind: Literal["triangle"] = Field(..., description="landmark-set kind")
     prefix: str = Field("T", min_length=1, description="ids are prefix + 1, 2, ...")
-    centre_lat_deg: float = Field(airport.VA_RAIM_CENTRE[0], ge=-90, le=90)
-    centre_lon_deg: float = Field(airport.VA_RAIM_CENTRE[1], ge=-180, le=180)
+    centre_lat_deg: float = Field(airport.VA_RAIM_CENTRE[0], ge=-90, le=90,
+                                  description="latitude of the circle's centre, WGS84")
+    centre_lon_deg: float = Field(airport.VA_RAIM_CENTRE[1], ge=-180, le=180,
+                                  description="longitude of the circle's centre, WGS84")
     centre_h: float = Field(airport.VA_RAIM_CENTRE[2], description="centre height, m (WGS84)")
-    radius_m: float = Field(100.0, gt=0)
+    radius_m: float = Field(100.0, gt=0, description="circle radius")
     azimuths_deg: list[float] = Field([0.0, 120.0, 240.0], min_length=1, description="from north, clockwise")
     height_m: float | None = Field(None, description="landmark height, m (WGS84); None = centre_h")
     size_m: float = Field(2.0, gt=0, description="physical size for the apparent-size rule, m")
 
 
 class MarkerSet(StrictModel):
-    """An "H" or "I" ground marker (seed 003); its outline corners are the landmarks.
+    """An "H" or "I" ground marker (the vision-integrity patent's); its outline corners are the landmarks.
 
     The letter lies flat at (lat, lon, h); ``heading_deg`` is the direction
     (from north, clockwise) its top points to. H: two uprights of
@@ -233,11 +244,11 @@ class MarkerSet(StrictModel):
     Both have 12 corners, listed counter-clockwise seen from above.
     """
 
-    kind: Literal["marker"]
-    letter: Literal["H", "I"]
+    kind: Literal["marker"] = Field(..., description="landmark-set kind")
+    letter: Literal["H", "I"] = Field(..., description="the letter's shape")
     prefix: str | None = Field(None, description="ids are prefix + 01..12; None = the letter")
-    lat_deg: float = Field(..., ge=-90, le=90)
-    lon_deg: float = Field(..., ge=-180, le=180)
+    lat_deg: float = Field(..., ge=-90, le=90, description="latitude of the letter's centre, WGS84")
+    lon_deg: float = Field(..., ge=-180, le=180, description="longitude of the letter's centre, WGS84")
     h: float = Field(..., description="marker height, m (WGS84)")
     height_m: float = Field(30.0, gt=0, description="letter height (along heading), m")
     width_m: float = Field(20.0, gt=0, description="letter width, m")
@@ -256,26 +267,30 @@ class MarkerSet(StrictModel):
 class RunwaySet(StrictModel):
     """The ZUNZ runway 05/23 outline (testbed.world.airport): threshold corners and edge points."""
 
-    kind: Literal["runway"]
-    prefix: str = Field("RWY", min_length=1)
+    kind: Literal["runway"] = Field(..., description="landmark-set kind")
+    prefix: str = Field("RWY", min_length=1, description="ids are prefix + 05L, 05R, 23R, 23L (threshold "
+                                                        "corners) and L0300, R0300 ... (edge points, by distance "
+                                                        "from the 05 threshold)")
     edge_spacing_m: float | None = Field(300.0, gt=0, description="edge points every this many m; None = corners only")
     width_m: float = Field(airport.RUNWAY_WIDTH_M, gt=0, description="paved width, m")
     size_m: float = Field(5.0, gt=0, description="feature size for the apparent-size rule, m")
 
 
 class NamedPoint(StrictModel):
-    id: str = Field(..., min_length=1)
-    lat_deg: float = Field(..., ge=-90, le=90)
-    lon_deg: float = Field(..., ge=-180, le=180)
-    h: float
-    size_m: float = Field(2.0, gt=0)
+    """One landmark."""
+
+    id: str = Field(..., min_length=1, description="landmark id (faults and outputs name it)")
+    lat_deg: float = Field(..., ge=-90, le=90, description="latitude, WGS84")
+    lon_deg: float = Field(..., ge=-180, le=180, description="longitude, WGS84")
+    h: float = Field(..., description="height, m (WGS84 ellipsoidal)")
+    size_m: float = Field(2.0, gt=0, description="physical size for the apparent-size rule")
 
 
 class PointsSet(StrictModel):
     """Landmarks listed one by one."""
 
-    kind: Literal["points"]
-    points: list[NamedPoint] = Field(..., min_length=1)
+    kind: Literal["points"] = Field(..., description="landmark-set kind")
+    points: list[NamedPoint] = Field(..., min_length=1, description="the landmarks, one table each")
 
 
 LandmarkSet = Annotated[Union[TriangleSet, MarkerSet, RunwaySet, PointsSet], Field(discriminator="kind")]
@@ -285,6 +300,6 @@ class LandmarkSettings(StrictModel):
     """The landmark scene of an approach and the survey error of its coordinates."""
 
     sets: list[LandmarkSet] = Field(default_factory=lambda: [TriangleSet(kind="triangle")],
-                                    min_length=1, description="landmark groups; default: the seed triangle")
+                                    min_length=1, description="landmark groups; default: the VA-RAIM paper's triangle")
     lpe_sigma_m: float = Field(0.05, ge=0, le=100, description="landmark position (survey) error 1-sigma per axis, m "
-                               "(seed: 0.01-0.1), drawn once per flight")
+                               "(the VA-RAIM paper: 0.01-0.1), drawn once per flight")
