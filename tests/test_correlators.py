@@ -146,3 +146,27 @@ def test_a_residual_doppler_lowers_the_coherent_amplitude_by_its_sinc():
     drop = np.median(base - slow)
     assert abs(drop - (-20 * np.log10(np.sinc(0.5)))) < 0.15, drop
     np.testing.assert_array_equal(est(0.0), base)
+
+
+@pytest.mark.parametrize("statistic", ["pow", "mag"])
+def test_the_exact_synthesis_in_pieces_draws_what_one_piece_draws(statistic, monkeypatch):
+    """The exact synthesis bounds its working memory by running satellites a piece at a time; the noise is
+    drawn in satellite order, so any piece size gives the one-piece numbers bit for bit."""
+    import testbed.sensors.gnss.correlators as corr
+
+    cs = CorrelatorSettings(synthesis="exact", statistic=statistic)
+    grid = delay_grid(cs)
+    n = 40
+    A = float(np.sqrt(amplitude_sq(45.0, cs.coherent_s)))
+
+    def run():
+        rng = np.random.default_rng(3)
+        return epoch_statistic(rng, cs, grid, np.full(n, A), rng.uniform(-3, 3, n), np.full(n, 30.0),
+                               np.full(n, 0.3), rng.uniform(0, 6, (n, cs.n_noncoherent)))
+
+    monkeypatch.setattr(corr, "_EXACT_BYTES", 2**40)
+    whole = run()
+    monkeypatch.setattr(corr, "_EXACT_BYTES", 40 * 2**20)  # three satellites a piece
+    assert 1 < corr._EXACT_BYTES // (16 * cs.n_noncoherent * corr.noise_spectrum(
+        grid.step_m, grid.size, cs.bandwidth_chips).amplitude.size * 8) < n
+    np.testing.assert_array_equal(run(), whole)
