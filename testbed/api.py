@@ -7,11 +7,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from testbed.config import Approach, list_approaches, load_approach, read_toml
+from testbed.config import Approach, list_approaches, load_approach, read_toml, with_overrides
 from testbed.flight.fly import FlightResult, fly
 from testbed.schema import ConfigError
 from testbed.sim.preflight import check_output_file, check_output_folder
@@ -76,14 +76,17 @@ def check_file(path: str | Path) -> list[str]:
     return []
 
 
-def print_flight_summary(result: FlightResult) -> None:
+def print_flight_summary(result: FlightResult, *, speed: bool = True) -> None:
+    """The flight's table; ``speed``: with the flight's own real-time factor (a run with sensors and
+    monitors prints the whole loop's instead)."""
     from rich.console import Console
     from rich.table import Table
 
     s = result.summary
     t = Table(title=f"{s.approach} ({s.aircraft})", show_header=False)
+    factor = f", {s.realtime_factor:.0f}x real time" if speed else ""
     rows = [
-        ("duration", f"{s.duration_s:.1f} s ({s.steps} steps, {s.realtime_factor:.0f}x real time)"),
+        ("duration", f"{s.duration_s:.1f} s ({s.steps} steps{factor})"),
         ("reached threshold", "yes" if s.reached_end else "NO"),
         ("cross-track after capture", f"RMS {s.xtk_rms_m:.2f} m, max {s.xtk_max_m:.2f} m"),
         ("vertical path after capture", f"RMS {s.vert_rms_m:.2f} m, max {s.vert_max_m:.2f} m"),
@@ -106,6 +109,9 @@ class RunResult:
     rrd_path: Path | None
     live_url: str | None
     wall_s: float
+    faults: tuple = ()  # the approach's fault schedule
+    first_compiled: tuple[str, ...] = ()  # monitors whose kernels this run compiled for the first time
+    prepare_s: float = 0.0  # seconds spent preparing (compiling) the monitors
 
     @property
     def flight(self) -> FlightResult:
@@ -122,9 +128,10 @@ def default_rrd_path(approach: Approach, seed: int) -> Path:
 
 def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: str | Path | None = "default",
                  live: bool = False, bind_ip: str = "127.0.0.1", port: int = 9876, block_s: float = 5.0,
-                 monitors: list[str] | None = None, gust_seed: int | None = None,
-                 truth_path: str | Path | None = None, linger_s: float = 0.0,
-                 on_landed: Callable[[RunResult], None] | None = None) -> RunResult:
+                 monitors: list[str] | None = None, faults: list[dict] | None = None,
+                 gust_seed: int | None = None, truth_path: str | Path | None = None, linger_s: float = 0.0,
+                 on_landed: Callable[[RunResult], None] | None = None,
+                 progress: Callable[[str], None] | None = None) -> RunResult:
     """Fly an approach with sensors and monitors in the loop; record it; evaluate it.
 
     Every input and output path is checked before the flight; the outputs are moved into
@@ -140,9 +147,12 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
         another address is served unauthenticated to its network, with a warning).
     block_s : simulated seconds between live updates.
     monitors : override the approach's monitor list.
+    faults : ``[[faults]]`` tables appended to the approach's schedule (:func:`testbed.config.fault_from_option`
+        makes one from the command line's one-line form).
     truth_path : also write the full-rate truth (.npz, .csv, .parquet).
     linger_s : with ``live``, keep the server up this long after landing (the outputs are in
         place by then; ``on_landed(result)`` is called first, e.g. to print the summary).
+    progress : called with a notice before a long step (the first compilation of the kernels).
     """
     import time
 
@@ -153,12 +163,7 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     from testbed.sim.setup import build_scene, prepare_monitors
 
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
-    if monitors is not None:
-        from testbed.config import validate, ApproachConfig
-
-        cfg = validate(ApproachConfig, {**ap.config.model_dump(exclude_unset=True), "monitors": monitors},
-                       ap.source)
-        ap = replace(ap, config=cfg)
+    ap = with_overrides(ap, monitors=monitors, faults=faults)
     wall0 = time.perf_counter()
     if rrd_path == "default":
         rrd_path = default_rrd_path(ap, seed)
@@ -168,7 +173,9 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     if live:
         _check_live_address(bind_ip, port)
     setup = preflight(ap)
-    prepare_monitors(setup)
+    t_prep = time.perf_counter()
+    first_compiled = prepare_monitors(setup, announce=progress)
+    prepare_s = time.perf_counter() - t_prep
     sinks, sink = [], None
     if rrd_path is not None or live:
         from testbed.viz.rerun_sink import RerunSink
@@ -198,7 +205,8 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
         summaries[mon.name] = summarise_monitor(loop.outputs[mon.name], pos, reference=mon.reference,
                                                 fault_onset_s=onset)
     result = RunResult(loop, summaries, Path(rrd_path) if rrd_path is not None else None,
-                       sink.live_url if sink is not None else None, time.perf_counter() - wall0)
+                       sink.live_url if sink is not None else None, time.perf_counter() - wall0,
+                       tuple(setup.faults), first_compiled, prepare_s)
     if sink is not None and live and linger_s > 0:
         try:
             sink.commit()
@@ -267,11 +275,13 @@ def _linger(seconds: float) -> None:
 
 
 def print_run_summary(result: RunResult) -> None:
-    """The flight summary, then one table row per monitor."""
+    """The flight summary, one table row per monitor, the injected faults and why a monitor never served."""
     from rich.console import Console
     from rich.table import Table
 
-    print_flight_summary(result.flight)
+    from testbed.sim.evaluate import describe_faults, unavailable_reason
+
+    print_flight_summary(result.flight, speed=False)
     t = Table(title="integrity monitors (evaluated against truth)")
     t.add_column("")
     names = list(result.summaries)
@@ -299,13 +309,21 @@ def print_run_summary(result: RunResult) -> None:
         t.add_row(label, *vals)
     con = Console()
     con.print(t)
-    tm = result.loop.timings
+    loop = result.loop
+    for line in describe_faults(result.faults, loop.gnss.prn, loop.gnss_truth.faulty, loop.gnss.visible, loop.gnss.t):
+        con.print(line, highlight=False)
+    for name in names:
+        why = unavailable_reason(result.outputs[name])
+        if why is not None:
+            con.print(f"{name}: unavailable at every epoch: {why}", highlight=False)
+    tm = loop.timings
     sim_s = result.flight.summary.duration_s
     loop_s = tm.flight + tm.sensors + tm.monitors + tm.logging
+    compiled = (f" (of which {result.prepare_s:.1f} s compiling the kernels of {', '.join(result.first_compiled)} "
+                "for the first time)" if result.first_compiled else "")
     con.print(f"loop: {sim_s:.0f} s simulated in {loop_s:.2f} s ({sim_s / loop_s:.0f}x real time): flight "
               f"{tm.flight:.2f} s, sensors {tm.sensors:.2f} s, monitors {tm.monitors:.2f} s, logging {tm.logging:.2f} s; "
-              f"set-up and evaluation {max(result.wall_s - loop_s, 0.0):.2f} s (terrain built once per process; the "
-              f"integrity kernels compiled on the first run after an install)")
+              f"set-up and evaluation {max(result.wall_s - loop_s, 0.0):.2f} s{compiled}", highlight=False)
     if result.rrd_path is not None:
         con.print(f"recording: {result.rrd_path}  (replay: rerun {result.rrd_path})")
 

@@ -44,8 +44,20 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 def _cmd_fly(args: argparse.Namespace) -> int:
     from testbed.api import check_run_arguments, fly_approach, print_flight_summary, print_run_summary, run_approach
+    from testbed.config import fault_from_option
 
+    faults, problems = [], []
+    for text in args.fault or []:  # every --fault's problems at once
+        try:
+            faults.append(fault_from_option(text))
+        except ConfigError as err:
+            problems += err.problems
+    if problems:
+        raise ConfigError("command line", problems)
     if args.flight_only:
+        if faults:
+            raise ConfigError("command line", ["--fault: a flight without sensors has nothing to inject into "
+                                               "(drop --flight-only)"])
         check_run_arguments(seed=args.seed)  # unused without sensors, but not nonsense either
         result = fly_approach(args.approach, gust_seed=args.gust_seed, truth_path=args.truth)
         print_flight_summary(result)
@@ -56,8 +68,10 @@ def _cmd_fly(args: argparse.Namespace) -> int:
                   f"rerun+http://{'127.0.0.1' if args.bind in ('0.0.0.0', '127.0.0.1') else args.bind}:{args.port}/proxy",
                   flush=True)
         run_approach(args.approach, seed=args.seed, rrd_path=rrd, live=args.live, bind_ip=args.bind,
-                     port=args.port, block_s=args.block, monitors=args.monitors, gust_seed=args.gust_seed,
-                     truth_path=args.truth, linger_s=args.linger if args.live else 0.0, on_landed=print_run_summary)
+                     port=args.port, block_s=args.block, monitors=args.monitors, faults=faults,
+                     gust_seed=args.gust_seed,
+                     truth_path=args.truth, linger_s=args.linger if args.live else 0.0, on_landed=print_run_summary,
+                     progress=lambda text: print(text, file=sys.stderr, flush=True))
     if args.truth:
         print(f"truth written to {args.truth}")
     return 0
@@ -164,6 +178,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated seconds between live updates (default 5: ~0.1 s of wall time)")
     f.add_argument("--monitors", nargs="+", choices=monitor_names(),
                    help="override the approach's monitors")
+    f.add_argument("--fault", action="append", metavar="KIND:KEY=VALUE,...",
+                   help="add a fault to the approach's schedule, the keys of a [[faults]] table, e.g. "
+                        "gps_step:prn=random,bias_m=60,onset_s=100 (repeatable)")
     f.add_argument("--flight-only", action="store_true", help="fly without sensors, monitors or recording")
     f.set_defaults(func=_cmd_fly)
 
@@ -229,8 +246,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from testbed.heap import keep_freed_memory
+    from testbed.threads import sleep_idle_threads
 
-    keep_freed_memory()  # a process setting: the command applies it, library calls never do (testbed.heap)
+    keep_freed_memory()  # process settings: the command applies them, library calls never do (testbed.heap,
+    sleep_idle_threads()  # testbed.threads)
     try:
         return exit_code(lambda: args.func(args))
     except BrokenPipeError:  # output piped into `head` and the like: stop quietly

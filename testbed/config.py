@@ -201,3 +201,64 @@ def _list_descriptions(folder: Path) -> list[tuple[str, str]]:
         except ConfigError as exc:
             out.append((p.stem, f"(invalid: {exc.problems[0]})"))
     return out
+
+
+def fault_from_option(text: str) -> dict:
+    """A ``[[faults]]`` table from its one-line form ``KIND:key=value,key=value`` (the keys and values of
+    an approach file's fault table, values written as in TOML; a bare word is a string), e.g.
+    ``gps_step:prn=random,bias_m=60,onset_s=100`` or ``landmark_moved:landmark=A,delta_enu_m=[5,0,0]``.
+    Checked like a file: every problem names ``--fault``, the key and the value."""
+    where = f"--fault {text!r}"
+    kind, sep, rest = text.partition(":")
+    if not kind.strip():
+        raise ConfigError("command line", [f"{where}: expected KIND:key=value,... (e.g. "
+                                           "gps_step:prn=random,bias_m=60,onset_s=100)"])
+    table: dict[str, Any] = {"kind": kind.strip()}
+    problems = []
+    for item in _split_top_level(rest) if sep else []:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip() or not value.strip():
+            problems.append(f"{where}: {item!r}: expected key=value")
+            continue
+        try:
+            table[key.strip()] = tomllib.loads(f"v = {value.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            table[key.strip()] = value.strip()  # a bare word: a string (prn=random, landmark=A)
+    if problems:
+        raise ConfigError("command line", problems)
+    from pydantic import TypeAdapter
+
+    try:
+        TypeAdapter(Fault).validate_python(table)
+    except ValidationError as err:
+        raise ConfigError("command line", [f"{where}: {p}" for p in format_validation_error(err, table)]) from None
+    return table
+
+
+def _split_top_level(text: str) -> list[str]:
+    """Split at the commas that are not inside brackets."""
+    parts, depth, cur = [], 0, ""
+    for ch in text:
+        depth += ch == "["
+        depth -= ch == "]"
+        if ch == "," and depth == 0:
+            parts.append(cur)
+            cur = ""
+        else:
+            cur += ch
+    return [p for p in (*parts, cur) if p.strip()]
+
+
+def with_overrides(ap: Approach, *, monitors: list[str] | None = None, faults: list[dict] | None = None) -> Approach:
+    """``ap`` with its monitors replaced and faults appended (the command line's ``--monitors`` and
+    ``--fault``), validated as the file would be."""
+    if monitors is None and not faults:
+        return ap
+    from dataclasses import replace
+
+    data = ap.config.model_dump(exclude_unset=True)
+    if monitors is not None:
+        data["monitors"] = monitors
+    if faults:
+        data["faults"] = [*data.get("faults", []), *faults]
+    return replace(ap, config=validate(ApproachConfig, data, ap.source))

@@ -72,3 +72,28 @@ def keep_in_step(module: types.ModuleType, sources: Iterable[Path] | None = None
             index._source_stamp = (own, digest)
             n += 1
     return n
+
+
+def _marker(monitor: str) -> Path:
+    """The file that says ``monitor``'s kernels were compiled from the current sources (beside numba's cache)."""
+    import numba
+
+    base = Path(numba.config.CACHE_DIR) if numba.config.CACHE_DIR else PACKAGE / "integrity" / "kernels" / "__pycache__"
+    digest = sources_digest(tuple(PACKAGE / s for s in DIGESTED))
+    return base / f"testbed-prepared-{monitor}-{digest}"
+
+
+def compiled_before(monitor: str) -> bool:
+    """Whether ``monitor``'s kernels were compiled from these sources by an earlier run (a guess from a
+    marker file, for the first-run notice only: numba's own cache decides what is really compiled)."""
+    return _marker(monitor).exists()
+
+
+def mark_compiled(monitor: str) -> None:
+    """Leave the marker :func:`compiled_before` reads (silently skipped where the cache is not writable)."""
+    try:
+        path = _marker(monitor)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.touch()
+    except OSError:
+        pass

@@ -42,6 +42,39 @@ def test_fly_with_monitors_no_record_writes_nothing(cwd, capsys):
     assert os.listdir(cwd) == []
 
 
+def test_the_summary_names_the_injected_fault_and_why_a_monitor_never_served(cwd, capsys):
+    """The shipped faulted final: the fault's kind, size, onset and the satellite the draw picked, with the
+    epochs it was in the observations; the DPE without a K says why it is never available; one real-time
+    factor (the loop's)."""
+    assert main(["fly", "zunz-rwy05-gps-step", "--no-record", "--monitors", "gps_raim", "dpe"]) == 0
+    out = " ".join(capsys.readouterr().out.split())  # rich wraps at the terminal width
+    assert "fault: gps_step +60 m on a random visible satellite from 100 s" in out
+    assert "in the observations: PRN 21 at 46 of 150 epochs (100-145 s)" in out
+    assert "dpe: unavailable at every epoch: K not calibrated" in out
+    assert out.count("x real time") == 1
+
+
+def test_a_fault_from_the_command_line_is_flown_and_named(cwd, capsys):
+    assert main(["fly", "va-raim-2015", "--no-record", "--monitors", "gps_raim",
+                 "--fault", "gps_step:prn=random,bias_m=80,onset_s=20"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "fault: gps_step +80 m on a random visible satellite from 20 s" in out
+    assert "in the observations: PRN" in out and os.listdir(cwd) == []
+
+
+def test_bad_faults_on_the_command_line_are_all_named_before_any_work(cwd, capsys):
+    argv = ["fly", "--fault", "gps_step:prn=random,bias=40", "--fault", "pixel_bias:magnitude_px=-3",
+            "--fault", "gps_step:prn=[3,5],bias_m=1e9"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--fault 'gps_step:prn=random,bias=40': bias_m: Field required" in err
+    assert "bias: unknown key" in err and "magnitude_px: Input should be greater than or equal to 0" in err
+    assert "'gps_step:prn=[3,5],bias_m=1e9': bias_m:" in err and "Traceback" not in err
+    assert os.listdir(cwd) == []
+    assert main(["fly", "--fault", "gps_step:prn=99,bias_m=10"]) == 2  # not a satellite of the constellation
+    assert "99" in capsys.readouterr().err and os.listdir(cwd) == []
+
+
 def test_fly_default_recording_goes_under_runs(cwd, capsys):
     assert main(["fly", "va-raim-2015", "--monitors", "gps_raim", "--seed", "2"]) == 0
     assert os.listdir(cwd) == ["runs"] and os.listdir(cwd / "runs") == ["va-raim-2015-seed2.rrd"]

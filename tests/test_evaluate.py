@@ -33,3 +33,30 @@ def test_regions_partition_random_epochs():
     alert = rng.random(10_000) < 0.1
     r = stanford_regions(err, pl, AL, alert)
     assert np.array_equal(sum(r[k].astype(int) for k in REGIONS), np.ones(10_000, int))
+
+
+def test_a_gnss_fault_no_tracked_satellite_carries_is_not_exercised():
+    from testbed.sensors.faults import GpsStep
+    from testbed.sim.evaluate import describe_faults
+
+    f = [GpsStep(kind="gps_step", prn=7, bias_m=30.0, onset_s=10.0)]
+    t, prn = np.arange(5.0), np.array([3, 7])
+    faulty = np.zeros((5, 2), bool)
+    faulty[2:, 1] = True
+    hidden = np.array([[True, False]] * 5)  # PRN 7 never tracked
+    lines = describe_faults(f, prn, faulty, hidden, t)
+    assert lines[0].startswith("fault: gps_step +30 m on PRN 7 from 10 s")
+    assert lines[1].endswith("not exercised")
+    lines = describe_faults(f, prn, faulty, np.ones((5, 2), bool), t)
+    assert lines[1].strip() == "in the observations: PRN 7 at 3 of 5 epochs (2-4 s)"
+
+
+def test_the_unavailable_reason_is_the_most_frequent_code_and_none_when_ever_available():
+    from types import SimpleNamespace
+
+    from testbed.sim.evaluate import unavailable_reason
+
+    out = SimpleNamespace(available=np.zeros((4, 2), bool), reason=np.array([1, 2, 2, 0]),
+                          reasons=("ok", "unavailable: too few satellites", "geometry"))
+    assert unavailable_reason(out) == "geometry (2 of 4 epochs)"
+    assert unavailable_reason(SimpleNamespace(**{**vars(out), "available": np.eye(4, 2, dtype=bool)})) is None

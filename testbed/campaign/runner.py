@@ -770,8 +770,10 @@ def _worker_row(spec_json: str, source: str, chunk: int, cells: list[int]) -> di
     """Entry point on a worker process (Dask's or the local pool's): rebuild the spec from its JSON (cheap, cached
     per process) and run chunk ``chunk`` of ``cells`` (:func:`run_chunk_row`)."""
     from testbed.heap import keep_freed_memory
+    from testbed.threads import sleep_idle_threads
 
     keep_freed_memory()  # a worker process runs nothing but campaign chunks
+    sleep_idle_threads()  # beside the other workers (effective unless OpenMP started before the first row)
     return run_chunk_row(worker_spec(spec_json, source), chunk, cells, threads=1)  # the workers are the parallelism
 
 

@@ -129,3 +129,50 @@ def summarise_monitor(out: MonitorOutput, true_pos_enu: NDArray, *, reference: s
         excluded_epochs=int((np.asarray(out.excluded) >= 0).sum()),
         first_alert_s=first_alert, time_to_alert_s=tta, mi_epochs=int(mi.sum()), hmi_epochs=int(hmi.sum()),
         regions_h={k: int(v.sum()) for k, v in rh.items()}, regions_v={k: int(v.sum()) for k, v in rv.items()})
+
+
+def unavailable_reason(out: MonitorOutput) -> str | None:
+    """Why a monitor gave no available epoch at any service level (its most frequent reason code),
+    or None when some epoch was available."""
+    avail = np.asarray(out.available, bool)
+    if avail.size and avail.any():
+        return None
+    codes = np.asarray(out.reason, int).ravel()
+    codes = codes[codes > 0]
+    if codes.size == 0:
+        return "protection levels above every alert limit"
+    top = int(np.bincount(codes).argmax())
+    text = out.reasons[top].removeprefix("unavailable: ")
+    return f"{text} ({int((codes == top).sum())} of {np.asarray(out.reason).size} epochs)"
+
+
+def describe_faults(faults, prn: NDArray, faulty: NDArray, visible: NDArray, t: NDArray) -> list[str]:
+    """One line per injected fault (kind, size, target, onset) and, for the GNSS faults, which satellites
+    the observations carried it on and at how many epochs (``faulty``/``visible``: (T, S), ``prn``: (S,)).
+    A GNSS fault that no tracked satellite carried is said to be "not exercised"."""
+    from testbed.sensors.faults import GNSS_KINDS
+
+    lines = []
+    for f in faults:
+        size = next((f"{getattr(f, k):+g} {u}" for k, u in (("bias_m", "m"), ("rate_m_s", "m/s"),
+                                                          ("drift_m_s", "m/s"), ("magnitude_px", "px"))
+                     if hasattr(f, k)), "")
+        target = getattr(f, "prn", None) or getattr(f, "landmark", None) or getattr(f, "landmarks", None)
+        if target == "random":
+            target = "a random visible satellite" if f.kind in GNSS_KINDS else "a random detected landmark"
+        elif f.kind in GNSS_KINDS:
+            target = f"PRN {target}"
+        end = f" to {f.end_s:g} s" if f.end_s is not None else ""
+        lines.append(f"fault: {f.kind} {size} on {target} from {f.onset_s:g} s{end} (time to alert counts from "
+                     f"the first onset)".replace("  ", " "))
+    if any(f.kind in GNSS_KINDS for f in faults):
+        seen = np.asarray(faulty, bool) & np.asarray(visible, bool)
+        if not seen.any():
+            lines.append("  in the observations: at no epoch (no tracked satellite carried it): not exercised")
+        else:
+            sats = [int(p) for p in np.asarray(prn)[seen.any(axis=0)]]
+            epochs = seen.any(axis=1)
+            tt = np.asarray(t, float)[epochs]
+            lines.append(f"  in the observations: PRN {', '.join(map(str, sats))} at {int(epochs.sum())} of "
+                         f"{epochs.size} epochs ({tt[0]:g}-{tt[-1]:g} s)")
+    return lines

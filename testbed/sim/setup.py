@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from pydantic import ValidationError
@@ -20,6 +21,7 @@ from testbed.integrity.levels import service_level
 from testbed.integrity.monitor import Monitor, MonitorContext
 from testbed.integrity.registry import build_monitor, monitor_names, reads_correlators, reads_features, reads_imu, reads_vision
 from testbed.integrity.settings import IntegritySettings
+from testbed.kernel_cache import compiled_before, mark_compiled
 from testbed.records import Mount
 from testbed.schema import ConfigError, format_validation_error
 from testbed.sensors.gnss.settings import GnssSettings
@@ -185,12 +187,22 @@ def _built(name: str, ctx: MonitorContext, approach: Approach) -> Monitor:
         raise ConfigError(approach.source, [f"{name}: {exc}"]) from None
 
 
-def prepare_monitors(setup: RunSetup) -> None:
-    """Compile what the monitors compile (numba kernels) before the flight, not in its first epochs."""
-    for m in setup.monitors:
-        prepare = getattr(m, "prepare", None)
-        if prepare is not None:
-            prepare()
+def prepare_monitors(setup: RunSetup, announce: Callable[[str], None] | None = None) -> tuple[str, ...]:
+    """Compile what the monitors compile (numba kernels) before the flight, not in its first epochs.
+
+    announce : called once with a notice before compiling when some monitor's kernels were not
+        compiled from these sources by an earlier run (the first run after an install or an edit).
+    Returns the names of the monitors whose kernels were compiled for the first time.
+    """
+    prepares = [(m.name, m.prepare) for m in setup.monitors if getattr(m, "prepare", None) is not None]
+    first = tuple(name for name, _ in prepares if not compiled_before(name))
+    if first and announce is not None:
+        announce(f"compiling the integrity kernels of {', '.join(first)} once for this installation "
+                 "(about a minute on 2 cores; cached for later runs)...")
+    for name, prepare in prepares:
+        prepare()
+        mark_compiled(name)
+    return first
 
 
 @dataclass(frozen=True)
