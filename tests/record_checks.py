@@ -26,3 +26,19 @@ def assert_records_equal(a, b, path: str = "", rtol: float = 0.0, atol: float = 
         else:
             assert va == vb or (va != va and vb != vb), f"{where}: {va!r} vs {vb!r}"
     return n
+
+
+def markdown_table_problems(text: str) -> list[str]:
+    """Markdown tables whose header, separator and rows do not all have the same number of cells."""
+    problems, block = [], []
+    for line in [*text.splitlines(), ""]:
+        if line.startswith("|"):
+            block.append(line)
+            continue
+        if block:
+            counts = [len(r.strip().strip("|").split("|")) for r in block]
+            if len(set(counts)) > 1 or len(block) < 2 or set(block[1]) - set("|-: "):
+                problems.append(f"{block[0]!r}: cells per line {counts}")
+            block = []
+    return problems
+

@@ -14,6 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from testbed.campaign.report import binomial_interval, minimal_detectable_bias, write_report
+from record_checks import markdown_table_problems
 from testbed.campaign.runner import run_campaign
 from testbed.campaign.spec import expand_cells, load_spec
 from testbed.campaign.store import ResultStore, tables_equal
@@ -677,3 +678,14 @@ def test_stanford_counts_are_numpys_histogram2d():
         want = np.zeros_like(H)
         want[ei, pi] = c
         assert np.array_equal(H, want) and (c > 0).all()
+
+
+def test_every_table_of_a_report_is_well_formed(reference, tmp_path):
+    """The report's Markdown tables render: the same number of cells in the header, the separator and every
+    row, with swept axes (the tiny spec) and with none (quick-look: its cells differ by the fault only)."""
+    from testbed.cli import main
+
+    assert markdown_table_problems(write_report(reference).read_text()) == []
+    out = tmp_path / "ql"
+    assert main(["campaign", "quick-look", "--out", str(out), "--trials", "10", "--quiet", "--workers", "1"]) == 0
+    assert markdown_table_problems((out / "report.md").read_text()) == []

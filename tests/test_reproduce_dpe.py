@@ -28,6 +28,9 @@ def test_the_claims_table_has_a_row_per_claim_and_well_formed_cells():
            {"fault_size": 80.0, "monitor": "dpe", "epochs": 100, "mi_epochs": 60, "hmi_epochs": 40},
            {"fault_size": 80.0, "monitor": "gps_raim", "epochs": 100, "mi_epochs": 3, "hmi_epochs": 2}]
     md = summary(cases, k_rec, hmi, trials=5)
+    from record_checks import markdown_table_problems
+
+    assert markdown_table_problems("\n".join(md)) == []
     start = md.index("## Claims")
     rows = [line for line in md[start:] if line.startswith("| ") and not line.startswith("| claim")]
     assert len(rows) == len(CLAIMS)

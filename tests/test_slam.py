@@ -204,12 +204,14 @@ def test_no_features_in_view_leaves_the_filter_on_its_ins_and_nan_pixels_are_ign
 
 
 def test_the_reproduction_writes_its_claims_and_is_deterministic(tmp_path):
+    from record_checks import markdown_table_problems
     from testbed.campaign.reproduce_won import CLAIMS, reproduce_won_2013
 
     a = reproduce_won_2013(tmp_path / "a", trials=3, duration_s=12.0, progress=False, figure=False)
     b = reproduce_won_2013(tmp_path / "b", trials=3, duration_s=12.0, progress=False, figure=False)
     assert (tmp_path / "a" / "results.json").read_text() == (tmp_path / "b" / "results.json").read_text()
     text = a.read_text()
+    assert markdown_table_problems(text) == []
     for short, _ in CLAIMS:
         assert f"| {short} |" in text
     res = json.loads((tmp_path / "a" / "results.json").read_text())

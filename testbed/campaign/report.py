@@ -23,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from testbed.campaign.markdown import table as md_table
 from testbed.campaign.store import read_columns
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
@@ -703,13 +704,12 @@ def _index_lines(inp: _ReportInputs, figures: list[tuple[str, str]]) -> list[str
     md += ["## Figures", ""]
     for title, name in figures:
         md += [f"### {title}", "", f"![{title}](figures/{name})", ""]
-    md += ["## Detection rates per cell", "", "| cell | monitor | fault | size | " +
-           " | ".join(AXIS_LABEL[a] for a in varying) + " | trials | detected | rate | interval |",
-           "|---|---|---|---|" + "---|" * len(varying) + "---|---|---|---|"]
-    for r in det_rows:
-        md.append(f"| {r['cell']} | {r['monitor']} | {r['fault_sweep_kind']} | {r['fault_size']:g} {r['fault_unit']} | "
-                  + " | ".join(str(r[a]) for a in varying) + ("" if not varying else "") +
-                  f" | {r['n']} | {r['k']} | {r['rate']:.4f} | [{r['lo']:.4f}, {r['hi']:.4f}] |")
+    md += ["## Detection rates per cell", ""]
+    md += md_table(["cell", "monitor", "fault", "size", *(AXIS_LABEL[a] for a in varying), "trials", "detected",
+                    "rate", "interval"],
+                   [[r["cell"], r["monitor"], r["fault_sweep_kind"], f"{r['fault_size']:g} {r['fault_unit']}",
+                     *(r[a] for a in varying), r["n"], r["k"], f"{r['rate']:.4f}", f"[{r['lo']:.4f}, {r['hi']:.4f}]"]
+                    for r in det_rows])
     return md
 
 
