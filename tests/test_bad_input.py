@@ -64,6 +64,18 @@ def far_away_dem(folder: Path) -> Path:
 
 FAULT = "[[faults]]\nkind = \"{kind}\"\n{body}\n"
 
+
+def _k_record_for(**dpe_options) -> str:
+    """A complete K record, as `testbed calibrate-dpe` writes it, for DPE options other than the defaults."""
+    import json
+
+    from testbed.integrity.dpe.calibration import settings_fingerprint
+    from testbed.integrity.dpe.monitor import DpeSettings
+    from testbed.sensors.gnss.settings import CorrelatorSettings
+
+    fp, cover = settings_fingerprint(DpeSettings(k_factor=1.0, **dpe_options), CorrelatorSettings())
+    return json.dumps({"k": 5.9, "settings": cover, "fingerprint": fp, "p_hmi": 1e-7, "n": 5000})
+
 # (id, how to build the file from the inputs folder, expected key text, expected value text)
 FILE_CASES = [
     ("prn-not-in-constellation", lambda d: approach(d, tail=FAULT.format(kind="gps_step", body="prn = 99\nbias_m = 10.0\nonset_s = 5.0")),
@@ -209,8 +221,7 @@ FILE_CASES = [
      "dpe", "grid"),
     ("dpe-k-file-missing", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]', tail='[dpe]\nk_factor = "missing.json"'),
      "dpe.k_factor", "missing.json"),
-    ("dpe-k-file-for-other-settings", lambda d: ((d / "k.json").write_text(
-        '{"k": 5.9, "settings": {"dpe": {"sis": "none"}}, "fingerprint": "x"}'),
+    ("dpe-k-file-for-other-settings", lambda d: ((d / "k.json").write_text(_k_record_for(sis="none")),
         approach(d, top='monitors = ["gps_raim", "dpe"]', tail='[dpe]\nk_factor = "k.json"'))[1],
      "dpe.k_factor", "dpe.sis = 'none' there, 'add' here"),
     ("seed-variant-on-the-power-statistic", lambda d: approach(d, top='monitors = ["gps_raim", "dpe"]',

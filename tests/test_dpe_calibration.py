@@ -4,6 +4,7 @@ refusal, held-out validation catching an under-calibrated K, and the record the 
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -56,7 +57,7 @@ def test_the_record_is_read_only_for_the_settings_it_was_made_for(tmp_path):
     s, c = DpeSettings(k_factor=1.0), CorrelatorSettings()
     fp, cover = settings_fingerprint(s, c)
     p = tmp_path / "k.json"
-    p.write_text(json.dumps({"k": 5.9, "settings": cover, "fingerprint": fp}))
+    p.write_text(json.dumps({"k": 5.9, "settings": cover, "fingerprint": fp, "p_hmi": 1e-7, "n": 5000}))
     assert read_k_file(p, cover) == 5.9
     other = settings_fingerprint(DpeSettings(k_factor=1.0, sis="none"), CorrelatorSettings(n_noncoherent=20))[1]
     with pytest.raises(ValueError, match=r"dpe.sis = 'add' there, 'none' here.*n_noncoherent = 50 there, 20 here"):
@@ -64,6 +65,48 @@ def test_the_record_is_read_only_for_the_settings_it_was_made_for(tmp_path):
     p.write_text("not json")
     with pytest.raises(ValueError, match="cannot be read"):
         read_k_file(p, cover)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"k": True}, "k = True: expected a number from 0.5 to 100"),
+    ({"k": "5.9"}, "k = '5.9'"), ({"k": -1.0}, "k = -1.0"), ({"k": float("nan")}, "k = nan"),
+    ({"settings": {}}, "expected the tables 'dpe' and 'correlators'"),
+    ({"settings": {"dpe": {}, "correlators": {}}}, "expected the tables"),
+    ({"fingerprint": "0000000000000000"}, "does not match its settings"),
+    ({"p_hmi": 2.0}, "p_hmi = 2.0"), ({"n": 1.5}, "n = 1.5"), ({"n": False}, "n = False"),
+])
+def test_a_stored_k_record_is_validated_like_an_input(tmp_path, change, message):
+    """A record whose K is a boolean and whose settings table is empty used to pass (K = 1, a VPL of 2 m
+    and misleading epochs with no alert): kinds, ranges, the whole settings and its fingerprint are checked."""
+    s, c = DpeSettings(k_factor=1.0), CorrelatorSettings()
+    fp, cover = settings_fingerprint(s, c)
+    rec = {"k": 5.9, "settings": cover, "fingerprint": fp, "p_hmi": 1e-7, "n": 5000, **change}
+    p = tmp_path / "k.json"
+    p.write_text(json.dumps(rec))
+    with pytest.raises(ValueError, match=re.escape(message)):
+        read_k_file(p, cover)
+
+
+def test_a_record_that_does_not_say_a_setting_it_was_fitted_for_is_refused(tmp_path):
+    s, c = DpeSettings(k_factor=1.0), CorrelatorSettings()
+    fp, cover = settings_fingerprint(s, c)
+    older = json.loads(json.dumps(cover))
+    del older["dpe"]["sis"]  # a record written before the option existed
+    import hashlib
+
+    fp_old = hashlib.sha256(json.dumps(older, sort_keys=True).encode()).hexdigest()[:16]
+    p = tmp_path / "k.json"
+    p.write_text(json.dumps({"k": 5.9, "settings": older, "fingerprint": fp_old, "p_hmi": 1e-7, "n": 5000}))
+    with pytest.raises(ValueError, match="dpe.sis missing there, 'add' here"):
+        read_k_file(p, cover)
+
+
+def test_the_shipped_k_records_are_valid():
+    from testbed.integrity.dpe.calibration import record_problems
+    from testbed.resources import approaches_dir
+
+    for path in sorted((approaches_dir() / "calibration").glob("*.json")):
+        assert record_problems(json.loads(path.read_text())) == [], path.name
     assert fit_k_tail(np.random.default_rng(0).normal(size=5000), 1e-7).n_eff == 5000
     with pytest.raises(ValueError, match="N_eff"):
         fit_k_tail(np.random.default_rng(0).normal(size=900), 1e-7)

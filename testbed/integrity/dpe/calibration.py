@@ -183,13 +183,55 @@ def read_k_file(path: Path, settings: dict) -> float:
         rec = json.loads(Path(path).read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"file {path}: cannot be read as a calibration record ({exc})") from None
-    if not isinstance(rec, dict) or not isinstance(rec.get("k"), (int, float)) or not isinstance(rec.get("settings"), dict):
-        raise ValueError(f"file {path}: expected a record of `testbed calibrate-dpe` with 'k' and 'settings'")
-    diff = _differences(rec["settings"], json.loads(json.dumps(settings)))
+    problems = record_problems(rec)
+    if problems:
+        raise ValueError(f"file {path}: not a valid `testbed calibrate-dpe` record: {'; '.join(problems)}")
+    current = json.loads(json.dumps(settings))
+    diff = _differences(rec["settings"], current) + [
+        f"{name} missing there, {value!r} here" for name, value in _missing(rec["settings"], current)]
     if diff:
         raise ValueError(f"file {path} was calibrated for other settings ({'; '.join(diff)}); calibrate again "
                          f"(testbed calibrate-dpe) or use the settings it was made for")
-    k = float(rec["k"])
-    if not np.isfinite(k) or k <= 0:
-        raise ValueError(f"file {path}: k = {rec['k']!r}, expected a positive number")
-    return k
+    return float(rec["k"])
+
+
+#: the plausible range of a calibrated K (a Gaussian's two-sided 1e-12 quantile is 7.1; tails heavier
+#: than that are measured in units of σ_ob, not of thousands of them)
+K_RANGE = (0.5, 100.0)
+
+
+def record_problems(rec) -> list[str]:
+    """What makes ``rec`` not a record `testbed calibrate-dpe` wrote, checked as strictly as an approach
+    file: the kinds and ranges of ``k``, ``p_hmi`` and ``n``, and ``settings`` whole (the DPE and the
+    correlator tables) and consistent with its ``fingerprint`` (an edited table no longer matches)."""
+    if not isinstance(rec, dict):
+        return [f"expected a JSON table, got {type(rec).__name__}"]
+    out = []
+    k = rec.get("k")
+    if isinstance(k, bool) or not isinstance(k, (int, float)) or not (K_RANGE[0] <= k <= K_RANGE[1]):
+        out.append(f"k = {k!r}: expected a number from {K_RANGE[0]:g} to {K_RANGE[1]:g}")
+    p = rec.get("p_hmi")
+    if isinstance(p, bool) or not isinstance(p, float) or not 0.0 < p < 1.0:
+        out.append(f"p_hmi = {p!r}: expected a probability between 0 and 1")
+    n = rec.get("n")
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        out.append(f"n = {n!r}: expected a count of calibration epochs (an integer >= 1)")
+    st = rec.get("settings")
+    if not (isinstance(st, dict) and set(st) == {"dpe", "correlators"}
+            and all(isinstance(v, dict) and v for v in st.values())):
+        out.append(f"settings = {st!r}: expected the tables 'dpe' and 'correlators' the record was fitted for")
+    elif rec.get("fingerprint") != hashlib.sha256(json.dumps(st, sort_keys=True).encode()).hexdigest()[:16]:
+        out.append(f"fingerprint = {rec.get('fingerprint')!r}: does not match its settings (edited by hand?)")
+    return out
+
+
+def _missing(recorded: dict, current: dict, prefix: str = "") -> list[tuple[str, object]]:
+    """Keys of ``current`` that ``recorded`` lacks (a setting the record does not say it was fitted for)."""
+    out = []
+    for k, v in current.items():
+        name = f"{prefix}{k}"
+        if k not in recorded:
+            out.append((name, v))
+        elif isinstance(v, dict) and isinstance(recorded[k], dict):
+            out += _missing(recorded[k], v, name + ".")
+    return out
