@@ -7,8 +7,8 @@ import os
 import sys
 from pathlib import Path
 
-from testbed.integrity.registry import monitor_names
-from testbed.schema import ConfigError, exit_code
+# Only the standard library at the top: the packages load inside main's Ctrl-C handler (a Ctrl-C in the
+# first seconds of a command is exit 130 with a message too, not a traceback).
 
 
 def _cmd_approaches(args: argparse.Namespace) -> int:
@@ -43,6 +43,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_fly(args: argparse.Namespace) -> int:
+    from testbed.schema import ConfigError
     from testbed.api import check_run_arguments, fly_approach, print_flight_summary, print_run_summary, run_approach
     from testbed.config import fault_from_option
 
@@ -105,6 +106,7 @@ def _cmd_observability(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
+    from testbed.schema import ConfigError
     from testbed.api import check_run_arguments
     from testbed.campaign.dpe_calibration import SET_C_TRAJECTORIES, calibrate_dpe, write_record
     from testbed.config import load_approach
@@ -159,6 +161,8 @@ def _in_range(kind, lo, hi):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from testbed.integrity.registry import monitor_names
+
     p = argparse.ArgumentParser(prog="testbed", description="GNSS/vision integrity testbed for approaches into ZUNZ")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -244,10 +248,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # while the packages load (exit_code handles it once a command runs)
+        print("interrupted before any work", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     from testbed.heap import keep_freed_memory
+    from testbed.schema import exit_code
     from testbed.threads import sleep_idle_threads
 
+    args = build_parser().parse_args(argv)
     keep_freed_memory()  # process settings: the command applies them, library calls never do (testbed.heap,
     sleep_idle_threads()  # testbed.threads)
     try:

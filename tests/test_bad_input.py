@@ -763,6 +763,34 @@ def test_ctrl_c_in_any_command_is_exit_130_without_a_traceback(work):
     assert listing(cwd) == {}
 
 
+@pytest.mark.parametrize("delay_s", [0.3, 0.8, 1.5])
+def test_ctrl_c_while_the_packages_load_is_exit_130_without_a_traceback(work, delay_s):
+    """The first seconds of a command import numba, scipy, pydantic...: a Ctrl-C there gave a
+    KeyboardInterrupt traceback; the imports now run inside the command's handler."""
+    import ast
+    import signal
+    import time
+
+    top = [n for n in ast.parse((Path(__file__).resolve().parents[1] / "testbed" / "cli.py").read_text()).body
+           if isinstance(n, (ast.Import, ast.ImportFrom))]
+    assert all(not (getattr(n, "module", None) or "").startswith("testbed") and
+               not any(a.name.startswith("testbed") for a in n.names) for n in top)  # the stdlib only
+    cwd, _ = work
+    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli", "fly", "--no-record"], cwd=cwd,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        time.sleep(delay_s)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    # -SIGINT: stopped before Python installed its own handler (the shell reports 130 as well)
+    assert proc.returncode in (130, -signal.SIGINT) and "Traceback" not in err, (proc.returncode, err)
+    assert listing(cwd) == {}
+
+
 def test_a_command_that_succeeds_replaces_its_own_outputs(work, capsys):
     """README: `export-rinex` into the same folder twice replaces its files (the second seed's observations)."""
     cwd, _ = work
