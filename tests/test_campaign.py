@@ -680,7 +680,7 @@ def test_stanford_counts_are_numpys_histogram2d():
         assert np.array_equal(H, want) and (c > 0).all()
 
 
-def test_every_table_of_a_report_is_well_formed(reference, tmp_path):
+def test_every_table_of_a_report_is_well_formed(reference, tmp_path, capsys):
     """The report's Markdown tables render: the same number of cells in the header, the separator and every
     row, with swept axes (the tiny spec) and with none (quick-look: its cells differ by the fault only)."""
     from testbed.cli import main
@@ -689,3 +689,11 @@ def test_every_table_of_a_report_is_well_formed(reference, tmp_path):
     out = tmp_path / "ql"
     assert main(["campaign", "quick-look", "--out", str(out), "--trials", "10", "--quiet", "--workers", "1"]) == 0
     assert markdown_table_problems((out / "report.md").read_text()) == []
+    said = capsys.readouterr().out  # the console's headline: each cell and monitor's result, not only paths
+    assert "gps_raim, fault-free: false alarm in" in said and "va_raim, gps_step 20 m: detected in" in said
+    from testbed.campaign.report import headlines
+
+    lines = headlines(reference)
+    assert len(lines) == 4 and all(" of 40 sorties (" in x for x in lines)
+    lines = headlines(reference, limit=3)
+    assert len(lines) == 4 and lines[-1] == "... and 1 more cell-monitor rows in report.md"

@@ -47,7 +47,7 @@ def _interrupted(out: Path) -> int:
 
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
-    from testbed.campaign.report import write_report
+    from testbed.campaign.report import headlines, write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
 
@@ -60,6 +60,8 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
         return _interrupted(out)
     print(f"{res.cells} cells, {res.trials} trials: {res.chunks_run} chunks run, {res.chunks_skipped} already stored; "
           f"{res.wall_s:.1f} s ({res.epochs_per_s:,.0f} sortie-epochs/s)")
+    for line in headlines(out):
+        print(line)
     if not args.no_report:
         idx = write_report(out)
         print(f"report: {idx}")

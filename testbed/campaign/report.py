@@ -157,6 +157,33 @@ def detection_table(cells: list[dict], trials, confidence: float = 0.95, method:
     return rows
 
 
+def headlines(out_dir: str | Path, limit: int = 8) -> list[str]:
+    """A finished campaign's result in a few console lines: per cell and monitor, the sorties alerted
+    (fault-free: false alarms; faulty: detections) with their interval, and the sorties with HMI."""
+    man, cells, trials, _, _ = _load(Path(out_dir))
+    rep = man["spec"].get("report", {})
+    conf = rep.get("confidence", 0.95)
+    rows = detection_table(cells, trials, conf, rep.get("interval", "clopper-pearson"))
+    c = _cols(trials, ["cell", "monitor", "hmi_epochs"]) if "hmi_epochs" in _names(trials) else None
+    varying = _varying(cells)
+    lines = []
+    for r in rows[:limit]:
+        what = ("fault-free" if r["fault_size"] == 0 else
+                f"{r['fault_sweep_kind']} {r['fault_size']:g} {r['fault_unit']}")
+        where = _label(r, varying) if varying else ""
+        verb = "false alarm in" if r["fault_size"] == 0 else "detected in"
+        hmi = ""
+        if c is not None:
+            sel = (c["cell"] == r["cell"]) & (c["monitor"] == r["monitor"])
+            hmi = f"; HMI in {int((c['hmi_epochs'][sel] > 0).sum())}"
+        lines.append(f"{r['monitor']}, {what}{', ' + where if where else ''}: {verb} {r['k']} of {r['n']} sorties "
+                     f"({100 * r['rate']:.1f} %, {100 * conf:g} % interval {100 * r['lo']:.1f}-{100 * r['hi']:.1f} %)"
+                     f"{hmi}")
+    if len(rows) > limit:
+        lines.append(f"... and {len(rows) - limit} more cell-monitor rows in report.md")
+    return lines
+
+
 def _varying(cells: list[dict]) -> list[str]:
     return [a for a in AXES if len({str(c.get(a)) for c in cells}) > 1]
 
