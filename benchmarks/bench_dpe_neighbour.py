@@ -1,14 +1,14 @@
-"""Benchmark: the DPE approach's real-time factor alone and beside a CPU-bound neighbour process, for
+"""Benchmark: the DPE approach's real-time factor alone and beside CPU-bound neighbour processes, for
 numba's OpenMP threads left as they are, told to sleep when idle (OMP_WAIT_POLICY=passive, what the
 testbed's commands set), and cut to one thread.
 
-Run: python benchmarks/bench_dpe_neighbour.py [--runs 3]
+Run: python benchmarks/bench_dpe_neighbour.py [--runs 3] [--neighbours N]
 
 Each setting flies ``zunz-rwy05-dpe`` (no recording) in a fresh process (OpenMP reads its settings
-when it starts), ``--runs`` times, alternating the settings; the neighbour is one Python busy loop
-(a campaign worker is such a neighbour). Prints the loop's real-time factor (simulated seconds /
-seconds of the loop) per run and the medians, and each setting's median beside a neighbour as a
-ratio of the same setting alone.
+when it starts), ``--runs`` times, alternating the settings; the neighbours are Python busy
+loops, one per core by default (``--neighbours``; a campaign's worker processes are such
+neighbours). Prints the loop's real-time factor (simulated seconds / seconds of the loop) per run
+and the medians, and each setting's median beside the neighbours as a ratio of it alone.
 """
 
 from __future__ import annotations
@@ -42,26 +42,29 @@ def fly(extra: dict) -> tuple[float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=3, choices=range(1, 21), metavar="N")
+    ap.add_argument("--neighbours", type=int, default=os.cpu_count() or 1, choices=range(1, 65), metavar="N",
+                    help="busy processes beside the flight (default: one per core)")
     a = ap.parse_args()
     fly({})  # compile and cache the kernels once, untimed
     res = {(s, n): [] for s in SETTINGS for n in (False, True)}
     for k in range(a.runs):
         for neighbour in (False, True):
-            busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if neighbour else None
+            busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                    for _ in range(a.neighbours if neighbour else 0)]
             try:
                 for name, extra in SETTINGS.items():
                     rt, mon = fly(extra)
                     res[(name, neighbour)].append(rt)
-                    print(f"run {k + 1}, {'beside a busy neighbour' if neighbour else 'alone':24s} {name:24s} "
+                    print(f"run {k + 1}, {f'beside {a.neighbours} busy' if neighbour else 'alone':16s} {name:24s} "
                           f"{rt:6.1f}x real time (monitors {mon:.2f} s)", flush=True)
             finally:
-                if busy is not None:
-                    busy.kill()
-                    busy.wait()
+                for b in busy:
+                    b.kill()
+                    b.wait()
     print("\nmedian real-time factor (runs)")
     for name in SETTINGS:
         alone, beside = statistics.median(res[(name, False)]), statistics.median(res[(name, True)])
-        print(f"  {name:24s} alone {alone:6.1f}x   beside a neighbour {beside:6.1f}x   ratio {beside / alone:.2f}")
+        print(f"  {name:24s} alone {alone:6.1f}x   beside the neighbours {beside:6.1f}x   ratio {beside / alone:.2f}")
 
 
 if __name__ == "__main__":
