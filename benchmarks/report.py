@@ -65,12 +65,18 @@ def _git(*args: str) -> str:
     return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=False).stdout.strip()
 
 
+def _refuse(message: str):
+    """Bad input: the message on stderr and exit code 2, before any work, never a traceback."""
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def command_for(name: str, args: list[str]) -> list[str]:
     if name == "suite":
         return ["/usr/bin/time", "-v", sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *args]
     script = ROOT / "benchmarks" / f"{name}.py"
     if name not in benchmark_names() or not script.is_file():
-        raise SystemExit(f"error: no benchmark named {name!r}; expected one of {', '.join(benchmark_names())}")
+        _refuse(f"no benchmark named {name!r}; expected one of {', '.join(benchmark_names())}")
     return [sys.executable, str(script.relative_to(ROOT)), *args]
 
 
@@ -119,13 +125,13 @@ def read_records() -> dict[str, dict]:
         try:
             rec = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
-            raise SystemExit(f"error: {where}: not a readable JSON record ({exc})") from None
+            _refuse(f"{where}: not a readable JSON record ({exc})")
         missing = RECORD_KEYS - set(rec) if isinstance(rec, dict) else RECORD_KEYS
         if missing or not isinstance(rec.get("machine"), dict) or MACHINE_KEYS - set(rec["machine"]):
-            raise SystemExit(f"error: {where}: a benchmark record needs the keys "
+            _refuse(f"{where}: a benchmark record needs the keys "
                              f"{sorted(RECORD_KEYS)} and machine {sorted(MACHINE_KEYS)}")
         if rec["name"] != path.stem or rec["name"] not in benchmark_names():
-            raise SystemExit(f"error: {where}: name {rec['name']!r} is not this file's "
+            _refuse(f"{where}: name {rec['name']!r} is not this file's "
                              f"benchmark ({path.stem!r})")
         records[rec["name"]] = rec
     return records

@@ -115,12 +115,15 @@ def test_the_performance_page_is_made_from_the_benchmark_records_alone():
         "docs/performance.md is generated: run `python benchmarks/report.py page`")
 
 
-def test_a_damaged_benchmark_record_is_refused_naming_it(tmp_path, monkeypatch):
+def test_a_damaged_benchmark_record_is_refused_naming_it(tmp_path, monkeypatch, capsys):
     report = _report_module()
     monkeypatch.setattr(report, "RESULTS", tmp_path)
-    (tmp_path / "bench_flight.json").write_text('{"name": "bench_flight"}')
-    with pytest.raises(SystemExit, match="bench_flight.json: a benchmark record needs the keys"):
-        report.read_records()
-    (tmp_path / "bench_flight.json").write_text("{not json")
-    with pytest.raises(SystemExit, match="bench_flight.json: not a readable JSON record"):
-        report.read_records()
+    for text, message in (('{"name": "bench_flight"}', "bench_flight.json: a benchmark record needs the keys"),
+                          ("{not json", "bench_flight.json: not a readable JSON record")):
+        (tmp_path / "bench_flight.json").write_text(text)
+        with pytest.raises(SystemExit) as exc:
+            report.read_records()
+        assert exc.value.code == 2 and message in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        report.main(["run", "no_such_benchmark"])
+    assert exc.value.code == 2 and "no benchmark named 'no_such_benchmark'" in capsys.readouterr().err
