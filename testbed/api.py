@@ -333,18 +333,17 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
     """Fly an approach, synthesise its GPS observations and write RINEX 3.04 obs + nav files.
 
     The observations are the ones a ``testbed fly`` run with the same seed sees
-    (same generator words), including the approach's GNSS faults. Returns the
+    (the same GNSS stream of the same seed), including the approach's GNSS faults. Returns the
     ``(obs_path, nav_path)``; the truth trajectory is written beside them as
     ``<name>.truth.csv`` (the true antenna position at the true GPS time of each epoch: a
     ``testbed monitor --reference`` file).
     """
     import numpy as np
 
-    from testbed.sensors.gnss.almanac import load_constellation
     from testbed.sensors.gnss.rinex import write_rinex
-    from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
-    from testbed.sensors.gnss.timebase import utc_to_gps_seconds
-    from testbed.sim.loop import sensor_seeds
+    from testbed.sensors.gnss.synth import gnss_geometry
+    from testbed.sim.pipeline import draw_gnss, sensor_plan
+    from testbed.sim.streams import StreamTree
     from testbed.sim.preflight import preflight
 
     ap = approach if isinstance(approach, Approach) else load_approach(approach)
@@ -353,12 +352,10 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
     setup = preflight(ap)
     flight = fly(ap.flight_plan, setup.terrain, gust_seed=gust_seed)
     start = ap.config.start_time_utc
-    eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path, utc_to_gps_seconds(start),
-                             setup.gnss.almanac_week)
+    plan = sensor_plan(setup)
     geom = gnss_geometry(flight.truth.decimate(setup.gnss.rate_hz), setup.antenna, setup.gnss, start_utc=start,
-                         terrain=setup.terrain, constellation=eph)
-    g_seed, _ = sensor_seeds(seed)
-    obs, gtruth = sample_gnss(geom, setup.gnss, faults=list(setup.faults), rng=np.random.default_rng(g_seed))
+                         terrain=setup.terrain, constellation=plan.constellation)
+    obs, gtruth = draw_gnss(plan, geom, StreamTree.of_run(seed))  # the flight's own GNSS draws
     paths = write_rinex(obs, geom, out_dir, name=ap.name, clock_bias_m=gtruth.clock_bias)
     lat, lon, h = (np.asarray(v) for v in __import__("testbed.frames", fromlist=["x"]).ecef_to_geodetic(
         gtruth.antenna_pos_ecef))

@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field, fields, replace
 from enum import IntEnum
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +38,15 @@ class Diagnostics:
     stacking handle any monitor's record without knowing it; other fields
     (reason texts, constants) are carried as they are.
     """
+
+    #: :meth:`trial_columns` reads the vision truth (a campaign shares a monitor's tables between cells only when
+    #: what they read is the same)
+    reads_vision_truth: ClassVar[bool] = False
+
+    def trial_columns(self, vision_truth) -> dict[str, NDArray]:
+        """The monitor's own columns of a campaign's trials table, one value per trial (evaluation against the
+        truth): none by default."""
+        return {}
 
 
 def _record_fields(rec):

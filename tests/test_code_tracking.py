@@ -80,11 +80,13 @@ def test_gps_raim_reads_the_signal_the_dpe_sees():
     np.testing.assert_allclose(err, np.asarray(gt.noise)[vis], atol=1e-6)
     # the correlators' own truth: the same SIS; what is left is the code loop's error
     from testbed.sensors.gnss.correlators import synthesize_correlators
-    from testbed.sim.loop import correlator_seed
+    from testbed.sim.pipeline import correlator_words
+    from testbed.sim.streams import StreamTree
 
     model = run_approach(_short("model", start_m=8000.0), seed=5, rrd_path=None)
     corr, ctruth = synthesize_correlators(model.loop.gnss, model.loop.gnss_truth, model.loop.truth_at_gnss,
-                                          _short("model").config.gnss, correlator_seed(5))
+                                          _short("model").config.gnss,
+                                          correlator_words(StreamTree.of_run(5)))
     sis = np.asarray(ctruth.sis_m)[vis]
     a2 = amplitude_sq(np.asarray(ctruth.cn0_dbhz)[vis], corr.coherent_s)
     z_code = (err - sis) / crb_delay_sigma(a2, corr.n_noncoherent, corr.bandwidth_chips)

@@ -16,7 +16,9 @@ from testbed.sensors.faults import GpsStep
 from testbed.sensors.gnss.almanac import load_constellation
 from testbed.sensors.gnss.synth import synthesize_gnss
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
-from testbed.sim.loop import run_loop, sensor_seeds
+from testbed.sim import pipeline
+from testbed.sim.loop import run_loop
+from testbed.sim.streams import StreamTree
 from testbed.sim.setup import build_setup
 
 SEED = 3
@@ -38,12 +40,11 @@ def live(gps_setup):
 
 
 def batch_gnss(setup, flight_truth):
-    seed_gnss, _ = sensor_seeds(SEED)
     start = setup.approach.config.start_time_utc
     eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path, utc_to_gps_seconds(start),
                              setup.gnss.almanac_week)
     return synthesize_gnss(flight_truth, setup.antenna, setup.gnss, start_utc=start, terrain=setup.terrain,
-                           faults=list(setup.faults), rng=np.random.default_rng(seed_gnss), constellation=eph)
+                           faults=list(setup.faults), rng=StreamTree.of_run(SEED).generator("gnss"), constellation=eph)
 
 
 def test_live_gnss_equals_batch(gps_setup, live):
@@ -60,10 +61,13 @@ def test_live_monitor_equals_batch_and_detects_the_fault(gps_setup, live):
     out = live.outputs["gps_raim"]
     for f in ("hpl", "vpl", "test_stat", "threshold", "alert", "pos_enu"):
         np.testing.assert_allclose(getattr(out, f), getattr(ref, f), rtol=1e-12, atol=1e-9, err_msg=f)
-    # the 80 m step from 30 s on a visible satellite is alerted (with >= 5 satellites)
+    # the 80 m step from 30 s is alerted while its satellite is in view (with >= 5 satellites); the random
+    # satellite may set or be masked by the terrain during the flight, and its step with it
     faulty = gt.faulty.any(axis=1)
     assert faulty[30:].all() and not faulty[:30].any()
-    assert out.alert[30:][out.n_used[30:] >= 5].mean() > 0.9
+    present = (gt.faulty & g.visible).any(axis=1) & (out.n_used >= 5)
+    assert present.sum() >= 10
+    assert out.alert[present].mean() > 0.9
     assert not out.alert[:30].any()
     assert any("ALERT" in e[2] and e[0] >= 30.0 for e in live.events)
 
@@ -91,9 +95,10 @@ def test_live_vision_monitors_equal_batch(vision_setup):
     s = vision_setup
     live = run_loop(s, seed=SEED, block_s=2.0)
     g, _ = batch_gnss(s, live.flight.truth)
-    _, seed_vision = sensor_seeds(SEED)
+    tree = StreamTree.of_run(SEED)
     v, _ = synthesize_vision(live.flight.truth, s.vision, landmarks=s.landmarks, terrain=s.terrain,
-                             faults=list(s.faults), rng=np.random.default_rng(seed_vision))
+                             faults=list(s.faults), rng=tree.generator("vision"),
+                             survey_ecef=pipeline.landmark_survey(pipeline.sensor_plan(s), tree))
     np.testing.assert_array_equal(live.vision.pixel_uv, v.pixel_uv)
     assert np.allclose(v.t, g.t)  # 1 Hz both in this preset
     refs = {"va_raim": va_raim(g, v, s.frame, s.monitor("va_raim").settings),

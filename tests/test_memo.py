@@ -53,11 +53,11 @@ def test_a_sweep_gives_the_same_tables_with_and_without_shared_draws(tmp_path):
     # per block, cells in order (0 m, f1) (0 m, f2) (40 m, f1) (40 m, f2): the pseudoranges and step 1 are new
     # for each magnitude and reused by its second camera (2 + 2 hits), the frames new for each camera and
     # reused at 40 m (2 hits), the dithering drawn with the first frames and reused by the second camera's
-    # (1 hit), the landmark survey new for each camera and reused at 40 m (2 misses, 2 hits), VA-RAIM's vision
-    # step new in every cell (4 misses; it reads both records), the fault-free GNSS errors drawn for 0 m and
-    # reused at 40 m (1 miss, 1 hit), GPS RAIM's own table columns (its output is step 1's) new for each
-    # magnitude and reused by its second camera (2 misses, 2 hits): 12 hits and 16 misses a block, 4 blocks a cell
-    assert shared["hits"] == 4 * 12 and shared["misses"] == 4 * 16
+    # (1 hit; the block's landmark survey is drawn with the frames), VA-RAIM's vision step new in every cell
+    # (4 misses; it reads both records), the fault-free GNSS errors drawn for 0 m and reused at 40 m (1 miss,
+    # 1 hit), GPS RAIM's own table columns (its output is step 1's) new for each magnitude and reused by its
+    # second camera (2 misses, 2 hits): 10 hits and 14 misses a block, 4 blocks a cell
+    assert shared["hits"] == 4 * 10 and shared["misses"] == 4 * 14
     _same_tables_without_sharing(spec, tmp_path)
 
 
@@ -89,10 +89,10 @@ def test_va_raim_settings_after_the_vision_step_share_it(tmp_path):
         "camera_focal_px = [992.0, 1e4]", 'va_raim_variant = ["seed", "gated"]\ncalibration = ["gps", "none"]'))
     run_campaign(spec, tmp_path / "on", progress=False)
     # per block, 4 cells on one pseudorange draw and one camera draw; misses: the GNSS errors, pseudoranges,
-    # frames, dithering, the survey, step 1, the vision step, GPS RAIM's table columns; the other 3 cells reuse
-    # the pseudoranges, frames, survey, step 1, vision step and GPS RAIM's table columns
+    # frames (with the block's survey), dithering, step 1, the vision step, GPS RAIM's table columns; the other
+    # 3 cells reuse the pseudoranges, frames, step 1, vision step and GPS RAIM's table columns
     shared = memo.counts()
-    assert shared["misses"] == 4 * 8 and shared["hits"] == 4 * 3 * 6
+    assert shared["misses"] == 4 * 7 and shared["hits"] == 4 * 3 * 5
     _same_tables_without_sharing(spec, tmp_path)
 
 

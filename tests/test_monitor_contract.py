@@ -14,7 +14,7 @@ import pytest
 from record_checks import assert_records_equal
 
 from testbed.integrity import lsq, registry
-from testbed.integrity.monitor import ANTENNA, Monitor, MonitorContext, Observations
+from testbed.integrity.monitor import ANTENNA, Monitor, MonitorContext, MonitorDefaults, Observations
 from testbed.records import Diagnostics, MonitorOutput, epoch_array
 
 
@@ -24,7 +24,7 @@ class PlainLsqDiagnostics(Diagnostics):
 
 
 @dataclass(frozen=True)
-class PlainLsq:
+class PlainLsq(MonitorDefaults):
     """Weighted least squares on the visible pseudoranges, no integrity (a test's monitor)."""
 
     name: str
@@ -196,3 +196,36 @@ def test_check_compiles_nothing_and_library_calls_leave_the_heap_alone():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parent,
                          env={**os.environ, "PYTHONPATH": str(Path(__file__).parent)})
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+def test_a_monitor_lacking_a_member_of_the_contract_is_refused_by_name():
+    """Every member callers use is declared (no probing with getattr): a monitor class that neither defines the
+    optional members nor derives from MonitorDefaults is refused when built, naming what it lacks."""
+    from testbed.integrity.monitor import CONTRACT, MonitorDefaults, contract_problems
+    from testbed.integrity.settings import IntegritySettings
+    from testbed.frames import LocalFrame
+
+    @dataclass(frozen=True)
+    class Bare:
+        name: str
+        inputs: ClassVar[frozenset[str]] = frozenset({"gnss"})
+        reference: ClassVar[str] = ANTENNA
+
+        def initial_state(self):
+            return None
+
+        def step(self, obs, state):
+            raise AssertionError("never stepped")
+
+    assert contract_problems(Bare("bare")) == ["dimensions", "several_tests", "compiles_kernels", "provides_others",
+                                               "prepare", "provides"]
+    assert contract_problems(type("Full", (Bare, MonitorDefaults), {})("full")) == []
+    declared = set(Monitor.__annotations__) | {k for k, v in vars(Monitor).items() if callable(v) and k[0] != "_"}
+    assert declared == set(CONTRACT)
+    registry.register("bare", lambda ctx, options: Bare("bare"), {"gnss"})
+    try:
+        ctx = MonitorContext(LocalFrame(29.3, 94.3, 2939.0), IntegritySettings())
+        with pytest.raises(TypeError, match="lacks dimensions, several_tests.*MonitorDefaults"):
+            registry.build_monitor("bare", ctx)
+    finally:
+        registry.unregister("bare")

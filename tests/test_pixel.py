@@ -22,9 +22,10 @@ from scipy.spatial.transform import Rotation
 
 from test_integrity_core_helpers import make_gnss
 from testbed.frames import euler_to_q_body_to_enu
+from testbed.inertial import body_to_world
 from testbed.integrity import lsq
 from testbed.integrity.pixel import fault_units, pixel_monitor
-from testbed.integrity.pixel_model import attitude_pixel_jacobian, body_to_world, project_landmarks
+from testbed.integrity.pixel_model import attitude_pixel_jacobian, project_landmarks
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount, VisionEpochs
 from testbed.world.airport import RWY05_COURSE_DEG, runway_corners_enu, runway_frame

@@ -42,11 +42,13 @@ from testbed.campaign.sorties import sky_windows, sortie_offsets, window_offsets
 from testbed.campaign.spec import CampaignSpec, Cell, LoadedSpec, expand_cells, resolve_spec
 from testbed.integrity.batching import available_cores, map_trial_chunks, physical_memory_bytes
 from testbed.integrity.monitor import ANTENNA, Observations, provided_output
-from testbed.integrity.levels import service_level
+from testbed.integrity.levels import strictest_limits
 from testbed.records import MonitorOutput, map_epoch_arrays
 from testbed.schema import ConfigError
 from testbed.sensors.faults import GNSS_KINDS, VISION_KINDS
+from testbed.sim import pipeline
 from testbed.sim.evaluate import REGIONS, misleading, position_errors, stanford_regions
+from testbed.sim.streams import StreamTree
 
 TABLES = ("trials", "epochs", "hist")
 
@@ -136,10 +138,11 @@ class CellContext:
     #: cells that share them share their draws, :func:`_shared_draw`)
     gnss_draw_key: tuple = ()
     vision_draw_key: tuple = ()
-    #: the ground features the tracker follows at the GNSS epochs (T, W) and the tracker's camera: only when
-    #: the approach's ``[vision.features]`` is enabled and a monitor reads them (the Won et al. filter)
+    #: the ground features the tracker follows at the GNSS epochs (T, W): only when the approach's
+    #: ``[vision.features]`` is enabled and a monitor reads them (the Won et al. filter)
     feature_ids: np.ndarray | None = None
-    feature_camera: tuple | None = None
+    #: the run's sensor plan (:func:`testbed.sim.pipeline.sensor_plan`)
+    plan: object = None
 
     def gnss_geometry_of(self, windows: np.ndarray | None):
         """The GNSS geometry of trials flying in sky ``windows`` (n,) (None: the fixed start)."""
@@ -155,9 +158,7 @@ _WINDOWS_PER_PASS = 128
 def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
     """The cached geometry of a cell: flight, GNSS geometry (per sky window of the
     sorties' start times, when ``spec.sorties`` spreads them), vision geometry."""
-    from testbed.sensors.gnss.almanac import load_constellation
     from testbed.sensors.gnss.synth import concat_windows, gnss_geometry
-    from testbed.sensors.gnss.timebase import utc_to_gps_seconds
     from testbed.sensors.vision import detect as vdetect
     from testbed.sim.setup import build_setup
 
@@ -166,6 +167,7 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
     segment = "first" if spec is None else spec.segment
     terrain = _terrain(cell)
     setup = build_setup(cell.approach, terrain, monitor_threads=1)  # blocks run side by side instead
+    plan = pipeline.sensor_plan(setup)
     fkey = _flight_key(cell)
     sky = None
     if spec is not None and spec.sorties.start != "fixed":
@@ -186,8 +188,7 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
             None if sky is None else (spec.sorties.window_s, sky.tobytes()))
 
     def ggeom():
-        eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path,
-                                 utc_to_gps_seconds(c.start_time_utc), setup.gnss.almanac_week)
+        eph = plan.constellation
         if sky is None:
             return gnss_geometry(truth, setup.antenna, setup.gnss, start_utc=c.start_time_utc, terrain=terrain,
                                  constellation=eph)
@@ -199,7 +200,7 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
     g_geom = _cached(gkey, ggeom)
     v_geom, lm = None, None
     if setup.uses_vision:
-        lm = replace(setup.landmarks, lpe_sigma_m=0.0)
+        lm = setup.landmarks
         vision_json = json.dumps(setup.vision.model_dump(mode="json"), sort_keys=True)
         landmarks_json = json.dumps(c.landmarks.model_dump(mode="json"), sort_keys=True)
         # keyed on the faults the geometry reads: a GPS-fault sweep's cells share one
@@ -208,24 +209,20 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                 json.dumps([f.model_dump(mode="json") for f in moved], sort_keys=True))
         v_geom = _cached(vkey, lambda: vdetect.vision_geometry(truth, setup.vision, landmarks=lm, terrain=terrain,
                                                                faults=moved))
-    f_ids = f_cam = None
-    if setup.features is not None:
-        from testbed.sensors.vision.dithering import mount_from_settings
-        from testbed.sensors.vision.features import scene_ids
-
-        f_cam = (setup.vision.camera.build(), mount_from_settings(setup.vision.mount))
+    f_ids = None
+    if plan.uses_features:
         fkey_ = ("feature_ids", tkey, json.dumps(setup.vision.model_dump(mode="json"), sort_keys=True),
                  setup.features.tobytes())
-        f_ids = _cached(fkey_, lambda: scene_ids(truth, *f_cam, setup.features, setup.vision.features, terrain))
+        f_ids = _cached(fkey_, lambda: pipeline.feature_ids(plan, truth, terrain))
     levels = tuple(setup.integrity.service_levels)
-    lv = [service_level(n) for n in levels]
+    hal, val = strictest_limits(levels)
     onset = min((f.onset_s for f in setup.faults), default=float("nan"))
     return CellContext(cell=cell, setup=setup, t=np.asarray(truth.t, float), g_geom=g_geom, v_geom=v_geom,
                        landmarks=lm, truth_cg_enu=setup.frame.ecef_to_enu(truth.pos_ecef),
                        truth_ant_enu=setup.frame.ecef_to_enu(g_geom.ant_pos_ecef),
-                       hal=min(x.hal for x in lv), val=min(x.val for x in lv), levels=levels, onset_s=float(onset),
+                       hal=hal, val=val, levels=levels, onset_s=float(onset),
                        truth_g=truth, sky=sky, imu_increments=imu_inc, imu_start=imu_start, feature_ids=f_ids,
-                       feature_camera=f_cam, gnss_draw_key=gkey,
+                       plan=plan, gnss_draw_key=gkey,
                        vision_draw_key=() if v_geom is None else (tkey, vision_json, landmarks_json))
 
 
@@ -265,10 +262,9 @@ def _imu_segment(flown, setup, duration_s: float | None, segment: str):
 
 # ----------------------------------------------------------------------------- one block
 
-def block_seed(base_seed: int, cell_index: int, block: int, common: bool) -> np.random.SeedSequence:
-    """The SeedSequence of one draw block (a pure function of its keys)."""
-    key = (block,) if common else (cell_index, block)
-    return np.random.SeedSequence(base_seed, spawn_key=key)
+def block_streams(spec, cell_index: int, block: int) -> StreamTree:
+    """The stream tree of one draw block (a pure function of its keys)."""
+    return StreamTree.of_block(spec.base_seed, cell_index, block, spec.common_random_numbers)
 
 
 @dataclass(frozen=True)
@@ -283,24 +279,19 @@ class BlockDraw:
     start_offset_s: np.ndarray  # (n,) the sortie's start, s after the approach's start time
     sky_window: np.ndarray  # (n,) int sky window whose geometry it flew in (-1: the fixed start)
     fault_present: np.ndarray  # (n, T) epochs whose observations carry the injected fault (all True: none)
-    correlator_seed: np.random.SeedSequence | None = None  # the block's correlator draws (per trial below it)
+    streams: StreamTree | None = None  # the block's stream tree (each trial's correlograms below it)
     #: the modelled observations the correlograms are synthesised from (their channel references); the
     #: monitors read ``obs.gnss``, which holds the correlograms' code delays when the approach says so
     correlator_gnss: object = None
 
 
 def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
-    """Noise, faults and (per block) the landmark survey of one block's trials."""
-    from testbed.sensors.gnss.synth import apply_gnss_errors, draw_gnss_errors
-    from testbed.sensors.vision import detect as vdetect
-
-    s = ctx.setup
+    """Noise, faults and the landmark survey of one block's trials (:mod:`testbed.sim.pipeline`), the draws a sweep's
+    cells have alike shared between them (:mod:`testbed.memo`)."""
+    s, plan = ctx.setup, ctx.plan
     i0 = block * spec.block_trials
     n = min(spec.block_trials, spec.trials - i0)
-    # children 0-2 as before; children 3 (the correlators), 4 and 5 (IMU errors, alignment), 6 (the ground
-    # features' tracking) leave them unchanged
-    ss_g, ss_v, ss_s, ss_c, ss_i, ss_a, ss_f = block_seed(spec.base_seed, ctx.cell.index, block,
-                                                          spec.common_random_numbers).spawn(7)
+    tree = block_streams(spec, ctx.cell.index, block)
     faults = list(s.faults)
     trials = np.arange(i0, i0 + n)
     offsets = sortie_offsets(spec, trials)
@@ -308,23 +299,15 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     sky_key = ("gnss_draw", ctx.gnss_draw_key, None if windows is None else memo.digest(windows))
     geom = functools.cache(lambda: ctx.gnss_geometry_of(windows))
     # the fault-free errors are shared by every GNSS fault of the sweep, the observations by its cells of one fault
-    errors = lambda: memo.shared(sky_key + ("errors", memo.seed_key(ss_g), n),  # noqa: E731
-                                 lambda: draw_gnss_errors(geom(), s.gnss, rng=np.random.default_rng(ss_g), n_trials=n))
-    gnss, gtruth = _shared_draw(sky_key, faults, GNSS_KINDS, ss_g, n, lambda: apply_gnss_errors(geom(), errors(), faults))
+    errors = lambda: memo.shared(sky_key + ("errors", memo.seed_key(tree.seed("gnss")), n),  # noqa: E731
+                                 lambda: pipeline.gnss_errors(plan, geom(), tree, n))
+    gnss, gtruth = _shared_draw(sky_key, faults, GNSS_KINDS, tree.seed("gnss"), n,
+                                lambda: pipeline.gnss_observations(geom(), errors(), faults))
     vis = vtruth = None
     if ctx.v_geom is not None:
-        vis, vtruth = _shared_draw(
-            ("vision_draw", ctx.vision_draw_key), faults, VISION_KINDS, ss_v, n,
-            lambda: vdetect.sample_vision(ctx.v_geom, s.vision, landmarks=ctx.landmarks, faults=faults,
-                                          rng=np.random.default_rng(ss_v), n_trials=n))
-        # one survey per block: the monitor believes true + e, the landmarks stand at true (+ a fault's move);
-        # shared like the frames, so the cells of one survey hand VA-RAIM one record (its vision step is shared)
-        lpe, true_pos = s.landmarks.lpe_sigma_m, ctx.landmarks.pos_ecef
-        frames = vis
-        vis = memo.shared(
-            ("landmark_survey", id(frames), memo.seed_key(ss_s), float(lpe), memo.digest(true_pos)),
-            lambda: replace(frames, landmark_pos_ecef=true_pos
-                            + np.random.default_rng(ss_s).standard_normal(true_pos.shape) * lpe), guard=frames)
+        # the camera frames and the block's one survey, shared: the cells of one survey hand VA-RAIM one record
+        vis, vtruth = _shared_draw(("vision_draw", ctx.vision_draw_key), faults, VISION_KINDS, tree.seed("vision"), n,
+                                   lambda: pipeline.draw_vision(plan, ctx.v_geom, tree, n, faults))
     target = np.full(n, -1, np.int64)
     if gtruth.faulty.any():
         hit = gtruth.faulty.any(axis=-2)  # (n, S)
@@ -334,17 +317,14 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
         target = np.where(hit.any(-1), hit.argmax(-1), -1)
     model_gnss = gnss
     if s.gnss.correlator_pseudoranges:
-        gnss, gtruth = _correlator_observations(ctx, gnss, gtruth, ss_c, trials)
-    imu, init = _imu_draw(ctx, gtruth, ss_i, ss_a, n) if ctx.imu_increments is not None else (None, None)
+        gnss, gtruth = _correlator_observations(ctx, gnss, gtruth, tree, trials)
+    imu, init = _imu_draw(ctx, gtruth, tree, n) if ctx.imu_increments is not None else (None, None)
     tracks = None
     if ctx.feature_ids is not None:  # every trial's pixels under its own (dithered) camera
-        from testbed.sensors.vision.features import scene_tracks
-
-        tracks = scene_tracks(ctx.feature_ids, vtruth, s.features, s.frame, *ctx.feature_camera, s.vision.features,
-                              ss_f.generate_state(4), n_trials=n)
+        tracks = pipeline.draw_features(plan, ctx.feature_ids, vtruth, tree, n_trials=n)
     return BlockDraw(trials, Observations(gnss, vis, imu, init, features=tracks), gtruth, vtruth, target, offsets,
                      np.full(n, -1, np.int64) if windows is None else windows, _fault_present(gnss, gtruth, vis, vtruth),
-                     ss_c, model_gnss)
+                     tree, model_gnss)
 
 
 def _shared_draw(key: tuple, faults: list, kinds: tuple, seed: np.random.SeedSequence, n: int, draw: Callable):
@@ -355,31 +335,16 @@ def _shared_draw(key: tuple, faults: list, kinds: tuple, seed: np.random.SeedSeq
     return memo.shared(key + (own, memo.seed_key(seed), n), draw)
 
 
-def _imu_draw(ctx: CellContext, gtruth, seed_imu: np.random.SeedSequence, seed_align: np.random.SeedSequence,
-              n: int):
+def _imu_draw(ctx: CellContext, gtruth, tree: StreamTree, n: int):
     """The block's IMUs (one per trial, along the shared trajectory) and their alignments (each trial's
     receiver clock at the start), as the loop draws them for one flight."""
-    from testbed.records import ImuSamples
-    from testbed.sensors.imu import ImuErrorStream, apply_errors
-    from testbed.sensors.imu.alignment import align
-
-    s = ctx.setup.imu
-    t, dth, dvl, dt = ctx.imu_increments
-    stream = ImuErrorStream(s, dt, np.random.default_rng(seed_imu), n)
-    d_th, d_v = apply_errors(dth, dvl, stream, stream.draw(t.size))
-    imu = ImuSamples(t=t, dtheta=d_th, dvel=d_v, dt=dt, lever_arm_body=np.asarray(s.lever_arm_body_m, float),
-                     earth_rotation=s.earth_rotation, figures=s.figures())
-    t0, C, v, p = ctx.imu_start
+    stream = pipeline.imu_errors(ctx.plan, tree, n)
+    imu = pipeline.imu_samples(ctx.plan, ctx.imu_increments, stream)
     cb = np.broadcast_to(np.asarray(gtruth.clock_bias, float), (n, len(ctx.t)))[:, 0]
-    return imu, align(t0, C, v, p, cb, 0.0, s.figures(), np.random.default_rng(seed_align), n)
+    return imu, pipeline.alignment(ctx.plan, ctx.imu_start, cb, tree, n)
 
 
-def trial_correlator_words(block_seed: np.random.SeedSequence, trial: int) -> np.ndarray:
-    """Seed words of one trial's correlograms (child of the block's correlator seed, keyed by the trial)."""
-    return np.random.SeedSequence(block_seed.entropy, spawn_key=block_seed.spawn_key + (int(trial),)).generate_state(4)
-
-
-def _correlator_observations(ctx: "CellContext", gnss, gtruth, seed: np.random.SeedSequence, trials: np.ndarray):
+def _correlator_observations(ctx: "CellContext", gnss, gtruth, tree: StreamTree, trials: np.ndarray):
     """The block's pseudoranges from each trial's correlograms (``pseudorange_source = "correlator"``)."""
     from testbed.sensors.gnss.code_tracking import correlator_pseudoranges
     from testbed.sensors.gnss.correlators import synthesize_correlators
@@ -387,7 +352,7 @@ def _correlator_observations(ctx: "CellContext", gnss, gtruth, seed: np.random.S
     parts = []
     for i, trial in enumerate(trials):
         g, gt = _trial(gnss, i), _trial(gtruth, i)
-        corr, _ = synthesize_correlators(g, gt, ctx.truth_g, ctx.setup.gnss, trial_correlator_words(seed, trial))
+        corr, _ = synthesize_correlators(g, gt, ctx.truth_g, ctx.setup.gnss, pipeline.correlator_words(tree, trial))
         parts.append(correlator_pseudoranges(g, gt, corr, ctx.setup.gnss))
     fields = ("pseudorange", "sigma", "visible", "reason", "range_rate")
     gnss = replace(gnss, **{f: np.stack([np.broadcast_to(getattr(p[0], f), np.shape(p[0].pseudorange)) for p in parts])
@@ -419,7 +384,7 @@ def correlator_monitor(mon, ctx: "CellContext", d: "BlockDraw") -> MonitorOutput
     def one(sl: slice) -> MonitorOutput:
         i = sl.start or 0
         gt = _trial(d.gnss_truth, i)
-        words = trial_correlator_words(d.correlator_seed, d.trials[i])
+        words = pipeline.correlator_words(d.streams, d.trials[i])
         corr, _ = synthesize_correlators(_trial(model, i), gt, ctx.truth_g, ctx.setup.gnss, words)
         out, _ = mon.step(Observations(_trial(gnss, i), correlators=corr), mon.initial_state())
         return _with_trial_axis(out)
@@ -434,7 +399,7 @@ def monitor_block(monitors, obs: Observations, correlators: Callable | None = No
     its output instead of a second solve (:func:`testbed.integrity.monitor.provided_output`);
     providers run first. A monitor reading correlators runs through ``correlators(mon)``.
     """
-    order = sorted(monitors, key=lambda m: getattr(m, "provides", None) is None)
+    order = sorted(monitors, key=lambda m: not m.provides_others)
     outs: dict[str, MonitorOutput] = {}
     for mon in order:
         if "correlators" in mon.inputs:
@@ -482,7 +447,6 @@ def _shared_tables(ctx: CellContext, d: BlockDraw, out: MonitorOutput, ref: np.n
     everything else the tables read. An output that is not itself shared (an array of it the memo does
     not hold) is not kept either: no other cell can hand it in, and the entry would keep it alive."""
     own = tuple(getattr(out, f.name) for f in fields(out) if f.name != "name")
-    extra = getattr(out.diagnostics, "trial_columns", None)
 
     def make() -> tuple[dict, dict, dict | None]:
         he, ve = position_errors(out, ref)  # (n, T)
@@ -493,7 +457,7 @@ def _shared_tables(ctx: CellContext, d: BlockDraw, out: MonitorOutput, ref: np.n
         return make()
     read = (ctx.t, ref, ctx.onset_s, ctx.hal, ctx.val, ctx.levels, keep_ep, d.trials, d.start_offset_s, d.sky_window,
             d.fault_target, d.fault_present)
-    guard = own + ((d.vision_truth,) if extra is not None else ())
+    guard = own + ((d.vision_truth,) if out.diagnostics is not None and out.diagnostics.reads_vision_truth else ())
     return memo.shared(("monitor_tables", out.name, tuple(id(v) for v in guard), memo.digest(*read)), make, guard=guard)
 
 
@@ -533,9 +497,8 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
         for r in REGIONS:
             col[f"h_{r}"] = rh[r].sum(-1).astype(np.int32)
             col[f"v_{r}"] = rv[r].sum(-1).astype(np.int32)
-        extra = getattr(out.diagnostics, "trial_columns", None)  # a monitor's own table columns
-        if extra is not None:
-            col.update(extra(d.vision_truth))
+        if out.diagnostics is not None:  # a monitor's own table columns
+            col.update(out.diagnostics.trial_columns(d.vision_truth))
     return col
 
 

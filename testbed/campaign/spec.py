@@ -36,7 +36,7 @@ from typing import Any, Literal
 from pydantic import Field, field_validator, model_validator
 
 from testbed.config import Approach, ApproachConfig, load_approach, read_toml, validate
-from testbed.integrity.levels import service_level
+from testbed.integrity.levels import strictest_limits
 from testbed.integrity.registry import MonitorName, reads_vision
 from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, FileName, StrictModel
@@ -478,8 +478,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                                       if cfg.gnss.correlators.multipath == "ground" else float("nan")),
                 "max_satellites": -1 if c["max_satellites"] is None else int(c["max_satellites"]),
                 "ground_features": int(cfg.vision.features.enabled),
-                "hal": min(service_level(n).hal for n in cfg.integrity.service_levels),
-                "val": min(service_level(n).val for n in cfg.integrity.service_levels),
+                **dict(zip(("hal", "val"), strictest_limits(cfg.integrity.service_levels))),
             }
             cells.append(Cell(idx, replace(ap, config=cfg), params))
     if problems:

@@ -49,6 +49,13 @@ def service_level(name: str) -> ServiceLevel:
         raise ValueError(f"service level: expected one of {list(SERVICE_LEVELS)}, got {name!r}") from None
 
 
+def strictest_limits(names) -> tuple[float, float]:
+    """(HAL, VAL) of the most demanding of the service levels ``names``: the smallest of each, which the plots
+    draw and the campaign tables judge hazardous errors against."""
+    levels = [service_level(n) for n in names]
+    return min(lv.hal for lv in levels), min(lv.val for lv in levels)
+
+
 def availability(hpl: ArrayLike, vpl: ArrayLike, levels: tuple[ServiceLevel, ...] | list[ServiceLevel],
                  ok: ArrayLike | None = None) -> NDArray:
     """Per-level availability ``HPL ≤ HAL and VPL ≤ VAL`` (and the epoch usable).

@@ -17,7 +17,7 @@ monitor.
 Writing one::
 
     @dataclass(frozen=True)
-    class PlainLsq:
+    class PlainLsq(MonitorDefaults):
         name: str
         context: MonitorContext
         inputs: ClassVar[frozenset[str]] = frozenset({"gnss"})
@@ -29,7 +29,7 @@ Writing one::
         def step(self, obs, state):
             return my_least_squares(obs.gnss, self.context.frame), state
 
-    register("plain_lsq", lambda ctx, options: PlainLsq("plain_lsq", ctx))
+    register("plain_lsq", lambda ctx, options: PlainLsq("plain_lsq", ctx), {"gnss"})
 """
 
 from __future__ import annotations
@@ -91,11 +91,22 @@ class MonitorContext:
 
 @runtime_checkable
 class Monitor(Protocol):
-    """An integrity monitor in the loop (see the module doc)."""
+    """An integrity monitor in the loop (see the module doc). Every member a caller uses is declared here;
+    :class:`MonitorDefaults` gives the optional ones their defaults."""
 
     name: str
+    #: the observation kinds it reads (:data:`INPUT_KINDS`): the run synthesises only what some monitor reads
     inputs: ClassVar[frozenset[str]]
+    #: the true point its position is judged against: :data:`ANTENNA` or :data:`REFERENCE_POINT`
     reference: ClassVar[str]
+    #: the position dimensions its protection levels bound: ("H", "V"), or ("V",) for a vertical-only monitor
+    dimensions: ClassVar[tuple[str, ...]]
+    #: its alert is several tests (plotted each over its threshold), not one statistic against one threshold
+    several_tests: ClassVar[bool]
+    #: :meth:`prepare` compiles kernels (the first run announces it)
+    compiles_kernels: ClassVar[bool]
+    #: :meth:`provides` may return another monitor's output (a campaign steps such monitors first)
+    provides_others: ClassVar[bool]
 
     def initial_state(self) -> Any:
         """The state before the first epoch (typed, serialisable; None for a snapshot monitor)."""
@@ -103,14 +114,41 @@ class Monitor(Protocol):
     def step(self, obs: Observations, state: Any) -> tuple[MonitorOutput, Any]:
         """The output at ``obs``'s epochs and the state after them."""
 
+    def prepare(self) -> None:
+        """Compile or load what the first step would (before the flight, not in its first epochs)."""
+
+    def provides(self, other: "Monitor", its_output: MonitorOutput) -> MonitorOutput | None:
+        """``other``'s output when this monitor computed it on the way (VA-RAIM's step 1 is GPS RAIM), else None.
+        Whatever it returns must equal ``other.step`` on the same observations."""
+
+
+class MonitorDefaults:
+    """The defaults of the contract's optional members: a monitor class derives from this and defines
+    ``name``, ``inputs``, ``reference``, ``initial_state`` and ``step``."""
+
+    dimensions: ClassVar[tuple[str, ...]] = ("H", "V")
+    several_tests: ClassVar[bool] = False
+    compiles_kernels: ClassVar[bool] = False
+    provides_others: ClassVar[bool] = False
+
+    def prepare(self) -> None:
+        return None
+
+    def provides(self, other: Monitor, its_output: MonitorOutput) -> MonitorOutput | None:
+        return None
+
+
+#: every member of the contract, for the registry's check of a built monitor
+CONTRACT = ("name", "inputs", "reference", "dimensions", "several_tests", "compiles_kernels", "provides_others",
+            "initial_state", "step", "prepare", "provides")
+
+
+def contract_problems(monitor: object) -> list[str]:
+    """The members of the contract ``monitor`` lacks (empty when it has them all)."""
+    return [m for m in CONTRACT if not hasattr(monitor, m)]
+
 
 def provided_output(provider: Monitor, provider_out: MonitorOutput, wanted: Monitor) -> MonitorOutput | None:
-    """``wanted``'s output if ``provider`` computed it on the way (None otherwise).
-
-    A monitor may define ``provides(other, its_output) -> MonitorOutput | None``: VA-RAIM's
-    step 1 *is* GPS RAIM, so a campaign running both solves it once. Whatever a
-    provider returns must equal ``wanted.step`` on the same observations (each
-    provider has a test that says so).
-    """
-    fn = getattr(provider, "provides", None)
-    return fn(wanted, provider_out) if fn is not None else None
+    """``wanted``'s output if ``provider`` computed it on the way (None otherwise): a campaign running VA-RAIM and
+    GPS RAIM solves GPS RAIM once (each provider has a test that its output equals ``wanted.step``)."""
+    return provider.provides(wanted, provider_out)

@@ -65,15 +65,10 @@ from scipy import stats
 from testbed.frames import LocalFrame, q_to_R
 from testbed.integrity import lsq
 from testbed.integrity.fde import Verdict, exclude
+from testbed.inertial import body_to_world
 from testbed.integrity.levels import availability, service_level
-from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
-from testbed.integrity.pixel_model import (
-    attitude_pixel_jacobians,
-    bearing_fix,
-    body_to_world,
-    pixel_covariance,
-    project_landmarks,
-)
+from testbed.integrity.monitor import MonitorContext, MonitorDefaults, Observations, REFERENCE_POINT
+from testbed.integrity.pixel_model import attitude_pixel_jacobians, bearing_fix, pixel_covariance, project_landmarks
 from testbed.integrity.raim import compact_rows, scatter_rows
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import Diagnostics, GnssEpochs, MonitorOutput, VisionEpochs, epoch_array
@@ -541,13 +536,14 @@ class PixelState:
 
 
 @dataclass(frozen=True)
-class PixelMonitor:
+class PixelMonitor(MonitorDefaults):
     """The vision-integrity patent's pixel-domain monitor in the loop: state = :class:`PixelState`."""
 
     name: str
     context: MonitorContext
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision"})
     reference: ClassVar[str] = REFERENCE_POINT
+    compiles_kernels: ClassVar[bool] = True
 
     def prepare(self) -> None:
         """Compile the kernels (numba caches them beside the package) before the first epoch."""

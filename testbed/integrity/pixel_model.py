@@ -11,29 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from testbed.frames import LocalFrame, R_ecef_to_enu, q_to_R
+from testbed.inertial import skew
 from testbed.records import Mount
-
-
-def skew(v: NDArray) -> NDArray:
-    """Cross-product matrices ``[v]×`` ``(..., 3, 3)`` of ``v`` ``(..., 3)``."""
-    z = np.zeros(v.shape[:-1])
-    x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
-
-
-def body_to_world(frame: LocalFrame, pos_enu: ArrayLike, q_body_to_enu: ArrayLike) -> NDArray:
-    """Rotation body -> world-frame ENU ``(..., 3, 3)``.
-
-    ``q_body_to_enu`` refers to the local ENU at the aircraft; the world frame
-    is tangent at its own origin, ~0.01° apart per km, which at a 1000 px focal
-    length is 0.16 px per km – so the local-to-world rotation is applied, at
-    the given (estimated) position.
-    """
-    p = np.asarray(pos_enu, float)
-    lat, lon, _ = frame.enu_to_geodetic(p)
-    R_local_to_world = frame.R @ np.swapaxes(R_ecef_to_enu(lat, lon), -1, -2)
-    return R_local_to_world @ q_to_R(q_body_to_enu)
 
 
 def _projection_jacobian(Ks: NDArray, uv: NDArray, K: NDArray) -> NDArray:

@@ -19,7 +19,7 @@ from testbed.integrity.fde import Verdict, exclude, flat_take
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.settings import IntegritySettings
-from testbed.integrity.monitor import ANTENNA, MonitorContext, Observations
+from testbed.integrity.monitor import ANTENNA, MonitorContext, MonitorDefaults, Observations
 from testbed.records import Diagnostics, GnssEpochs, MonitorOutput, epoch_array
 
 
@@ -286,7 +286,7 @@ def gps_exclusion(fix: GpsFix, out: MonitorOutput, off: NDArray | None, st: Inte
 
 
 @dataclass(frozen=True)
-class GpsRaimMonitor:
+class GpsRaimMonitor(MonitorDefaults):
     """GPS-only snapshot RAIM as a loop monitor: the receiver's own estimator, at the antenna.
 
     No state: every epoch stands alone.
@@ -296,6 +296,7 @@ class GpsRaimMonitor:
     context: MonitorContext
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss"})
     reference: ClassVar[str] = ANTENNA
+    compiles_kernels: ClassVar[bool] = True
 
     def prepare(self) -> None:
         """Compile the kernels (numba caches them beside the package) before the first epoch."""

@@ -12,7 +12,7 @@ from typing import Annotated, Any, Callable, Mapping
 
 from pydantic import AfterValidator
 
-from testbed.integrity.monitor import INPUT_KINDS, Monitor, MonitorContext
+from testbed.integrity.monitor import INPUT_KINDS, Monitor, MonitorContext, contract_problems
 
 Builder = Callable[[MonitorContext, Mapping[str, Any]], Monitor]
 
@@ -98,6 +98,10 @@ def build_monitor(name: str, context: MonitorContext) -> Monitor:
         module, attr = builder.split(":")
         builder = getattr(importlib.import_module(module), attr)
     mon = builder(context, context.options.get(name, {}))
+    missing = contract_problems(mon)
+    if missing:
+        raise TypeError(f"monitor {name!r} lacks {', '.join(missing)} of the monitor contract; derive its class from "
+                        "testbed.integrity.monitor.MonitorDefaults for the optional members' defaults")
     if frozenset(mon.inputs) != inputs:
         raise TypeError(f"monitor {name!r} reads {sorted(mon.inputs)} but was registered with {sorted(inputs)}")
     return mon

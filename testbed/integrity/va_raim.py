@@ -47,7 +47,7 @@ from testbed.integrity.calibration import (
     landmark_set_key,
 )
 from testbed.integrity.levels import SERVICE_LEVELS, service_level
-from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
+from testbed.integrity.monitor import MonitorContext, MonitorDefaults, Observations, REFERENCE_POINT
 from testbed.integrity.fde import Verdict, exclude, flat_take
 from testbed.integrity.raim import (
     GpsFix,
@@ -224,6 +224,7 @@ class VaRaimDiagnostics(Diagnostics):
     n_gps: NDArray = epoch_array()
     n_vision_rows: NDArray = epoch_array()
     vision_reasons: tuple[str, ...] = VISION_REASONS
+    reads_vision_truth: ClassVar[bool] = True
 
     def trial_columns(self, vision_truth) -> dict[str, NDArray]:
         """Per-trial sums of the raw and calibrated vision-range errors against the true ranges
@@ -567,7 +568,7 @@ class VaRaimState:
 
 
 @dataclass(frozen=True)
-class VaRaimMonitor:
+class VaRaimMonitor(MonitorDefaults):
     """VA-RAIM as a loop monitor (the VA-RAIM paper): state = :class:`VaRaimState`."""
 
     name: str
@@ -575,6 +576,8 @@ class VaRaimMonitor:
     settings: VaRaimSettings
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision"})
     reference: ClassVar[str] = REFERENCE_POINT
+    compiles_kernels: ClassVar[bool] = True
+    provides_others: ClassVar[bool] = True  # GPS RAIM: its step 1
 
     def prepare(self) -> None:
         """Compile the kernels (numba caches them beside the package) before the first epoch."""

@@ -36,7 +36,7 @@ from pydantic import Field
 from scipy import stats
 
 from testbed.integrity.levels import availability, service_level
-from testbed.integrity.monitor import REFERENCE_POINT, MonitorContext, Observations
+from testbed.integrity.monitor import MonitorContext, MonitorDefaults, Observations, REFERENCE_POINT
 from testbed.navigation.ekf import CameraNoise, ImuNoise, NavState, predict_compiled
 from testbed.navigation.run import ClockNoise, filter_epochs, state_from_init
 from testbed.navigation.separation import Bank, separation
@@ -123,12 +123,13 @@ class EkfState:
 
 
 @dataclass(frozen=True)
-class EkfMonitor:
+class EkfMonitor(MonitorDefaults):
     name: str
     context: MonitorContext
     settings: EkfSettings
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision", "imu", "features"})
     reference: ClassVar[str] = REFERENCE_POINT
+    compiles_kernels: ClassVar[bool] = True
     several_tests: ClassVar[bool] = True  # its alert is the innovation, windowed and separation tests
 
     def prepare(self) -> None:

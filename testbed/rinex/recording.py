@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.integrity.levels import service_level
+from testbed.integrity.levels import strictest_limits
 from testbed.records import take_epochs
 from testbed.rinex.observables import hold_last_fix
 from testbed.rinex.run import RinexRun, geometry_enu
@@ -50,8 +50,7 @@ def write_recording(run: RinexRun, path: Path) -> Path:
 
     names = list(run.outputs)
     out0 = run.outputs[names[0]]
-    levels = [service_level(n) for n in out0.service_levels]
-    limits = (min(lv.hal for lv in levels), min(lv.val for lv in levels))
+    limits = strictest_limits(out0.service_levels)
     ant, los = geometry_enu(run)
     track = _track(run, ant)
     planned = track.pos_enu[:: max(1, track.pos_enu.shape[0] // 2000)]

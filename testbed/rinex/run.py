@@ -265,14 +265,13 @@ def stanford_figures(run: RinexRun, out_dir: Path) -> list[Path]:
     """Horizontal and vertical Stanford diagrams per monitor against the reference (most demanding level)."""
     from testbed.campaign.report import stanford_figure
     from testbed.campaign.runner import hist_edges
-    from testbed.integrity.levels import service_level
+    from testbed.integrity.levels import strictest_limits
     from testbed.sim.evaluate import position_errors, stanford_regions
 
     edges = hist_edges()
     paths = []
     for name, out in run.outputs.items():
-        levels = [service_level(n) for n in out.service_levels]
-        hal, val = min(lv.hal for lv in levels), min(lv.val for lv in levels)
+        hal, val = strictest_limits(out.service_levels)
         he, ve = position_errors(out, run.reference_enu)
         panels = []
         for dim, e, pl, al in (("H", he, out.hpl, hal), ("V", ve, out.vpl, val)):

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from testbed.integrity.levels import service_level
+from testbed.integrity.levels import strictest_limits
 from testbed.records import MonitorOutput
 
 REGIONS = ("normal", "unavailable", "misleading", "hazardous", "unavailable_misleading", "alerted", "no_solution")
@@ -106,9 +106,7 @@ def summarise_monitor(out: MonitorOutput, true_pos_enu: NDArray, *, reference: s
     alert = np.asarray(out.alert, bool)
     hpl, vpl = np.asarray(out.hpl, float), np.asarray(out.vpl, float)
     avail = np.asarray(out.available, bool)
-    levels = [service_level(n) for n in out.service_levels]
-    hal = min(lv.hal for lv in levels)
-    val = min(lv.val for lv in levels)
+    hal, val = strictest_limits(out.service_levels)
     rh, rv = stanford_regions(he, hpl, hal, alert), stanford_regions(ve, vpl, val, alert)
     mi = misleading(he, ve, hpl, vpl, alert, out.dimensions)
     hmi = rh["hazardous"] | rv["hazardous"]

@@ -24,21 +24,20 @@ from typing import Protocol
 import numpy as np
 
 from testbed.flight.fly import FlightResult, fly, truth_from_rows
-from testbed.integrity.monitor import ANTENNA, Observations
+from testbed.frames import q_to_R
 from testbed.inertial import body_to_world, local_to_world
-from testbed.records import GnssEpochs, GnssTruth, ImuSamples, MonitorOutput, Truth, concat_epochs, take_epochs
+from testbed.integrity.monitor import Observations
+from testbed.records import GnssEpochs, GnssTruth, MonitorOutput, Truth, concat_epochs, take_epochs
 from testbed.sensors.faults import GNSS_KINDS
-from testbed.sensors.gnss.almanac import load_constellation
-from testbed.sensors.imu import ImuErrorStream, apply_errors, true_increments
-from testbed.sensors.imu.alignment import align
 from testbed.sensors.gnss.code_tracking import correlator_pseudoranges
 from testbed.sensors.gnss.correlators import synthesize_correlators
-from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
-from testbed.sensors.gnss.timebase import utc_to_gps_seconds
+from testbed.sensors.gnss.synth import gnss_geometry
+from testbed.sensors.imu import true_increments
 from testbed.sensors.vision import detect as vdetect
-from testbed.sim import slicing
+from testbed.sim import pipeline, slicing
 from testbed.sim.events import EventTracker
 from testbed.sim.setup import RunSetup
+from testbed.sim.streams import StreamTree
 
 
 
@@ -102,66 +101,27 @@ class LoopResult:
     events: list[tuple[float, str, str]] = field(default_factory=list)
 
 
-def sensor_seeds(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Fixed seed words for the GNSS and vision generators of a run.
-
-    Words, not SeedSequence objects: ``Generator.spawn`` advances the
-    SeedSequence it came from, so re-seeding from the same object after every
-    block would give different children. Words give the same stream each time.
-    """
-    g, v = np.random.SeedSequence(seed).spawn(2)
-    return g.generate_state(4), v.generate_state(4)
-
-
-def imu_seeds(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Seed words of the IMU errors and of the alignment (children 2 and 3: the GNSS and vision streams
-    of :func:`sensor_seeds` are unchanged)."""
-    kids = np.random.SeedSequence(seed).spawn(4)
-    return kids[2].generate_state(4), kids[3].generate_state(4)
-
-
-def correlator_seed(seed: int) -> np.ndarray:
-    """Seed words of the correlator synthesis (child 4; every other stream is unchanged)."""
-    return np.random.SeedSequence(seed).spawn(5)[4].generate_state(4)
-
-
-def feature_seed(seed: int) -> np.ndarray:
-    """Seed words of the ground features' tracking noise (child 5; every other stream is unchanged)."""
-    return np.random.SeedSequence(seed).spawn(6)[5].generate_state(4)
-
-
 class _Runner:
     """The observer that turns flight steps into blocks of observations and monitor outputs."""
 
-    def __init__(self, setup: RunSetup, seed: int, sinks: list, block_s: float) -> None:
+    def __init__(self, setup: RunSetup, streams: StreamTree, sinks: list, block_s: float) -> None:
         cfg = setup.approach.config
-        self.setup, self.sinks = setup, sinks
+        self.setup, self.sinks, self.streams = setup, sinks, streams
+        self.plan = plan = pipeline.sensor_plan(setup)
         dt = cfg.flight.dt_s
         self.g_step = max(1, int(round(1.0 / (setup.gnss.rate_hz * dt))))
         self.v_step = max(1, int(round(1.0 / (setup.vision.rate_hz * dt)))) if setup.uses_vision else self.g_step
         if self.g_step % self.v_step:
             self.v_step = self.g_step  # vision epochs must include the GNSS epochs
-        self.uses_imu = any("imu" in m.inputs for m in setup.monitors)
+        self.uses_imu = plan.uses_imu
         # truth rows are kept at the fastest sensor rate (the IMU's when a monitor reads it)
         self.r_step = self.v_step
         if self.uses_imu:  # build_setup checked that the IMU rate divides the flight's and the vision's
             self.r_step = max(1, int(round(1.0 / (setup.imu.rate_hz * dt))))
-        self.uses_correlators = any("correlators" in m.inputs for m in setup.monitors) or setup.gnss.correlator_pseudoranges
-        self.seed_corr = correlator_seed(seed)
-        self.seed_features = feature_seed(seed)
-        self.feature_camera = None
-        if setup.features is not None:  # the tracker's camera is the vision sensor's
-            from testbed.sensors.vision.dithering import mount_from_settings
-
-            self.feature_camera = (setup.vision.camera.build(), mount_from_settings(setup.vision.mount))
         self.imu_stream = None
         self.imu_prev: Truth | None = None  # the last IMU-rate truth sample of the previous block
-        self.seed_imu, self.seed_align = imu_seeds(seed)
         self.block_steps = max(self.g_step, int(round(block_s / dt / self.g_step)) * self.g_step)
-        self.seed_gnss, self.seed_vision = sensor_seeds(seed)
         self.start_utc = cfg.start_time_utc
-        self.eph = load_constellation(setup.gnss.almanac_source, setup.gnss.almanac_path,
-                                      utc_to_gps_seconds(self.start_utc), setup.gnss.almanac_week)
         self.t0: float | None = None
         self.pending: list[tuple] = []  # rows at the vision (sensor) rate not yet processed
         self.pending_k: list[int] = []
@@ -208,10 +168,9 @@ class _Runner:
         g0 = self.n_g
         if g_sel.size:
             geom_new = gnss_geometry(truth_g, s.antenna, s.gnss, start_utc=self.start_utc, terrain=s.terrain,
-                                     constellation=self.eph)
+                                     constellation=self.plan.constellation)
             self.g_geom = slicing.geometry_concat(self.g_geom, geom_new)
-            g_all, gt_all = sample_gnss(self.g_geom, s.gnss, faults=s.faults,
-                                        rng=np.random.default_rng(self.seed_gnss))
+            g_all, gt_all = pipeline.draw_gnss(self.plan, self.g_geom, self.streams)
             new = slice(self.n_g, self.n_g + g_sel.size)
             block.gnss, block.gnss_truth = take_epochs(g_all, new), take_epochs(gt_all, new)
             self.n_g += g_sel.size
@@ -220,9 +179,10 @@ class _Runner:
             los = sat_enu - ant_enu[:, None, :]
             block.los_enu = los / np.linalg.norm(los, axis=-1, keepdims=True)
             block.antenna_enu = ant_enu
-            if self.uses_correlators:  # per-epoch generators: only the new epochs are drawn
+            if self.plan.uses_correlators:  # per-epoch generators: only the new epochs are drawn
                 block.correlators, block.correlator_truth = synthesize_correlators(
-                    block.gnss, block.gnss_truth, truth_g, s.gnss, self.seed_corr, first_epoch=new.start)
+                    block.gnss, block.gnss_truth, truth_g, s.gnss, pipeline.correlator_words(self.streams),
+                    first_epoch=new.start)
                 if s.gnss.correlator_pseudoranges:  # every monitor reads the correlograms' code delays
                     block.gnss, block.gnss_truth = correlator_pseudoranges(block.gnss, block.gnss_truth,
                                                                            block.correlators, s.gnss)
@@ -234,26 +194,20 @@ class _Runner:
             geom_new = vdetect.vision_geometry(truth_v, s.vision, landmarks=s.landmarks, terrain=s.terrain,
                                                faults=list(s.faults))
             self.v_geom = geom_new if self.v_geom is None else vdetect.concat_geometry([self.v_geom, geom_new])
-            v_all, vt_all = vdetect.sample_vision(self.v_geom, s.vision, landmarks=s.landmarks, faults=list(s.faults),
-                                                  rng=np.random.default_rng(self.seed_vision))
+            v_all, vt_all = pipeline.draw_vision(self.plan, self.v_geom, self.streams)
             new = slice(self.n_v, self.n_v + len(truth_v.t))
             block.vision, block.vision_truth = take_epochs(v_all, new), take_epochs(vt_all, new)
             self.n_v += len(truth_v.t)
             block.camera_enu = s.frame.ecef_to_enu(block.vision_truth.cam_pos_ecef)
-            from testbed.frames import q_to_R
             block.R_cam_to_world = s.frame.R @ q_to_R(block.vision_truth.q_cam_to_ecef)
             self.parts["vision"].append(block.vision)
             self.parts["vision_truth"].append(block.vision_truth)
             v_at_g = take_epochs(block.vision, g_sel)
         tracks = None
-        if self.feature_camera is not None and g_sel.size:  # per-epoch geometry and draws: block-size free
-            from testbed.sensors.vision.features import scene_ids, scene_tracks
-
-            cam, mount = self.feature_camera
-            fs = s.vision.features
-            ids = scene_ids(truth_g, cam, mount, s.features, fs, s.terrain)
-            tracks = scene_tracks(ids, take_epochs(block.vision_truth, g_sel), s.features, s.frame, cam, mount, fs,
-                                  self.seed_features, first_epoch=g0)
+        if self.plan.uses_features and g_sel.size:  # per-epoch geometry and draws: block-size free
+            ids = pipeline.feature_ids(self.plan, truth_g, s.terrain)
+            tracks = pipeline.draw_features(self.plan, ids, take_epochs(block.vision_truth, g_sel), self.streams,
+                                            first_epoch=g0)
             block.features = tracks
         imu, init = self._imu(truth_r, block) if self.uses_imu else (None, None)
         t_b = time.perf_counter()
@@ -273,34 +227,28 @@ class _Runner:
         s = self.setup
         init = None
         joined = truth_r if self.imu_prev is None else concat_epochs([self.imu_prev, truth_r])
-        t, dth, dvl, dt = true_increments(joined, s.imu)
         if self.imu_stream is None:
-            self.imu_stream = ImuErrorStream(s.imu, 1.0 / s.imu.rate_hz, np.random.default_rng(self.seed_imu))
+            self.imu_stream = pipeline.imu_errors(self.plan, self.streams)
             first = truth_r.at_indices(np.array([0]))
-            C = body_to_world(s.frame, first.pos_enu[0], first.q_body_to_enu[0])
-            v = local_to_world(s.frame, first.pos_enu[0], first.vel_enu[0])
+            p0 = first.pos_enu[0]
+            start = (float(first.t[0]), body_to_world(s.frame, p0, first.q_body_to_enu[0]),
+                     local_to_world(s.frame, p0, first.vel_enu[0]), p0)
             cb = float(np.asarray(block.gnss_truth.clock_bias).reshape(-1)[0]) if block.gnss_truth is not None else 0.0
-            init = align(float(first.t[0]), C, v, first.pos_enu[0], cb, 0.0, s.imu.figures(),
-                         np.random.default_rng(self.seed_align))
-        err = self.imu_stream.draw(t.size)
-        d_th, d_v = apply_errors(dth, dvl, self.imu_stream, err)
+            init = pipeline.alignment(self.plan, start, cb, self.streams)
+        imu = pipeline.imu_samples(self.plan, true_increments(joined, s.imu), self.imu_stream)
         self.imu_prev = truth_r.at_indices(np.array([len(truth_r.t) - 1]))
-        imu = ImuSamples(t=t, dtheta=d_th, dvel=d_v, dt=1.0 / s.imu.rate_hz,
-                         lever_arm_body=np.asarray(s.imu.lever_arm_body_m, float), earth_rotation=s.imu.earth_rotation,
-                         figures=s.imu.figures())
         return imu, init
 
     def _monitors(self, block: LoopBlock, v_at_g, imu=None, init=None, features=None) -> None:
         obs = Observations(block.gnss, v_at_g, imu, init, block.correlators, features)
         cg_enu = self.setup.frame.ecef_to_enu(block.truth.pos_ecef)
+        pm = self.timings.per_monitor
+        outs, self.states = pipeline.step_monitors(self.setup.monitors, obs, self.states,
+                                                   clock=lambda name, s: pm.__setitem__(name, pm.get(name, 0.0) + s))
         for mon in self.setup.monitors:
-            t0 = time.perf_counter()
-            out, self.states[mon.name] = mon.step(obs, self.states[mon.name])
-            pm = self.timings.per_monitor
-            pm[mon.name] = pm.get(mon.name, 0.0) + time.perf_counter() - t0
-            block.outputs[mon.name] = out
-            block.reference_enu[mon.name] = block.antenna_enu if mon.reference == ANTENNA else cg_enu
-            self.outputs[mon.name].append(out)
+            block.outputs[mon.name] = outs[mon.name]
+            block.reference_enu[mon.name] = pipeline.reference_enu(mon, block.antenna_enu, cg_enu)
+            self.outputs[mon.name].append(outs[mon.name])
 
     # -- events ----------------------------------------------------------------
     def _events(self, block: LoopBlock) -> None:
@@ -308,18 +256,20 @@ class _Runner:
 
 
 def run_loop(setup: RunSetup, *, seed: int = 0, sinks: list[Sink] | None = None, block_s: float = 5.0,
-             gust_seed: int | None = None) -> LoopResult:
+             gust_seed: int | None = None, streams: StreamTree | None = None) -> LoopResult:
     """Fly ``setup``'s approach with sensors and monitors in the loop.
 
     Parameters
     ----------
     setup : :func:`testbed.sim.setup.build_setup`.
-    seed : seeds every sensor random draw (SeedSequence -> GNSS, vision).
+    seed : roots every sensor random draw (:meth:`StreamTree.of_run`).
     sinks : observers with ``log_block`` (e.g. :class:`testbed.viz.rerun_sink.RerunSink`).
     block_s : simulated seconds per block (the live update period).
+    streams : the stream tree to draw from instead of ``seed``'s (e.g. a campaign block's, to fly one of its
+        trials again).
     """
     sinks = list(sinks or [])
-    runner = _Runner(setup, seed, sinks, block_s)
+    runner = _Runner(setup, StreamTree.of_run(seed) if streams is None else streams, sinks, block_s)
     wall0 = time.perf_counter()
     flight = fly(setup.approach.flight_plan, setup.terrain, gust_seed=gust_seed, on_step=runner.on_step)
     runner.flush()

@@ -17,7 +17,7 @@ from testbed.config import Approach
 from testbed.flight.fly import approach_geometry
 from testbed.flight.path import ApproachPath
 from testbed.frames import LocalFrame, euler_to_R_body_to_ned
-from testbed.integrity.levels import service_level
+from testbed.integrity.levels import strictest_limits
 from testbed.integrity.monitor import Monitor, MonitorContext
 from testbed.integrity.registry import build_monitor, monitor_names, reads_correlators, reads_features, reads_imu, reads_vision
 from testbed.integrity.settings import IntegritySettings
@@ -62,8 +62,7 @@ class RunSetup:
     @property
     def alert_limits(self) -> tuple[float, float]:
         """(HAL, VAL) of the most demanding configured service level (for plots)."""
-        levels = [service_level(n) for n in self.integrity.service_levels]
-        return min(lv.hal for lv in levels), min(lv.val for lv in levels)
+        return strictest_limits(self.integrity.service_levels)
 
 
 def load_terrain_for(approach: Approach):
@@ -194,14 +193,14 @@ def prepare_monitors(setup: RunSetup, announce: Callable[[str], None] | None = N
         compiled from these sources by an earlier run (the first run after an install or an edit).
     Returns the names of the monitors whose kernels were compiled for the first time.
     """
-    prepares = [(m.name, m.prepare) for m in setup.monitors if getattr(m, "prepare", None) is not None]
-    first = tuple(name for name, _ in prepares if not compiled_before(name))
+    first = tuple(m.name for m in setup.monitors if m.compiles_kernels and not compiled_before(m.name))
     if first and announce is not None:
         announce(f"compiling the integrity kernels of {', '.join(first)} once for this installation "
                  "(about a minute on 2 cores; cached for later runs)...")
-    for name, prepare in prepares:
-        prepare()
-        mark_compiled(name)
+    for m in setup.monitors:
+        m.prepare()
+        if m.compiles_kernels:
+            mark_compiled(m.name)
     return first
 
 
@@ -249,8 +248,8 @@ def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
                  terrain_mesh=mesh, runway_enu=runway, landmarks_enu=lm_enu,
                  landmark_ids=tuple(str(i) for i in setup.landmarks.id), camera_K=K, camera_resolution=res,
                  alert_limits=tuple(setup.alert_limits),
-                 vertical_only=tuple(m.name for m in setup.monitors if getattr(m, "dimensions", ("H", "V")) == ("V",)),
-                 several_tests=tuple(m.name for m in setup.monitors if getattr(m, "several_tests", False)),
+                 vertical_only=tuple(m.name for m in setup.monitors if m.dimensions == ("V",)),
+                 several_tests=tuple(m.name for m in setup.monitors if m.several_tests),
                  features_enu=setup.features)
 
 

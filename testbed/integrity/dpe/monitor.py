@@ -32,7 +32,7 @@ from testbed.integrity.dpe.overbound import gaussian_overbound
 from testbed.integrity.dpe.seed_variant import SPREAD_STEPS, solve_epoch_seed
 from testbed.integrity.dpe.solve import GridPlan, Status, crb, solve_epoch
 from testbed.integrity.levels import service_level
-from testbed.integrity.monitor import ANTENNA, MonitorContext, Observations
+from testbed.integrity.monitor import ANTENNA, MonitorContext, MonitorDefaults, Observations
 from testbed.integrity.raim import gps_raim
 from testbed.records import Diagnostics, MonitorOutput, epoch_array
 from testbed.schema import StrictModel
@@ -112,12 +112,13 @@ def _sis_sigma(el: NDArray, st: DpeSettings) -> NDArray:
 
 
 @dataclass(frozen=True)
-class DpeMonitor:
+class DpeMonitor(MonitorDefaults):
     name: str
     context: MonitorContext
     settings: DpeSettings
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "correlators"})
     reference: ClassVar[str] = ANTENNA
+    compiles_kernels: ClassVar[bool] = True
     dimensions: ClassVar[tuple[str, ...]] = ("V",)  # its PL bounds the vertical only
 
     @property

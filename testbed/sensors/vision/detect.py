@@ -361,6 +361,13 @@ def _check_geometry(g: VisionGeometry, settings: VisionSettings, lm: Landmarks) 
         raise ValueError("sample_vision: the geometry was built with another mount or max_range_m than `settings`")
 
 
+def _given_survey(survey_ecef: NDArray, lm: Landmarks) -> NDArray:
+    s = np.asarray(survey_ecef, float)
+    if s.shape[-2:] != lm.pos_ecef.shape:
+        raise ValueError(f"survey_ecef: expected (..., {len(lm)}, 3) surveyed positions, got shape {s.shape}")
+    return s
+
+
 def _check_rng_trials(rng, n_trials) -> None:
     """Fail early, before any geometry is computed, on a bad generator or trial count."""
     if not isinstance(rng, np.random.Generator):
@@ -371,7 +378,7 @@ def _check_rng_trials(rng, n_trials) -> None:
 
 def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmarks: Landmarks | LandmarkSettings,
                   faults: list | None = None, rng: np.random.Generator,
-                  n_trials: int | None = None) -> tuple[VisionEpochs, VisionTruth]:
+                  n_trials: int | None = None, survey_ecef: NDArray | None = None) -> tuple[VisionEpochs, VisionTruth]:
     """Random part of the vision synthesis: detections from a :class:`VisionGeometry`.
 
     Parameters
@@ -391,12 +398,15 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
         ``sample_vision(geometry[:T1])`` equals the first T1 epochs of
         ``sample_vision(geometry[:T2])`` for T1 < T2, bit for bit.
     n_trials : when given, a leading trial axis B = (n_trials,) on every random output.
+    survey_ecef : the surveyed landmark positions the monitors are given, ``(L, 3)`` (one survey for
+        every trial) or ``(B..., L, 3)``; None draws one survey per trial from the survey child of
+        ``rng`` (the run pipeline passes its own: one survey per flight or campaign block).
 
     Returns
     -------
     (VisionEpochs, VisionTruth); shapes as documented there, with B = () when
-    ``n_trials`` is None. ``VisionEpochs.landmark_pos_ecef`` is ``(B..., L, 3)``:
-    the survey error is drawn per trial.
+    ``n_trials`` is None. ``VisionEpochs.landmark_pos_ecef`` is ``(B..., L, 3)``
+    (the survey drawn per trial), or ``survey_ecef`` as given.
     """
     _check_rng_trials(rng, n_trials)
     lm = _as_landmarks(landmarks)
@@ -413,7 +423,7 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     # Random draws: one child generator per component, each time-dependent array drawn once, time-major.
     g_survey, g_dith, g_att, g_noise, g_faults = _spawn(rng, len(RNG_STREAMS))
     fault_rngs = _spawn(g_faults, len(faults))
-    lm_survey = survey(lm, g_survey, n_trials)  # (B..., L, 3)
+    lm_survey = survey(lm, g_survey, n_trials) if survey_ecef is None else _given_survey(survey_ecef, lm)
     # the same seed, times and settings dither every camera of a sweep alike (memo.shared: off outside campaigns)
     delta, delta_rate = memo.shared(
         ("dithering", memo.digest(t), settings.dithering.model_dump_json(), settings.rate_hz, memo.seed_key(g_dith),
@@ -524,7 +534,8 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
 
 def synthesize_vision(truth: Truth, settings: VisionSettings, *, landmarks: Landmarks | LandmarkSettings,
                       terrain=None, faults: list | None = None, rng: np.random.Generator,
-                      n_trials: int | None = None) -> tuple[VisionEpochs, VisionTruth]:
+                      n_trials: int | None = None, survey_ecef: NDArray | None = None
+                      ) -> tuple[VisionEpochs, VisionTruth]:
     """Synthesize camera landmark detections along a flight.
 
     ``sample_vision(vision_geometry(truth.decimate(settings.rate_hz), ...), ...)``.
@@ -539,7 +550,7 @@ def synthesize_vision(truth: Truth, settings: VisionSettings, *, landmarks: Land
     faults : a fault schedule; only the vision kinds (pixel_bias, landmark_moved,
         misassociation) are used.
     rng : the only source of randomness (child streams as in :func:`sample_vision`).
-    n_trials : as in :func:`sample_vision`.
+    n_trials, survey_ecef : as in :func:`sample_vision`.
 
     Returns
     -------
@@ -549,7 +560,8 @@ def synthesize_vision(truth: Truth, settings: VisionSettings, *, landmarks: Land
     lm = _as_landmarks(landmarks)
     geometry = vision_geometry(truth.decimate(settings.rate_hz), settings, landmarks=lm, terrain=terrain,
                                faults=faults)
-    return sample_vision(geometry, settings, landmarks=lm, faults=faults, rng=rng, n_trials=n_trials)
+    return sample_vision(geometry, settings, landmarks=lm, faults=faults, rng=rng, n_trials=n_trials,
+                         survey_ecef=survey_ecef)
 
 
 # Trailing axes after the epoch axis of the epoch-indexed fields (batch axes lead).
