@@ -63,6 +63,9 @@ sortie_s = 60.0
 
 
 def main() -> None:
+    from testbed.heap import keep_freed_memory
+
+    keep_freed_memory()  # the process settings `testbed campaign` applies (run_campaign, a library call, does not)
     from testbed.campaign.cli_commands import _positive_int  # argparse prints its message and exits 2
 
     ap = argparse.ArgumentParser()

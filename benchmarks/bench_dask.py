@@ -44,6 +44,9 @@ def _warm(spec_json: str, source: str) -> int:
 
 
 def main() -> None:
+    from testbed.heap import keep_freed_memory
+
+    keep_freed_memory()  # the process settings `testbed campaign` applies (run_campaign, a library call, does not)
     from testbed.campaign.cli_commands import _positive_int  # argparse prints its message and exits 2
     from testbed.campaign.reproduce import experiments
 

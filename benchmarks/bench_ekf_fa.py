@@ -44,6 +44,9 @@ def spec(approach: str, trials: int) -> CampaignSpec:
 
 
 def main() -> None:
+    from testbed.heap import keep_freed_memory
+
+    keep_freed_memory()  # the process settings `testbed campaign` applies (run_campaign, a library call, does not)
     ap = argparse.ArgumentParser()
     ap.add_argument("--epochs", type=int, default=1_500_000, help="fault-free epochs per approach (at least)")
     ap.add_argument("--approaches", nargs="+", default=["zunz-rwy05-ekf", "zunz-rwy05-final"])

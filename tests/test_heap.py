@@ -24,3 +24,20 @@ def test_applied_on_glibc_and_idempotent(monkeypatch):
     assert heap._apply() is True
     first = heap.keep_freed_memory()
     assert heap.keep_freed_memory() is first
+
+
+def test_run_campaign_changes_no_process_setting(monkeypatch, tmp_path):
+    """A library call leaves the process as it found it: the commands apply the heap and thread settings where the
+    process starts, not run_campaign."""
+    from testbed import heap, threads
+    from testbed.campaign.runner import run_campaign
+    from testbed.resources import campaigns_dir
+
+    def refuse(*a, **k):
+        raise AssertionError("a library call changed a process setting")
+
+    monkeypatch.setattr(heap, "_apply", refuse)
+    monkeypatch.setattr(heap, "keep_freed_memory", refuse)
+    monkeypatch.setattr(threads, "sleep_idle_threads", refuse)
+    res = run_campaign(campaigns_dir() / "quick-look.toml", tmp_path / "ql", progress=False, max_chunks=1)
+    assert res.chunks_run == 1

@@ -151,7 +151,9 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     add_campaign_parsers(sub)
     args = parser.parse_args(argv)
+    from testbed.heap import keep_freed_memory
     from testbed.threads import sleep_idle_threads
 
-    sleep_idle_threads()  # a process setting, as testbed's own main applies it
+    keep_freed_memory()  # process settings, as testbed's own main applies them
+    sleep_idle_threads()
     return exit_code(lambda: args.func(args))

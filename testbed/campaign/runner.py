@@ -166,7 +166,8 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
     duration_s = None if spec is None else spec.duration_s
     segment = "first" if spec is None else spec.segment
     terrain = _terrain(cell)
-    setup = build_setup(cell.approach, terrain, monitor_threads=1)  # blocks run side by side instead
+    # blocks run side by side instead of a monitor's threads; what the cells of a sweep compute alike is shared
+    setup = build_setup(cell.approach, terrain, monitor_threads=1, share=memo.shared)
     plan = pipeline.sensor_plan(setup)
     fkey = _flight_key(cell)
     sky = None
@@ -307,7 +308,7 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     if ctx.v_geom is not None:
         # the camera frames and the block's one survey, shared: the cells of one survey hand VA-RAIM one record
         vis, vtruth = _shared_draw(("vision_draw", ctx.vision_draw_key), faults, VISION_KINDS, tree.seed("vision"), n,
-                                   lambda: pipeline.draw_vision(plan, ctx.v_geom, tree, n, faults))
+                                   lambda: pipeline.draw_vision(plan, ctx.v_geom, tree, n, faults, share=memo.shared))
     target = np.full(n, -1, np.int64)
     if gtruth.faulty.any():
         hit = gtruth.faulty.any(axis=-2)  # (n, S)
@@ -830,11 +831,10 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     """
     from testbed.campaign.spec import load_spec
     from testbed.campaign.store import ResultStore
-    from testbed.heap import keep_freed_memory
-
-    keep_freed_memory()  # the driver owns its process: keep the blocks' freed arrays in the heap
-
     from testbed.sim.preflight import check_output_folder
+
+    # no process setting here (a library call): the commands apply them where the process starts
+    # (testbed.heap, testbed.threads), and so does each worker process (_worker_row)
 
     check_workers(workers, scheduler)
     loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)

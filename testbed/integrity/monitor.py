@@ -35,7 +35,7 @@ Writing one::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping, Protocol, runtime_checkable
+from typing import Any, Callable, ClassVar, Mapping, Protocol, runtime_checkable
 
 from testbed.frames import LocalFrame
 from testbed.integrity.settings import IntegritySettings
@@ -74,6 +74,11 @@ class Observations:
         return self.gnss.t
 
 
+def compute(key: tuple, make: Callable[[], Any], guard: object = None) -> Any:
+    """No sharing: ``make()`` (the default of :attr:`MonitorContext.share`)."""
+    return make()
+
+
 @dataclass(frozen=True)
 class MonitorContext:
     """What every monitor is built from: the run's world frame and the shared integrity settings.
@@ -81,12 +86,17 @@ class MonitorContext:
     options : the approach file's per-monitor tables (``[va_raim]``...), by table name;
         a builder validates its own.
     threads : worker threads a monitor may use on a batch (None: one per core).
+    share : ``share(key, make, guard)`` returns ``make()``, or the value an earlier call with the same key made:
+        a monitor hands it the parts of its work that other runs may have done alike (VA-RAIM's GPS step, its
+        vision ranges). The caller decides whether anything is shared (a campaign shares between the cells of a
+        sweep, :mod:`testbed.memo`); by default nothing is.
     """
 
     frame: LocalFrame
     integrity: IntegritySettings
     options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     threads: int | None = None
+    share: Callable[..., Any] = compute
 
 
 @runtime_checkable

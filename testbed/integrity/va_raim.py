@@ -29,14 +29,13 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from typing import Any, Callable, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, field_validator
 from scipy import optimize, stats
 
-from testbed import memo
 from testbed.frames import LocalFrame, q_to_R
 from testbed.integrity import kernels, lsq
 from testbed.integrity.batching import map_trial_chunks
@@ -47,7 +46,7 @@ from testbed.integrity.calibration import (
     landmark_set_key,
 )
 from testbed.integrity.levels import SERVICE_LEVELS, service_level
-from testbed.integrity.monitor import MonitorContext, MonitorDefaults, Observations, REFERENCE_POINT
+from testbed.integrity.monitor import MonitorContext, MonitorDefaults, Observations, REFERENCE_POINT, compute
 from testbed.integrity.fde import Verdict, exclude, flat_take
 from testbed.integrity.raim import (
     GpsFix,
@@ -338,7 +337,7 @@ def _read_inputs(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame) -> _
 
 def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
             settings: VaRaimSettings | None = None, name: str = "va_raim",
-            threads: int | None = None) -> MonitorOutput:
+            threads: int | None = None, share: Callable[..., Any] = compute) -> MonitorOutput:
     """The vision-aided RAIM monitor for every epoch (and trial) of a run.
 
     Parameters
@@ -367,12 +366,14 @@ def va_raim(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     st = settings or VaRaimSettings()
     inp = _read_inputs(gnss, vision, frame)
     # step 1 reads the GNSS record only: the cells of a camera sweep that share it share step 1; step 2 reads
-    # both records and step 1: the cells that differ only after it (variant, calibration) share it (memo)
-    gps_key = ("va_raim_gps", id(gnss), st.integrity.model_dump_json(), memo.digest(frame.origin_ecef, frame.R))
+    # both records and step 1: the cells that differ only after it (variant, calibration) share it (``share``:
+    # what the caller shares, keyed on the records' identity and on everything else each step reads)
+    gps_key = ("va_raim_gps", id(gnss), st.integrity.model_dump_json(), np.asarray(frame.origin_ecef, float).tobytes(),
+               np.asarray(frame.R, float).tobytes())
     vision_key = gps_key + ("va_raim_vision", id(vision), st.vision.model_dump_json(), st.prior_speed_m_s,
                             st.prior_floor_m)
     return map_trial_chunks(lambda sl: _va_raim_chunk(inp.trials(sl), st, name, (gps_key + (sl.start, sl.stop), gnss),
-                                                      (vision_key + (sl.start, sl.stop), (gnss, vision))),
+                                                      (vision_key + (sl.start, sl.stop), (gnss, vision)), share),
                             inp.pr.shape[:-1], threads)
 
 
@@ -382,8 +383,8 @@ def _gps_step(inp: _Inputs, ist: IntegritySettings) -> tuple[GpsFix, MonitorOutp
     return fix_g, gps_output(fix_g, inp.t, inp.pr.shape[-1], ist, "gps_raim")
 
 
-def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tuple, shared_vision: tuple
-                   ) -> MonitorOutput:
+def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tuple, shared_vision: tuple,
+                   share: Callable[..., Any]) -> MonitorOutput:
     """:func:`va_raim` on one chunk of trials."""
     ist = st.integrity
     pr, t, p_enu, uv = inp.pr, inp.t, inp.p_enu, inp.uv
@@ -400,7 +401,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tupl
     # then moved to the reference point through the lever arm (the pseudoranges see x + R·l_ant
     # only, so this is the fix a solve for the reference point reaches, to rounding)
     key, guard = shared_gps
-    fix_g, gps = memo.shared(key, lambda: _gps_step(inp, ist), guard=guard)
+    fix_g, gps = share(key, lambda: _gps_step(inp, ist), guard=guard)
     idx, mg, zg, wg, anchor_g, fit_g = fix_g.idx, fix_g.mask, fix_g.z, fix_g.w, fix_g.anchor, fix_g.fit
     x_g = fix_g.x - np.concatenate([off_ant, np.zeros(bt + (1,))], axis=-1)
     has_fix = np.isfinite(x_g).all(-1)
@@ -413,7 +414,7 @@ def _va_raim_chunk(inp: _Inputs, st: VaRaimSettings, name: str, shared_gps: tupl
                                                  off_cam, st)
         return last, vision_pseudoranges(uv, inp.det, inp.K, inp.sig, p_enu, m_pred, Sigma_pred, st.vision)
 
-    last, vr = memo.shared(shared_vision[0], vision_step, guard=shared_vision[1])
+    last, vr = share(shared_vision[0], vision_step, guard=shared_vision[1])
     li = np.maximum(last, 0)
     # the paper's Gaussian vision model holds only while σ_V/m is small (linear_range_limit;
     # docs/design/integrity.md §9, eq. 9.5)
@@ -594,7 +595,7 @@ class VaRaimMonitor(MonitorDefaults):
                                                          concat_epochs([ctx.vision, obs.vision]))
         n_ctx = 0 if ctx is None else len(ctx.t)
         full = va_raim(full_obs.gnss, full_obs.vision, self.context.frame, self.settings, name=self.name,
-                       threads=self.context.threads)
+                       threads=self.context.threads, share=self.context.share)
         keep = _context_epochs(full)
         new_ctx = Observations(take_epochs(full_obs.gnss, keep), take_epochs(full_obs.vision, keep))
         # (the first step's output as it is: its step-1 arrays stay the shared ones, and so do the tables)

@@ -120,7 +120,7 @@ def summarise_monitor(out: MonitorOutput, true_pos_enu: NDArray, *, reference: s
     sol = np.isfinite(he)
     return MonitorSummary(
         name=out.name, epochs=int(t.size), reference=reference,
-        availability={lv.name: float(avail[..., k].mean()) for k, lv in enumerate(levels)},
+        availability={name: float(avail[..., k].mean()) for k, name in enumerate(out.service_levels)},
         hpl_max=float(np.nanmax(hpl)) if np.isfinite(hpl).any() else float("nan"), hpl_p95=_pct(hpl, 95),
         vpl_max=float(np.nanmax(vpl)) if np.isfinite(vpl).any() else float("nan"), vpl_p95=_pct(vpl, 95),
         hpe95=_pct(he[sol], 95), vpe95=_pct(ve[sol], 95), alert_epochs=int(alert.sum()),

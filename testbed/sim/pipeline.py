@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from testbed.integrity.monitor import ANTENNA, Monitor, Observations
+from testbed.integrity.monitor import ANTENNA, Monitor, Observations, compute
 from testbed.records import ImuSamples, MonitorOutput
 from testbed.sensors.gnss.almanac import load_constellation
 from testbed.sensors.gnss.synth import GnssGeometry, apply_gnss_errors, draw_gnss_errors
@@ -106,14 +106,15 @@ def landmark_survey(plan: SensorPlan, streams: StreamTree) -> np.ndarray:
 
 
 def draw_vision(plan: SensorPlan, v_geom, streams: StreamTree, n_trials: int | None = None,
-                faults: Sequence | None = None):
+                faults: Sequence | None = None, share: Callable[..., Any] = compute):
     """``(VisionEpochs, VisionTruth)`` of the vision geometry ``v_geom``: dithering, attitude reference, detection
-    noise and the vision faults from the tree's vision stream, the landmarks as :func:`landmark_survey` has them."""
+    noise and the vision faults from the tree's vision stream, the landmarks as :func:`landmark_survey` has them
+    (``share``: as :func:`~testbed.sensors.vision.detect.sample_vision` takes it)."""
     s = plan.setup
     faults = s.faults if faults is None else faults
     return vdetect.sample_vision(v_geom, s.vision, landmarks=s.landmarks, faults=list(faults),
                                  rng=streams.generator("vision"), n_trials=n_trials,
-                                 survey_ecef=landmark_survey(plan, streams))
+                                 survey_ecef=landmark_survey(plan, streams), share=share)
 
 
 def feature_ids(plan: SensorPlan, truth_g, terrain) -> np.ndarray:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from pydantic import ValidationError
@@ -18,7 +18,7 @@ from testbed.flight.fly import approach_geometry
 from testbed.flight.path import ApproachPath
 from testbed.frames import LocalFrame, euler_to_R_body_to_ned
 from testbed.integrity.levels import strictest_limits
-from testbed.integrity.monitor import Monitor, MonitorContext
+from testbed.integrity.monitor import Monitor, MonitorContext, compute
 from testbed.integrity.registry import build_monitor, monitor_names, reads_correlators, reads_features, reads_imu, reads_vision
 from testbed.integrity.settings import IntegritySettings
 from testbed.kernel_cache import compiled_before, mark_compiled
@@ -90,11 +90,14 @@ def vision_settings(approach: Approach) -> VisionSettings:
     return v.model_copy(update={"mount": mount})
 
 
-def build_setup(approach: Approach, terrain, monitor_threads: int | None = None) -> RunSetup:
+def build_setup(approach: Approach, terrain, monitor_threads: int | None = None,
+                share: Callable[..., Any] = compute) -> RunSetup:
     """The run's frame, path, sensor settings and monitors (built, not compiled: see prepare_monitors).
 
     monitor_threads : threads each monitor may use on a batch (None: one per core; campaigns,
     which run draw blocks side by side, pass 1).
+    share : what the monitors may share with other runs (:class:`~testbed.integrity.monitor.MonitorContext`;
+    a campaign passes :func:`testbed.memo.shared`); nothing by default.
     """
     c = approach.config
     frame, path = approach_geometry(approach.flight_plan)
@@ -128,7 +131,7 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None)
             raise ConfigError(approach.source, [
                 f"gnss.correlators.statistic = {cs.statistic!r}: dpe.variant = {variant!r} reads {want!r}"
                 + (" (and needs synthesis = 'exact')" if want == "mag" else "")])
-    monitors = build_monitors(approach, frame, monitor_threads)
+    monitors = build_monitors(approach, frame, monitor_threads, share)
     features = None
     if vision.features.enabled and reads_features(c.monitors):
         from testbed.sensors.vision.features import corridor_features
@@ -157,7 +160,8 @@ def _dpe_k_from_file(approach: Approach) -> float:
         raise ConfigError(approach.source, [f"dpe.k_factor = {c.dpe['k_factor']!r}: {exc}"]) from None
 
 
-def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = None) -> tuple[Monitor, ...]:
+def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = None,
+                   share: Callable[..., Any] = compute) -> tuple[Monitor, ...]:
     """The approach's monitors, from the registry; a bad option table is a ConfigError naming its key."""
     c = approach.config
     names = tuple(dict.fromkeys(c.monitors))
@@ -165,7 +169,7 @@ def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = 
     options = {n: t for n, t in tables.items() if n in names}
     if "dpe" in options and isinstance(options["dpe"].get("k_factor"), str):
         options["dpe"] = {**options["dpe"], "k_factor": _dpe_k_from_file(approach)}
-    ctx = MonitorContext(frame=frame, integrity=c.integrity, options=options, threads=threads)
+    ctx = MonitorContext(frame=frame, integrity=c.integrity, options=options, threads=threads, share=share)
     out = tuple(_built(name, ctx, approach) for name in names)
     # the option table of a monitor not listed is checked too: a typo in it must not wait until the
     # monitor is switched on (a K file is read only then)

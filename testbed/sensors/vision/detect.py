@@ -45,12 +45,12 @@ line of sight, is computed once per trajectory.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from testbed import memo
 from testbed.frames import R_ecef_to_enu, R_to_q, ecef_to_geodetic
 from testbed.records import Mount, NotVisible, Truth, VisionEpochs, epoch_array
 from testbed.sensors.faults import LandmarkMoved, Misassociation, PixelBias, VISION_KINDS, active
@@ -378,7 +378,8 @@ def _check_rng_trials(rng, n_trials) -> None:
 
 def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmarks: Landmarks | LandmarkSettings,
                   faults: list | None = None, rng: np.random.Generator,
-                  n_trials: int | None = None, survey_ecef: NDArray | None = None) -> tuple[VisionEpochs, VisionTruth]:
+                  n_trials: int | None = None, survey_ecef: NDArray | None = None,
+                  share: Callable[..., Any] | None = None) -> tuple[VisionEpochs, VisionTruth]:
     """Random part of the vision synthesis: detections from a :class:`VisionGeometry`.
 
     Parameters
@@ -401,6 +402,9 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     survey_ecef : the surveyed landmark positions the monitors are given, ``(L, 3)`` (one survey for
         every trial) or ``(B..., L, 3)``; None draws one survey per trial from the survey child of
         ``rng`` (the run pipeline passes its own: one survey per flight or campaign block).
+    share : ``share(key, make)`` returns ``make()`` or what an earlier call with the same key made: the
+        caller's sharing of the dithering between runs drawing it alike (a campaign's cells of one camera
+        sweep); None computes it.
 
     Returns
     -------
@@ -424,11 +428,15 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     g_survey, g_dith, g_att, g_noise, g_faults = _spawn(rng, len(RNG_STREAMS))
     fault_rngs = _spawn(g_faults, len(faults))
     lm_survey = survey(lm, g_survey, n_trials) if survey_ecef is None else _given_survey(survey_ecef, lm)
-    # the same seed, times and settings dither every camera of a sweep alike (memo.shared: off outside campaigns)
-    delta, delta_rate = memo.shared(
-        ("dithering", memo.digest(t), settings.dithering.model_dump_json(), settings.rate_hz, memo.seed_key(g_dith),
-         n_trials),
-        lambda: dithering_angles(t, settings.dithering, g_dith, n_trials, sample_rate_hz=settings.rate_hz))  # (B..., T, 3)
+    def dither():  # (B..., T, 3) angles and rates
+        return dithering_angles(t, settings.dithering, g_dith, n_trials, sample_rate_hz=settings.rate_hz)
+
+    if share is None:
+        delta, delta_rate = dither()
+    else:  # the same seed, times and settings dither every camera of a sweep alike: keyed on all the draw reads
+        ss = g_dith.bit_generator.seed_seq
+        delta, delta_rate = share(("dithering", t.tobytes(), settings.dithering.model_dump_json(), settings.rate_hz,
+                                   ss.entropy, ss.spawn_key, ss.pool_size, ss.n_children_spawned, n_trials), dither)
     q_ref, att_err, att_sigma = attitude_reference_from_euler(g.euler, settings.attitude_ref, g_att, n_trials)
     noise_std = g_noise.standard_normal(batch + (T, L, 2))
 
