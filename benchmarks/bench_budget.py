@@ -29,6 +29,7 @@ import tracemalloc
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this checkout's testbed, as the commands it runs (cwd ROOT) use
 
 #: (label, spec name or TOML text, --trials)
 CASES = [
