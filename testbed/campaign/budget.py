@@ -11,6 +11,7 @@ trial-epoch costs, over the cores, plus the flights and the geometry.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +20,10 @@ from testbed.campaign.sorties import sky_windows, sortie_offsets
 from testbed.campaign.spec import LoadedSpec
 from testbed.integrity.batching import available_cores, physical_memory_bytes
 from testbed.memo import DEFAULT_LIMIT_BYTES
+from testbed.config import load_approach
 from testbed.sim.budget import (BASE_BYTES, FLIGHT_SECONDS_PER_S, PARALLEL_EFFICIENCY, Estimate, Shape,
-                                correlator_trial_bytes, feature_bytes, feature_seconds, sortie_shape,
-                                trial_epoch_bytes, trial_epoch_seconds)
+                                correlator_seconds, correlator_trial_bytes, feature_bytes, feature_seconds,
+                                sortie_shape, trial_epoch_bytes, trial_epoch_seconds)
 
 #: the cached GNSS geometry, bytes per sky window, epoch and satellite (positions, lines of sight, masks)
 GEOMETRY_BYTES_PER_SAT = 150.0
@@ -182,37 +184,26 @@ def reproduction_estimate(paper: str, full: bool, *, workers: int | str = "auto"
     return None
 
 
-def calibration_estimate(approach: str, sorties: int, trajectories: tuple[str, ...] = (),
-                         cores: int | None = None) -> Estimate:
+def calibration_estimate(approach: str, sorties: int, trajectories: tuple[str, ...] = ()) -> Estimate:
     """``testbed calibrate-dpe``: 2 x ``sorties`` sorties of the dpe monitor (calibration and held-out), each a
-    whole flight of one of the trajectories, one trial each, chunks on this process."""
-    from testbed.config import load_approach
-    from testbed.sim.budget import BASE_BYTES as base
-
+    whole flight of one of the trajectories (the approach's own by default) with the approach's correlator
+    settings, one trial at a time."""
     ap = load_approach(approach)
-    shapes = [sortie_shape(ap)]
-    for t in trajectories:
+    shapes = []
+    for t in trajectories or (approach,):
         other = load_approach(t)
-        cfg = other.config.model_copy(update={"gnss": other.config.gnss.model_copy(
-            update={"correlators": ap.config.gnss.correlators}), "monitors": ["dpe"]})
-        from dataclasses import replace
-
+        corr = ap.config.gnss.correlators.model_copy(update={"pseudorange_source": "model"})  # one synthesis
+        cfg = other.config.model_copy(update={"gnss": other.config.gnss.model_copy(update={"correlators": corr}),
+                                              "monitors": ["dpe"], "dpe": ap.config.dpe})
         shapes.append(sortie_shape(replace(other, config=cfg)))
-    shapes = shapes[1:] or shapes
     epochs = sum(s.epochs for s in shapes) / len(shapes)
-    per_epoch = sum(shapes[0].monitor_cost("dpe")[1] + _correlators_s(s) for s in shapes) / len(shapes)
+    per_epoch = sum(s.monitor_cost("dpe")[1] + correlator_seconds(s) for s in shapes) / len(shapes)
     kept = 2 * sorties * epochs * 6 * 8.0  # z, e, sigma, m, satellites, VDOP per epoch with a solution
-    memory = {"process and kernels": base, "one sortie's correlograms": max(correlator_trial_bytes(s) for s in shapes),
+    memory = {"process and kernels": BASE_BYTES,
+              "one sortie's correlograms": max(correlator_trial_bytes(s) for s in shapes),
               "the sorties' errors kept for the fit": kept}
-    cores = available_cores() if cores is None else cores
     time = {f"{2 * sorties} sorties x ~{epochs:.0f} epochs": 2 * sorties * epochs * per_epoch,
             "flights": sum(s.flight_s for s in shapes) * FLIGHT_SECONDS_PER_S}
     return Estimate(f"calibrate-dpe {approach}", memory, time,
                     (f"fewer sorties (--sorties; now {sorties})", "--work DIR keeps every chunk, so a long run can "
                      "be stopped and resumed (--resume)"), cores=1)
-
-
-def _correlators_s(shape: Shape) -> float:
-    from testbed.sim.budget import correlator_seconds
-
-    return correlator_seconds(shape)

@@ -148,7 +148,6 @@ class Estimate:
     time: dict[str, float]
     shrink: tuple[str, ...] = ()
     cores: int = 1
-    notes: tuple[str, ...] = field(default=())
 
     @property
     def peak_bytes(self) -> float:
