@@ -55,6 +55,11 @@ def _cmd_fly(args: argparse.Namespace) -> int:
             problems += err.problems
     if problems:
         raise ConfigError("command line", problems)
+    from testbed.config import load_approach, with_overrides
+    from testbed.sim.budget import budget_gate, flight_estimate
+
+    ap = with_overrides(load_approach(args.approach), monitors=args.monitors, faults=faults or None)
+    budget_gate(lambda: flight_estimate(ap, sensors=not args.flight_only), args.allow_large)
     if args.flight_only:
         if faults:
             raise ConfigError("command line", ["--fault: a flight without sensors has nothing to inject into "
@@ -108,7 +113,9 @@ def _cmd_observability(args: argparse.Namespace) -> int:
 def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
     from testbed.schema import ConfigError
     from testbed.api import check_run_arguments
+    from testbed.campaign.budget import calibration_estimate
     from testbed.campaign.dpe_calibration import SET_C_TRAJECTORIES, calibrate_dpe, write_record
+    from testbed.sim.budget import budget_gate
     from testbed.config import load_approach
     from testbed.sim.preflight import check_output_folder
 
@@ -126,6 +133,7 @@ def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
     trajectories = SET_C_TRAJECTORIES if args.trajectories == ["set-c"] else tuple(args.trajectories or ())
     for t in (args.approach, *trajectories):
         load_approach(t)  # every named approach reads before any work (exit 2 naming the file and key)
+    budget_gate(lambda: calibration_estimate(args.approach, args.sorties, trajectories), args.allow_large)
     if args.work is not None:
         check_output_folder(args.work, "--work")
     try:
@@ -162,6 +170,7 @@ def _in_range(kind, lo, hi):
 
 def build_parser() -> argparse.ArgumentParser:
     from testbed.integrity.registry import monitor_names
+    from testbed.sim.budget import add_allow_large
 
     p = argparse.ArgumentParser(prog="testbed", description="GNSS/vision integrity testbed for approaches into ZUNZ")
     sub = p.add_subparsers(dest="command", required=True)
@@ -186,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="add a fault to the approach's schedule, the keys of a [[faults]] table, e.g. "
                         "gps_step:prn=random,bias_m=60,onset_s=100 (repeatable)")
     f.add_argument("--flight-only", action="store_true", help="fly without sensors, monitors or recording")
+    add_allow_large(f)
     f.set_defaults(func=_cmd_fly)
 
     a = sub.add_parser("approaches", help="list the shipped approaches and campaign specs, and where they are read from")
@@ -239,6 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--work", type=Path, help="folder keeping every chunk as it finishes (a killed run resumes)")
     k.add_argument("--resume", action="store_true", help="continue the calibration stored in --work")
     k.add_argument("--scheduler", help="Dask scheduler address: chunks run on its workers")
+    add_allow_large(k)
     k.set_defaults(func=_cmd_calibrate_dpe)
 
     c = sub.add_parser("check", help="validate approach (or campaign) files and explain every problem")

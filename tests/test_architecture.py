@@ -50,6 +50,8 @@ NAMES_ALLOWED = {
     "cli.py": "testbed calibrate-dpe and its help",
     "campaign/report.py": "the VA-RAIM reproduction's GPS baseline column",
     "rinex/run.py": "testbed monitor runs GPS RAIM by default",
+    "sim/budget.py": "the resource estimate's measured cost of each shipped monitor",
+    "campaign/budget.py": "the resource estimate of testbed calibrate-dpe",
     "campaign/reproduce.py": "an experiment: the VA-RAIM paper's monitors",
     "campaign/reproduce_dpe.py": "an experiment: the DPE paper's monitor",
     "campaign/vision_pays.py": "an experiment: where VA-RAIM beats GPS RAIM",

@@ -258,6 +258,14 @@ FILE_CASES = [
      "gnss.correlators", "100 blocks"),
     ("unknown-pseudorange-source", lambda d: approach(d, tail='[gnss.correlators]\npseudorange_source = "dll"'),
      "gnss.correlators.pseudorange_source", "dll"),
+    # runway edge points are named by the whole metre: a finer spacing repeated ids (a traceback, after 100 s of a
+    # quadratic duplicate search at 0.1 m)
+    ("sub-metre-runway-spacing", lambda d: approach(d, replace=('sets = [{ kind = "triangle" }]',
+                                                                'sets = [{ kind = "runway", edge_spacing_m = 0.5 }]')),
+     "landmarks.sets.0.edge_spacing_m", "0.5"),
+    ("one-id-in-two-sets", lambda d: approach(d, replace=('sets = [{ kind = "triangle" }]',
+                                                          'sets = [{ kind = "triangle" }, { kind = "triangle" }]')),
+     "landmarks.sets", "T1"),
     # correlator pseudoranges need correlograms that fit an epoch, even with no monitor reading them
     ("correlator-pseudoranges-with-long-blocks", lambda d: approach(
         d, tail='[gnss.correlators]\npseudorange_source = "correlator"\nn_noncoherent = 100'),

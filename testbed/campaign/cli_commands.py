@@ -13,6 +13,7 @@ import argparse
 from pathlib import Path
 
 from testbed.schema import ConfigError, exit_code
+from testbed.sim.budget import add_allow_large, budget_gate
 
 
 def _positive_int(text: str) -> int:
@@ -47,12 +48,15 @@ def _interrupted(out: Path) -> int:
 
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
+    from testbed.campaign.budget import campaign_estimate
     from testbed.campaign.report import headlines, write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
 
     loaded = load_spec(args.spec, trials=args.trials)  # every spec problem is reported before any work starts
     out = Path(args.out) if args.out else Path("campaigns") / loaded.spec.name
+    budget_gate(lambda: campaign_estimate(loaded, workers=args.workers, scheduler=args.scheduler, out_dir=out,
+                                          resume=args.resume), args.allow_large)
     try:
         res = run_campaign(loaded, out, resume=args.resume, scheduler=args.scheduler, progress=not args.quiet,
                            restart=args.restart, workers=args.workers)
@@ -81,6 +85,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from testbed.campaign.budget import reproduction_estimate
     from testbed.campaign.reproduce import PAPERS, reproduce_va_raim_2015
     from testbed.sim.preflight import check_output_folder
 
@@ -93,6 +98,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
                                            f"{args.paper} runs in-process from the start"])
     out = Path(args.out) if args.out else Path("campaigns") / f"reproduce-{args.paper}"
     check_output_folder(out, "--out")
+    budget_gate(lambda: reproduction_estimate(args.paper, args.full, workers=args.workers, out_dir=out,
+                                              resume=args.resume), args.allow_large)
     if args.paper == "dpe-vertical":
         from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
 
@@ -125,6 +132,7 @@ def add_campaign_parsers(subparsers) -> None:
     again.add_argument("--restart", action="store_true", help="discard the run stored in --out and start over")
     p.add_argument("--no-report", action="store_true", help="do not draw the figures and report.md")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_allow_large(p)
     p.set_defaults(func=_cmd_campaign)
 
     p = subparsers.add_parser("report", help="redraw a campaign's figures and report.md from stored results")
@@ -142,6 +150,7 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("--workers", type=_workers, default="auto", help="va-raim-2015: " + WORKERS_HELP)
     p.add_argument("--resume", action="store_true", help="va-raim-2015: complete the experiments stored in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_allow_large(p)
     p.set_defaults(func=_cmd_reproduce)
 
 

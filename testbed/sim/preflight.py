@@ -123,23 +123,26 @@ def _vision_weight_problems(setup) -> list[str]:
     return []
 
 
-def flight_duration_bound(approach: Approach, setup) -> float:
+def flight_duration_bound(approach: Approach, path=None) -> float:
     """An upper bound on the flight's duration (s): the path at the approach speed less the wind.
 
     True airspeed is at least the calibrated airspeed above sea level, so the ground
     speed is at least CAS − wind; gusts aside, the flight cannot last longer.
+    path : the approach's planned path, when at hand (else made from the flight plan).
     """
+    from testbed.flight.fly import approach_geometry
+
     plan = approach.flight_plan
     fl, ac = plan.flight, plan.aircraft
     cas = (fl.speed_kt if fl.speed_kt is not None else ac.approach.speed_kt) * KT
     wind = plan.wind.speed_kt * KT
-    d0 = fl.start_distance_m or setup.path.total_length
+    d0 = fl.start_distance_m or (path if path is not None else approach_geometry(plan)[1]).total_length
     gs = cas - wind
     return min(fl.max_duration_s, d0 / gs if gs > 0 else math.inf)
 
 
 def _timing_problems(approach: Approach, setup) -> list[str]:
-    bound = flight_duration_bound(approach, setup)
+    bound = flight_duration_bound(approach, setup.path)
     out = []
     for k, f in enumerate(approach.config.faults):
         if f.onset_s >= bound:

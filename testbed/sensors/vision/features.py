@@ -41,11 +41,8 @@ def ground_features(n: int, east_m: tuple[float, float], north_m: tuple[float, f
     return np.stack([e, nn, np.full(n, float(up_m))], -1)
 
 
-def corridor_features(track_en: ArrayLike, settings, frame: LocalFrame, terrain=None) -> NDArray:
-    """The scene (n, 3), world frame: ``settings.density_per_km2`` points per km², uniform over the swath of
-    half width ``settings.half_width_m`` about the ground track ``track_en`` (K, 2) continued straight for
-    ``settings.beyond_m``, each on the terrain (flat at the frame's height without one; dropped where the
-    model has no height). ``settings``: :class:`~.settings.FeatureSceneSettings`."""
+def _corridor_axis(track_en: ArrayLike, beyond_m: float) -> NDArray:
+    """The ground track (K, 2) without repeated points, continued straight for ``beyond_m``."""
     en = np.asarray(track_en, float)
     seg = np.diff(en, axis=0)
     keep = np.linalg.norm(seg, axis=-1) > 0
@@ -53,12 +50,27 @@ def corridor_features(track_en: ArrayLike, settings, frame: LocalFrame, terrain=
         raise ValueError(f"corridor_features: expected a ground track of at least two distinct points, got {en.shape[0]}")
     en = np.concatenate([en[:1], en[1:][keep]])
     last = en[-1] - en[-2]
-    en = np.concatenate([en, en[-1:] + settings.beyond_m * last / np.linalg.norm(last)])
+    return np.concatenate([en, en[-1:] + beyond_m * last / np.linalg.norm(last)])
+
+
+def corridor_size(track_en: ArrayLike, settings) -> int:
+    """How many points :func:`corridor_features` draws (before dropping those without a terrain height),
+    computed without drawing them."""
+    en = _corridor_axis(track_en, settings.beyond_m)
+    area_km2 = np.cumsum(np.linalg.norm(np.diff(en, axis=0), axis=-1))[-1] * 2 * settings.half_width_m / 1e6
+    return max(1, int(round(settings.density_per_km2 * area_km2)))
+
+
+def corridor_features(track_en: ArrayLike, settings, frame: LocalFrame, terrain=None) -> NDArray:
+    """The scene (n, 3), world frame: ``settings.density_per_km2`` points per km², uniform over the swath of
+    half width ``settings.half_width_m`` about the ground track ``track_en`` (K, 2) continued straight for
+    ``settings.beyond_m``, each on the terrain (flat at the frame's height without one; dropped where the
+    model has no height). ``settings``: :class:`~.settings.FeatureSceneSettings`."""
+    en = _corridor_axis(track_en, settings.beyond_m)
     seg = np.diff(en, axis=0)
     length = np.linalg.norm(seg, axis=-1)
     s_cum = np.concatenate([[0.0], np.cumsum(length)])
-    area_km2 = s_cum[-1] * 2 * settings.half_width_m / 1e6
-    n = max(1, int(round(settings.density_per_km2 * area_km2)))
+    n = corridor_size(track_en, settings)
     rng = np.random.default_rng(np.random.SeedSequence(settings.seed))
     s = rng.uniform(0.0, s_cum[-1], n)
     off = rng.uniform(-settings.half_width_m, settings.half_width_m, n)
@@ -203,5 +215,5 @@ def track_features(truth: Truth, camera: PinholeCamera, mount: Mount, points_w: 
                          K=camera.K, camera=mount)
 
 
-__all__ = ["FeatureTracks", "camera_attitudes", "corridor_features", "features_in_view", "ground_features",
+__all__ = ["FeatureTracks", "camera_attitudes", "corridor_features", "corridor_size", "features_in_view", "ground_features",
            "nominal_camera", "observe", "project", "scene_ids", "scene_tracks", "track_features", "true_pixels"]

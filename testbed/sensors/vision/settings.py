@@ -271,7 +271,8 @@ class RunwaySet(StrictModel):
     prefix: str = Field("RWY", min_length=1, description="ids are prefix + 05L, 05R, 23R, 23L (threshold "
                                                         "corners) and L0300, R0300 ... (edge points, by distance "
                                                         "from the 05 threshold)")
-    edge_spacing_m: float | None = Field(300.0, gt=0, description="edge points every this many m; None = corners only")
+    edge_spacing_m: float | None = Field(300.0, ge=1, description="edge points every this many m (≥ 1: an id names "
+                                                               "the whole metre); None = corners only")
     width_m: float = Field(airport.RUNWAY_WIDTH_M, gt=0, description="paved width, m")
     size_m: float = Field(5.0, gt=0, description="feature size for the apparent-size rule, m")
 
