@@ -43,9 +43,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_fly(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from testbed.schema import ConfigError
-    from testbed.api import check_run_arguments, fly_approach, print_flight_summary, print_run_summary, run_approach
-    from testbed.config import fault_from_option
+    from testbed.api import (TRUTH_SUFFIXES, check_run_arguments, default_rrd_path, fly_approach,
+                             print_flight_summary, print_run_summary, run_approach)
+    from testbed.config import fault_from_option, load_approach, with_overrides
+    from testbed.outputs import OutputSet
+    from testbed.sim.budget import budget_gate, flight_estimate
 
     faults, problems = [], []
     for text in args.fault or []:  # every --fault's problems at once
@@ -55,49 +60,72 @@ def _cmd_fly(args: argparse.Namespace) -> int:
             problems += err.problems
     if problems:
         raise ConfigError("command line", problems)
-    from testbed.config import load_approach, with_overrides
-    from testbed.sim.budget import budget_gate, flight_estimate
+    if args.flight_only and faults:
+        raise ConfigError("command line", ["--fault: a flight without sensors has nothing to inject into "
+                                           "(drop --flight-only)"])
+    # --seed is unused without sensors, but not nonsense either
+    check_run_arguments(seed=args.seed, gust_seed=args.gust_seed, **({} if args.flight_only else dict(
+        block_s=args.block, port=args.port, linger_s=args.linger if args.live else 0.0)))
+    ap = load_approach(args.approach)  # the default recording is named after it
+    budget_gate(lambda: flight_estimate(with_overrides(ap, monitors=args.monitors, faults=faults or None),
+                                        sensors=not args.flight_only), args.allow_large)
+    with OutputSet() as outs:  # the recording and the truth: both or neither
+        truth = outs.file(args.truth, "--truth", TRUTH_SUFFIXES) if args.truth else None
+        staged_truth = outs.staged(truth) if truth else None
+        if args.flight_only:
+            result = fly_approach(ap, gust_seed=args.gust_seed, truth_path=staged_truth)
+            outs.commit()
+            print_flight_summary(result)
+        else:
+            rrd = None if args.no_record else Path(args.rrd) if args.rrd is not None else default_rrd_path(ap, args.seed)
+            if rrd is not None:
+                outs.file(rrd, "--rrd", (".rrd",))
 
-    ap = with_overrides(load_approach(args.approach), monitors=args.monitors, faults=faults or None)
-    budget_gate(lambda: flight_estimate(ap, sensors=not args.flight_only), args.allow_large)
-    if args.flight_only:
-        if faults:
-            raise ConfigError("command line", ["--fault: a flight without sensors has nothing to inject into "
-                                               "(drop --flight-only)"])
-        check_run_arguments(seed=args.seed)  # unused without sensors, but not nonsense either
-        result = fly_approach(args.approach, gust_seed=args.gust_seed, truth_path=args.truth)
-        print_flight_summary(result)
-    else:
-        rrd = None if args.no_record else (args.rrd if args.rrd is not None else "default")
-        if args.live:
-            print(f"live: serving on {args.bind}:{args.port} once the checks pass; connect with: rerun --connect "
-                  f"rerun+http://{'127.0.0.1' if args.bind in ('0.0.0.0', '127.0.0.1') else args.bind}:{args.port}/proxy",
-                  flush=True)
-        run_approach(args.approach, seed=args.seed, rrd_path=rrd, live=args.live, bind_ip=args.bind,
-                     port=args.port, block_s=args.block, monitors=args.monitors, faults=faults,
-                     gust_seed=args.gust_seed,
-                     truth_path=args.truth, linger_s=args.linger if args.live else 0.0, on_landed=print_run_summary,
-                     progress=lambda text: print(text, file=sys.stderr, flush=True))
-    if args.truth:
-        print(f"truth written to {args.truth}")
+            def landed(result):  # the recording is complete (and the truth written): all into place, then say so
+                outs.commit()
+                print_run_summary(dataclasses.replace(result, rrd_path=rrd))
+
+            if args.live:
+                print(f"live: serving on {args.bind}:{args.port} once the checks pass; connect with: rerun --connect "
+                      f"rerun+http://{'127.0.0.1' if args.bind in ('0.0.0.0', '127.0.0.1') else args.bind}:{args.port}/proxy",
+                      flush=True)
+            run_approach(ap, seed=args.seed, rrd_path=outs.staged(rrd) if rrd else None, live=args.live,
+                         bind_ip=args.bind, port=args.port, block_s=args.block, monitors=args.monitors, faults=faults,
+                         gust_seed=args.gust_seed, truth_path=staged_truth,
+                         linger_s=args.linger if args.live else 0.0, on_landed=landed,
+                         progress=lambda text: print(text, file=sys.stderr, flush=True))
+        if args.truth:
+            print(f"truth written to {args.truth}")
     return 0
 
 
 def _cmd_export_rinex(args: argparse.Namespace) -> int:
-    from testbed.api import export_rinex
+    from testbed.api import check_run_arguments, export_rinex
+    from testbed.config import load_approach
+    from testbed.outputs import OutputSet
 
-    obs, nav = export_rinex(args.approach, args.dir, seed=args.seed, gust_seed=args.gust_seed)
-    print(f"wrote {obs}\nwrote {nav}")
-    print(f"check with RTKLIB: rnx2rtkp -p 0 -sys G -o out.pos {obs} {nav}  (iono/tropo models off: see docs/guide/rinex.md)")
+    check_run_arguments(seed=args.seed, gust_seed=args.gust_seed)
+    ap = load_approach(args.approach)
+    with OutputSet() as outs:  # the observations, the navigation file and the truth: all three or none
+        folder = outs.folder(args.dir, "DIR", entries=tuple(f"{ap.name}{s}" for s in (".obs", ".nav", ".truth.csv")),
+                             complete=True)
+        obs, nav = export_rinex(ap, outs.staged_folder(folder), seed=args.seed, gust_seed=args.gust_seed)
+        outs.commit()
+        obs, nav = args.dir / outs.final(obs).name, args.dir / outs.final(nav).name
+        print(f"wrote {obs}\nwrote {nav}")
+        print(f"check with RTKLIB: rnx2rtkp -p 0 -sys G -o out.pos {obs} {nav}  (iono/tropo models off: see docs/guide/rinex.md)")
     return 0
 
 
 def _cmd_monitor(args: argparse.Namespace) -> int:
+    from testbed.outputs import OutputSet
     from testbed.rinex.run import monitor_rinex, print_summary
 
-    run = monitor_rinex(args.obs, args.nav, config=args.config, out_dir=args.out, rrd_path=args.rrd,
-                        reference=args.reference, table_format=args.format)
-    print_summary(run)
+    with OutputSet() as outs:  # --out's files and --rrd: all or none
+        run = monitor_rinex(args.obs, args.nav, config=args.config, out_dir=args.out, rrd_path=args.rrd,
+                            reference=args.reference, table_format=args.format, outputs=outs)
+        outs.commit()
+        print_summary(run)
     return 0
 
 
@@ -117,7 +145,7 @@ def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
     from testbed.campaign.dpe_calibration import SET_C_TRAJECTORIES, calibrate_dpe, write_record
     from testbed.sim.budget import budget_gate
     from testbed.config import load_approach
-    from testbed.sim.preflight import check_output_folder
+    from testbed.outputs import OutputSet
 
     check_run_arguments(seed=args.seed)
     out = Path(args.out)
@@ -134,23 +162,29 @@ def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
     for t in (args.approach, *trajectories):
         load_approach(t)  # every named approach reads before any work (exit 2 naming the file and key)
     budget_gate(lambda: calibration_estimate(args.approach, args.sorties, trajectories), args.allow_large)
-    if args.work is not None:
-        check_output_folder(args.work, "--work")
-    try:
-        rec = calibrate_dpe(args.approach, sorties=args.sorties, p_hmi=args.p_hmi, seed=args.seed,
-                            trajectories=trajectories, chunk=args.chunk, work=args.work, resume=args.resume,
-                            scheduler=args.scheduler, progress=lambda m: print(m, flush=True))
-    except ValueError as exc:  # too few epochs for the tail levels, and the like
-        raise ConfigError(Path(args.approach), [f"calibrate-dpe: {exc}"]) from None
-    write_record(rec, out)
-    v = rec["validation"]
-    print(f"K = {rec['k']:.3f} (sigma_z {rec['sigma_z']:.3f}, b_z {rec['b_z']:+.3f}, {rec['k_from']}; "
-          f"{rec['n_calibration']} calibration epochs, deepest tail level {rec['deepest_level']:.1e}) for "
-          f"P_HMI = {rec['p_hmi']:g} per epoch")
-    print(f"held-out: {v['epochs']} epochs, tails {'hold' if v['tails_hold'] else 'DO NOT hold'} at "
-          f"{v['levels_checked']} levels (worst observed/bound {v['worst_ratio']:.2f}), |e| > VPL {v['exceedances']} "
-          f"(allowed {v['allowed']}): {'PASSED' if v['passed'] else 'FAILED'}")
-    print(f"wrote {out}; use it with [dpe] k_factor = \"{out}\"")
+    with OutputSet() as outs:
+        outs.file(out, "--out")
+        if args.work is not None:
+            outs.folder(args.work, "--work", kept="the chunks finished so far are kept there (the same command "
+                                                  "with --resume continues)")
+        try:
+            rec = calibrate_dpe(args.approach, sorties=args.sorties, p_hmi=args.p_hmi, seed=args.seed,
+                                trajectories=trajectories, chunk=args.chunk, work=args.work, resume=args.resume,
+                                scheduler=args.scheduler, progress=lambda m: print(m, flush=True))
+        except ValueError as exc:  # too few epochs for the tail levels, and the like
+            if isinstance(exc, ConfigError):
+                raise
+            raise ConfigError(Path(args.approach), [f"calibrate-dpe: {exc}"]) from None
+        write_record(rec, outs.staged(out))
+        outs.commit()
+        v = rec["validation"]
+        print(f"K = {rec['k']:.3f} (sigma_z {rec['sigma_z']:.3f}, b_z {rec['b_z']:+.3f}, {rec['k_from']}; "
+              f"{rec['n_calibration']} calibration epochs, deepest tail level {rec['deepest_level']:.1e}) for "
+              f"P_HMI = {rec['p_hmi']:g} per epoch")
+        print(f"held-out: {v['epochs']} epochs, tails {'hold' if v['tails_hold'] else 'DO NOT hold'} at "
+              f"{v['levels_checked']} levels (worst observed/bound {v['worst_ratio']:.2f}), |e| > VPL {v['exceedances']} "
+              f"(allowed {v['allowed']}): {'PASSED' if v['passed'] else 'FAILED'}")
+        print(f"wrote {out}; use it with [dpe] k_factor = \"{out}\"")
     return 0 if v["passed"] else 1
 
 

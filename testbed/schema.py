@@ -112,10 +112,13 @@ def exit_code(command: Callable[[], int]) -> int:
         return command()
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        for note in getattr(exc, "__notes__", ()):  # what was and was not written (testbed.outputs)
+            print(f"  {note}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted: outputs are moved into place only when a command completes, so the files there "
-              "before are as they were", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        notes = getattr(exc, "__notes__", ())  # a command with outputs says what it left (testbed.outputs)
+        print(f"interrupted: {'; '.join(notes) if notes else 'the command had not written anything'}",
+              file=sys.stderr)
         return 130
 
 

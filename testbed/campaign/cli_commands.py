@@ -40,54 +40,57 @@ WORKERS_HELP = ("local worker processes running the chunk rows: a number, or aut
                 "the run is big enough to repay their start, else this process with draw blocks on threads)")
 
 
-def _interrupted(out: Path) -> int:
-    """Ctrl-C: what is kept and how to go on, instead of a traceback (exit 130, the shell's code for SIGINT)."""
-    print(f"interrupted: the chunks finished so far are stored in {out}; the same command with --resume completes "
-          "the run")
-    return 130
+def _chunks_kept(resume_hint: str, written_at_the_end: str, restart: bool = False) -> str:
+    """What a folder of campaigns keeps when its command stops early (OutputSet.folder's ``kept``)."""
+    rest = ("the earlier run there, its report included, was discarded as --restart asks" if restart
+            else f"{written_at_the_end} as they were")
+    return f"the chunks finished so far are stored there ({resume_hint}); {rest}"
 
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from testbed.campaign.budget import campaign_estimate
-    from testbed.campaign.report import headlines, write_report
+    from testbed.campaign.report import REPORT_ENTRIES, headlines, write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
+    from testbed.outputs import OutputSet
 
     loaded = load_spec(args.spec, trials=args.trials)  # every spec problem is reported before any work starts
     out = Path(args.out) if args.out else Path("campaigns") / loaded.spec.name
     budget_gate(lambda: campaign_estimate(loaded, workers=args.workers, scheduler=args.scheduler, out_dir=out,
                                           resume=args.resume), args.allow_large)
-    try:
+    with OutputSet() as outs:  # the chunks are stored as they finish; the report goes into place at the end
+        outs.folder(out, "--out", entries=() if args.no_report else REPORT_ENTRIES,
+                    kept=_chunks_kept("the same command with --resume completes the run", "report.md and figures/ are",
+                                      args.restart))
         res = run_campaign(loaded, out, resume=args.resume, scheduler=args.scheduler, progress=not args.quiet,
                            restart=args.restart, workers=args.workers)
-    except KeyboardInterrupt:
-        return _interrupted(out)
-    print(f"{res.cells} cells, {res.trials} trials: {res.chunks_run} chunks run, {res.chunks_skipped} already stored; "
-          f"{res.wall_s:.1f} s ({res.epochs_per_s:,.0f} sortie-epochs/s)")
-    for line in headlines(out):
-        print(line)
-    if not args.no_report:
-        idx = write_report(out)
-        print(f"report: {idx}")
-    print(f"results: {out}")
+        print(f"{res.cells} cells, {res.trials} trials: {res.chunks_run} chunks run, {res.chunks_skipped} already "
+              f"stored; {res.wall_s:.1f} s ({res.epochs_per_s:,.0f} sortie-epochs/s)")
+        for line in headlines(out):
+            print(line)
+        if not args.no_report:
+            idx = write_report(out, outputs=outs)
+            outs.commit()
+            print(f"report: {idx}")
+        print(f"results: {out}")
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from testbed.campaign.report import write_report
+    from testbed.outputs import OutputSet
 
-    try:
-        idx = write_report(args.dir)
-    except FileNotFoundError as exc:
-        raise ConfigError(Path(args.dir), [f"not a campaign folder: {exc}"]) from None
-    print(f"report: {idx}")
+    with OutputSet() as outs:
+        idx = write_report(args.dir, outputs=outs)
+        outs.commit()
+        print(f"report: {idx}")
     return 0
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from testbed.campaign.budget import reproduction_estimate
     from testbed.campaign.reproduce import PAPERS, reproduce_va_raim_2015
-    from testbed.sim.preflight import check_output_folder
+    from testbed.outputs import OutputSet
 
     if args.paper not in PAPERS:
         raise ConfigError("command line", [f"unknown paper {args.paper!r}; expected one of {sorted(PAPERS)}"])
@@ -97,24 +100,27 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         raise ConfigError("command line", [f"{' and '.join(ignored)}: only va-raim-2015's campaigns take them; "
                                            f"{args.paper} runs in-process from the start"])
     out = Path(args.out) if args.out else Path("campaigns") / f"reproduce-{args.paper}"
-    check_output_folder(out, "--out")
     budget_gate(lambda: reproduction_estimate(args.paper, args.full, workers=args.workers, out_dir=out,
                                               resume=args.resume), args.allow_large)
-    if args.paper == "dpe-vertical":
-        from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
+    kept = {"va-raim-2015": _chunks_kept("the same command with --resume completes the experiments",
+                                         "the reports and reproduce.md are"),
+            "dpe-vertical": _chunks_kept("the same command continues them",
+                                         "the report, results.json and reproduce.md are")}.get(args.paper)
+    with OutputSet() as outs:  # every report and summary into place together, at the end
+        outs.folder(out, "--out", kept=kept)
+        if args.paper == "dpe-vertical":
+            from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
 
-        idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet)
-    elif args.paper == "won-2013":
-        from testbed.campaign.reproduce_won import reproduce_won_2013
+            idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet, outputs=outs)
+        elif args.paper == "won-2013":
+            from testbed.campaign.reproduce_won import reproduce_won_2013
 
-        idx = reproduce_won_2013(out, trials=200 if args.full else 50, progress=not args.quiet)
-    else:
-        try:
+            idx = reproduce_won_2013(out, trials=200 if args.full else 50, progress=not args.quiet, outputs=outs)
+        else:
             idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
-                                         progress=not args.quiet, workers=args.workers)
-        except KeyboardInterrupt:
-            return _interrupted(out)
-    print(f"reproduction: {idx}")
+                                         progress=not args.quiet, workers=args.workers, outputs=outs)
+        outs.commit()
+        print(f"reproduction: {idx}")
     return 0
 
 

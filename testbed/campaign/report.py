@@ -2,7 +2,9 @@
 
 :func:`write_report` reads ``cells.parquet``, ``trials.parquet``, ``epochs.parquet``
 and ``stanford_hist.parquet`` of a result folder and writes ``figures/*.png`` and
-``report.md``; it never re-runs anything (``testbed report DIR``).
+``report.md``; it never re-runs anything (``testbed report DIR``). The report and its
+figures are moved into place together (:mod:`testbed.outputs`): a failure or a Ctrl-C
+while drawing leaves the earlier report as it was.
 
 Statistics:
 - detection rate per cell = detected trials / trials, with a binomial confidence
@@ -25,6 +27,7 @@ import pyarrow.parquet as pq
 
 from testbed.campaign.markdown import table as md_table
 from testbed.campaign.store import read_columns
+from testbed.outputs import OutputSet
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
@@ -217,19 +220,33 @@ class _ReportInputs:
     figdir: Path
 
 
-def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
+#: what a report writes into its campaign folder (a folder ends in "/")
+REPORT_ENTRIES = ("report.md", "figures/")
+
+
+def write_report(out_dir: str | Path, *, power: float | None = None, outputs: OutputSet | None = None) -> Path:
     """Draw every figure of a finished campaign and write ``report.md``; returns its path.
 
     Figures are drawn on :class:`matplotlib.figure.Figure` objects (no pyplot, no backend
-    switch): the caller's matplotlib state is left as it was.
+    switch): the caller's matplotlib state is left as it was. The report and its figures are
+    staged and committed together: before this returns, or with the caller's ``outputs``
+    (:class:`~testbed.outputs.OutputSet`) at its commit.
     """
     out_dir = Path(out_dir)
+    if not out_dir.is_dir():  # before trying to write in it: a missing folder is no campaign
+        _load(out_dir)
+    with OutputSet.using(outputs) as outs:
+        if not outs.declares(out_dir):
+            outs.folder(out_dir, "DIR", entries=REPORT_ENTRIES, complete=True)
+        return _write_report(out_dir, power, outs)
+
+
+def _write_report(out_dir: Path, power: float | None, outs: OutputSet) -> Path:
     man, cells, trials, epochs, hist = _load(out_dir)
     rep = man["spec"].get("report", {})
     power = power if power is not None else rep.get("power", 0.99)
     conf, method = rep.get("confidence", 0.95), rep.get("interval", "clopper-pearson")
-    figdir = out_dir / "figures"
-    figdir.mkdir(exist_ok=True)
+    figdir = outs.staged_folder(out_dir / "figures")
     varying = _varying(cells)
     inp = _ReportInputs(out_dir=out_dir, man=man, cells=cells, trials=trials, epochs=epochs, hist=hist,
                       tc=_cols(trials), varying=varying, det_rows=detection_table(cells, trials, conf, method),
@@ -249,7 +266,7 @@ def write_report(out_dir: str | Path, *, power: float | None = None) -> Path:
         figures += figs
     md += _index_lines(inp, figures)
     idx = out_dir / "report.md"
-    idx.write_text("\n".join(md) + "\n")
+    outs.staged(idx).write_text("\n".join(md) + "\n")
     return idx
 
 

@@ -84,6 +84,7 @@ from pathlib import Path
 from testbed.campaign.spec import CampaignSpec, LoadedSpec, resolve_spec
 from testbed.campaign.report import _f
 from testbed.config import approaches_dir
+from testbed.outputs import OutputSet
 
 PAPERS = ("va-raim-2015", "won-2013", "dpe-vertical")
 #: The angular-precision sweep: the 720-dpi camera's focal length (992 px), then long-focus
@@ -155,8 +156,11 @@ def loaded_experiments(trials: int) -> dict[str, LoadedSpec]:
 
 def reproduce_va_raim_2015(out_dir: str | Path, *, full: bool = False, trials: int | None = None,
                            scheduler=None, resume: bool = False, progress: bool = True,
-                           workers: int | str = 1) -> Path:
-    """Run the four campaigns into ``out_dir/<experiment>``, draw their reports, write ``reproduce.md``."""
+                           workers: int | str = 1, outputs: OutputSet | None = None) -> Path:
+    """Run the four campaigns into ``out_dir/<experiment>``, draw their reports, write ``reproduce.md``.
+
+    The campaigns' chunks are stored as they finish (resumable); the reports and ``reproduce.md`` are
+    committed together, before this returns or with the caller's ``outputs`` at its commit."""
     from testbed.campaign.report import write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.store import ResultStore
@@ -164,20 +168,31 @@ def reproduce_va_raim_2015(out_dir: str | Path, *, full: bool = False, trials: i
     out = Path(out_dir)
     n = trials or (FULL_TRIALS if full else QUICK_TRIALS)
     walls = {}
-    for name, loaded in loaded_experiments(n).items():
-        d = out / name
-        man = d / "manifest.json"
-        if not (man.exists() and json.loads(man.read_text()).get("spec_hash") == loaded.hash
-                and ResultStore(d).complete()):  # a stored part of another scale is refused by the store (spec hash)
-            run_campaign(loaded, d, resume=resume or man.exists(), scheduler=scheduler, progress=progress,
-                         workers=workers)
-        walls[name] = ResultStore(d).wall_s()  # every run's, a resumed experiment's too
-        write_report(d)
-    return write_summary(out, n, walls)
+    with OutputSet.using(outputs) as outs:
+        if not outs.declares(out):
+            outs.folder(out, "out_dir", kept="the experiments' chunks finished so far are stored there")
+        for name, loaded in loaded_experiments(n).items():
+            d = out / name
+            man = d / "manifest.json"
+            if not (man.exists() and json.loads(man.read_text()).get("spec_hash") == loaded.hash
+                    and ResultStore(d).complete()):  # a stored part of another scale is refused by the store (spec hash)
+                run_campaign(loaded, d, resume=resume or man.exists(), scheduler=scheduler, progress=progress,
+                             workers=workers)
+            walls[name] = ResultStore(d).wall_s()  # every run's, a resumed experiment's too
+            write_report(d, outputs=outs)
+        return write_summary(out, n, walls, outs)
 
 
-def write_summary(out: Path, trials: int, walls: dict[str, float]) -> Path:
-    """``reproduce.md``: the headline numbers of the campaigns, the break-even figure, the claims table."""
+def write_summary(out: Path, trials: int, walls: dict[str, float], outputs: OutputSet | None = None) -> Path:
+    """``reproduce.md``: the headline numbers of the campaigns, the break-even figure, the claims table
+    (committed together: before this returns, or with the caller's ``outputs`` at its commit)."""
+    with OutputSet.using(outputs) as outs:
+        if not outs.declares(out):
+            outs.folder(out, "out", entries=("reproduce.md", "where-vision-pays/break_even.png"), complete=True)
+        return _write_summary(out, trials, walls, outs)
+
+
+def _write_summary(out: Path, trials: int, walls: dict[str, float], outs: OutputSet) -> Path:
     md = [f"# Reproduction of the VA-RAIM paper (Fu et al. 2015), section 3: {trials} sorties x 60 s per setting", "",
           "Assumptions: see `testbed/campaign/reproduce.py` (module docstring).", ""]
     for name, w in walls.items():
@@ -189,11 +204,12 @@ def write_summary(out: Path, trials: int, walls: dict[str, float]) -> Path:
     md += _resolution_section(tables.get("resolution"))
     for name, title in (("gps-faults", "GPS step (m)"), ("vision-faults", "pixel bias (px)")):
         md += _detection_section(tables.get(name), title)
-    pays, bev = _where_vision_pays_section(tables.get("where-vision-pays"), out / "where-vision-pays", trials)
+    pays, bev = _where_vision_pays_section(tables.get("where-vision-pays"),
+                                           outs.staged(out / "where-vision-pays" / "break_even.png"), trials)
     md += pays
     md += claims_section(tables, bev)
     p = out / "reproduce.md"
-    p.write_text("\n".join(md) + "\n")
+    outs.staged(p).write_text("\n".join(md) + "\n")
     return p
 
 
@@ -289,15 +305,15 @@ def _detection_section(tb: dict | None, title: str) -> list[str]:
     return md
 
 
-def _where_vision_pays_section(tb: dict | None, d: Path, trials: int) -> tuple[list[str], dict]:
-    """The ratio table, the break-even figure and the break-even per baseline."""
+def _where_vision_pays_section(tb: dict | None, figure: Path, trials: int) -> tuple[list[str], dict]:
+    """The ratio table, the break-even figure (drawn into ``figure``) and the break-even per baseline."""
     from testbed.campaign.vision_pays import draw_break_even, ratio_table
 
     if tb is None:
         return [], {}
     rows = ratio_table(tb["cells"], tb["trials"])
     names = {k: f"triangle r = {r:g} m" for k, r in enumerate(BASELINES_M)}
-    bev = draw_break_even(rows, names, d / "break_even.png", trials)
+    bev = draw_break_even(rows, names, figure, trials)
     md = ["## Where vision pays: VA-RAIM (testbed default) / GPS RAIM across camera and baseline", "",
           "![break-even](where-vision-pays/break_even.png)", "",
           "Focal length at the seed camera's field of view, DE 1 px, LPE 5 cm. Ratios < 1: VA-RAIM is better. "

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.outputs import OutputSet
+
 #: the DPE paper's claims, in the abstract's order (docs/design/dpe.md §1)
 CLAIMS = (
     ("position-domain overbound", "The overbounding distribution is derived in the position domain, without "
@@ -108,26 +110,33 @@ def _campaign_hmi(d: Path) -> list[dict]:
     return [{"fault_size": float(k[0]), "monitor": k[1], **{n: int(v) for n, v in row.items()}} for k, row in g.iterrows()]
 
 
-def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int = 20, progress: bool = True) -> Path:
-    """Run the three experiments into ``out_dir`` and write ``reproduce.md`` (module doc)."""
+def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int = 20, progress: bool = True,
+                           outputs: OutputSet | None = None) -> Path:
+    """Run the three experiments into ``out_dir`` and write ``reproduce.md`` (module doc).
+
+    The campaign's chunks are stored as they finish; its report, ``results.json`` and ``reproduce.md``
+    are committed together, before this returns or with the caller's ``outputs`` at its commit."""
     from testbed.campaign.report import write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
     from testbed.resources import approaches_dir
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    cases = epoch_cases(epochs)
-    k_rec = json.loads((approaches_dir() / "calibration" / "dpe-k.json").read_text())
-    loaded = load_spec("dpe-vs-raim", trials=trials)
-    camp = out / "dpe-vs-raim"
-    run_campaign(loaded, camp, resume=(camp / "manifest.json").exists(), progress=progress)
-    write_report(camp)
-    hmi = _campaign_hmi(camp)
-    (out / "results.json").write_text(json.dumps({"cases": cases, "calibration": k_rec, "hmi": hmi}, indent=1))
-    p = out / "reproduce.md"
-    p.write_text("\n".join(summary(cases, k_rec, hmi, trials)) + "\n")
-    return p
+    with OutputSet.using(outputs) as outs:
+        if not outs.declares(out):
+            outs.folder(out, "out_dir", kept="the campaign's chunks finished so far are stored there")
+        cases = epoch_cases(epochs)
+        k_rec = json.loads((approaches_dir() / "calibration" / "dpe-k.json").read_text())
+        loaded = load_spec("dpe-vs-raim", trials=trials)
+        camp = out / "dpe-vs-raim"
+        run_campaign(loaded, camp, resume=(camp / "manifest.json").exists(), progress=progress)
+        write_report(camp, outputs=outs)
+        hmi = _campaign_hmi(camp)
+        outs.staged(out / "results.json").write_text(json.dumps({"cases": cases, "calibration": k_rec, "hmi": hmi},
+                                                                indent=1))
+        p = out / "reproduce.md"
+        outs.staged(p).write_text("\n".join(summary(cases, k_rec, hmi, trials)) + "\n")
+        return p
 
 
 def summary(cases: list[dict], k_rec: dict, hmi: list[dict], trials: int) -> list[str]:

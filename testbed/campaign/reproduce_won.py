@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.outputs import OutputSet
+
 #: (case name, satellites (None: no GNSS), clock known, vision)
 CASES = (("INS only", None, False, False), ("vision/INS", None, False, True),
          ("1 sat, clock estimated", 1, False, True), ("2 sat, clock estimated", 2, False, True),
@@ -211,10 +213,18 @@ def _observability() -> dict:
 
 
 def reproduce_won_2013(out: Path, trials: int = 50, duration_s: float = 300.0, progress: bool = True,
-                       figure: bool = True) -> Path:
-    """Run every case, write ``results.json``, the figure and ``reproduce.md``; return the .md path."""
+                       figure: bool = True, outputs: OutputSet | None = None) -> Path:
+    """Run every case, write ``results.json``, the figure and ``reproduce.md``; return the .md path.
+
+    The three are committed together: before this returns, or with the caller's ``outputs`` at its commit."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    with OutputSet.using(outputs) as outs:
+        if not outs.declares(out):
+            outs.folder(out, "out", entries=("results.json", "won2013_errors.png", "reproduce.md"), complete=True)
+        return _reproduce(out, trials, duration_s, progress, figure, outs)
+
+
+def _reproduce(out: Path, trials: int, duration_s: float, progress: bool, figure: bool, outs: OutputSet) -> Path:
     scene = won_scene(duration_s)
     los = los_units(scene)
     runs, summ = {}, {}
@@ -244,11 +254,11 @@ def reproduce_won_2013(out: Path, trials: int = 50, duration_s: float = 300.0, p
     res = {"cases": summ, "paired": pairs, "paired_ms3": paired_ms3, "vision_growth": _mean_se(h2[:, -1] - h2[:, 10]),
            "two_sat_directions": dirs, "observability": obs,
            "los": los.tolist(), "prns": list(PRNS), "trials": trials, "duration_s": duration_s}
-    (out / "results.json").write_text(json.dumps(res, indent=1))
+    outs.staged(out / "results.json").write_text(json.dumps(res, indent=1))
     if figure:
-        _figure(runs, out / "won2013_errors.png", trials)
+        _figure(runs, outs.staged(out / "won2013_errors.png"), trials)
     md = out / "reproduce.md"
-    md.write_text(_report(res))
+    outs.staged(md).write_text(_report(res))
     return md
 
 

@@ -6,7 +6,8 @@ GPS RAIM (with FDE by default) over every epoch in blocks, and writes what a
 flight writes: a per-epoch table, a summary, a Rerun recording with the
 flight's layout and, when a reference trajectory is given, the position
 errors, the Stanford regions and Stanford diagrams. Nothing is written
-unless asked for.
+unless asked for; what is asked for (``--out``'s files and ``--rrd``) is
+committed together at the end (:mod:`testbed.outputs`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from testbed.config import read_toml, validate
 from testbed.frames import C_LIGHT, LocalFrame, ecef_to_geodetic
 from testbed.integrity.monitor import MonitorContext, Observations
 from testbed.integrity.registry import build_monitor
+from testbed.outputs import OutputSet
 from testbed.records import GnssEpochs, MonitorOutput, NotVisible, concat_epochs, take_epochs
 from testbed.rinex.obs import RinexObs, read_obs
 from testbed.rinex.observables import Formation, form_epochs
@@ -122,23 +124,40 @@ def _reference_at(t_ref: np.ndarray, pos_ref: np.ndarray, t_true: np.ndarray, pa
     return np.column_stack([np.interp(t_true, t_ref, pos_ref[:, k]) for k in range(3)])
 
 
-def _check_outputs(out_dir, rrd_path, table_format: str) -> None:
-    from testbed.sim.preflight import check_output_file, check_output_folder
+def out_entries(monitors: tuple[str, ...], table_format: str, reference: bool) -> tuple[str, ...]:
+    """The files ``--out`` receives."""
+    return (*(f"epochs-{m}.{table_format}" for m in monitors), "summary.json",
+            *((f"stanford-{m}.png" for m in monitors) if reference else ()))
 
-    if out_dir is not None:
-        check_output_folder(out_dir, "--out")
-    check_output_file(rrd_path, "--rrd", (".rrd",))
+
+def _declare_outputs(outs: OutputSet, out_dir, rrd_path, table_format: str, monitors: tuple[str, ...],
+                     reference: bool) -> None:
+    """Every output tried and compared before any work (ConfigError naming the option)."""
     if table_format not in ("parquet", "csv"):
         raise ConfigError("--format", [f"--format {table_format!r}: expected 'parquet' or 'csv'"])
+    if out_dir is not None:
+        outs.folder(out_dir, "--out", entries=out_entries(monitors, table_format, reference), complete=True)
+    if rrd_path is not None:
+        outs.file(rrd_path, "--rrd", (".rrd",))
 
 
 def monitor_rinex(obs_path: str | Path, nav_path: str | Path, *, config: str | Path | MonitorFileConfig | None = None,
                   out_dir: str | Path | None = None, rrd_path: str | Path | None = None,
                   reference: str | Path | None = None, table_format: str = "parquet",
-                  monitors: tuple[str, ...] = ("gps_raim",)) -> RinexRun:
-    """Run the monitors over a RINEX observation file (see the module doc). Raises ConfigError on bad input."""
+                  monitors: tuple[str, ...] = ("gps_raim",), outputs: OutputSet | None = None) -> RinexRun:
+    """Run the monitors over a RINEX observation file (see the module doc). Raises ConfigError on bad input.
+
+    outputs : the caller's :class:`~testbed.outputs.OutputSet` (the caller commits); by default the
+        files are committed before this returns.
+    """
     cfg = config if isinstance(config, MonitorFileConfig) else load_config(config)
-    _check_outputs(out_dir, rrd_path, table_format)
+    with OutputSet.using(outputs) as outs:
+        _declare_outputs(outs, out_dir, rrd_path, table_format, monitors, reference is not None)
+        return _monitor(obs_path, nav_path, cfg, out_dir, rrd_path, reference, table_format, monitors, outs)
+
+
+def _monitor(obs_path, nav_path, cfg: MonitorFileConfig, out_dir, rrd_path, reference, table_format: str,
+             monitors: tuple[str, ...], outs: OutputSet) -> RinexRun:
     marker = reference is not None and str(reference) == MARKER
     ref = read_reference(reference) if reference is not None and not marker else None
     tm: dict[str, float] = {}
@@ -174,11 +193,12 @@ def monitor_rinex(obs_path: str | Path, nav_path: str | Path, *, config: str | P
         run.summaries = {m: summarise_monitor(o, run.reference_enu, reference="antenna")
                          for m, o in outputs.items()}
     if out_dir is not None:
-        run.written += write_outputs(run, Path(out_dir), table_format)
+        run.written += write_outputs(run, Path(out_dir), table_format, outs)
     if rrd_path is not None:
         from testbed.rinex.recording import write_recording
 
-        run.written.append(write_recording(run, Path(rrd_path)))
+        write_recording(run, outs.staged(rrd_path))
+        run.written.append(Path(rrd_path))
     return run
 
 
@@ -205,17 +225,15 @@ def epoch_table(run: RinexRun, name: str) -> dict[str, np.ndarray]:
 
 
 def _write_table(cols: dict[str, np.ndarray], path: Path) -> Path:
-    tmp = path.with_name(path.name + ".part")
     if path.suffix == ".parquet":
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        pq.write_table(pa.table({k: np.asarray(v) for k, v in cols.items()}), tmp)
+        pq.write_table(pa.table({k: np.asarray(v) for k, v in cols.items()}), path)
     else:
         names = list(cols)
-        np.savetxt(tmp, np.column_stack([np.asarray(cols[n], float) for n in names]), delimiter=",",
+        np.savetxt(path, np.column_stack([np.asarray(cols[n], float) for n in names]), delimiter=",",
                    header=",".join(names), comments="", fmt="%.12g")
-    tmp.replace(path)
     return path
 
 
@@ -247,21 +265,22 @@ def summary_record(run: RinexRun) -> dict:
     return rec
 
 
-def write_outputs(run: RinexRun, out_dir: Path, table_format: str) -> list[Path]:
-    out_dir.mkdir(parents=True, exist_ok=True)
+def write_outputs(run: RinexRun, out_dir: Path, table_format: str, outs: OutputSet) -> list[Path]:
+    """``--out``'s files, staged in ``outs`` (which declares ``out_dir``); returns their final paths."""
     written = []
     for name in run.outputs:
-        written.append(_write_table(epoch_table(run, name), out_dir / f"epochs-{name}.{table_format}"))
+        p = out_dir / f"epochs-{name}.{table_format}"
+        _write_table(epoch_table(run, name), outs.staged(p))
+        written.append(p)
     js = out_dir / "summary.json"
-    js.with_name("summary.json.part").write_text(json.dumps(summary_record(run), indent=1, default=float))
-    js.with_name("summary.json.part").replace(js)
+    outs.staged(js).write_text(json.dumps(summary_record(run), indent=1, default=float))
     written.append(js)
     if run.reference_enu is not None:
-        written += stanford_figures(run, out_dir)
+        written += stanford_figures(run, out_dir, outs)
     return written
 
 
-def stanford_figures(run: RinexRun, out_dir: Path) -> list[Path]:
+def stanford_figures(run: RinexRun, out_dir: Path, outs: OutputSet) -> list[Path]:
     """Horizontal and vertical Stanford diagrams per monitor against the reference (most demanding level)."""
     from testbed.campaign.report import stanford_figure
     from testbed.campaign.runner import hist_edges
@@ -284,8 +303,7 @@ def stanford_figures(run: RinexRun, out_dir: Path) -> list[Path]:
         fig = stanford_figure(name, panels, edges, f"{run.obs.path.name}: {name} against the reference (per epoch)")
         fig.tight_layout()
         p = out_dir / f"stanford-{name}.png"
-        fig.savefig(p.with_name(p.name + ".part.png"), dpi=110)
-        p.with_name(p.name + ".part.png").replace(p)
+        fig.savefig(outs.staged(p), dpi=110)
         paths.append(p)
     return paths
 

@@ -13,13 +13,11 @@ was expected; the run is refused with all of them at once.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
 from testbed.config import Approach
+from testbed.outputs import check_output
 from testbed.schema import ConfigError
 
 KT = 1852.0 / 3600.0
@@ -195,46 +193,11 @@ def check_trim(approach: Approach, terrain) -> None:
 
 
 def check_output_file(path, option: str, suffixes: tuple[str, ...]) -> None:
-    """An output file we can create (or replace) before any work: not a folder, a known suffix, a writable place."""
-    if path is None:
-        return
-    p = Path(path)
-    if p.is_dir():
-        problem = f"{option} {p}: is a folder; expected a file path ending in {' or '.join(suffixes)}"
-    elif p.suffix.lower() not in suffixes:
-        problem = f"{option} {p}: unsupported suffix {p.suffix or '(none)'!r}; expected {' or '.join(suffixes)}"
-    else:
-        problem = _unwritable(p.parent, p, option)
-    if problem:
-        raise ConfigError(p, [problem])
+    """An output file we can create (or replace), tried before any work: not a folder, a known suffix, a
+    folder that takes a new file (:func:`testbed.outputs.output_problem`)."""
+    check_output(path, option, folder=False, suffixes=suffixes)
 
 
 def check_output_folder(path, option: str) -> None:
-    """An output folder we can create or write into, checked before any work."""
-    p = Path(path)
-    problem = f"{option} {p}: is a file; expected a folder" if p.exists() and not p.is_dir() else \
-        _unwritable(p, p, option)
-    if problem:
-        raise ConfigError(p, [problem])
-
-
-def _unwritable(folder: Path, target: Path, option: str) -> str | None:
-    """Why ``folder`` (or the nearest existing folder above it) cannot take ``target``; None if it can."""
-    place = folder.resolve()
-    while not place.exists():
-        place = place.parent
-    if not place.is_dir():
-        return f"{option} {target}: {place} is a file, not a folder"
-    if not os.access(place, os.W_OK | os.X_OK):
-        return f"{option} {target}: cannot write in {place} (permission denied)"
-    if place != folder.resolve() and getattr(os, "geteuid", lambda: -1)() == 0:
-        # root passes os.access where nothing can be made (/proc): try making the folder's first level
-        try:
-            probe = tempfile.mkdtemp(prefix=".testbed-probe-", dir=place)
-        except OSError as exc:
-            return f"{option} {target}: cannot create anything in {place} ({exc.strerror or exc})"
-        try:
-            os.rmdir(probe)
-        except OSError:
-            pass  # an append-only folder: making one works, which is what was asked
-    return None
+    """An output folder we can create or write into, tried before any work."""
+    check_output(path, option, folder=True)
