@@ -450,6 +450,53 @@ def test_bad_reference_and_outputs_exit_2(tmp_path, capsys):
     assert ".rrd" in capsys.readouterr().err
 
 
+REF_COLUMNS = "t_gps,pos_ecef_x,pos_ecef_y,pos_ecef_z"
+
+
+def _spoil_time_nan(a):
+    a[3, 0] = np.nan
+
+
+def _spoil_time_back(a):
+    a[3, 0] = a[1, 0]
+
+
+def _spoil_position_nan(a):
+    a[[5, 8], 2] = np.nan
+
+
+def _spoil_degrees(a):
+    a[:, 1:] = [29.2, 94.2, 3000.0]  # latitude, longitude, height in the ECEF columns
+
+
+BAD_REFERENCE = [  # (name, spoil the (t, x, y, z) rows in place, fragments the message must hold)
+    ("time-nan", _spoil_time_nan, ["t_gps at row 4 is nan", "finite number"]),
+    ("time-not-increasing", _spoil_time_back, ["t_gps does not increase at row 4", "after", "strictly increasing"]),
+    ("position-nan", _spoil_position_nan, ["pos_ecef_y at rows 6, 9 is nan", "finite number"]),
+    ("position-degrees", _spoil_degrees, ["from the Earth's centre", "rows 1, 2 and 19 more", "ECEF metres"]),
+]
+
+
+@pytest.mark.parametrize("name, spoil, fragments", BAD_REFERENCE, ids=[c[0] for c in BAD_REFERENCE])
+def test_an_inconsistent_reference_trajectory_exits_2_naming_column_and_row(tmp_path, capsys, name, spoil,
+                                                                             fragments):
+    """A reference whose times are NaN or go back, or whose positions are NaN or not ECEF metres, is refused
+    before any work, naming the file, the column, the rows and the value (a NaN time used to pass: NaN <= 0
+    is false, and the interpolation then made up positions)."""
+    _, g, _, tr, obs, nav = synthetic(tmp_path, 20.0)
+    rows = np.column_stack([g.t_gps, tr.antenna_pos_ecef])
+    spoil(rows)
+    ref = tmp_path / "ref.csv"
+    np.savetxt(ref, rows, delimiter=",", comments="", header=REF_COLUMNS, fmt="%.6f")
+    out = tmp_path / "out"
+    assert main(["monitor", str(obs), str(nav), "--reference", str(ref), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "ref.csv" in err and "--reference" in err
+    for f in fragments:
+        assert f in err, (f, err)
+    assert not out.exists()
+
+
 def test_compiled_fix_equals_its_numpy_reference():
     from testbed.rinex.observables import preliminary_fix, preliminary_fix_numpy
 
