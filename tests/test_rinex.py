@@ -392,6 +392,28 @@ def test_nav_file_of_another_week_is_refused(tmp_path, capsys):
     assert "synthetic.nav" in err and "2005-04-02" in err and "2024-03-15" in err and "same day" in err
 
 
+BAD_NAV = [  # (name, edit of the GSI navigation file, fragments the message must hold)
+    ("clock-a-week-from-ephemeris", lambda t: t.replace(" 1 05  4  2  2  0  0.0", " 1 05  4  9  2  0  0.0", 1),
+     ["07590920-edited.05n", "line 13: G01 record", "time of clock 2005-04-09 02:00:00 is +168.0 h from its time of "
+      "ephemeris 2005-04-02 02:00:00", "fit interval (4 h"]),
+    ("not-a-number", lambda t: t.replace("5.153636478420D+03", "               NaN", 1),
+     ["07590920-edited.05n", "line 13: G01 record", "not a finite number"]),
+]
+
+
+@pytest.mark.parametrize("name, edit, fragments", BAD_NAV, ids=[c[0] for c in BAD_NAV])
+def test_an_inconsistent_navigation_record_exits_2_naming_its_line(tmp_path, capsys, name, edit, fragments):
+    """A broadcast record whose time of clock is days from its time of ephemeris (or that holds a NaN) cannot
+    have been broadcast; read as it was, its clock was extrapolated over a week (hundreds of metres on the
+    range) without a word."""
+    nav = _edit(GSI_NAV, tmp_path / "07590920-edited.05n", edit)
+    assert main(["monitor", str(GSI_OBS), str(nav)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    for f in fragments:
+        assert f in err, (f, err)
+
+
 BAD_CONFIG = [
     ('[rinex]\nionosphere = "klob"\n', ["rinex.ionosphere", "klob"]),
     ('[rinex]\nelevation_mask_deg = 95.0\n', ["rinex.elevation_mask_deg", "95"]),
