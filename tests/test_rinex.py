@@ -392,6 +392,52 @@ def test_nav_file_of_another_week_is_refused(tmp_path, capsys):
     assert "synthetic.nav" in err and "2005-04-02" in err and "2024-03-15" in err and "same day" in err
 
 
+def _first_epochs_v2(n: int) -> bytes:
+    """The GSI file's header and its first ``n`` epoch records (RINEX 2.10)."""
+    lines = GSI_OBS.read_bytes().splitlines(keepends=True)
+    starts = [k for k, ln in enumerate(lines) if ln[:3] == b" 05" and ln[28:29] in b"01"]
+    return b"".join(lines[:starts[n]])
+
+
+@pytest.mark.parametrize("version", ["3.04", "2.10"])
+def test_a_file_cut_anywhere_in_its_last_epoch_is_refused_or_read_whole(tmp_path, version):
+    """Brute force over every byte of the last epoch record: the file cut there is refused as truncated
+    (naming the file and its last line), or every measurement it gives is the whole file's. Before, a cut
+    inside a number read as another number (-2683.505 Hz as -2683.) and a cut between fields as absent
+    measurements, without a word."""
+    from testbed.sensors.gnss.rinex_text import RinexError
+
+    if version == "3.04":
+        whole = synthetic(tmp_path, 4.0)[4].read_bytes()
+        last = whole.rindex(b"\n>") + 1
+    else:
+        whole = _first_epochs_v2(3)
+        last = whole.rindex(b"\n 05  4  2") + 1
+    full = tmp_path / "whole.obs"
+    full.write_bytes(whole)
+    ref = read_obs(full)
+    refused = read = 0
+    for cut in range(last + 1, len(whole)):
+        p = tmp_path / "cut.obs"
+        p.write_bytes(whole[:cut])
+        try:
+            obs = read_obs(p)
+        except RinexError as exc:
+            msg = str(exc)
+            assert "cut.obs" in msg and "truncated" in msg and "line " in msg, (cut, whole[last:cut], msg)
+            refused += 1
+            continue
+        read += 1
+        e = obs.epochs  # all of them, or the ones before the record when nothing but blanks is left of it
+        assert e == ref.epochs or (e == ref.epochs - 1 and not whole[last:cut].strip()), whole[last:cut]
+        np.testing.assert_array_equal(obs.t_tag, ref.t_tag[:e], err_msg=repr(whole[last:cut]))
+        for code, v in ref.values.items():
+            np.testing.assert_array_equal(obs.values[code], v[:e, :obs.prn.size], err_msg=f"{code}: {whole[last:cut]!r}")
+    print(f"\nRINEX {version}: {refused + read} cuts in the last epoch record, {refused} refused as truncated, "
+          f"{read} read whole")
+    assert refused > 0.9 * (len(whole) - last - 1)
+
+
 BAD_NAV = [  # (name, edit of the GSI navigation file, fragments the message must hold)
     ("clock-a-week-from-ephemeris", lambda t: t.replace(" 1 05  4  2  2  0  0.0", " 1 05  4  9  2  0  0.0", 1),
      ["07590920-edited.05n", "line 13: G01 record", "time of clock 2005-04-09 02:00:00 is +168.0 h from its time of "
