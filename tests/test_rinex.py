@@ -351,7 +351,29 @@ def _truncate(text: str) -> str:
     return "\n".join(lines[:cut + 3]) + "\n"  # an epoch line and 2 of its 8 satellites
 
 
+def _body_lines(make_line):
+    """An edit of a file's lines after its header."""
+    def edit(text: str) -> str:
+        lines = text.splitlines()
+        end = next(k for k, ln in enumerate(lines) if "END OF HEADER" in ln)
+        return "\n".join(lines[:end + 1] + [make_line(ln) for ln in lines[end + 1:]]) + "\n"
+    return edit
+
+
+def _synthetic_edited(d: Path, name: str, make_line) -> tuple[Path, Path]:
+    _, _, _, _, obs, nav = synthetic(d, 5.0)
+    return _edit(obs, d / name, _body_lines(make_line)), nav
+
+
 BAD_OBS = [  # (name, make(tmp) -> (obs, nav), fragments the message must hold)
+    ("no-gps-records", lambda d: _synthetic_edited(d, "glonass.obs", lambda ln: "R" + ln[1:] if ln[:1] == "G" else ln),
+     ["glonass.obs", "no GPS satellite records in its 6 epochs", "C1C", "system R satellite records"]),
+    ("no-gps-records-2.10", lambda d: (_edit(GSI_OBS, d / "r.05o", _body_lines(
+        lambda ln: ln[:32] + ln[32:68].replace("G", "R") + ln[68:] if ln[:3] == " 05" else ln)), GSI_NAV),
+     ["r.05o", "no GPS satellite records in its 120 epochs", "system R satellite records"]),
+    ("code-declared-never-given", lambda d: _synthetic_edited(
+        d, "noc1c.obs", lambda ln: ln[:3] + " " * 16 + ln[19:] if ln[:1] == "G" else ln),
+     ["noc1c.obs", "no L1 pseudorange", "with values: D1C, S1C", "declared, never given: C1C"]),
     ("truncated", lambda d: (_edit(GSI_OBS, d / "t.05o", _truncate), GSI_NAV),
      ["t.05o", "line 198", "announces 8 satellites", "truncated"]),
     ("binary", lambda d: (_bytes(d / "b.05o", bytes(range(256)) * 40), GSI_NAV),

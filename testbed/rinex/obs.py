@@ -291,6 +291,11 @@ def read_obs(path: str | Path) -> RinexObs:
     for letter in sorted(set(sys.tolist()) - {"G"}):
         skipped[f"system {letter} satellite records"] = int((sys == letter).sum())
     gps = np.flatnonzero(sys == "G")
+    if gps.size == 0:
+        others = ", ".join(f"{k} {v}" for k, v in sorted(skipped.items())) or "none"
+        raise text.fail(f"no GPS satellite records in its {len(t_tag)} epochs (the header declares GPS types "
+                        f"{gps_types}, but no record starts with G{'' if not v2 else ' or a blank'}; skipped: "
+                        f"{others}); expected GPS measurements")
     line = np.asarray(rec.line)[gps]
     try:
         prn_rec = np.array([int(rec.sat[i][1:3]) for i in gps], np.int64)
