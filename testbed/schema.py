@@ -68,6 +68,8 @@ def _kind_problem(value, tp) -> tuple[str, str, object] | None:
     if kind == "number" and isinstance(value, (str, bool)):
         return "", "expected a valid number, not " + ("a string" if isinstance(value, str) else "true/false"), value
     base = tp
+    while typing.get_origin(base) is typing.Annotated:  # a constrained list or tuple: its elements' kinds
+        base = typing.get_args(base)[0]
     if typing.get_origin(base) in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(base) if a is not type(None)]
         base = args[0] if len(args) == 1 else None
@@ -90,6 +92,22 @@ def _file_name(v: str) -> str:
 
 #: a name the default output paths are made of (``runs/<name>-seed0.rrd``, ``campaigns/<name>``)
 FileName = typing.Annotated[str, AfterValidator(_file_name)]
+
+#: no point of an airframe is this far from its centre of gravity: the largest aircraft flown, the
+#: Antonov An-225, is 84 m long with an 88 m span
+MAX_LEVER_ARM_M = 100.0
+
+
+def _lever_arm(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    length = sum(x * x for x in v) ** 0.5
+    if length > MAX_LEVER_ARM_M:
+        raise ValueError(f"a lever arm of {length:.6g} m: expected at most {MAX_LEVER_ARM_M:g} m from the CG (the "
+                         f"largest aircraft, the An-225, is 84 m long with an 88 m span; metres, body axes)")
+    return v
+
+
+#: a sensor's position from the CG, body axes (m): finite (as every number) and on the airframe
+LeverArm = typing.Annotated[tuple[float, float, float], AfterValidator(_lever_arm)]
 
 
 class ConfigError(ValueError):

@@ -258,6 +258,15 @@ FILE_CASES = [
      "gnss.correlators", "100 blocks"),
     ("unknown-pseudorange-source", lambda d: approach(d, tail='[gnss.correlators]\npseudorange_source = "dll"'),
      "gnss.correlators.pseudorange_source", "dll"),
+    # a sensor is on the airframe: no lever arm is longer than the largest aircraft (NaN is not a length)
+    ("kilometre-camera-lever-arm", lambda d: approach(d, tail="[vision.mount]\nlever_arm_body_m = [1500.0, 0.0, 1.0]"),
+     "vision.mount.lever_arm_body_m", "a lever arm of 1500 m: expected at most 100 m"),
+    ("kilometre-imu-lever-arm", lambda d: approach(d, tail="[imu]\nlever_arm_body_m = [0.0, 2000.0, 0.0]"),
+     "imu.lever_arm_body_m", "a lever arm of 2000 m: expected at most 100 m"),
+    ("nan-camera-lever-arm", lambda d: approach(d, tail="[vision.mount]\nlever_arm_body_m = [nan, 0.0, 1.0]"),
+     "vision.mount.lever_arm_body_m.0", "nan"),
+    ("string-in-imu-lever-arm", lambda d: approach(d, tail='[imu]\nlever_arm_body_m = ["1", 0.0, 0.0]'),
+     "imu.lever_arm_body_m.0", "'1'"),
     # correlator pseudoranges need correlograms that fit an epoch, even with no monitor reading them
     ("correlator-pseudoranges-with-long-blocks", lambda d: approach(
         d, tail='[gnss.correlators]\npseudorange_source = "correlator"\nn_noncoherent = 100'),
@@ -289,6 +298,24 @@ def test_an_aircraft_file_problem_names_the_aircraft_file(work, capsys):
     path = approach(inputs, replace=('aircraft = "b737"', 'aircraft = "./ac"'))
     code, out = run(capsys, "check", path)
     assert code == 1 and str(ac / "aircraft.toml") in out and "jsbsim_model" in out and "no-such-model" in out, out
+
+
+@pytest.mark.parametrize("key, value, said", [
+    ("antenna_lever_arm_m", "[0.0, 0.0, -2000.0]", "a lever arm of 2000 m: expected at most 100 m"),
+    ("camera_lever_arm_m", "[14.0, 0.0, nan]", "camera_lever_arm_m.2"),
+])
+def test_an_aircraft_lever_arm_off_the_airframe_names_the_aircraft_file(work, capsys, key, value, said):
+    """An antenna 2 km above the CG used to fly (the monitors then saw a 2 km lever arm rotate with the
+    attitude); it is refused like any bad value, naming the aircraft file, the key and the value."""
+    cwd, inputs = work
+    ac = inputs / "ac"
+    ac.mkdir()
+    text = (approaches_dir().parent / "aircraft" / "b737" / "aircraft.toml").read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith(key))
+    (ac / "aircraft.toml").write_text(text.replace(line, f"{key} = {value}"))
+    path = approach(inputs, replace=('aircraft = "b737"', 'aircraft = "./ac"'))
+    code, out = run(capsys, "check", path)
+    assert code == 1 and str(ac / "aircraft.toml") in out and key in out and said in out, out
 
 
 def test_data_paths_are_relative_to_the_file_that_names_them(work, capsys):
