@@ -165,6 +165,10 @@ class Sweep(StrictModel):
 SKY_REPEAT_S = 86154.0
 
 
+#: the [sorties] keys each start mode reads (one not read by the spec's mode is refused, not ignored)
+READ_BY = {"sortie_s": ("consecutive", "uniform"), "span_s": ("uniform",), "window_s": ("consecutive", "uniform")}
+
+
 class SortieStarts(StrictModel):
     """When each sortie of a cell is flown (``[sorties]`` in a spec).
 
@@ -200,8 +204,14 @@ class SortieStarts(StrictModel):
     def _check(self):
         if self.start == "uniform" and self.span_s is None:
             raise ValueError("start = 'uniform' needs span_s (the span the start times are drawn over, s)")
-        if self.start != "uniform" and self.span_s is not None:
-            raise ValueError(f"span_s is only used with start = 'uniform', not {self.start!r}")
+        # one rule for every key: refused, never silently ignored, when the mode does not read it (its default
+        # passes: a spec written back whole, as the workers and the manifest get it, holds every key)
+        for key, modes in READ_BY.items():
+            value, default = getattr(self, key), type(self).model_fields[key].default
+            if self.start not in modes and value != default:
+                raise ValueError(f"[{key}] read only with start = {' or '.join(map(repr, modes))}, not with "
+                                 f"start = {self.start!r}: remove it, or choose a start that reads it "
+                                 f"(got {value!r})")
         if self.span_s is not None and self.sortie_s is not None and self.span_s < self.sortie_s:
             raise ValueError(f"span_s = {self.span_s:g} s is shorter than one sortie (sortie_s = {self.sortie_s:g} s)")
         return self
