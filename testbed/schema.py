@@ -4,10 +4,12 @@ Section models live beside the code they configure (``flight/settings.py``,
 ``sensors/gnss/settings.py`` ...); ``config.py`` composes them and loads TOML.
 Every model derives from :class:`StrictModel`, so an unknown key is an error
 that names the key path, and nothing can be changed after validation.
+:func:`read_json` reads what the package stored (manifests, run logs) the same way.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import types
 import typing
@@ -16,7 +18,7 @@ from typing import Callable
 
 import re
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, TypeAdapter, ValidationError, model_validator
 
 
 class StrictModel(BaseModel):
@@ -135,6 +137,23 @@ def exit_code(command: Callable[[], int]) -> int:
         print("interrupted: outputs are moved into place only when a command completes, so the files there "
               "before are as they were", file=sys.stderr)
         return 130
+
+
+def read_json(path: str | Path, model, *, what: str, remedy: str):
+    """A JSON file this package stored (a manifest, a run log), validated like an input: the value of
+    ``model`` (a pydantic model or ``TypeAdapter``), or a :class:`ConfigError` naming the file, every key
+    path, the value and what was expected, then ``remedy`` (what to do about it). Never a traceback for a
+    file damaged or edited since it was written."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, [f"cannot be read as {what} ({exc}); {remedy}"]) from None
+    adapter = model if isinstance(model, TypeAdapter) else TypeAdapter(model)
+    try:
+        return adapter.validate_python(data)
+    except ValidationError as err:
+        raise ConfigError(path, [f"not {what}: {p}" for p in format_validation_error(err, data)] + [remedy]) from None
 
 
 def _file_path(loc: tuple, data) -> list:

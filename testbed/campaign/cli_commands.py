@@ -91,12 +91,16 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     if args.paper != "va-raim-2015" and ignored:  # refused, not silently ignored
         raise ConfigError("command line", [f"{' and '.join(ignored)}: only va-raim-2015's campaigns take them; "
                                            f"{args.paper} runs in-process from the start"])
+    if args.paper == "won-2013" and args.restart:
+        raise ConfigError("command line", ["--restart: won-2013 stores no campaign to discard (it runs from the "
+                                           "start every time); va-raim-2015 and dpe-vertical take it"])
     out = Path(args.out) if args.out else Path("campaigns") / f"reproduce-{args.paper}"
     check_output_folder(out, "--out")
     if args.paper == "dpe-vertical":
         from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
 
-        idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet)
+        idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet,
+                                     restart=args.restart)
     elif args.paper == "won-2013":
         from testbed.campaign.reproduce_won import reproduce_won_2013
 
@@ -104,7 +108,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     else:
         try:
             idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
-                                         progress=not args.quiet, workers=args.workers)
+                                         progress=not args.quiet, workers=args.workers, restart=args.restart)
         except KeyboardInterrupt:
             return _interrupted(out)
     print(f"reproduction: {idx}")
@@ -140,7 +144,10 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("--out", help="result folder (default: campaigns/reproduce-<paper>)")
     p.add_argument("--scheduler", help="va-raim-2015: Dask scheduler address (default: this machine, see --workers)")
     p.add_argument("--workers", type=_workers, default="auto", help="va-raim-2015: " + WORKERS_HELP)
-    p.add_argument("--resume", action="store_true", help="va-raim-2015: complete the experiments stored in --out")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="va-raim-2015: complete the experiments stored in --out")
+    again.add_argument("--restart", action="store_true", help="va-raim-2015, dpe-vertical: discard the campaigns "
+                                                              "stored in --out and start over")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_reproduce)
 

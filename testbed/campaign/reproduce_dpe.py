@@ -108,8 +108,10 @@ def _campaign_hmi(d: Path) -> list[dict]:
     return [{"fault_size": float(k[0]), "monitor": k[1], **{n: int(v) for n, v in row.items()}} for k, row in g.iterrows()]
 
 
-def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int = 20, progress: bool = True) -> Path:
-    """Run the three experiments into ``out_dir`` and write ``reproduce.md`` (module doc)."""
+def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int = 20, progress: bool = True,
+                           restart: bool = False) -> Path:
+    """Run the three experiments into ``out_dir`` and write ``reproduce.md`` (module doc). The campaign stored
+    there is completed (of the same size), or with ``restart`` discarded and run again."""
     from testbed.campaign.report import write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
@@ -121,7 +123,8 @@ def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int
     k_rec = json.loads((approaches_dir() / "calibration" / "dpe-k.json").read_text())
     loaded = load_spec("dpe-vs-raim", trials=trials)
     camp = out / "dpe-vs-raim"
-    run_campaign(loaded, camp, resume=(camp / "manifest.json").exists(), progress=progress)
+    run_campaign(loaded, camp, resume=(camp / "manifest.json").exists() and not restart, restart=restart,
+                 progress=progress)
     write_report(camp)
     hmi = _campaign_hmi(camp)
     (out / "results.json").write_text(json.dumps({"cases": cases, "calibration": k_rec, "hmi": hmi}, indent=1))

@@ -308,9 +308,13 @@ class LoadedSpec:
         return spec_hash(self.spec)
 
 
+#: spec keys that change no result (the spec hash leaves them out): a resume may change them
+NOT_HASHED = ("report", "description")
+
+
 def spec_hash(spec: CampaignSpec) -> str:
     """A short hash of everything that changes results (the report settings excluded)."""
-    d = spec.model_dump(mode="json", exclude={"report", "description"})
+    d = spec.model_dump(mode="json", exclude=set(NOT_HASHED))
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -345,6 +349,29 @@ def fingerprint_changes(old: dict, new: dict) -> list[str]:
         out.append("the resolved cell configurations differ (approach or aircraft settings)")
     if old.get("testbed") != new.get("testbed"):
         out.append(f"testbed version {old.get('testbed')} stored, {new.get('testbed')} now")
+    return out
+
+
+def spec_changes(stored: dict, now: dict) -> list[str]:
+    """What differs between a stored spec and this one (both as ``model_dump(mode="json")`` gives them),
+    one ``key.path: stored → now`` line per value, the keys of :data:`NOT_HASHED` left out."""
+    old, new = _flat(stored), _flat(now)
+    show = lambda d, k: json.dumps(d[k], ensure_ascii=False) if k in d else "(not set)"  # noqa: E731
+    keys = [k for k in {**old, **new} if k.split(".")[0] not in NOT_HASHED]
+    return [f"{k}: {show(old, k)} → {show(new, k)}" for k in keys if old.get(k, ...) != new.get(k, ...)]
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    """Nested tables (and lists of tables) as ``a.b.0.c`` keys."""
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out |= _flat(v, key + ".")
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            out |= _flat({str(j): x for j, x in enumerate(v)}, key + ".")
+        else:
+            out[key] = v
     return out
 
 
