@@ -144,16 +144,16 @@ def read_json(path: str | Path, model, *, what: str, remedy: str):
     ``model`` (a pydantic model or ``TypeAdapter``), or a :class:`ConfigError` naming the file, every key
     path, the value and what was expected, then ``remedy`` (what to do about it). Never a traceback for a
     file damaged or edited since it was written."""
-    path = Path(path)
+    path, then = Path(path), [remedy] if remedy else []
     try:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(path, [f"cannot be read as {what} ({exc}); {remedy}"]) from None
+        raise ConfigError(path, [f"cannot be read as {what} ({exc})"] + then) from None
     adapter = model if isinstance(model, TypeAdapter) else TypeAdapter(model)
     try:
         return adapter.validate_python(data)
     except ValidationError as err:
-        raise ConfigError(path, [f"not {what}: {p}" for p in format_validation_error(err, data)] + [remedy]) from None
+        raise ConfigError(path, [f"not {what}: {p}" for p in format_validation_error(err, data)] + then) from None
 
 
 def _file_path(loc: tuple, data) -> list:

@@ -33,9 +33,9 @@ from typing import Any, Callable
 import numpy as np
 from pydantic import ConfigDict, Field
 
+from testbed.campaign.store import StoredRecord
 from testbed.integrity.dpe.calibration import (DEFAULT_P_HMI, MIN_TAIL_EPOCHS, KFit, fit_k_tail,
                                                settings_fingerprint, validate)
-from testbed.campaign.store import StoredRecord
 from testbed.schema import ConfigError, read_json
 
 #: strata cycled over the sorties (docs/design/dpe.md §6.4)

@@ -40,8 +40,9 @@ from testbed.schema import ConfigError, read_json
 NAMES = {"trials": "trials.parquet", "epochs": "epochs.parquet", "hist": "stanford_hist.parquet"}
 #: one entry per run that worked on the folder (wall time, chunks and epochs computed)
 RUNS = "runs.json"
-#: what a stored run that cannot go on should do (every command that opens a store takes these options)
-AGAIN = "start over in this folder with --restart, or choose another --out folder"
+#: what to do with a stored run that cannot go on, for every command that meets one (campaign and reproduce
+#: take these options; report names them)
+AGAIN = "start over in this folder with --restart (testbed campaign or reproduce), or choose another --out folder"
 
 
 class StoredRecord(BaseModel):
@@ -247,7 +248,7 @@ class ResultStore:
         try:
             return [r.model_dump() for r in read_json(path, _RUNS, what="a list of runs", remedy="")]
         except ConfigError as exc:
-            _keep_aside(path, "; ".join(p for p in exc.problems if p), "the run times start again")
+            _keep_aside(path, "; ".join(exc.problems), "the run times start again")
             return []
 
     def wall_s(self) -> float:
