@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import shutil
 import signal
@@ -214,8 +213,8 @@ def _stored(out: Path, spec_hash: str) -> bool:
     """A complete run of the campaign whose spec hashes to ``spec_hash`` is stored in ``out``."""
     from testbed.campaign.store import ResultStore
 
-    man = out / "manifest.json"
-    return man.exists() and json.loads(man.read_text()).get("spec_hash") == spec_hash and ResultStore(out).complete()
+    store = ResultStore(out)
+    return (out / "manifest.json").exists() and store.manifest()["spec_hash"] == spec_hash and store.complete()
 
 
 def campaign_figure(spec: str, trials: int, figure: str):

@@ -4,10 +4,12 @@ Section models live beside the code they configure (``flight/settings.py``,
 ``sensors/gnss/settings.py`` ...); ``config.py`` composes them and loads TOML.
 Every model derives from :class:`StrictModel`, so an unknown key is an error
 that names the key path, and nothing can be changed after validation.
+:func:`read_json` reads what the package stored (manifests, run logs) the same way.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import types
 import typing
@@ -16,7 +18,7 @@ from typing import Callable
 
 import re
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, TypeAdapter, ValidationError, model_validator
 
 
 class StrictModel(BaseModel):
@@ -68,6 +70,8 @@ def _kind_problem(value, tp) -> tuple[str, str, object] | None:
     if kind == "number" and isinstance(value, (str, bool)):
         return "", "expected a valid number, not " + ("a string" if isinstance(value, str) else "true/false"), value
     base = tp
+    while typing.get_origin(base) is typing.Annotated:  # a constrained list or tuple: its elements' kinds
+        base = typing.get_args(base)[0]
     if typing.get_origin(base) in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(base) if a is not type(None)]
         base = args[0] if len(args) == 1 else None
@@ -90,6 +94,22 @@ def _file_name(v: str) -> str:
 
 #: a name the default output paths are made of (``runs/<name>-seed0.rrd``, ``campaigns/<name>``)
 FileName = typing.Annotated[str, AfterValidator(_file_name)]
+
+#: no point of an airframe is this far from its centre of gravity: the largest aircraft flown, the
+#: Antonov An-225, is 84 m long with an 88 m span
+MAX_LEVER_ARM_M = 100.0
+
+
+def _lever_arm(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    length = sum(x * x for x in v) ** 0.5
+    if length > MAX_LEVER_ARM_M:
+        raise ValueError(f"a lever arm of {length:.6g} m: expected at most {MAX_LEVER_ARM_M:g} m from the CG (the "
+                         f"largest aircraft, the An-225, is 84 m long with an 88 m span; metres, body axes)")
+    return v
+
+
+#: a sensor's position from the CG, body axes (m): finite (as every number) and on the airframe
+LeverArm = typing.Annotated[tuple[float, float, float], AfterValidator(_lever_arm)]
 
 
 class ConfigError(ValueError):
@@ -120,6 +140,23 @@ def exit_code(command: Callable[[], int]) -> int:
         print(f"interrupted: {'; '.join(notes) if notes else 'the command had not written anything'}",
               file=sys.stderr)
         return 130
+
+
+def read_json(path: str | Path, model, *, what: str, remedy: str):
+    """A JSON file this package stored (a manifest, a run log), validated like an input: the value of
+    ``model`` (a pydantic model or ``TypeAdapter``), or a :class:`ConfigError` naming the file, every key
+    path, the value and what was expected, then ``remedy`` (what to do about it). Never a traceback for a
+    file damaged or edited since it was written."""
+    path, then = Path(path), [remedy] if remedy else []
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, [f"cannot be read as {what} ({exc})"] + then) from None
+    adapter = model if isinstance(model, TypeAdapter) else TypeAdapter(model)
+    try:
+        return adapter.validate_python(data)
+    except ValidationError as err:
+        raise ConfigError(path, [f"not {what}: {p}" for p in format_validation_error(err, data)] + then) from None
 
 
 def _file_path(loc: tuple, data) -> list:

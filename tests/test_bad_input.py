@@ -266,6 +266,15 @@ FILE_CASES = [
     ("one-id-in-two-sets", lambda d: approach(d, replace=('sets = [{ kind = "triangle" }]',
                                                           'sets = [{ kind = "triangle" }, { kind = "triangle" }]')),
      "landmarks.sets", "T1"),
+    # a sensor is on the airframe: no lever arm is longer than the largest aircraft (NaN is not a length)
+    ("kilometre-camera-lever-arm", lambda d: approach(d, tail="[vision.mount]\nlever_arm_body_m = [1500.0, 0.0, 1.0]"),
+     "vision.mount.lever_arm_body_m", "a lever arm of 1500 m: expected at most 100 m"),
+    ("kilometre-imu-lever-arm", lambda d: approach(d, tail="[imu]\nlever_arm_body_m = [0.0, 2000.0, 0.0]"),
+     "imu.lever_arm_body_m", "a lever arm of 2000 m: expected at most 100 m"),
+    ("nan-camera-lever-arm", lambda d: approach(d, tail="[vision.mount]\nlever_arm_body_m = [nan, 0.0, 1.0]"),
+     "vision.mount.lever_arm_body_m.0", "nan"),
+    ("string-in-imu-lever-arm", lambda d: approach(d, tail='[imu]\nlever_arm_body_m = ["1", 0.0, 0.0]'),
+     "imu.lever_arm_body_m.0", "'1'"),
     # correlator pseudoranges need correlograms that fit an epoch, even with no monitor reading them
     ("correlator-pseudoranges-with-long-blocks", lambda d: approach(
         d, tail='[gnss.correlators]\npseudorange_source = "correlator"\nn_noncoherent = 100'),
@@ -297,6 +306,24 @@ def test_an_aircraft_file_problem_names_the_aircraft_file(work, capsys):
     path = approach(inputs, replace=('aircraft = "b737"', 'aircraft = "./ac"'))
     code, out = run(capsys, "check", path)
     assert code == 1 and str(ac / "aircraft.toml") in out and "jsbsim_model" in out and "no-such-model" in out, out
+
+
+@pytest.mark.parametrize("key, value, said", [
+    ("antenna_lever_arm_m", "[0.0, 0.0, -2000.0]", "a lever arm of 2000 m: expected at most 100 m"),
+    ("camera_lever_arm_m", "[14.0, 0.0, nan]", "camera_lever_arm_m.2"),
+])
+def test_an_aircraft_lever_arm_off_the_airframe_names_the_aircraft_file(work, capsys, key, value, said):
+    """An antenna 2 km above the CG used to fly (the monitors then saw a 2 km lever arm rotate with the
+    attitude); it is refused like any bad value, naming the aircraft file, the key and the value."""
+    cwd, inputs = work
+    ac = inputs / "ac"
+    ac.mkdir()
+    text = (approaches_dir().parent / "aircraft" / "b737" / "aircraft.toml").read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith(key))
+    (ac / "aircraft.toml").write_text(text.replace(line, f"{key} = {value}"))
+    path = approach(inputs, replace=('aircraft = "b737"', 'aircraft = "./ac"'))
+    code, out = run(capsys, "check", path)
+    assert code == 1 and str(ac / "aircraft.toml") in out and key in out and said in out, out
 
 
 def test_data_paths_are_relative_to_the_file_that_names_them(work, capsys):
@@ -387,6 +414,11 @@ def test_options_that_cannot_apply_are_refused_not_ignored(work, capsys):
         for extra in (["--scheduler", "tcp://127.0.0.1:9"], ["--resume"], ["--workers", "2"]):
             code, out = run(capsys, "reproduce", paper, "--out", inputs / "r", *extra)
             assert code == 2 and extra[0] in out and paper in out, out
+    code, out = run(capsys, "reproduce", "won-2013", "--out", inputs / "r", "--restart")
+    assert code == 2 and "--restart" in out and "won-2013 stores no campaign" in out, out
+    with pytest.raises(SystemExit) as exc:
+        main(["reproduce", "va-raim-2015", "--out", str(inputs / "r"), "--resume", "--restart"])
+    assert exc.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
     assert not (inputs / "o").exists() and not (inputs / "r").exists() and not any(cwd.iterdir())
 
 
@@ -432,9 +464,9 @@ def test_report_on_a_bad_folder_is_a_message(work, capsys):
     (d / "manifest.json").write_text("{ not json")
     code, out = run(capsys, "report", d)
     assert code == 2 and "manifest.json" in out, out
-    (d / "manifest.json").write_text(json.dumps({"spec_hash": "x", "spec": {}}))
+    (d / "manifest.json").write_text(json.dumps({"spec_hash": "x", "spec": {}}))  # checked like an input
     code, out = run(capsys, "report", d)
-    assert code == 2 and "trials.parquet" in out and "missing" in out, out
+    assert code == 2 and "spec_hash: String should match pattern" in out and "spec.trials: Field required" in out, out
 
 
 def test_resume_after_an_input_file_changed_is_refused_and_restart_starts_over(work, capsys):
@@ -454,6 +486,110 @@ def test_resume_after_an_input_file_changed_is_refused_and_restart_starts_over(w
     assert str(ap) in str(ei.value) and "changed" in str(ei.value) and "--restart" in str(ei.value)
     res = run_campaign(spec, out, restart=True, progress=False)
     assert res.chunks_skipped == 0 and ResultStore(out).complete()
+
+
+def test_resume_after_the_spec_changed_names_every_key_that_changed(work, capsys):
+    """README: a resume is refused naming what changed, not with two hashes: each spec key as stored → now,
+    and each input file changed since."""
+    from testbed.campaign.runner import run_campaign
+
+    cwd, inputs = work
+    ap = approach(inputs, name="mine.toml")
+    spec = inputs / "s.toml"
+    spec.write_text(SPEC.replace('"va-raim-2015"', '"mine.toml"').replace("trials = 10", "trials = 20"))
+    out = inputs / "out"
+    run_campaign(spec, out, progress=False, max_chunks=1)
+    spec.write_text(SPEC.replace('"va-raim-2015"', '"mine.toml"').replace("trials = 10", "trials = 40")
+                    + "base_seed = 3\n[[faults]]\nkind = \"gps_step\"\nmagnitudes = [0.0, 20.0]\nonset_s = 5.0\n")
+    ap.write_text(ap.read_text().replace("speed_kt = 160.0", "speed_kt = 165.0"))
+    before = listing(out)
+    code, text = run(capsys, "campaign", spec, "--out", out, "--resume", "--quiet")
+    assert code == 2, text
+    for said in ("trials: 20 → 40", "base_seed: 0 → 3", 'faults.0.kind: "none" → "gps_step"',
+                 "faults.0.magnitudes: [0.0] → [0.0, 20.0]", f"{ap}: changed since the stored run", "--restart"):
+        assert said in text, (said, text)
+    assert "hash" not in text, text
+    assert listing(out) == before
+    # the report settings change no result: not a reason to refuse
+    spec.write_text(SPEC.replace('"va-raim-2015"', '"mine.toml"').replace("trials = 10", "trials = 20")
+                    + "[report]\nconfidence = 0.9\n")
+    ap.write_text(ap.read_text().replace("speed_kt = 165.0", "speed_kt = 160.0"))
+    assert run(capsys, "campaign", spec, "--out", out, "--resume", "--quiet", "--no-report")[0] == 0
+
+
+def test_reproduce_takes_the_restart_its_refusal_advises(work, capsys, monkeypatch):
+    """`reproduce va-raim-2015` over a stored run of another size is refused naming what changed and advising
+    --restart, which `reproduce` takes (it used to lack it) and which then starts over. The reproduction is cut
+    down to one tiny experiment (10 sorties, 20 with --full) so it runs in seconds."""
+    import tomllib
+
+    import testbed.campaign.reproduce as rp
+    from testbed.campaign.spec import CampaignSpec, resolve_spec
+    from testbed.campaign.store import ResultStore
+
+    def tiny(n: int) -> dict:
+        trials = 10 if n == rp.QUICK_TRIALS else 20
+        d = tomllib.loads(SPEC) | {"trials": trials, "block_trials": trials, "chunk_trials": trials}
+        return {"gps-faults": resolve_spec(CampaignSpec.model_validate(d), rp.approaches_dir() / "campaigns" / "t")}
+
+    monkeypatch.setattr(rp, "loaded_experiments", tiny)
+    monkeypatch.setattr(rp, "write_summary", lambda out, n, walls: out / "reproduce.md")
+    monkeypatch.setattr("testbed.campaign.report.write_report", lambda d: d / "report.md")  # figures: not the point
+    cwd, inputs = work
+    out = inputs / "r"
+    assert run(capsys, "reproduce", "va-raim-2015", "--out", out, "--quiet")[0] == 0
+    code, text = run(capsys, "reproduce", "va-raim-2015", "--out", out, "--full", "--quiet")
+    assert code == 2 and "trials: 10 → 20" in text and "--restart" in text, text
+    assert run(capsys, "reproduce", "va-raim-2015", "--out", out, "--full", "--restart", "--quiet")[0] == 0
+    assert ResultStore(out / "gps-faults").manifest()["spec"]["trials"] == 20
+
+
+def _edit_json(path: Path, edit) -> None:
+    d = json.loads(path.read_text())
+    edit(d)
+    path.write_text(json.dumps(d))
+
+
+@pytest.mark.parametrize("edit, said", [
+    (lambda m: m.update(cells="3"), ["cells: Input should be a valid integer", "'3'"]),
+    (lambda m: m["spec"].pop("monitors"), ["spec.monitors: Field required"]),
+    (lambda m: m["spec"].update(trials=-5), ["spec.trials: Input should be greater than or equal to 1", "-5"]),
+    (lambda m: m["inputs"]["files"].update(x=7), ["inputs.files.x: Input should be a valid string", "7"]),
+    (lambda m: m.update(format=1), ["format: Input should be 2", "1"]),
+], ids=["cells-a-string", "no-monitors", "negative-trials", "file-digest-a-number", "another-format"])
+def test_an_edited_manifest_is_named_key_by_key_by_every_command_that_reads_it(work, capsys, edit, said):
+    """The stored manifest is read like an input by resume, report and reproduce: a key of the wrong kind,
+    missing or out of range names the file, the key and the value, exit 2 (a spec without monitors made
+    `testbed report` fail with a KeyError traceback; a string cell count passed)."""
+    from testbed.campaign.runner import run_campaign
+
+    cwd, inputs = work
+    spec = inputs / "s.toml"
+    spec.write_text(SPEC)
+    out = inputs / "out"
+    run_campaign(spec, out, progress=False)
+    man = out / "manifest.json"
+    _edit_json(man, edit)
+    before = listing(out)
+    for argv in (["campaign", spec, "--out", out, "--resume", "--quiet"], ["report", out]):
+        code, text = run(capsys, *argv)
+        assert code == 2 and "Traceback" not in text and str(man) in text and "--restart" in text, (argv, text)
+        for s in said:
+            assert s in text, (argv, s, text)
+    assert listing(out) == before  # nothing written over
+
+
+def test_a_damaged_run_log_is_kept_aside_not_summed(work):
+    """runs.json with a wall time that is not a number: kept aside with a warning (it made the total a
+    TypeError), the run times start again."""
+    from testbed.campaign.store import ResultStore
+
+    cwd, inputs = work
+    (inputs / "runs.json").write_text(json.dumps([{"started_utc": "2026-01-01T00:00:00Z", "finished": True,
+                                                   "wall_s": "12", "chunks_run": 1, "epochs_run": 10}]))
+    with pytest.warns(UserWarning, match="wall_s"):
+        assert ResultStore(inputs).wall_s() == 0.0
+    assert not (inputs / "runs.json").exists() and len(list(inputs.glob("runs.json.damaged-*"))) == 1
 
 
 def test_a_damaged_chunk_is_computed_again_on_resume(work):
@@ -592,6 +728,12 @@ def test_calibrate_dpe_refuses_a_work_folder_of_another_run_and_changes_nothing(
     manifest.write_text("{not json")
     code, out = run(capsys, "calibrate-dpe", "--out", cwd / "k.json", "--work", w, "--resume")
     assert code == 2 and "cannot be read" in out and str(manifest) in out, out
+    for text, said in (("[1, 2]", "<top level>: Input should be a valid dictionary"),  # was an AttributeError
+                       ('{"approach": "x", "trajectories": [], "sorties": "6", "seed": 0, "chunk": 25}',
+                        "sorties: Input should be a valid integer")):
+        manifest.write_text(text)
+        code, out = run(capsys, "calibrate-dpe", "--out", cwd / "k.json", "--work", w, "--resume")
+        assert code == 2 and "Traceback" not in out and str(manifest) in out and said in out, out
     assert listing(cwd) == {**before, str(manifest): manifest.stat().st_mtime_ns}
     assert not (cwd / "k.json").exists()
 

@@ -351,7 +351,29 @@ def _truncate(text: str) -> str:
     return "\n".join(lines[:cut + 3]) + "\n"  # an epoch line and 2 of its 8 satellites
 
 
+def _body_lines(make_line):
+    """An edit of a file's lines after its header."""
+    def edit(text: str) -> str:
+        lines = text.splitlines()
+        end = next(k for k, ln in enumerate(lines) if "END OF HEADER" in ln)
+        return "\n".join(lines[:end + 1] + [make_line(ln) for ln in lines[end + 1:]]) + "\n"
+    return edit
+
+
+def _synthetic_edited(d: Path, name: str, make_line) -> tuple[Path, Path]:
+    _, _, _, _, obs, nav = synthetic(d, 5.0)
+    return _edit(obs, d / name, _body_lines(make_line)), nav
+
+
 BAD_OBS = [  # (name, make(tmp) -> (obs, nav), fragments the message must hold)
+    ("no-gps-records", lambda d: _synthetic_edited(d, "glonass.obs", lambda ln: "R" + ln[1:] if ln[:1] == "G" else ln),
+     ["glonass.obs", "no GPS satellite records in its 6 epochs", "C1C", "system R satellite records"]),
+    ("no-gps-records-2.10", lambda d: (_edit(GSI_OBS, d / "r.05o", _body_lines(
+        lambda ln: ln[:32] + ln[32:68].replace("G", "R") + ln[68:] if ln[:3] == " 05" else ln)), GSI_NAV),
+     ["r.05o", "no GPS satellite records in its 120 epochs", "system R satellite records"]),
+    ("code-declared-never-given", lambda d: _synthetic_edited(
+        d, "noc1c.obs", lambda ln: ln[:3] + " " * 16 + ln[19:] if ln[:1] == "G" else ln),
+     ["noc1c.obs", "no L1 pseudorange", "with values: D1C, S1C", "declared, never given: C1C"]),
     ("truncated", lambda d: (_edit(GSI_OBS, d / "t.05o", _truncate), GSI_NAV),
      ["t.05o", "line 198", "announces 8 satellites", "truncated"]),
     ("binary", lambda d: (_bytes(d / "b.05o", bytes(range(256)) * 40), GSI_NAV),
@@ -390,6 +412,74 @@ def test_nav_file_of_another_week_is_refused(tmp_path, capsys):
     assert main(["monitor", str(GSI_OBS), str(nav)]) == 2
     err = capsys.readouterr().err
     assert "synthetic.nav" in err and "2005-04-02" in err and "2024-03-15" in err and "same day" in err
+
+
+def _first_epochs_v2(n: int) -> bytes:
+    """The GSI file's header and its first ``n`` epoch records (RINEX 2.10)."""
+    lines = GSI_OBS.read_bytes().splitlines(keepends=True)
+    starts = [k for k, ln in enumerate(lines) if ln[:3] == b" 05" and ln[28:29] in b"01"]
+    return b"".join(lines[:starts[n]])
+
+
+@pytest.mark.parametrize("version", ["3.04", "2.10"])
+def test_a_file_cut_anywhere_in_its_last_epoch_is_refused_or_read_whole(tmp_path, version):
+    """Brute force over every byte of the last epoch record: the file cut there is refused as truncated
+    (naming the file and its last line), or every measurement it gives is the whole file's. Before, a cut
+    inside a number read as another number (-2683.505 Hz as -2683.) and a cut between fields as absent
+    measurements, without a word."""
+    from testbed.sensors.gnss.rinex_text import RinexError
+
+    if version == "3.04":
+        whole = synthetic(tmp_path, 4.0)[4].read_bytes()
+        last = whole.rindex(b"\n>") + 1
+    else:
+        whole = _first_epochs_v2(3)
+        last = whole.rindex(b"\n 05  4  2") + 1
+    full = tmp_path / "whole.obs"
+    full.write_bytes(whole)
+    ref = read_obs(full)
+    refused = read = 0
+    for cut in range(last + 1, len(whole)):
+        p = tmp_path / "cut.obs"
+        p.write_bytes(whole[:cut])
+        try:
+            obs = read_obs(p)
+        except RinexError as exc:
+            msg = str(exc)
+            assert "cut.obs" in msg and "truncated" in msg and "line " in msg, (cut, whole[last:cut], msg)
+            refused += 1
+            continue
+        read += 1
+        e = obs.epochs  # all of them, or the ones before the record when nothing but blanks is left of it
+        assert e == ref.epochs or (e == ref.epochs - 1 and not whole[last:cut].strip()), whole[last:cut]
+        np.testing.assert_array_equal(obs.t_tag, ref.t_tag[:e], err_msg=repr(whole[last:cut]))
+        for code, v in ref.values.items():
+            np.testing.assert_array_equal(obs.values[code], v[:e, :obs.prn.size], err_msg=f"{code}: {whole[last:cut]!r}")
+    print(f"\nRINEX {version}: {refused + read} cuts in the last epoch record, {refused} refused as truncated, "
+          f"{read} read whole")
+    assert refused > 0.9 * (len(whole) - last - 1)
+
+
+BAD_NAV = [  # (name, edit of the GSI navigation file, fragments the message must hold)
+    ("clock-a-week-from-ephemeris", lambda t: t.replace(" 1 05  4  2  2  0  0.0", " 1 05  4  9  2  0  0.0", 1),
+     ["07590920-edited.05n", "line 13: G01 record", "time of clock 2005-04-09 02:00:00 is +168.0 h from its time of "
+      "ephemeris 2005-04-02 02:00:00", "fit interval (4 h"]),
+    ("not-a-number", lambda t: t.replace("5.153636478420D+03", "               NaN", 1),
+     ["07590920-edited.05n", "line 13: G01 record", "not a finite number"]),
+]
+
+
+@pytest.mark.parametrize("name, edit, fragments", BAD_NAV, ids=[c[0] for c in BAD_NAV])
+def test_an_inconsistent_navigation_record_exits_2_naming_its_line(tmp_path, capsys, name, edit, fragments):
+    """A broadcast record whose time of clock is days from its time of ephemeris (or that holds a NaN) cannot
+    have been broadcast; read as it was, its clock was extrapolated over a week (hundreds of metres on the
+    range) without a word."""
+    nav = _edit(GSI_NAV, tmp_path / "07590920-edited.05n", edit)
+    assert main(["monitor", str(GSI_OBS), str(nav)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    for f in fragments:
+        assert f in err, (f, err)
 
 
 BAD_CONFIG = [
@@ -448,6 +538,53 @@ def test_bad_reference_and_outputs_exit_2(tmp_path, capsys):
     assert "is a file" in capsys.readouterr().err
     assert main(["monitor", str(obs), str(nav), "--rrd", str(tmp_path / "r.txt")]) == 2
     assert ".rrd" in capsys.readouterr().err
+
+
+REF_COLUMNS = "t_gps,pos_ecef_x,pos_ecef_y,pos_ecef_z"
+
+
+def _spoil_time_nan(a):
+    a[3, 0] = np.nan
+
+
+def _spoil_time_back(a):
+    a[3, 0] = a[1, 0]
+
+
+def _spoil_position_nan(a):
+    a[[5, 8], 2] = np.nan
+
+
+def _spoil_degrees(a):
+    a[:, 1:] = [29.2, 94.2, 3000.0]  # latitude, longitude, height in the ECEF columns
+
+
+BAD_REFERENCE = [  # (name, spoil the (t, x, y, z) rows in place, fragments the message must hold)
+    ("time-nan", _spoil_time_nan, ["t_gps at row 4 is nan", "finite number"]),
+    ("time-not-increasing", _spoil_time_back, ["t_gps does not increase at row 4", "after", "strictly increasing"]),
+    ("position-nan", _spoil_position_nan, ["pos_ecef_y at rows 6, 9 is nan", "finite number"]),
+    ("position-degrees", _spoil_degrees, ["from the Earth's centre", "rows 1, 2 and 19 more", "ECEF metres"]),
+]
+
+
+@pytest.mark.parametrize("name, spoil, fragments", BAD_REFERENCE, ids=[c[0] for c in BAD_REFERENCE])
+def test_an_inconsistent_reference_trajectory_exits_2_naming_column_and_row(tmp_path, capsys, name, spoil,
+                                                                             fragments):
+    """A reference whose times are NaN or go back, or whose positions are NaN or not ECEF metres, is refused
+    before any work, naming the file, the column, the rows and the value (a NaN time used to pass: NaN <= 0
+    is false, and the interpolation then made up positions)."""
+    _, g, _, tr, obs, nav = synthetic(tmp_path, 20.0)
+    rows = np.column_stack([g.t_gps, tr.antenna_pos_ecef])
+    spoil(rows)
+    ref = tmp_path / "ref.csv"
+    np.savetxt(ref, rows, delimiter=",", comments="", header=REF_COLUMNS, fmt="%.6f")
+    out = tmp_path / "out"
+    assert main(["monitor", str(obs), str(nav), "--reference", str(ref), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "ref.csv" in err and "--reference" in err
+    for f in fragments:
+        assert f in err, (f, err)
+    assert not out.exists()
 
 
 def test_compiled_fix_equals_its_numpy_reference():

@@ -112,7 +112,14 @@ def test_span_results_do_not_depend_on_chunks_or_threads(tmp_path):
     ('start = "uniform"\nsortie_s = 60.0\nspan_s = 30.0', "sorties", "shorter than one sortie"),
     ('start = "consecutive"\nsortie_s = -1.0', "sorties.sortie_s", "greater than 0"),
     ('start = "sometimes"', "sorties.start", "consecutive"),
-    ('start = "fixed"\nspan_s = 600.0', "sorties", "only used with start = 'uniform'"),
+    ('start = "fixed"\nspan_s = 600.0', "sorties.span_s", "read only with start = 'uniform', not with start = 'fixed'"),
+    # a key the mode does not read is refused, as span_s always was, never silently ignored
+    ('start = "fixed"\nsortie_s = 60.0', "sorties.sortie_s",
+     "read only with start = 'consecutive' or 'uniform', not with start = 'fixed'"),
+    ('start = "fixed"\nwindow_s = 600.0', "sorties.window_s",
+     "read only with start = 'consecutive' or 'uniform', not with start = 'fixed'"),
+    ('start = "consecutive"\nsortie_s = 60.0\nspan_s = 600.0', "sorties.span_s",
+     "read only with start = 'uniform', not with start = 'consecutive'"),
     ('start = "consecutive"\nsortie_s = 60.0\nwindow_s = nan', "sorties.window_s", "finite number"),
     ('start = "consecutive"\nsortie_s = "60"', "sorties.sortie_s", "not a string"),
 ])

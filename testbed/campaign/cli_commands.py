@@ -99,6 +99,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     if args.paper != "va-raim-2015" and ignored:  # refused, not silently ignored
         raise ConfigError("command line", [f"{' and '.join(ignored)}: only va-raim-2015's campaigns take them; "
                                            f"{args.paper} runs in-process from the start"])
+    if args.paper == "won-2013" and args.restart:
+        raise ConfigError("command line", ["--restart: won-2013 stores no campaign to discard (it runs from the "
+                                           "start every time); va-raim-2015 and dpe-vertical take it"])
     out = Path(args.out) if args.out else Path("campaigns") / f"reproduce-{args.paper}"
     budget_gate(lambda: reproduction_estimate(args.paper, args.full, workers=args.workers, out_dir=out,
                                               resume=args.resume), args.allow_large)
@@ -111,14 +114,16 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         if args.paper == "dpe-vertical":
             from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
 
-            idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet, outputs=outs)
+            idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet,
+                                         restart=args.restart, outputs=outs)
         elif args.paper == "won-2013":
             from testbed.campaign.reproduce_won import reproduce_won_2013
 
             idx = reproduce_won_2013(out, trials=200 if args.full else 50, progress=not args.quiet, outputs=outs)
         else:
             idx = reproduce_va_raim_2015(out, full=args.full, scheduler=args.scheduler, resume=args.resume,
-                                         progress=not args.quiet, workers=args.workers, outputs=outs)
+                                         progress=not args.quiet, workers=args.workers,
+                                         restart=args.restart, outputs=outs)
         outs.commit()
         print(f"reproduction: {idx}")
     return 0
@@ -154,7 +159,10 @@ def add_campaign_parsers(subparsers) -> None:
     p.add_argument("--out", help="result folder (default: campaigns/reproduce-<paper>)")
     p.add_argument("--scheduler", help="va-raim-2015: Dask scheduler address (default: this machine, see --workers)")
     p.add_argument("--workers", type=_workers, default="auto", help="va-raim-2015: " + WORKERS_HELP)
-    p.add_argument("--resume", action="store_true", help="va-raim-2015: complete the experiments stored in --out")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="va-raim-2015: complete the experiments stored in --out")
+    again.add_argument("--restart", action="store_true", help="va-raim-2015, dpe-vertical: discard the campaigns "
+                                                              "stored in --out and start over")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_allow_large(p)
     p.set_defaults(func=_cmd_reproduce)

@@ -31,10 +31,12 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+from pydantic import ConfigDict, Field
 
+from testbed.campaign.store import StoredRecord
 from testbed.integrity.dpe.calibration import (DEFAULT_P_HMI, MIN_TAIL_EPOCHS, KFit, fit_k_tail,
                                                settings_fingerprint, validate)
-from testbed.schema import ConfigError
+from testbed.schema import ConfigError, read_json
 
 #: strata cycled over the sorties (docs/design/dpe.md §6.4)
 CN0_OFFSETS_DB = (0.0, -3.0, -6.0)
@@ -63,6 +65,17 @@ class CalibrationRun:
     @property
     def n_chunks(self) -> int:
         return -(-self.sorties // self.chunk)
+
+
+class WorkManifest(StoredRecord):
+    """A work folder's ``manifest.json``: the :class:`CalibrationRun` its chunks belong to."""
+
+    model_config = ConfigDict(extra="forbid")
+    approach: str
+    trajectories: list[str]
+    sorties: int = Field(ge=1)
+    seed: int = Field(ge=0)
+    chunk: int = Field(ge=1)
 
 
 def sortie_plan(j: int, sorties: int, n_trajectories: int, shift_s: float = 0.0) -> tuple[int, float, float, str, int]:
@@ -160,10 +173,8 @@ class WorkFolder:
         manifest = self.path / "manifest.json"
         want = dataclasses.asdict(run) | {"trajectories": list(run.trajectories)}
         if manifest.exists():
-            try:
-                have = json.loads(manifest.read_text())
-            except (OSError, ValueError) as exc:
-                raise ConfigError(manifest, [f"cannot be read ({exc}); expected a calibrate-dpe work folder"]) from None
+            have = read_json(manifest, WorkManifest, what="a calibrate-dpe work folder's manifest",
+                             remedy="give another --work folder (nothing was changed)").model_dump()
             if not resume:
                 raise ConfigError(manifest, ["a calibration is stored here: --resume to continue it, or give "
                                              "another --work folder (nothing was changed)"])

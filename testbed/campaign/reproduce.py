@@ -78,7 +78,6 @@ Assumptions the paper leaves open (also in docs/findings/va-raim-2015.md):
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from testbed.campaign.spec import CampaignSpec, LoadedSpec, resolve_spec
@@ -156,9 +155,11 @@ def loaded_experiments(trials: int) -> dict[str, LoadedSpec]:
 
 def reproduce_va_raim_2015(out_dir: str | Path, *, full: bool = False, trials: int | None = None,
                            scheduler=None, resume: bool = False, progress: bool = True,
-                           workers: int | str = 1, outputs: OutputSet | None = None) -> Path:
+                           workers: int | str = 1, restart: bool = False,
+                           outputs: OutputSet | None = None) -> Path:
     """Run the four campaigns into ``out_dir/<experiment>``, draw their reports, write ``reproduce.md``.
 
+    resume : complete the experiments stored there.  restart : discard them and start over.
     The campaigns' chunks are stored as they finish (resumable); the reports and ``reproduce.md`` are
     committed together, before this returns or with the caller's ``outputs`` at its commit."""
     from testbed.campaign.report import write_report
@@ -173,11 +174,11 @@ def reproduce_va_raim_2015(out_dir: str | Path, *, full: bool = False, trials: i
             outs.folder(out, "out_dir", kept="the experiments' chunks finished so far are stored there")
         for name, loaded in loaded_experiments(n).items():
             d = out / name
-            man = d / "manifest.json"
-            if not (man.exists() and json.loads(man.read_text()).get("spec_hash") == loaded.hash
+            stored = (d / "manifest.json").exists() and not restart
+            if not (stored and ResultStore(d).manifest()["spec_hash"] == loaded.hash
                     and ResultStore(d).complete()):  # a stored part of another scale is refused by the store (spec hash)
-                run_campaign(loaded, d, resume=resume or man.exists(), scheduler=scheduler, progress=progress,
-                             workers=workers)
+                run_campaign(loaded, d, resume=resume or stored, restart=restart, scheduler=scheduler,
+                             progress=progress, workers=workers)
             walls[name] = ResultStore(d).wall_s()  # every run's, a resumed experiment's too
             write_report(d, outputs=outs)
         return write_summary(out, n, walls, outs)
@@ -224,14 +225,14 @@ def _tables(d: Path) -> dict | None:
     Stanford histogram table, or None."""
     import pyarrow.parquet as pq
 
-    from testbed.campaign.store import read_columns
+    from testbed.campaign.store import ResultStore, read_columns
 
     if not (d / "trials.parquet").exists():
         return None
     hist = pq.read_table(d / "stanford_hist.parquet") if (d / "stanford_hist.parquet").exists() else None
     return {"cells": pq.read_table(d / "cells.parquet").to_pylist(),
             "trials": read_columns(d / "trials.parquet", SUMMARY_COLUMNS), "hist": hist,
-            "block_trials": json.loads((d / "manifest.json").read_text())["spec"]["block_trials"]}
+            "block_trials": ResultStore(d).manifest()["spec"]["block_trials"]}
 
 
 def _calibration_section(tb: dict | None, camera: str) -> list[str]:

@@ -111,10 +111,11 @@ def _campaign_hmi(d: Path) -> list[dict]:
 
 
 def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int = 20, progress: bool = True,
-                           outputs: OutputSet | None = None) -> Path:
+                           restart: bool = False, outputs: OutputSet | None = None) -> Path:
     """Run the three experiments into ``out_dir`` and write ``reproduce.md`` (module doc).
 
-    The campaign's chunks are stored as they finish; its report, ``results.json`` and ``reproduce.md``
+    The campaign stored there is completed (of the same size), or with ``restart`` discarded and run again.
+    Its chunks are stored as they finish; its report, ``results.json`` and ``reproduce.md``
     are committed together, before this returns or with the caller's ``outputs`` at its commit."""
     from testbed.campaign.report import write_report
     from testbed.campaign.runner import run_campaign
@@ -129,7 +130,8 @@ def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int
         k_rec = json.loads((approaches_dir() / "calibration" / "dpe-k.json").read_text())
         loaded = load_spec("dpe-vs-raim", trials=trials)
         camp = out / "dpe-vs-raim"
-        run_campaign(loaded, camp, resume=(camp / "manifest.json").exists(), progress=progress)
+        run_campaign(loaded, camp, resume=(camp / "manifest.json").exists() and not restart, restart=restart,
+                     progress=progress)
         write_report(camp, outputs=outs)
         hmi = _campaign_hmi(camp)
         outs.staged(out / "results.json").write_text(json.dumps({"cases": cases, "calibration": k_rec, "hmi": hmi},

@@ -165,6 +165,10 @@ class Sweep(StrictModel):
 SKY_REPEAT_S = 86154.0
 
 
+#: the [sorties] keys each start mode reads (one not read by the spec's mode is refused, not ignored)
+READ_BY = {"sortie_s": ("consecutive", "uniform"), "span_s": ("uniform",), "window_s": ("consecutive", "uniform")}
+
+
 class SortieStarts(StrictModel):
     """When each sortie of a cell is flown (``[sorties]`` in a spec).
 
@@ -200,8 +204,14 @@ class SortieStarts(StrictModel):
     def _check(self):
         if self.start == "uniform" and self.span_s is None:
             raise ValueError("start = 'uniform' needs span_s (the span the start times are drawn over, s)")
-        if self.start != "uniform" and self.span_s is not None:
-            raise ValueError(f"span_s is only used with start = 'uniform', not {self.start!r}")
+        # one rule for every key: refused, never silently ignored, when the mode does not read it (its default
+        # passes: a spec written back whole, as the workers and the manifest get it, holds every key)
+        for key, modes in READ_BY.items():
+            value, default = getattr(self, key), type(self).model_fields[key].default
+            if self.start not in modes and value != default:
+                raise ValueError(f"[{key}] read only with start = {' or '.join(map(repr, modes))}, not with "
+                                 f"start = {self.start!r}: remove it, or choose a start that reads it "
+                                 f"(got {value!r})")
         if self.span_s is not None and self.sortie_s is not None and self.span_s < self.sortie_s:
             raise ValueError(f"span_s = {self.span_s:g} s is shorter than one sortie (sortie_s = {self.sortie_s:g} s)")
         return self
@@ -298,9 +308,13 @@ class LoadedSpec:
         return spec_hash(self.spec)
 
 
+#: spec keys that change no result (the spec hash leaves them out): a resume may change them
+NOT_HASHED = ("report", "description")
+
+
 def spec_hash(spec: CampaignSpec) -> str:
     """A short hash of everything that changes results (the report settings excluded)."""
-    d = spec.model_dump(mode="json", exclude={"report", "description"})
+    d = spec.model_dump(mode="json", exclude=set(NOT_HASHED))
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -335,6 +349,29 @@ def fingerprint_changes(old: dict, new: dict) -> list[str]:
         out.append("the resolved cell configurations differ (approach or aircraft settings)")
     if old.get("testbed") != new.get("testbed"):
         out.append(f"testbed version {old.get('testbed')} stored, {new.get('testbed')} now")
+    return out
+
+
+def spec_changes(stored: dict, now: dict) -> list[str]:
+    """What differs between a stored spec and this one (both as ``model_dump(mode="json")`` gives them),
+    one ``key.path: stored → now`` line per value, the keys of :data:`NOT_HASHED` left out."""
+    old, new = _flat(stored), _flat(now)
+    show = lambda d, k: json.dumps(d[k], ensure_ascii=False) if k in d else "(not set)"  # noqa: E731
+    keys = [k for k in {**old, **new} if k.split(".")[0] not in NOT_HASHED]
+    return [f"{k}: {show(old, k)} → {show(new, k)}" for k in keys if old.get(k, ...) != new.get(k, ...)]
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    """Nested tables (and lists of tables) as ``a.b.0.c`` keys."""
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out |= _flat(v, key + ".")
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            out |= _flat({str(j): x for j, x in enumerate(v)}, key + ".")
+        else:
+            out[key] = v
     return out
 
 

@@ -12,8 +12,11 @@ Layout of ``out_dir``::
 
 A chunk folder is written under a temporary name and renamed into place in one
 ``os.rename`` (atomic on POSIX), so after a kill a chunk is either complete or
-absent; ``resume`` skips complete chunks and deletes leftovers. The manifest's
-spec hash stops a resume with a different spec from mixing results.
+absent; ``resume`` skips complete chunks and deletes leftovers. The manifest
+(the whole spec and a fingerprint of the inputs) stops a resume with a different
+spec or inputs from mixing results, naming what changed. What the store wrote is
+read back like an input (:class:`Manifest`, :class:`RunRecord`): a damaged file is
+a message naming its key, never a traceback.
 """
 
 from __future__ import annotations
@@ -24,16 +27,79 @@ import shutil
 import uuid
 import warnings
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
-from testbed.schema import ConfigError
+from testbed.campaign.spec import ReportSettings, fingerprint_changes, input_fingerprint, spec_changes
+from testbed.schema import ConfigError, read_json
 
 NAMES = {"trials": "trials.parquet", "epochs": "epochs.parquet", "hist": "stanford_hist.parquet"}
 #: one entry per run that worked on the folder (wall time, chunks and epochs computed)
 RUNS = "runs.json"
+#: what to do with a stored run that cannot go on, for every command that meets one (campaign and reproduce
+#: take these options; report names them)
+AGAIN = "start over in this folder with --restart (testbed campaign or reproduce), or choose another --out folder"
+
+
+class StoredRecord(BaseModel):
+    """A stored record's table: kinds as written (no coercion), every key the readers use."""
+
+    model_config = ConfigDict(strict=True, frozen=True)
+
+
+class StoredSpec(StoredRecord):
+    """The spec in a manifest: the keys the report and a resume read, checked; the others (this version's
+    or an earlier one's) are compared on resume, not checked."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str
+    trials: int = Field(ge=1)
+    monitors: list[str] = Field(min_length=1)
+    base_seed: int = Field(ge=0)
+    block_trials: int = Field(ge=1)
+    per_epoch_trials: int = Field(ge=0)
+    description: str = ""
+    report: ReportSettings = ReportSettings()
+
+
+class StoredInputs(StoredRecord):
+    """The fingerprint of what the cells read (:func:`~testbed.campaign.spec.input_fingerprint`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    cells: str = Field(pattern=r"^[0-9a-f]{16}$")
+    files: dict[str, Annotated[str, Field(pattern=r"^[0-9a-f]{16}$")]]
+    testbed: str
+
+
+class Manifest(StoredRecord):
+    """``manifest.json``: what the stored run is of (format 2)."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str
+    spec_hash: str = Field(pattern=r"^[0-9a-f]{16}$")
+    cells: int = Field(ge=1)
+    spec: StoredSpec
+    source: str
+    inputs: StoredInputs
+    format: Literal[2]
+
+
+class RunRecord(StoredRecord):
+    """One entry of ``runs.json``."""
+
+    model_config = ConfigDict(extra="forbid")
+    started_utc: str
+    finished: bool
+    wall_s: float = Field(ge=0)
+    chunks_run: int = Field(ge=0)
+    epochs_run: int = Field(ge=0)
+
+
+_RUNS = TypeAdapter(list[RunRecord])
 
 
 class ResultStore:
@@ -48,26 +114,22 @@ class ResultStore:
         A resume is refused unless the spec, every cell's resolved configuration and every
         input file are what the stored run used; ``restart`` discards the stored run first.
         """
-        from testbed.campaign.spec import fingerprint_changes, input_fingerprint
-
         man = self.dir / "manifest.json"
         inputs = input_fingerprint(cells)
         if restart:
             self.discard()
         elif man.exists():
-            old = self._read_manifest(loaded.source)
-            again = "start over in this folder with --restart, or choose another --out folder"
-            if old.get("spec_hash") != loaded.hash:
-                raise ConfigError(loaded.source, [
-                    f"{self.dir} holds results of another spec (hash {old.get('spec_hash')}, this spec "
-                    f"{loaded.hash}): {again}"])
-            changed = fingerprint_changes(old.get("inputs", {}), inputs)
+            old = self.manifest()
+            changed = spec_changes(old["spec"], loaded.spec.model_dump(mode="json"))
+            if old["spec_hash"] != loaded.hash and not changed:  # a change this version's keys do not show
+                changed = [f"the spec's hash: {old['spec_hash']} → {loaded.hash}"]
+            changed += fingerprint_changes(old["inputs"], inputs)
             if changed:
-                raise ConfigError(loaded.source, [f"{self.dir}: the stored run used other inputs ({c}): {again}"
-                                                  for c in changed])
+                raise ConfigError(loaded.source, [f"{c} (the run stored in {self.dir} → now)" for c in changed]
+                                  + [f"{self.dir} holds a run of another spec or other inputs: {AGAIN}"])
             if not resume:
                 raise ConfigError(loaded.source, [f"{self.dir} already holds this campaign: pass --resume to "
-                                                  f"complete it, or {again}"])
+                                                  f"complete it, or {AGAIN}"])
         elif resume and self.parts.exists():
             raise ConfigError(loaded.source, [f"{self.dir}: no manifest.json to resume from "
                                               "(start over with --restart)"])
@@ -88,17 +150,10 @@ class ResultStore:
         _atomic_table(self.dir / "cells.parquet", t)
 
     def manifest(self) -> dict:
-        return self._read_manifest(self.dir / "manifest.json")
-
-    def _read_manifest(self, source) -> dict:
-        path = self.dir / "manifest.json"
-        try:
-            man = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ConfigError(path, [f"not a readable campaign manifest ({exc}); start over with --restart"]) from None
-        if not isinstance(man, dict) or "spec_hash" not in man:
-            raise ConfigError(path, ["not a campaign manifest (no spec_hash); start over with --restart"])
-        return man
+        """``manifest.json`` as stored, checked like an input (:class:`Manifest`): a ConfigError naming the
+        file, the key and the value when it is damaged or not one."""
+        return read_json(self.dir / "manifest.json", Manifest, what="a campaign manifest",
+                         remedy=AGAIN).model_dump(mode="json")
 
     def discard(self) -> None:
         """Remove a stored run's files (only the ones the store writes; anything else is left alone)."""
@@ -191,13 +246,10 @@ class ResultStore:
         if not path.exists():
             return []
         try:
-            runs = json.loads(path.read_text())
-            if isinstance(runs, list) and all(isinstance(r, dict) for r in runs):
-                return runs
-        except (OSError, ValueError):
-            pass
-        _keep_aside(path, "not a list of runs", "the run times start again")
-        return []
+            return [r.model_dump() for r in read_json(path, _RUNS, what="a list of runs", remedy="")]
+        except ConfigError as exc:
+            _keep_aside(path, "; ".join(exc.problems), "the run times start again")
+            return []
 
     def wall_s(self) -> float:
         """Wall time of every recorded run added up (0 when none was recorded)."""

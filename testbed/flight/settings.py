@@ -12,9 +12,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import Field, field_validator, model_validator
 
-from testbed.schema import StrictModel
-
-Vec3 = tuple[float, float, float]
+from testbed.schema import LeverArm, StrictModel
 
 
 class ApproachConfiguration(StrictModel):
@@ -60,8 +58,10 @@ class AircraftSettings(StrictModel):
     approach: ApproachConfiguration = Field(..., description="approach configuration: speed, flaps, gear, "
                                                              "speed brake")
     gains: Gains = Field(Gains(), description="guidance and control gains")
-    antenna_lever_arm_m: Vec3 = Field((0.0, 0.0, -2.0), description="GNSS antenna from the CG, body FRD (m)")
-    camera_lever_arm_m: Vec3 = Field((5.0, 0.0, 1.0), description="camera from the CG, body FRD (m)")
+    antenna_lever_arm_m: LeverArm = Field((0.0, 0.0, -2.0), description="GNSS antenna from the CG, body FRD (m); "
+                                                                     "at most 100 m long")
+    camera_lever_arm_m: LeverArm = Field((5.0, 0.0, 1.0), description="camera from the CG, body FRD (m); at most "
+                                                                     "100 m long")
     camera_pitch_down_deg: float = Field(9.0, ge=-30, le=90, description="camera boresight below the body x axis")
     camera_yaw_deg: float = Field(0.0, ge=-180, le=180, description="camera boresight right of the body x axis")
 

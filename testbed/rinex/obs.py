@@ -125,7 +125,8 @@ def _walk_v3(text: RinexText, rec: _Records, skipped: dict[str, int]) -> tuple[l
         try:
             flag, nsat = int(ln[31:32] or "0"), int(ln[32:35])
         except ValueError:
-            raise text.fail(f"unreadable epoch flag / satellite count {ln[29:35]!r}", k + 1) from None
+            raise text.fail(f"unreadable epoch flag / satellite count {ln[29:35]!r}{text.ends_here(k + 1)}", k + 1) \
+                from None
         if flag > 1:  # event (2-5: header lines follow) or cycle-slip records (6): not measurements here
             skipped["event records"] = skipped.get("event records", 0) + 1
             k += nsat + 1
@@ -138,8 +139,8 @@ def _walk_v3(text: RinexText, rec: _Records, skipped: dict[str, int]) -> tuple[l
                                              int(ln[16:18]), float(ln[18:29]))
             clock.append(float(ln[41:56]) if ln[41:56].strip() else np.nan)
         except ValueError:
-            raise text.fail(f"unreadable epoch time {ln[:35]!r}; expected '> yyyy mm dd hh mm ss.sssssss'", k + 1) \
-                from None
+            raise text.fail(f"unreadable epoch time {ln[:35]!r}; expected '> yyyy mm dd hh mm ss.sssssss'"
+                            f"{text.ends_here(k + 1)}", k + 1) from None
         e = len(t_tag)
         t_tag.append(t)
         body = lines[k + 1:k + 1 + nsat]
@@ -164,8 +165,8 @@ def _walk_v2(text: RinexText, n_types: int, rec: _Records, skipped: dict[str, in
         try:
             flag, nsat = int(ln[28:29] or "0"), int(ln[29:32])
         except ValueError:
-            raise text.fail(f"{ln[:32]!r}: expected an epoch record (yy mm dd hh mm ss.sssssss flag count)", k + 1) \
-                from None
+            raise text.fail(f"{ln[:32]!r}: expected an epoch record (yy mm dd hh mm ss.sssssss flag count)"
+                            f"{text.ends_here(k + 1)}", k + 1) from None
         sat_lines = -(-nsat // 12) if flag <= 1 or flag == 6 else 0
         if flag > 1:
             skipped["event records"] = skipped.get("event records", 0) + 1
@@ -180,8 +181,8 @@ def _walk_v2(text: RinexText, n_types: int, rec: _Records, skipped: dict[str, in
                                              int(ln[10:12]), int(ln[13:15]), float(ln[15:26]))
             clock.append(float(ln[68:80]) if ln[68:80].strip() else np.nan)
         except ValueError:
-            raise text.fail(f"unreadable epoch time {ln[:26]!r}; expected ' yy mm dd hh mm ss.sssssss'", k + 1) \
-                from None
+            raise text.fail(f"unreadable epoch time {ln[:26]!r}; expected ' yy mm dd hh mm ss.sssssss'"
+                            f"{text.ends_here(k + 1)}", k + 1) from None
         ids = "".join(lines[k + j][32:68].ljust(36) for j in range(sat_lines))
         sats = [ids[3 * j:3 * j + 3] for j in range(nsat)]
         e = len(t_tag)
@@ -219,13 +220,20 @@ def _parse_fields(text: RinexText, records: list[str], lines: NDArray, columns: 
     for code, c0 in columns.items():
         f = np.ascontiguousarray(chars[:, c0:c0 + 14])
         blank = (f == 32).all(1)
+        # F14.3: the point in the field's 11th column, 3 digits after it. A field cut short (a truncated file)
+        # or shifted (an edited one) would still convert, to another number: refused instead.
+        digits = (f[:, 11:] >= ord("0")) & (f[:, 11:] <= ord("9"))
+        misplaced = ~blank & ((f[:, 10] != ord(".")) | ~digits.all(1))
         f[blank, 13] = ord("0")
         try:
             v = f.view("S14").ravel().astype(np.float64)
         except ValueError:
-            bad = next(i for i in range(len(records)) if not _is_number(f[i].tobytes()))
-            raise text.fail(f"{code} field {f[bad].tobytes().decode('latin-1')!r}: expected a number (F14.3)",
-                            int(lines[bad]) + c0 // 80) from None
+            misplaced |= np.array([not _is_number(r.tobytes()) for r in f])
+        if misplaced.any():
+            bad = int(np.flatnonzero(misplaced)[0])
+            line = int(lines[bad]) + c0 // 80
+            raise text.fail(f"{code} field {f[bad].tobytes().decode('latin-1')!r}: expected a number in F14.3 (3 "
+                            f"decimals, the point in the field's 11th column){text.ends_here(line)}", line) from None
         v[blank] = np.nan
         out[code] = v
     return out
@@ -237,6 +245,25 @@ def _is_number(s: bytes) -> bool:
         return True
     except ValueError:
         return False
+
+
+def _last_record_whole(text: RinexText, types: dict[str, list[str]], rec: _Records) -> None:
+    """A file without a line break after its last line, that line a satellite record's, shorter than its
+    observation types' fields: cut inside the record (its last fields would read as absent)."""
+    n = len(text.lines)
+    if text.ends_with_line_break or not rec.line:
+        return
+    v2 = text.version.startswith("2")
+    n_types = len(types.get("*" if v2 else rec.sat[-1][:1], []))
+    on_last = (n_types - 1) % 5 + 1 if v2 else n_types  # fields on the record's last line
+    first_col = 0 if v2 else 3
+    last_line = rec.line[-1] + (-(-n_types // 5) - 1 if v2 else 0)
+    need = first_col + 16 * on_last - 2  # up to the last field's end (its LLI and SSI may be blank)
+    if last_line == n and n_types and len(text.lines[-1].rstrip("\r")) < need:
+        raise text.fail(f"satellite record {rec.sat[-1]!r} is {len(text.lines[-1])} characters long, its "
+                        f"{n_types} observation types take {need}, and the file ends in this line without a line "
+                        f"break: cut inside the record (truncated file?); if the record is whole, end the file "
+                        f"with a line break", n)
 
 
 def read_obs(path: str | Path) -> RinexObs:
@@ -259,10 +286,16 @@ def read_obs(path: str | Path) -> RinexObs:
     t_tag, clock = _walk_v2(text, len(gps_types), rec, skipped) if v2 else _walk_v3(text, rec, skipped)
     if not t_tag:
         raise text.fail("no observation epochs after the header")
+    _last_record_whole(text, types, rec)
     sys = np.array([s[:1] if s[:1] != " " else "G" for s in rec.sat])
     for letter in sorted(set(sys.tolist()) - {"G"}):
         skipped[f"system {letter} satellite records"] = int((sys == letter).sum())
     gps = np.flatnonzero(sys == "G")
+    if gps.size == 0:
+        others = ", ".join(f"{k} {v}" for k, v in sorted(skipped.items())) or "none"
+        raise text.fail(f"no GPS satellite records in its {len(t_tag)} epochs (the header declares GPS types "
+                        f"{gps_types}, but no record starts with G{'' if not v2 else ' or a blank'}; skipped: "
+                        f"{others}); expected GPS measurements")
     line = np.asarray(rec.line)[gps]
     try:
         prn_rec = np.array([int(rec.sat[i][1:3]) for i in gps], np.int64)

@@ -70,12 +70,20 @@ def _first_present(obs: RinexObs, codes: tuple[str, ...]) -> str | None:
     return next((c for c in codes if c in obs.values and np.isfinite(obs.values[c]).any()), None)
 
 
+def _codes_seen(obs: RinexObs) -> str:
+    """The GPS codes that have values, and those the header declares that have none."""
+    seen = [c for c in sorted(obs.values) if np.isfinite(obs.values[c]).any()]
+    empty = [c for c in sorted(obs.values) if c not in seen]
+    return f"with values: {', '.join(seen) or 'none'}" + (f"; declared, never given: {', '.join(empty)}" if empty
+                                                           else "")
+
+
 def _resolve(obs: RinexObs, nav: NavData, s: RinexSettings) -> tuple[str, str | None, str, str, list[str]]:
     notes = []
     l1 = _first_present(obs, s.l1_codes)
     if l1 is None:
-        raise RinexError(obs.path, f"no L1 pseudorange: none of {list(s.l1_codes)} is observed (the file has "
-                                   f"{sorted(obs.values)}); expected an L1 code observation ([rinex] l1_codes)")
+        raise RinexError(obs.path, f"no L1 pseudorange: none of {list(s.l1_codes)} has a value in a GPS record "
+                                   f"({_codes_seen(obs)}); expected an L1 code observation ([rinex] l1_codes)")
     second = _first_present(obs, s.second_codes)
     synthetic = obs.receiver_type == TESTBED_RECEIVER
     iono, tropo = s.ionosphere, s.troposphere
@@ -87,8 +95,8 @@ def _resolve(obs: RinexObs, nav: NavData, s: RinexSettings) -> tuple[str, str | 
         notes.append("testbed export: ranges are iono-free-equivalent, atmosphere models off (docs/guide/rinex.md, the export)")
     if iono == "iono_free" and second is None:
         raise RinexError(obs.path, f"[rinex] ionosphere = 'iono_free' needs a second-frequency code, but none of "
-                                   f"{list(s.second_codes)} is observed (the file has {sorted(obs.values)}); expected "
-                                   f"'klobuchar' or 'off' for a single-frequency file")
+                                   f"{list(s.second_codes)} has a value in a GPS record ({_codes_seen(obs)}); "
+                                   f"expected 'klobuchar' or 'off' for a single-frequency file")
     if iono == "klobuchar" and (nav.klobuchar_alpha is None or nav.klobuchar_beta is None):
         raise RinexError(nav.path, "no Klobuchar coefficients (ION ALPHA / ION BETA in RINEX 2, IONOSPHERIC CORR "
                                    "GPSA / GPSB in RINEX 3) in the header; the broadcast ionosphere needs them. "

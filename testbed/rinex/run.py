@@ -99,9 +99,58 @@ def read_reference(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise ConfigError(p, [f"--reference: columns {missing} missing; expected {list(need)} (got {sorted(cols)})"])
     t = cols["t_gps"]
     pos = np.column_stack([cols[n] for n in need[1:]])
-    if t.size < 2 or np.any(np.diff(t) <= 0) or not np.isfinite(pos).all():
-        raise ConfigError(p, ["--reference: expected at least 2 rows, t_gps increasing, finite positions"])
+    problems = trajectory_problems(t, pos, need)
+    if problems:
+        raise ConfigError(p, ["--reference: " + q for q in problems])
     return t, pos
+
+
+#: where a receiver on or above the Earth can be, m from its centre: the polar radius less the deepest dry
+#: land (6356.75 km − 0.43 km) to the equatorial radius plus 100 km (the highest [rinex] origin)
+ECEF_RADIUS_RANGE_M = (6.35e6, 6.48e6)
+
+
+def _rows(bad: np.ndarray) -> str:
+    """'row 7' or 'rows 7, 9 and 3 more' (1-based data rows, the header not counted)."""
+    k = np.flatnonzero(bad) + 1
+    head = ", ".join(str(int(r)) for r in k[:2])
+    return f"row{'s' if k.size > 1 else ''} {head}" + (f" and {k.size - 2} more" if k.size > 2 else "")
+
+
+def trajectory_problems(t: np.ndarray, pos: np.ndarray, names: tuple[str, str, str, str]) -> list[str]:
+    """What makes (t, pos) not a trajectory: fewer than 2 rows, a time or a coordinate that is not a finite
+    number, times that do not increase, positions not on or near the Earth; each names the column, the rows
+    and the first value. Empty when it is one."""
+    if t.size < 2:
+        return [f"{t.size} row(s): expected at least 2 (a trajectory is interpolated between its rows)"]
+    out = []
+    for k, name in enumerate(names):
+        col = t if k == 0 else pos[:, k - 1]
+        bad = ~np.isfinite(col)
+        if bad.any():
+            out.append(f"{name} at {_rows(bad)} is {float(col[bad][0])!r}: expected a finite number in every row")
+    dt = np.diff(t)
+    back = np.concatenate([[False], np.isfinite(dt) & (dt <= 0)])
+    if back.any():
+        k = int(np.flatnonzero(back)[0])
+        out.append(f"{names[0]} does not increase at {_rows(back)} ({float(t[k])!r} after {float(t[k - 1])!r}): "
+                   f"expected strictly increasing times, one row per time")
+    far = _off_earth(pos)
+    if far.any():
+        out.append(f"position at {_rows(far)} {_off_earth_text(pos[far][0])}")
+    return out
+
+
+def _off_earth(pos: np.ndarray) -> np.ndarray:
+    """(N,) bool: finite ECEF positions (N, 3) outside :data:`ECEF_RADIUS_RANGE_M`."""
+    r = np.linalg.norm(pos, axis=-1)
+    return np.isfinite(r) & ((r < ECEF_RADIUS_RANGE_M[0]) | (r > ECEF_RADIUS_RANGE_M[1]))
+
+
+def _off_earth_text(p: np.ndarray) -> str:
+    lo, hi = ECEF_RADIUS_RANGE_M
+    return (f"is {np.linalg.norm(p):.6g} m from the Earth's centre: expected ECEF metres of a point on or above the "
+            f"Earth ({lo:.4g} to {hi:.4g} m from its centre; degrees, or a local frame?)")
 
 
 #: ``--reference marker``: the header's APPROX POSITION XYZ as a static reference (a surveyed station)
@@ -113,6 +162,9 @@ def _marker_reference(obs: RinexObs) -> tuple[np.ndarray, np.ndarray]:
         raise ConfigError(obs.path, ["--reference marker: the header has no APPROX POSITION XYZ (or it is 0 0 0); "
                                      "expected a surveyed marker position, or give a reference trajectory file"])
     t = np.array([obs.t_tag[0] - 1.0, obs.t_tag[-1] + 1.0])
+    if _off_earth(obs.approx_pos_ecef[None]).any():
+        raise ConfigError(obs.path, [f"--reference marker: the header's APPROX POSITION XYZ "
+                                     f"{_off_earth_text(obs.approx_pos_ecef)}"])
     return t, np.tile(obs.approx_pos_ecef, (2, 1))
 
 

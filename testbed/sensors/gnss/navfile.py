@@ -22,9 +22,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from testbed.schema import ConfigError
 from testbed.sensors.gnss.orbits import Ephemeris
 from testbed.sensors.gnss.rinex_text import RinexText, read_lines, rinex_float
-from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gpst_calendar_to_gps_seconds
+from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gps_seconds_to_calendar, gpst_calendar_to_gps_seconds
 
 #: lines per record of each system in a RINEX 3 navigation file
 _RECORD_LINES_V3 = {"G": 8, "E": 8, "J": 8, "C": 8, "I": 8, "R": 4, "S": 4}
@@ -75,6 +76,43 @@ def _iono(text: RinexText) -> tuple[NDArray | None, NDArray | None]:
     return coeffs("IONOSPHERIC CORR", "GPSA", 5), coeffs("IONOSPHERIC CORR", "GPSB", 5)
 
 
+#: IS-GPS-200 20.3.4.4: a record's clock (toc) and orbit (toe) epochs lie in its curve-fit interval, 4 h
+#: in normal operation; a record whose fit interval field says more (hours) is given that
+NOMINAL_FIT_S = 4 * 3600.0
+
+
+def _check_records(text: RinexText, prn: NDArray, toc: NDArray, P: NDArray, line: NDArray) -> None:
+    """Refuse records a receiver cannot have broadcast: a number that is not finite, toe outside its week,
+    or a time of clock (the record's epoch) further from its time of ephemeris than the fit interval (a
+    record of another week, or damaged: its clock would be extrapolated over days, kilometres of range).
+    The message names the line of the first such record and counts the others."""
+    bad_number = ~np.isfinite(P).all(axis=1)
+    toe_sow = P[:, 11]
+    week = np.where(bad_number, 0.0, P[:, 21])
+    bad_toe = ~bad_number & ((toe_sow < 0) | (toe_sow >= SECONDS_PER_WEEK) | (week < 0) | (week != np.round(week)))
+    fit_s = np.maximum(NOMINAL_FIT_S, np.where(bad_number, 0.0, P[:, 28]) * 3600.0)
+    gap = toc - (week * SECONDS_PER_WEEK + toe_sow)
+    bad_gap = ~bad_number & ~bad_toe & (np.abs(gap) > fit_s)
+    problems = []
+    for bad, say in (
+            (bad_number, lambda j: "a value that is not a finite number (NaN or infinite); expected D19.12 numbers"),
+            (bad_toe, lambda j: f"time of ephemeris {toe_sow[j]:g} s in week {week[j]:g}: expected 0 <= toe < "
+                                f"{SECONDS_PER_WEEK:g} s of a whole, non-negative week"),
+            (bad_gap, lambda j: f"time of clock {gps_seconds_to_calendar(toc[j]):%Y-%m-%d %H:%M:%S} is "
+                                f"{gap[j] / 3600.0:+.1f} h from its time of ephemeris "
+                                f"{gps_seconds_to_calendar(toc[j] - gap[j]):%Y-%m-%d %H:%M:%S} (week {week[j]:g}, "
+                                f"toe {toe_sow[j]:g} s); expected them within the record's fit interval "
+                                f"({fit_s[j] / 3600.0:g} h, IS-GPS-200 20.3.4.4): a record of another week, or "
+                                f"a damaged one")):
+        if bad.any():
+            j = int(np.flatnonzero(bad)[0])
+            more = int(bad.sum()) - 1
+            problems.append(f"line {line[j]}: G{prn[j]:02d} record: {say(j)}"
+                            + (f" (and {more} more record{'s' if more > 1 else ''} like it)" if more else ""))
+    if problems:
+        raise ConfigError(text.path, problems)
+
+
 def read_nav(path: str | Path) -> NavData:
     """All GPS broadcast records and the Klobuchar coefficients of a RINEX 2.xx/3.xx navigation file."""
     text = read_lines(path, "GPS (or mixed) navigation", "N")
@@ -112,13 +150,14 @@ def read_nav(path: str | Path) -> NavData:
                 from None
         if not 1 <= prn <= 63:
             raise text.fail(f"PRN {prn}: expected 1..63", k + 1)
-        recs.append((prn, gpst_calendar_to_gps_seconds(y, mo, d, h, mi, s), _values(text, k, first, cont)))
+        recs.append((prn, gpst_calendar_to_gps_seconds(y, mo, d, h, mi, s), _values(text, k, first, cont), k + 1))
         k += nlines
     if not recs:
         raise text.fail("no GPS ephemeris records after the header")
     P = np.array([r[2] for r in recs])
     prn = np.array([r[0] for r in recs])
     toc = np.array([r[1] for r in recs])
+    _check_records(text, prn, toc, P, np.array([r[3] for r in recs]))
     week = P[:, 21].astype(np.int64)
     # the record's week goes with toe; toc can sit across a week boundary from it
     toc_sow = toc - week * SECONDS_PER_WEEK

@@ -30,6 +30,13 @@ class RinexText:
     path: Path
     lines: list[str]
     header_end: int
+    ends_with_line_break: bool = True  # a file cut while it was written or copied usually does not
+
+    def ends_here(self, line: int) -> str:
+        """'; the file ends in this line (truncated file?)' when 1-based ``line`` is the file's last line
+        and has no line break after it, else ''."""
+        return "; the file ends in this line (truncated file?)" if (
+            line == len(self.lines) and not self.ends_with_line_break) else ""
 
     @property
     def version(self) -> str:
@@ -89,7 +96,7 @@ def read_lines(path: str | Path, what: str, file_type: str) -> RinexText:
     end = next((k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER"), None)
     if end is None:
         raise RinexError(path, f"no 'END OF HEADER' record in {len(lines)} lines (truncated header?)")
-    text = RinexText(path, lines, end)
+    text = RinexText(path, lines, end, ends_with_line_break=raw.rstrip(b"\x1a").endswith((b"\n", b"\r")))
     if text.version[:1] not in ("2", "3") or text.file_type != file_type:
         raise text.fail(f"version {text.version!r}, file type {text.file_type!r}: expected a RINEX 2.xx or 3.xx "
                         f"{what} file (type {file_type!r})", 1)

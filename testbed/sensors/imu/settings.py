@@ -32,7 +32,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from testbed.schema import StrictModel
+from testbed.schema import LeverArm, StrictModel
 
 DEG_PER_H = np.pi / 180.0 / 3600.0  # rad/s
 DEG_PER_SQRT_H = np.pi / 180.0 / 60.0  # rad/√s
@@ -68,8 +68,8 @@ class ImuSettings(StrictModel):
     vrw_m_s_sqrt_s: float | None = Field(None, ge=0.0, description="velocity random walk (custom)")
     gm_tau_s: float | None = Field(None, gt=0.0, description="in-run bias time constant (custom; both sensors)")
     scale_factor_ppm: float = Field(0.0, ge=0.0, le=1e5, description="scale-factor error 1σ per axis, ppm")
-    lever_arm_body_m: tuple[float, float, float] = Field((0.0, 0.0, 0.0),
-                                                         description="IMU position from the CG, body FRD, m")
+    lever_arm_body_m: LeverArm = Field((0.0, 0.0, 0.0), description="IMU position from the CG, body FRD, m; at "
+                                                                    "most 100 m long")
     earth_rotation: bool = Field(True, description="the Earth's rate in the synthesis (and the mechanisation)")
 
     @model_validator(mode="after")

@@ -17,13 +17,12 @@ from typing import Annotated, Literal, Union
 
 from pydantic import Field, model_validator
 
-from testbed.schema import StrictModel
+from testbed.schema import LeverArm, StrictModel
 from testbed.world import airport
 
 from .camera import (APPROACH_HFOV_DEG, APPROACH_SIZE_PX, VA_RAIM_FOCAL_MM, VA_RAIM_SENSOR_MM,
                      PinholeCamera, approach_camera, va_raim_2015_camera)
 
-Vec3 = tuple[float, float, float]
 NonNeg3 = tuple[Annotated[float, Field(ge=0.0)], Annotated[float, Field(ge=0.0)], Annotated[float, Field(ge=0.0)]]
 AXES = ("roll", "pitch", "yaw")
 
@@ -105,8 +104,9 @@ class MountSettings(StrictModel):
     upper-middle of the image, with the horizon still in view.
     """
 
-    lever_arm_body_m: Vec3 = Field((12.0, 0.0, 1.0), description="camera position from the CG, body FRD (m); "
-                                   "default: a chin camera ~12 m ahead of a 737's CG, 1 m below it")
+    lever_arm_body_m: LeverArm = Field((12.0, 0.0, 1.0), description="camera position from the CG, body FRD (m), "
+                                       "at most 100 m long; default: a chin camera ~12 m ahead of a 737's CG, 1 m "
+                                       "below it")
     roll_deg: float = Field(0.0, ge=-180, le=180, description="mount roll, deg")
     pitch_deg: float = Field(-9.0, ge=-90, le=90, description="mount pitch, deg (negative = looking down)")
     yaw_deg: float = Field(0.0, ge=-180, le=180, description="mount yaw, deg (positive = looking right)")
