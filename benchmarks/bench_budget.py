@@ -11,7 +11,7 @@ command printed before it started beside the process's peak resident set size (`
 and its wall time, and their ratios.
 
 With ``--fit``: for each monitor alone on its shipped approach, a draw block of n1 and n2 trials
-(:func:`testbed.campaign.runner.run_block`, after a warm-up) is traced with ``tracemalloc`` (numpy reports its
+(:func:`testbed.campaign.blocks.run_block`, after a warm-up) is traced with ``tracemalloc`` (numpy reports its
 allocations there) and timed on one thread; the slope per trial-epoch is the monitor's figure (the GNSS draw
 and the camera frames included: testbed.sim.budget subtracts them).
 """
@@ -99,25 +99,27 @@ FIT = [("va-raim-2015", "gps_raim", 20, 100, 60.0), ("va-raim-2015", "va_raim", 
 def fit_one(approach: str, monitor: str, n1: int, n2: int, duration_s: float) -> dict:
     import numpy as np
 
-    from testbed.campaign import runner
+    from testbed.campaign import blocks
+    from testbed.campaign import context
+    from testbed.campaign import plan
     from testbed.campaign.spec import CampaignSpec, resolve_spec
     from testbed.resources import campaigns_dir
 
     d = dict(name="fit", approaches=[approach], monitors=[monitor], trials=n2, block_trials=n2, chunk_trials=n2,
              per_epoch_trials=0, duration_s=duration_s)
     loaded = resolve_spec(CampaignSpec.model_validate(d), campaigns_dir() / "fit.toml")
-    ctx = runner.cell_context(runner._cells(loaded)[0], loaded.spec)
+    ctx = context.cell_context(plan.cells_of(loaded)[0], loaded.spec)
     T = ctx.t.size
     res = {}
     for n in (n1, n2):
         sp = loaded.spec.model_copy(update={"block_trials": n, "trials": n, "chunk_trials": n})
-        runner.run_block(ctx, sp, 0)  # warm (kernels, caches)
+        blocks.run_block(ctx, sp, 0)  # warm (kernels, caches)
         tracemalloc.start()
-        runner.run_block(ctx, sp, 0)
+        blocks.run_block(ctx, sp, 0)
         peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
         t0 = time.perf_counter()
-        runner.run_block(ctx, sp, 0)
+        blocks.run_block(ctx, sp, 0)
         res[n] = (peak, time.perf_counter() - t0)
     (p1, t1), (p2, t2) = res[n1], res[n2]
     return {"approach": approach, "monitor": monitor, "epochs": T, "satellites": int(np.shape(ctx.g_geom.sat_pos_ecef)[-2]),

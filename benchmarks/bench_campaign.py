@@ -82,7 +82,8 @@ def main() -> None:
                  f"({args.per_experiment}) of the reproduction's 100-sortie blocks")
 
     from testbed.campaign.reproduce import FULL_TRIALS, experiments
-    from testbed.campaign.runner import cell_context, run_campaign
+    from testbed.campaign.context import cell_context
+    from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import expand_cells, load_spec
     from testbed import memo
     from testbed.integrity.batching import available_cores
@@ -175,7 +176,8 @@ def _worker_setup(name: str, per_experiment: int, cores: int) -> None:
     tables here (not timed, on blocks no timed row draws); the cells' flight and geometry timed."""
     from testbed import memo
     from testbed.campaign.reproduce import loaded_experiments
-    from testbed.campaign.runner import cell_context, run_chunk
+    from testbed.campaign.context import cell_context
+    from testbed.campaign.runner import run_chunk
     from testbed.campaign.spec import expand_cells
     from testbed.heap import keep_freed_memory
 

@@ -56,7 +56,8 @@ def main() -> None:
 
     from testbed import memo
     from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments
-    from testbed.campaign.runner import cell_context, run_chunk, run_chunk_row
+    from testbed.campaign.context import cell_context
+    from testbed.campaign.runner import run_chunk, run_chunk_row
     from testbed.campaign.spec import expand_cells
     from testbed.heap import keep_freed_memory
 
@@ -103,10 +104,12 @@ def prefix_bound(le, cells) -> None:
     import numpy as np
 
     from testbed import memo
+    from testbed.campaign import blocks
+    from testbed.campaign import context
     from testbed.campaign import runner
     from testbed.records import take_epochs
 
-    ctxs = [runner.cell_context(c, le.spec) for c in cells]
+    ctxs = [context.cell_context(c, le.spec) for c in cells]
     onsets = {ctx.onset_s for ctx in ctxs if np.isfinite(ctx.onset_s)}
     if not onsets:
         print(f"  sharing the epochs before a fault onset: {le.spec.name} has no fault onset, nothing to share")
@@ -115,7 +118,7 @@ def prefix_bound(le, cells) -> None:
     k0 = int(np.searchsorted(t, min(onsets) - 1e-9))
     acc = {"whole": 0.0, "faulty whole": 0.0, "faulty late": 0.0}
     cur = {}
-    run_block, monitor_block = runner.run_block, runner.monitor_block
+    run_block, monitor_block = runner.run_block, blocks.monitor_block  # where run_chunk_row and run_block call them
 
     def block(ctx, spec, b):
         cur["faulty"] = ctx.cell.params.get("fault_size", 0.0) != 0.0
@@ -138,14 +141,14 @@ def prefix_bound(le, cells) -> None:
         acc["faulty whole"] += dt if cur["faulty"] else 0.0
         return out
 
-    runner.run_block, runner.monitor_block = block, monitors
+    runner.run_block, blocks.monitor_block = block, monitors
     try:
         memo.clear()
         t0 = time.perf_counter()
         runner.run_chunk_row(le, 1, list(range(len(cells))), threads=1)
         row = time.perf_counter() - t0 - acc["faulty late"]  # the row as it runs, without the extra runs
     finally:
-        runner.run_block, runner.monitor_block = run_block, monitor_block
+        runner.run_block, blocks.monitor_block = run_block, monitor_block
     saved = acc["faulty whole"] - acc["faulty late"]
     print(f"  sharing the epochs before the onset ({k0} of {t.size}) across the fault magnitudes (not built; an upper "
           f"bound): the monitors of chunk 1 {acc['whole']:.2f} s on whole sorties, {acc['whole'] - saved:.2f} s with "

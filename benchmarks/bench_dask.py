@@ -13,7 +13,7 @@ their ratios:
    worker processes, each paying its start, the flight and the sky geometry inside the clock,
    as a run does);
 3. a local Dask cluster of ``--workers`` single-threaded worker processes, one task per
-   chunk row (:func:`testbed.campaign.runner.worker_tasks`: the cells of a row share their
+   chunk row (:func:`testbed.campaign.plan.worker_tasks`: the cells of a row share their
    draws on the worker);
 4. the same cluster, one task per (cell, chunk) (how the Dask path ran before: every
    task draws what the cells would share).
@@ -35,12 +35,14 @@ from pathlib import Path
 
 def _warm(spec_json: str, source: str) -> int:
     """On a worker: every cell's flight and sky geometry (what a long campaign pays once per worker process)."""
+    from testbed.campaign import context
+    from testbed.campaign import plan
     from testbed.campaign import runner
 
     loaded = runner.worker_spec(spec_json, source)
-    for c in runner._cells(loaded):
-        runner.cell_context(c, loaded.spec)
-    return len(runner._cells(loaded))
+    for c in plan.cells_of(loaded):
+        context.cell_context(c, loaded.spec)
+    return len(plan.cells_of(loaded))
 
 
 def main() -> None:
@@ -59,6 +61,7 @@ def main() -> None:
     import pyarrow.parquet as pq
     from distributed import Client, LocalCluster
 
+    from testbed.campaign import context
     from testbed.campaign import runner
     from testbed.campaign.reproduce import loaded_experiments
     from testbed.campaign.spec import expand_cells
@@ -68,7 +71,7 @@ def main() -> None:
     le = dataclasses.replace(le, spec=le.spec.model_copy(update={"chunk_trials": 1000}))
     cells = expand_cells(le)
     for c in cells:
-        runner.cell_context(c, le.spec)
+        context.cell_context(c, le.spec)
     epochs = args.trials * len(cells) * 61
     print(f"{args.experiment}: {len(cells)} settings x {args.trials} sorties x 61 epochs = {epochs:.3g} sortie-epochs")
 
@@ -86,7 +89,7 @@ def main() -> None:
                           dashboard_address=None) as cluster, Client(cluster) as client:
             client.run(_warm, le.spec.model_dump_json(), str(le.source))  # as the driver: before the clock
             for name, tasks in (("dask, a task per chunk row", by_row), ("dask, a task per cell", one_cell)):
-                runner.worker_tasks = tasks
+                runner.worker_tasks = tasks  # what run_campaign calls
                 try:
                     t0 = time.perf_counter()
                     runner.run_campaign(le, Path(tmp) / name, scheduler=client, progress=False)

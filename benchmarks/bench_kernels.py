@@ -50,7 +50,8 @@ def captured_inputs():
     """The integrated solve's Gauss-Newton and fit inputs and the cosine solve's, one where-vision-pays block,
     flat (P, ...)."""
     from testbed.campaign.reproduce import loaded_experiments
-    from testbed.campaign.runner import cell_context, run_block
+    from testbed.campaign.blocks import run_block
+    from testbed.campaign.context import cell_context
     from testbed.campaign.spec import expand_cells
     from testbed.integrity import kernels
 

@@ -22,7 +22,8 @@ from scipy import stats
 from testbed.heap import keep_freed_memory
 
 keep_freed_memory()
-from testbed.campaign.runner import cell_context, draw_block  # noqa: E402
+from testbed.campaign.blocks import draw_block
+from testbed.campaign.context import cell_context  # noqa: E402
 from testbed.campaign.spec import expand_cells, load_spec  # noqa: E402
 from testbed.integrity.pixel import pixel_monitor  # noqa: E402
 from testbed.sim.evaluate import position_errors  # noqa: E402

@@ -19,7 +19,7 @@ PKG = Path(__file__).resolve().parents[1] / "testbed"
 #: the rooms (packages) and base modules, bottom to top; rooms of one layer do not import each other
 LAYERS = (
     ("schema", "frames", "heap", "threads", "memo", "kernel_cache", "records", "docs_reference"),
-    ("correlation", "inertial", "resources"),
+    ("correlation", "inertial", "resources", "outputs"),
     ("world", "flight"),
     ("sensors",),
     ("integrity",),

@@ -53,10 +53,11 @@ def big_spec(tmp_path) -> Path:
 def test_a_spec_above_the_limits_is_refused_before_any_work(big_spec, tmp_path, capsys, monkeypatch):
     """10^7 trials x 5 cells in blocks of 10^5: ~100 GB of blocks and days of work. Refused at once with the
     estimate, what dominates and how to shrink or override it; nothing flown, nothing written."""
+    import testbed.campaign.context as context
     import testbed.campaign.runner as runner
 
     monkeypatch.setattr(runner, "run_campaign", lambda *a, **k: pytest.fail("the campaign started"))
-    monkeypatch.setattr(runner, "flown_truth", lambda *a, **k: pytest.fail("a flight started"))
+    monkeypatch.setattr(context, "flown_truth", lambda *a, **k: pytest.fail("a flight started"))
     out = tmp_path / "out"
     t0 = time.perf_counter()
     code, text = run(capsys, "campaign", big_spec, "--out", out)

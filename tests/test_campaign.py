@@ -155,7 +155,7 @@ def test_local_worker_processes_give_the_same_tables(reference, tmp_path):
 
 
 def test_local_workers_auto_only_for_a_run_that_repays_their_start():
-    from testbed.campaign.runner import POOL_MIN_CELL_SORTIES, local_workers
+    from testbed.campaign.plan import POOL_MIN_CELL_SORTIES, local_workers
 
     big = POOL_MIN_CELL_SORTIES // 4
     two_rows = [(c, k, big) for c in range(2) for k in range(2)]  # 4 x big cell-sorties over 2 chunk rows
@@ -186,7 +186,7 @@ def test_workers_and_a_scheduler_are_refused_together(tmp_path):
 
 
 def test_worker_tasks_are_chunk_rows_cut_only_to_keep_every_worker_busy():
-    from testbed.campaign.runner import chunk_rows, worker_tasks
+    from testbed.campaign.plan import chunk_rows, worker_tasks
 
     todo = [(c, k, 10) for c in range(5) for k in range(3) if (c, k) != (2, 1)]  # one chunk already stored
     assert worker_tasks(todo, 1) == chunk_rows(todo)  # 3 rows >= 2 tasks per worker: whole rows
@@ -485,15 +485,15 @@ def test_pixel_monitor_campaign_runs_and_detects_the_gps_step(tmp_path):
 
 
 def test_campaign_caches_are_bounded():
-    from testbed.campaign import runner
+    from testbed.campaign import context
 
-    runner.clear_caches()
-    for k in range(runner._CACHE_MAX + 10):
-        runner._cached(("probe", k), lambda: k)
-        runner._cached(("probe", 0), lambda: "made again")  # used on every round: never the oldest
-    assert len(runner._CACHE) == runner._CACHE_MAX
-    assert runner._CACHE[("probe", 0)] == 0 and ("probe", 1) not in runner._CACHE
-    runner.clear_caches()
+    context.clear_caches()
+    for k in range(context._CACHE_MAX + 10):
+        context.cached(("probe", k), lambda: k)
+        context.cached(("probe", 0), lambda: "made again")  # used on every round: never the oldest
+    assert len(context._CACHE) == context._CACHE_MAX
+    assert context._CACHE[("probe", 0)] == 0 and ("probe", 1) not in context._CACHE
+    context.clear_caches()
 
 
 def test_the_campaign_cache_makes_each_key_once_under_threads():
@@ -501,9 +501,9 @@ def test_the_campaign_cache_makes_each_key_once_under_threads():
     import threading
     import time as _time
 
-    from testbed.campaign import runner
+    from testbed.campaign import context
 
-    runner.clear_caches()
+    context.clear_caches()
     made: list[int] = []
     errors: list[BaseException] = []
 
@@ -516,8 +516,8 @@ def test_the_campaign_cache_makes_each_key_once_under_threads():
         rng = np.random.default_rng(seed)
         try:
             for _ in range(300):
-                k = int(rng.integers(0, 8)) if rng.random() < 0.7 else int(rng.integers(100, 100 + 4 * runner._CACHE_MAX))
-                assert runner._cached(("thread probe", k), lambda: slow(k)) == k
+                k = int(rng.integers(0, 8)) if rng.random() < 0.7 else int(rng.integers(100, 100 + 4 * context._CACHE_MAX))
+                assert context.cached(("thread probe", k), lambda: slow(k)) == k
         except BaseException as e:  # noqa: BLE001 - reported below
             errors.append(e)
 
@@ -527,16 +527,15 @@ def test_the_campaign_cache_makes_each_key_once_under_threads():
     try:
         assert not errors
         assert sorted(k for k in made if k < 8) == list(range(8))  # the hot keys: made once each, never evicted
-        assert len(runner._CACHE) <= runner._CACHE_MAX
+        assert len(context._CACHE) <= context._CACHE_MAX
     finally:
-        runner.clear_caches()
+        context.clear_caches()
 
 
 def test_a_gps_fault_sweep_wider_than_the_cache_computes_its_geometry_once(tmp_path, monkeypatch):
     """70 GPS-step cells, each context built twice (two chunk rows): one GNSS geometry, one camera geometry
     (a GPS fault does not change what the camera sees; before, every row recomputed both)."""
-    from testbed.campaign import runner
-    from testbed.sensors.gnss import synth
+    from testbed.campaign import context
     from testbed.sensors.vision import detect
 
     made = {"gnss": 0, "vision": 0}
@@ -547,21 +546,21 @@ def test_a_gps_fault_sweep_wider_than_the_cache_computes_its_geometry_once(tmp_p
             return fn(*a, **k)
         return wrapper
 
-    monkeypatch.setattr(synth, "gnss_geometry", counted(synth.gnss_geometry, "gnss"))
+    monkeypatch.setattr(context, "gnss_geometry", counted(context.gnss_geometry, "gnss"))  # the name it calls
     monkeypatch.setattr(detect, "vision_geometry", counted(detect.vision_geometry, "vision"))
     text = TINY.format(chunk=20, monitors='["gps_raim", "va_raim"]').replace(
         "magnitudes = [0.0, 60.0]", f"magnitudes = {[float(m) for m in range(70)]}")
     loaded = load_spec(write_spec(tmp_path, text=text))
     cells = expand_cells(loaded)
-    assert len(cells) == 70 > runner._CACHE_MAX
-    runner.clear_caches()
+    assert len(cells) == 70 > context._CACHE_MAX
+    context.clear_caches()
     try:
         for _ in range(2):
-            ctxs = [runner.cell_context(c, loaded.spec) for c in cells]
+            ctxs = [context.cell_context(c, loaded.spec) for c in cells]
         assert made == {"gnss": 1, "vision": 1}
         assert all(c.g_geom is ctxs[0].g_geom and c.v_geom is ctxs[0].v_geom for c in ctxs)
     finally:
-        runner.clear_caches()
+        context.clear_caches()
 
 
 def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
@@ -598,7 +597,7 @@ def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
 def test_accuracy_quantile_from_the_histogram_matches_the_sample_quantile():
     """hist_quantile on the runner's 0.05-dex bins against numpy's quantile of the raw errors."""
     from testbed.campaign.report import hist_quantile
-    from testbed.campaign.runner import HIST_BINS, HIST_LOG10_MAX, HIST_LOG10_MIN
+    from testbed.campaign.tables import HIST_BINS, HIST_LOG10_MAX, HIST_LOG10_MIN
 
     rng = np.random.default_rng(5)
     for scale in (0.7, 3.0, 25.0):
@@ -663,15 +662,15 @@ def test_stanford_counts_are_numpys_histogram2d():
     beyond both ends, NaN and alerted epochs included."""
     from types import SimpleNamespace
 
-    from testbed.campaign import runner
+    from testbed.campaign import tables
 
-    edges = np.linspace(runner.HIST_LOG10_MIN, runner.HIST_LOG10_MAX, runner.HIST_BINS + 1)
+    edges = np.linspace(tables.HIST_LOG10_MIN, tables.HIST_LOG10_MAX, tables.HIST_BINS + 1)
     rng = np.random.default_rng(3)
     e = 10.0 ** np.concatenate([rng.uniform(-4, 6, 4000), edges, [np.nan, -np.inf]])
     p = 10.0 ** rng.permutation(np.concatenate([rng.uniform(-4, 6, 4000), edges, [1.0, 2.0]]))
     alert = rng.random(e.size) < 0.1
     out = SimpleNamespace(alert=alert[None], hpl=p[None], vpl=p[::-1][None])
-    got = runner._stanford_counts("m", out, e[None], e[None])
+    got = tables._stanford_counts("m", out, e[None], e[None])
     for dim, pl in (("H", p), ("V", p[::-1])):
         ok = np.isfinite(e) & np.isfinite(pl) & ~alert
         clip = lambda v: np.clip(np.log10(np.maximum(v[ok], 1e-12)), edges[0], edges[-1] - 1e-9)  # noqa: E731

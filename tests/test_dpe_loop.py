@@ -135,7 +135,7 @@ def test_the_multipath_strength_axis_sets_the_correlators_echo(tmp_path):
 def test_a_campaign_can_fly_the_last_segment_of_the_final(tmp_path):
     """``segment = "last"``: the sorties fly the last duration_s down to the threshold, their time from 0 (the
     height above ground falls to the threshold's ~15 m; the first segment starts ~700 m up)."""
-    from testbed.campaign.runner import cell_context
+    from testbed.campaign.context import cell_context
     from testbed.campaign.spec import expand_cells, load_spec
 
     spec = tmp_path / "last.toml"

@@ -153,7 +153,7 @@ def test_the_satellites_in_view_axis_caps_the_tracked_satellites(tmp_path):
 def test_the_imu_segment_starts_at_the_cells_first_gnss_epoch(segment):
     """The filter's IMU increments and first pose start where the cell's GNSS epochs start, for both segments
     (a duration that is not a whole number of GNSS intervals: the full-rate and 1 Hz records end apart)."""
-    from testbed.campaign.runner import cell_context
+    from testbed.campaign.context import cell_context
     from testbed.campaign.spec import CampaignSpec, expand_cells, resolve_spec
     from testbed.resources import campaigns_dir
 

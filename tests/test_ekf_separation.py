@@ -193,7 +193,8 @@ def test_nees_on_the_approach_over_200_sorties():
     camera, an HG1700 IMU, each sortie its own draws; the first 40 s: 8 satellites, then 3): the mean
     position NEES over 200 sorties inside its two-sided 99 % χ²(600)/200 band at ≥ 95 % of the epochs, and
     no alert at the default P_FA."""
-    from testbed.campaign.runner import cell_context, draw_block
+    from testbed.campaign.blocks import draw_block
+    from testbed.campaign.context import cell_context
     from testbed.campaign.spec import CampaignSpec, expand_cells, resolve_spec
     from testbed.resources import campaigns_dir
 

@@ -164,7 +164,8 @@ def test_campaign_with_features_is_consistent_and_paired_against_none():
     position NEES averaged over the runs stays inside its χ²(3·40) 99 % band at ≥ 90 % of epochs (as the
     17-state filter's), features are in the state, and the sorties are paired: the same IMU, GNSS and
     alignment draws with and without (common random numbers), so only the features differ."""
-    from testbed.campaign.runner import cell_context, draw_block, monitor_block
+    from testbed.campaign.blocks import draw_block, monitor_block
+    from testbed.campaign.context import cell_context
     from testbed.campaign.spec import expand_cells, load_spec
     from testbed.resources import campaigns_dir
 

@@ -66,15 +66,15 @@ def test_a_camera_sweep_tabulates_gps_raim_once_per_magnitude_and_holds_no_unsha
     block; VA-RAIM's own output differs per cell and is tabulated every time without being held."""
     from collections import Counter
 
-    from testbed.campaign import runner
+    from testbed.campaign import tables
 
-    made, tabulate = Counter(), runner._trial_columns
+    made, tabulate = Counter(), tables._trial_columns
 
     def counted(ctx, d, out, he, ve):
         made[out.name] += 1
         return tabulate(ctx, d, out, he, ve)
 
-    monkeypatch.setattr(runner, "_trial_columns", counted)
+    monkeypatch.setattr(tables, "_trial_columns", counted)
     spec = tmp_path / "shared.toml"
     spec.write_text(SWEEP)
     run_campaign(spec, tmp_path / "on", progress=False)

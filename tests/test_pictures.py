@@ -87,7 +87,7 @@ def test_the_image_link_pattern():
 
 
 def _panel(dim: str, total: int, no_solution: int, al: float):
-    from testbed.campaign.runner import hist_edges
+    from testbed.campaign.tables import hist_edges
 
     edges = hist_edges()
     H = np.zeros((len(edges) - 1, len(edges) - 1))

@@ -13,7 +13,8 @@ from dataclasses import fields, is_dataclass, replace
 import numpy as np
 import pytest
 
-from testbed.campaign.runner import block_streams, cell_context, correlator_monitor, draw_block, monitor_block
+from testbed.campaign.blocks import block_streams, correlator_monitor, draw_block, monitor_block
+from testbed.campaign.context import cell_context
 from testbed.campaign.spec import CampaignSpec, expand_cells, resolve_spec
 from record_checks import assert_records_equal
 

@@ -11,7 +11,7 @@ import pytest
 
 from test_campaign import TINY
 
-from testbed.campaign import runner
+from testbed.campaign import context
 from testbed.campaign.sorties import n_windows, sky_windows, sortie_offsets, window_offsets
 from testbed.campaign.spec import SKY_REPEAT_S, expand_cells, load_spec
 from testbed.schema import ConfigError
@@ -60,7 +60,7 @@ def span_context(tmp_path_factory):
     d = tmp_path_factory.mktemp("span")
     loaded = load_spec(write(d, trials=1500, chunk=10))
     cell = expand_cells(loaded)[0]
-    return loaded.spec, runner.cell_context(cell, loaded.spec), cell
+    return loaded.spec, context.cell_context(cell, loaded.spec), cell
 
 
 def test_sorties_of_different_windows_fly_different_skies(span_context):
@@ -82,9 +82,9 @@ def test_sorties_one_repeat_apart_share_a_sky_that_matches_their_own_to_the_boun
     g = ctx.gnss_geometry_of(w)
     np.testing.assert_array_equal(g.sat_pos_ecef[0], g.sat_pos_ecef[1])
     s = ctx.setup
-    truth = runner._cached(("truth_g", runner._flight_key(cell), s.gnss.rate_hz, spec.duration_s, spec.segment),
+    truth = context.cached(("truth_g", context._flight_key(cell), s.gnss.rate_hz, spec.duration_s, spec.segment),
                            lambda: None)
-    own = gnss_geometry(truth, s.antenna, s.gnss, start_utc=cell.config.start_time_utc, terrain=runner._terrain(cell),
+    own = gnss_geometry(truth, s.antenna, s.gnss, start_utc=cell.config.start_time_utc, terrain=context.cell_terrain(cell),
                         constellation=ctx.g_geom.eph, offsets_s=sortie_offsets(spec, [1436]))  # one almanac, propagated
     up = g.visible[1] & own.visible[0]
     assert up.sum() > 100

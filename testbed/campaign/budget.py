@@ -90,10 +90,10 @@ def campaign_estimate(loaded: LoadedSpec, *, workers: int | str = "auto", schedu
     """The estimated peak memory and wall time of ``testbed campaign`` on ``loaded`` (the chunks stored in
     ``out_dir`` excluded with ``resume``), with its ``workers`` on this machine's ``cores``; ``report``: and
     the report drawn from its tables."""
-    from testbed.campaign.runner import _cells, chunk_plan, local_workers
+    from testbed.campaign.plan import cells_of, chunk_plan, local_workers
 
     spec = loaded.spec
-    cells = _cells(loaded)
+    cells = cells_of(loaded)
     shapes = _shapes(loaded, cells)
     plan = chunk_plan(loaded)
     done = stored_chunks(out_dir) if resume else set()

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.campaign.runner import cell_context, draw_block
+from testbed.campaign.blocks import draw_block
+from testbed.campaign.context import cell_context
 from testbed.campaign.spec import LoadedSpec, expand_cells
 from testbed.integrity.pixel import pixel_monitor
 from testbed.integrity.raim import gps_raim

@@ -356,7 +356,7 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
     figdir = inp.figdir
     tc, hist, hal, val = inp.tc, inp.hist, inp.hal, inp.val
     # ---- Stanford diagrams and region counts
-    from testbed.campaign.runner import hist_edges
+    from testbed.campaign.tables import hist_edges
 
     monitors = sorted(set(tc["monitor"].tolist()))
 
@@ -469,11 +469,11 @@ def stanford_panel(fig, ax, H: np.ndarray, edges: np.ndarray, counts: dict[str, 
 def hist_quantile(hist: dict[str, np.ndarray] | None, select: np.ndarray | None, q: float) -> float:
     """The q-quantile of the position errors counted in Stanford-histogram rows ``select``.
 
-    Rows are (err_bin, pl_bin, count) on :func:`runner.hist_edges` (0.05-dex bins); the
+    Rows are (err_bin, pl_bin, count) on :func:`testbed.campaign.tables.hist_edges` (0.05-dex bins); the
     quantile is interpolated log-linearly inside its bin (resolution about 12 %, exact at
     bin edges). NaN with no counts.
     """
-    from testbed.campaign.runner import hist_edges
+    from testbed.campaign.tables import hist_edges
 
     if hist is None:
         return float("nan")

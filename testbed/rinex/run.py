@@ -335,7 +335,7 @@ def write_outputs(run: RinexRun, out_dir: Path, table_format: str, outs: OutputS
 def stanford_figures(run: RinexRun, out_dir: Path, outs: OutputSet) -> list[Path]:
     """Horizontal and vertical Stanford diagrams per monitor against the reference (most demanding level)."""
     from testbed.campaign.report import stanford_figure
-    from testbed.campaign.runner import hist_edges
+    from testbed.campaign.tables import hist_edges
     from testbed.integrity.levels import strictest_limits
     from testbed.sim.evaluate import position_errors, stanford_regions
 
