@@ -697,3 +697,25 @@ def test_every_table_of_a_report_is_well_formed(reference, tmp_path, capsys):
     assert len(lines) == 4 and all(" of 40 sorties (" in x for x in lines)
     lines = headlines(reference, limit=3)
     assert len(lines) == 4 and lines[-1] == "... and 1 more cell-monitor rows in report.md"
+
+
+def test_markdown_tables_have_one_maker_and_escape_what_would_split_a_cell():
+    """Every Markdown table of the testbed comes from testbed.markdown.table (no separator row written by hand
+    anywhere else), and a cell holding a pipe or a line break stays one cell: the claims table's calibration
+    assumption ("|mean| > 3 standard errors") split its row into more cells than the header."""
+    import re
+
+    from record_checks import markdown_table_problems
+    from testbed.campaign.reproduce import claims_section
+    from testbed.markdown import table
+
+    by_hand = [f"{p.relative_to(ROOT)}:{k}" for p in sorted((ROOT / "testbed").rglob("*.py"))
+               if p.name != "markdown.py"
+               for k, line in enumerate(p.read_text().splitlines(), 1) if re.search(r"\|-{3,}\|", line)]
+    assert by_hand == []
+    assert markdown_table_problems("\n".join(claims_section({}, {}))) == []
+    lines = table(["a", "b"], [["x | y", "`p|q` or r\nor s"], ["already \\| escaped", 1]])
+    assert lines[2] == "| x \\| y | `p|q` or r or s |" and lines[3] == "| already \\| escaped | 1 |"
+    assert markdown_table_problems("\n".join(lines)) == []
+    with pytest.raises(ValueError, match="rows \\[0\\]"):
+        table(["a", "b"], [["only one"]])

@@ -23,8 +23,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from testbed.campaign.markdown import table as md_table
 from testbed.campaign.store import read_columns
+from testbed.markdown import table as md_table
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
@@ -320,14 +320,14 @@ def _detection_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, s
     if mdb_rows:
         md += [f"## Minimal detectable bias at {100 * power:g} % power", "",
                "Per sortie: any alert from the onset on; per epoch: alerted epochs among the epochs from the onset "
-               "at which the monitor gives a solution (size 0: the per-epoch false-alarm rate).", "",
-               "| fault | group | sorties/cell | false alarms per sortie | MDB per sortie (lower bound) "
-               "| false alarms per epoch | MDB per epoch (lower bound) |", "|---|---|---|---|---|---|---|"]
-        for r in mdb_rows:
-            md.append(f"| {r['fault']} | {r['group']} | {r['n']} | {_f(r['fa_sortie'], '{:.4f}')} | "
-                      f"{_f(r['mdb_sortie'], '{:.1f}')} ({_f(r['mdb_lo_sortie'], '{:.1f}')}) {r['unit']} | "
-                      f"{_f(r['fa_epoch'], '{:.2e}')} | {_f(r['mdb_epoch'], '{:.1f}')} "
-                      f"({_f(r['mdb_lo_epoch'], '{:.1f}')}) {r['unit']} |")
+               "at which the monitor gives a solution (size 0: the per-epoch false-alarm rate).", ""]
+        md += md_table(["fault", "group", "sorties/cell", "false alarms per sortie", "MDB per sortie (lower bound)",
+                        "false alarms per epoch", "MDB per epoch (lower bound)"],
+                       [[r["fault"], r["group"], r["n"], _f(r["fa_sortie"], "{:.4f}"),
+                         f"{_f(r['mdb_sortie'], '{:.1f}')} ({_f(r['mdb_lo_sortie'], '{:.1f}')}) {r['unit']}",
+                         _f(r["fa_epoch"], "{:.2e}"),
+                         f"{_f(r['mdb_epoch'], '{:.1f}')} ({_f(r['mdb_lo_epoch'], '{:.1f}')}) {r['unit']}"]
+                        for r in mdb_rows])
         md.append("")
     return md, figures
 
@@ -365,16 +365,13 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
         name = f"stanford_{m}.png"
         _save(stanford_figure(m, panels, edges), figdir / name)
         figures.append((f"Stanford diagrams, {m}", name))
-    md += ["## Integrity regions (all cells, all epochs; most demanding service level)", "",
-           "| monitor | dim | " + " | ".join(REGIONS) + " | epochs |", "|---|---|" + "---|" * (len(REGIONS) + 1)]
-    for r in region_rows:
-        md.append(f"| {r['monitor']} | {r['dim']} | " + " | ".join(str(r[k]) for k in REGIONS) + f" | {r['epochs']} |")
-    md += ["", "## 95 % accuracy (pooled over all cells and epochs, from the Stanford histograms)", "",
-           "| monitor | HPE95 (m) | VPE95 (m) |", "|---|---|---|"]
-    for m in monitors:
-        h = [a["e95"] for a in acc_rows if a["monitor"] == m and a["dim"] == "H"][0]
-        v = [a["e95"] for a in acc_rows if a["monitor"] == m and a["dim"] == "V"][0]
-        md.append(f"| {m} | {_f(h, '{:.2f}')} | {_f(v, '{:.2f}')} |")
+    md += ["## Integrity regions (all cells, all epochs; most demanding service level)", ""]
+    md += md_table(["monitor", "dim", *REGIONS, "epochs"],
+                   [[r["monitor"], r["dim"], *(r[k] for k in REGIONS), r["epochs"]] for r in region_rows])
+    md += ["", "## 95 % accuracy (pooled over all cells and epochs, from the Stanford histograms)", ""]
+    e95 = {(a["monitor"], a["dim"]): a["e95"] for a in acc_rows}
+    md += md_table(["monitor", "HPE95 (m)", "VPE95 (m)"],
+                   [[m, _f(e95[m, "H"], "{:.2f}"), _f(e95[m, "V"], "{:.2f}")] for m in monitors])
     md.append("")
     return md, figures
 
@@ -494,9 +491,8 @@ def _pl_and_availability_section(inp: _ReportInputs) -> tuple[list[str], list[tu
           "Per setting and monitor, pooled over its sorties (and start times): the median, 95th percentile and "
           "maximum of each sortie's largest HPL / VPL; the 95 % horizontal / vertical accuracy (95th percentile "
           "of the position error over its epochs with a protection level and no alert, from the 0.05-dex "
-          "error histogram: ±6 %); the fraction of epochs available per service level.", "",
-          "| setting | monitor | sorties | max HPL: median / p95 / max (m) | max VPL: median / p95 / max (m) | "
-          "H / V accuracy 95 % (m) | " + " | ".join(levels) + " |", "|---|---|---|---|---|---|" + "---|" * len(levels)]
+          "error histogram: ±6 %); the fraction of epochs available per service level.", ""]
+    rows = []
     for g in sorted(set(setting.tolist())):
         in_setting = None if hc is None else np.isin(hc["cell"], [k for k, v in cell_setting.items() if v == g])
         for m in sorted(set(tc["monitor"][setting == g].tolist())):
@@ -504,9 +500,10 @@ def _pl_and_availability_section(inp: _ReportInputs) -> tuple[list[str], list[tu
             stats3 = [" / ".join(_f(x, "{:.1f}") for x in _median_p95_max(tc[k][sel])) for k in ("max_hpl", "max_vpl")]
             acc = [hist_quantile(hc, None if hc is None else in_setting & (hc["monitor"] == m) & (hc["dim"] == d), 0.95)
                    for d in ("H", "V")]
-            md.append(f"| {g} | {m} | {int(sel.sum())} | {stats3[0]} | {stats3[1]} | "
-                      f"{_f(acc[0], '{:.2f}')} / {_f(acc[1], '{:.2f}')} | "
-                      + " | ".join(f"{100 * float(np.mean(tc[f'avail_{lv}'][sel])):.1f} %" for lv in levels) + " |")
+            rows.append([g, m, int(sel.sum()), stats3[0], stats3[1], f"{_f(acc[0], '{:.2f}')} / {_f(acc[1], '{:.2f}')}",
+                         *(f"{100 * float(np.mean(tc[f'avail_{lv}'][sel])):.1f} %" for lv in levels)])
+    md += md_table(["setting", "monitor", "sorties", "max HPL: median / p95 / max (m)",
+                    "max VPL: median / p95 / max (m)", "H / V accuracy 95 % (m)", *levels], rows)
     md.append("")
     return md, []
 
@@ -519,16 +516,17 @@ def _misleading_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, 
           "Epochs whose error exceeds the protection level without an alert (MI), and those whose error also "
           "exceeds the alert limit while the PL is within it (HMI), on the dimensions each monitor bounds "
           f"(a vertical-only monitor on V); HMI rate per epoch with its {100 * inp.conf:g} % {inp.method} interval.",
-          "", "| cell | fault | size | monitor | epochs | MI | HMI | HMI per epoch | interval |",
-          "|---|---|---|---|---|---|---|---|---|"]
+          ""]
+    rows = []
     for cell in sorted(set(tc["cell"].tolist())):
         c = cells[int(cell)]
         for m in sorted(set(tc["monitor"][tc["cell"] == cell].tolist())):
             sel = (tc["cell"] == cell) & (tc["monitor"] == m)
             n, mi, hmi = (int(tc[k][sel].sum()) for k in ("epochs", "mi_epochs", "hmi_epochs"))
             lo, hi = binomial_interval(np.array([hmi]), np.array([n]), inp.conf, inp.method)
-            md.append(f"| {cell} | {c['fault_sweep_kind']} | {c['fault_size']:g} {c['fault_unit']} | {m} | {n} | {mi} | "
-                      f"{hmi} | {hmi / max(n, 1):.2e} | [{float(lo[0]):.2e}, {float(hi[0]):.2e}] |")
+            rows.append([cell, c["fault_sweep_kind"], f"{c['fault_size']:g} {c['fault_unit']}", m, n, mi, hmi,
+                         f"{hmi / max(n, 1):.2e}", f"[{float(lo[0]):.2e}, {float(hi[0]):.2e}]"])
+    md += md_table(["cell", "fault", "size", "monitor", "epochs", "MI", "HMI", "HMI per epoch", "interval"], rows)
     md.append("")
     return md, []
 
@@ -554,20 +552,17 @@ def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]
           "Availability at the same epochs and signals: epochs where only one is available, the exact McNemar "
           "test on them (epochs within a sortie are correlated, so its p is optimistic), and a sign test over "
           "sorties (independent: the sorties where one is available more often than the other); then the "
-          "epochs with exactly four satellites, where snapshot RAIM has no redundancy, counted apart.", "",
-          "| level | monitor A | monitor B | epochs | A only | B only | McNemar p | sorties A > B | A < B | sign test "
-          "p | 4-satellite epochs | A available there | B available there |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "epochs with exactly four satellites, where snapshot RAIM has no redundancy, counted apart.", ""]
     pairs = [(a, b) for i, a in enumerate(monitors) for b in monitors[i + 1:]]
-    for level in levels:
-        for a, b in pairs:
-            md.append(_paired_row(tc, level, a, b))
+    md += md_table(["level", "monitor A", "monitor B", "epochs", "A only", "B only", "McNemar p", "sorties A > B",
+                    "A < B", "sign test p", "4-satellite epochs", "A available there", "B available there"],
+                   [_paired_row(tc, level, a, b) for level in levels for a, b in pairs])
     md.append("")
     ep = inp.epochs
     if ep is not None and ep.num_rows:
         e = _cols(ep, ["cell", "trial", "t", "monitor", "vpl"])
-        md += ["VPL ratio on the per-epoch trials' epochs where both give a VPL:", "",
-               "| monitor A | monitor B | epochs | VPL_A / VPL_B median | 5 % | 95 % |", "|---|---|---|---|---|---|"]
+        md += ["VPL ratio on the per-epoch trials' epochs where both give a VPL:", ""]
+        rows = []
         for i, a in enumerate(monitors):
             for b in monitors[i + 1:]:
                 va = _keyed(e, a)
@@ -577,12 +572,13 @@ def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]
                 r = r[np.isfinite(r)]
                 if r.size:
                     q = np.percentile(r, [50, 5, 95])
-                    md.append(f"| {a} | {b} | {r.size} | {q[0]:.3f} | {q[1]:.3f} | {q[2]:.3f} |")
+                    rows.append([a, b, r.size, f"{q[0]:.3f}", f"{q[1]:.3f}", f"{q[2]:.3f}"])
+        md += md_table(["monitor A", "monitor B", "epochs", "VPL_A / VPL_B median", "5 %", "95 %"], rows)
         md.append("")
     return md, []
 
 
-def _paired_row(tc: dict, level: str, a: str, b: str) -> str:
+def _paired_row(tc: dict, level: str, a: str, b: str) -> list:
     """One row of the paired table: monitors ``a`` and ``b`` at ``level`` (trials matched by cell and trial)."""
     sa, sb = tc["monitor"] == a, tc["monitor"] == b
     ka = np.lexsort((tc["trial"][sa], tc["cell"][sa]))
@@ -591,9 +587,9 @@ def _paired_row(tc: dict, level: str, a: str, b: str) -> str:
     b_only = tc[f"only_available_vs_{a}_{level}"][sb][kb]
     more, less = int((a_only > b_only).sum()), int((a_only < b_only).sum())
     fa, fb = int(tc[f"four_sat_avail_{level}"][sa].sum()), int(tc[f"four_sat_avail_{level}"][sb].sum())
-    return (f"| {level} | {a} | {b} | {int(tc['epochs'][sa].sum())} | {int(a_only.sum())} | {int(b_only.sum())} | "
-            f"{mcnemar_p(int(a_only.sum()), int(b_only.sum())):.2g} | {more} | {less} | {mcnemar_p(more, less):.2g} | "
-            f"{int(tc['four_sat_epochs'][sa].sum())} | {fa} | {fb} |")
+    return [level, a, b, int(tc["epochs"][sa].sum()), int(a_only.sum()), int(b_only.sum()),
+            f"{mcnemar_p(int(a_only.sum()), int(b_only.sum())):.2g}", more, less, f"{mcnemar_p(more, less):.2g}",
+            int(tc["four_sat_epochs"][sa].sum()), fa, fb]
 
 
 def _keyed(e: dict, monitor: str) -> dict:
@@ -706,18 +702,17 @@ def _vision_range_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str
             fig.suptitle("vision-range error (VA-RAIM) vs " + ", ".join(AXIS_LABEL[a] for a in vaxes))
             _save(fig, figdir / "vision_range_error.png")
             figures.append(("Vision-range error", "vision_range_error.png"))
-            md += ["## Vision-range error (VA-RAIM; error = estimated - true camera-landmark range)", "",
-                   "| cell | dpi | DE px | LPE m | cal mode | raw mean ± se | raw sd | calibrated mean ± se | "
-                   "calibrated sd | surveys |", "|---|---|---|---|---|---|---|---|---|---|"]
+            md += ["## Vision-range error (VA-RAIM; error = estimated - true camera-landmark range)", ""]
 
             def mean_se(r: dict, tag: str) -> str:
                 se = r.get(f"{tag}_se", float("nan"))
                 return _f(r[f"{tag}_mean"], "{:.3f}") + ("" if not np.isfinite(se) else f" ± {se:.3f}")
 
-            for r in vr:
-                md.append(f"| {r['cell']} | {r['dpi']:g} | {r['sigma_px']:g} | {r['lpe_sigma_m']:g} | {r['calibration']} | "
-                          f"{mean_se(r, 'raw')} | {_f(r['raw_std'], '{:.3f}')} | {mean_se(r, 'cal')} | "
-                          f"{_f(r['cal_std'], '{:.3f}')} | {r.get('raw_surveys', '')} |")
+            md += md_table(["cell", "dpi", "DE px", "LPE m", "cal mode", "raw mean ± se", "raw sd", "calibrated mean ± se",
+                            "calibrated sd", "surveys"],
+                           [[r["cell"], f"{r['dpi']:g}", f"{r['sigma_px']:g}", f"{r['lpe_sigma_m']:g}", r["calibration"],
+                             mean_se(r, "raw"), _f(r["raw_std"], "{:.3f}"), mean_se(r, "cal"), _f(r["cal_std"], "{:.3f}"),
+                             r.get("raw_surveys", "")] for r in vr])
             md += ["", "se: standard error of the mean with the landmark surveys as the independent units (one survey "
                    f"per block of {bt} sorties: every epoch of a block carries its survey's bias, so the epochs' "
                    "sd/√N would understate it; `report.clustered_mean_se`). sd: the spread of single errors.", ""]

@@ -84,6 +84,7 @@ from pathlib import Path
 from testbed.campaign.spec import CampaignSpec, LoadedSpec, resolve_spec
 from testbed.campaign.report import _f
 from testbed.config import approaches_dir
+from testbed.markdown import table as md_table
 
 PAPERS = ("va-raim-2015", "won-2013", "dpe-vertical")
 #: The angular-precision sweep: the 720-dpi camera's focal length (992 px), then long-focus
@@ -223,12 +224,10 @@ def _calibration_section(tb: dict | None, camera: str) -> list[str]:
 
     if tb is None:
         return []
-    md = [f"## Vision-range error vs LPE ({camera}, DE 1 px)", "",
-          "| LPE (m) | calibration | raw mean (m) | raw sd (m) | calibrated mean (m) | calibrated sd (m) |",
-          "|---|---|---|---|---|---|"]
-    for r in vision_range_error_table(tb["cells"], tb["trials"]):
-        md.append(f"| {r['lpe_sigma_m']:g} | {r['calibration']} | {r['raw_mean']:.2f} | {r['raw_std']:.2f} | "
-                  f"{_g(r['cal_mean'])} | {_g(r['cal_std'])} |")
+    md = [f"## Vision-range error vs LPE ({camera}, DE 1 px)", ""]
+    md += md_table(["LPE (m)", "calibration", "raw mean (m)", "raw sd (m)", "calibrated mean (m)", "calibrated sd (m)"],
+                   [[f"{r['lpe_sigma_m']:g}", r["calibration"], _g(r["raw_mean"]), _g(r["raw_std"]), _g(r["cal_mean"]),
+                     _g(r["cal_std"])] for r in vision_range_error_table(tb["cells"], tb["trials"])])
     return md + [""]
 
 
@@ -246,18 +245,19 @@ def _resolution_section(tb: dict | None) -> list[str]:
     alerts, epochs = np.asarray(t["alert_epochs"]), np.asarray(t["epochs"])
     md = ["## Resolution and detection error (fault-free, LPE 5 cm)", "",
           "VA-RAIM as the paper writes it (`seed`) and as the testbed runs it by default (`gated`: vision rows "
-          "only where sigma_V/m keeps the false-alarm budget). False alarms are alerted epochs / epochs.", "",
-          "| dpi | DE px | VA-RAIM variant | vision-range sd raw (m) | VA-RAIM median max HPL/VPL (m) "
-          "| GPS RAIM median max HPL/VPL (m) | VA-RAIM APV-I avail. | GPS RAIM APV-I avail. "
-          "| VA-RAIM false alarms | GPS RAIM false alarms |", "|---|---|---|---|---|---|---|---|---|---|"]
+          "only where sigma_V/m keeps the false-alarm budget). False alarms are alerted epochs / epochs.", ""]
+    rows = []
     for c in cells:
         s_va, s_g = (cell == c["cell"]) & (mon == "va_raim"), (cell == c["cell"]) & (mon == "gps_raim")
         hv = lambda s: f"{np.nanmedian(hpl[s]):.1f} / {np.nanmedian(vpl[s]):.1f}"  # noqa: E731
         av = lambda s: f"{100 * np.mean(apv1[s]):.1f} %"  # noqa: E731
         fa = lambda s: f"{int(np.sum(alerts[s]))} / {int(np.sum(epochs[s]))}"  # noqa: E731
-        md.append(f"| {c['dpi']:g} | {c['sigma_px']:g} | {c.get('va_raim_variant', 'seed')} | "
-                  f"{vr[c['cell']]['raw_std']:.1f} | {hv(s_va)} | {hv(s_g)} | {av(s_va)} | {av(s_g)} "
-                  f"| {fa(s_va)} | {fa(s_g)} |")
+        rows.append([f"{c['dpi']:g}", f"{c['sigma_px']:g}", c.get("va_raim_variant", "seed"),
+                     _f(vr[c["cell"]]["raw_std"], "{:.1f}") if c["cell"] in vr else "-", hv(s_va), hv(s_g), av(s_va),
+                     av(s_g), fa(s_va), fa(s_g)])
+    md += md_table(["dpi", "DE px", "VA-RAIM variant", "vision-range sd raw (m)", "VA-RAIM median max HPL/VPL (m)",
+                    "GPS RAIM median max HPL/VPL (m)", "VA-RAIM APV-I avail.", "GPS RAIM APV-I avail.",
+                    "VA-RAIM false alarms", "GPS RAIM false alarms"], rows)
     return md + ["", "95 % accuracy, HPL/VPL over time and Stanford diagrams: [resolution report](resolution/report.md).",
                  ""]
 
@@ -277,14 +277,15 @@ def _detection_section(tb: dict | None, title: str) -> list[str]:
     md = []
     for key, what in (("rate", "per sortie (any alert from the onset on)"),
                       ("rate_ep", "per faulty epoch (alerted / epochs with a solution whose measurements carry the fault)")):
-        md += [f"## Detection rate vs {title}, {what}", "",
-               "| monitor | dpi | DE px | " + " | ".join(f"{s:g}" for s in sizes) + " | MDB @ 99 % |",
-               "|---|---|---|" + "---|" * (len(sizes) + 1)]
+        md += [f"## Detection rate vs {title}, {what}", ""]
+        table_rows = []
         for (m, dpi, sp), rs in sorted(groups.items()):
             rs.sort(key=lambda r: r["fault_size"])
             x, y = np.array([r["fault_size"] for r in rs]), np.array([r[key] for r in rs])
-            md.append(f"| {m} | {dpi:g} | {sp:g} | " + " | ".join(f"{v:.4g}" for v in y)
-                      + f" | {_g(minimal_detectable_bias(x, y, 0.99))} |")
+            at = dict(zip(x.tolist(), y.tolist()))
+            table_rows.append([m, f"{dpi:g}", f"{sp:g}", *(_f(at.get(s, float("nan")), "{:.4g}") for s in sizes),
+                               _g(minimal_detectable_bias(x, y, 0.99))])
+        md += md_table(["monitor", "dpi", "DE px", *(f"{s:g}" for s in sizes), "MDB @ 99 %"], table_rows)
         md += ["", "(size 0 = false-alarm rate)", ""]
     return md
 
@@ -302,14 +303,12 @@ def _where_vision_pays_section(tb: dict | None, d: Path, trials: int) -> tuple[l
           "![break-even](where-vision-pays/break_even.png)", "",
           "Focal length at the seed camera's field of view, DE 1 px, LPE 5 cm. Ratios < 1: VA-RAIM is better. "
           "PLs from the fault-free cells (median of each sortie's largest PL), MDB per faulty epoch at 99 % power "
-          "from the GPS-step cells (0-80 m).", "",
-          "| baseline | f (px) | HPL VA / GPS (m) | VPL VA / GPS (m) | MDB VA / GPS (m) | ratios H / V / MDB |",
-          "|---|---|---|---|---|---|"]
-    for r in rows:
-        md.append(f"| {names.get(r['landmark_set'], r['landmark_set'])} | {r['focal_px']:.0f} | "
-                  f"{_g(r['va_raim_hpl'])} / {_g(r['gps_raim_hpl'])} | {_g(r['va_raim_vpl'])} / {_g(r['gps_raim_vpl'])} | "
-                  f"{_g(r['va_raim_mdb'])} / {_g(r['gps_raim_mdb'])} | "
-                  f"{_g(r['ratio_hpl'])} / {_g(r['ratio_vpl'])} / {_g(r['ratio_mdb'])} |")
+          "from the GPS-step cells (0-80 m).", ""]
+    md += md_table(["baseline", "f (px)", "HPL VA / GPS (m)", "VPL VA / GPS (m)", "MDB VA / GPS (m)", "ratios H / V / MDB"],
+                   [[names.get(r["landmark_set"], r["landmark_set"]), f"{r['focal_px']:.0f}",
+                     f"{_g(r['va_raim_hpl'])} / {_g(r['gps_raim_hpl'])}", f"{_g(r['va_raim_vpl'])} / {_g(r['gps_raim_vpl'])}",
+                     f"{_g(r['va_raim_mdb'])} / {_g(r['gps_raim_mdb'])}",
+                     f"{_g(r['ratio_hpl'])} / {_g(r['ratio_vpl'])} / {_g(r['ratio_mdb'])}"] for r in rows])
     md += ["", "Break-even (smallest focal length from which all three ratios stay below 1):", ""]
     md += [f"- {names.get(k, k)}: {txt}" for k, (_, txt) in sorted(bev.items())]
     return md + [""], {names.get(k, k): v for k, v in bev.items()}
@@ -456,12 +455,10 @@ def claims_section(tables: dict, bev: dict) -> list[str]:
           f"VA-RAIM as written (`seed`). Break-even camera: the first swept focal length from which the testbed's "
           f"default VA-RAIM beats GPS RAIM on HPL, VPL and MDB, with the seed's 100 m triangle if it ever does, "
           f"else with the baseline that does at the shortest focal length ({cam}; where-vision-pays). "
-          "The verdicts come from the figures as measured; nothing is tuned towards them.", "",
-          "| claim | paper's assumptions | break-even camera | verdict | assumption behind a difference |",
-          "|---|---|---|---|---|"]
-    for claim, a_txt, a_ok, b_txt, b_ok, key in rows:
-        row_cam = "f = 1e5 px" if key == "calibration" else cam
-        md.append(f"| {claim} | {a_txt} | {b_txt} | {_verdict(a_ok, b_ok, row_cam)} | {CLAIM_ASSUMPTIONS[key]} |")
+          "The verdicts come from the figures as measured; nothing is tuned towards them.", ""]
+    md += md_table(["claim", "paper's assumptions", "break-even camera", "verdict", "assumption behind a difference"],
+                   [[claim, a_txt, b_txt, _verdict(a_ok, b_ok, "f = 1e5 px" if key == "calibration" else cam),
+                     CLAIM_ASSUMPTIONS[key]] for claim, a_txt, a_ok, b_txt, b_ok, key in rows])
     return md + [""]
 
 
