@@ -47,7 +47,7 @@ def _interrupted(out: Path) -> int:
 
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
-    from testbed.campaign.report import headlines, write_report
+    from testbed.campaign.report import headlines, report_inputs, write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
 
@@ -60,10 +60,11 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
         return _interrupted(out)
     print(f"{res.cells} cells, {res.trials} trials: {res.chunks_run} chunks run, {res.chunks_skipped} already stored; "
           f"{res.wall_s:.1f} s ({res.epochs_per_s:,.0f} sortie-epochs/s)")
-    for line in headlines(out):
+    inputs = report_inputs(out)  # read once: the headlines and the report share its detection table
+    for line in headlines(inputs):
         print(line)
     if not args.no_report:
-        idx = write_report(out)
+        idx = write_report(out, inputs=inputs)
         print(f"report: {idx}")
     print(f"results: {out}")
     return 0

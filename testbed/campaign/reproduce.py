@@ -72,13 +72,16 @@ Assumptions the paper leaves open (also in docs/findings/va-raim-2015.md):
   ``"gated"`` variant, which admits vision rows only where sigma_V/m keeps the
   false-alarm budget (docs/design/integrity.md §9, §11), so both can be set side by side.
 - Minimal detectable bias: smallest swept bias at which the empirical detection
-  rate reaches 99 %, linearly interpolated between swept biases (also given from
-  the lower Clopper-Pearson bound).
+  rate reaches 99 %, linearly interpolated between the two swept biases that bracket
+  it only where they resolve it (adjacent, the lower one's rate at least 1/2), else
+  given as that bracket (`testbed.campaign.detection`). A sortie whose fault never
+  reached an epoch with a solution (not exercised) is out of every rate.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from testbed.campaign.spec import CampaignSpec, LoadedSpec, resolve_spec
@@ -265,11 +268,11 @@ def _resolution_section(tb: dict | None) -> list[str]:
 def _detection_section(tb: dict | None, title: str) -> list[str]:
     import numpy as np
 
-    from testbed.campaign.report import detection_table, minimal_detectable_bias
+    from testbed.campaign.detection import minimal_detectable_bias
 
     if tb is None:
         return []
-    rows = detection_table(tb["cells"], tb["trials"])
+    rows = _detection_rows(tb)
     groups: dict[tuple, list] = {}
     for r in rows:
         groups.setdefault((r["monitor"], r["dpi"], r["sigma_px"]), []).append(r)
@@ -283,10 +286,13 @@ def _detection_section(tb: dict | None, title: str) -> list[str]:
             rs.sort(key=lambda r: r["fault_size"])
             x, y = np.array([r["fault_size"] for r in rs]), np.array([r[key] for r in rs])
             at = dict(zip(x.tolist(), y.tolist()))
-            table_rows.append([m, f"{dpi:g}", f"{sp:g}", *(_f(at.get(s, float("nan")), "{:.4g}") for s in sizes),
-                               _g(minimal_detectable_bias(x, y, 0.99))])
+            table_rows.append([m, f"{dpi:g}", f"{sp:g}",
+                               *("-" if s not in at else _f(at[s], "{:.4g}") if at[s] == at[s] else "not exercised"
+                                 for s in sizes),
+                               minimal_detectable_bias(x, y, 0.99).text()])
         md += md_table(["monitor", "dpi", "DE px", *(f"{s:g}" for s in sizes), "MDB @ 99 %"], table_rows)
-        md += ["", "(size 0 = false-alarm rate)", ""]
+        md += ["", "(size 0 = false-alarm rate; MDB: interpolated where the swept sizes around it resolve it, else "
+               "their bracket)", ""]
     return md
 
 
@@ -296,19 +302,21 @@ def _where_vision_pays_section(tb: dict | None, d: Path, trials: int) -> tuple[l
 
     if tb is None:
         return [], {}
-    rows = ratio_table(tb["cells"], tb["trials"])
+    rows = ratio_table(tb["cells"], tb["trials"], det=_detection_rows(tb))
     names = {k: f"triangle r = {r:g} m" for k, r in enumerate(BASELINES_M)}
     bev = draw_break_even(rows, names, d / "break_even.png", trials)
     md = ["## Where vision pays: VA-RAIM (testbed default) / GPS RAIM across camera and baseline", "",
           "![break-even](where-vision-pays/break_even.png)", "",
           "Focal length at the seed camera's field of view, DE 1 px, LPE 5 cm. Ratios < 1: VA-RAIM is better. "
           "PLs from the fault-free cells (median of each sortie's largest PL), MDB per faulty epoch at 99 % power "
-          "from the GPS-step cells (0-80 m).", ""]
+          "from the GPS-step cells (0-80 m): a bracket of swept steps where they do not resolve it, and then its "
+          "ratio is a bound (≤: VA-RAIM's largest possible MDB over GPS RAIM's smallest).", ""]
     md += md_table(["baseline", "f (px)", "HPL VA / GPS (m)", "VPL VA / GPS (m)", "MDB VA / GPS (m)", "ratios H / V / MDB"],
                    [[names.get(r["landmark_set"], r["landmark_set"]), f"{r['focal_px']:.0f}",
                      f"{_g(r['va_raim_hpl'])} / {_g(r['gps_raim_hpl'])}", f"{_g(r['va_raim_vpl'])} / {_g(r['gps_raim_vpl'])}",
-                     f"{_g(r['va_raim_mdb'])} / {_g(r['gps_raim_mdb'])}",
-                     f"{_g(r['ratio_hpl'])} / {_g(r['ratio_vpl'])} / {_g(r['ratio_mdb'])}"] for r in rows])
+                     f"{r['va_raim_mdb'].short()} / {r['gps_raim_mdb'].short()}",
+                     f"{_g(r['ratio_hpl'])} / {_g(r['ratio_vpl'])} / {'≤ ' if r['ratio_mdb_bound'] else ''}"
+                     f"{_g(r['ratio_mdb'])}"] for r in rows])
     md += ["", "Break-even (smallest focal length from which all three ratios stay below 1):", ""]
     md += [f"- {names.get(k, k)}: {txt}" for k, (_, txt) in sorted(bev.items())]
     return md + [""], {names.get(k, k): v for k, v in bev.items()}
@@ -376,21 +384,29 @@ def _accuracy(tb: dict, cell: dict, monitor: str, dim: str) -> float:
     return hist_quantile(hc, (hc["cell"] == cell["cell"]) & (hc["monitor"] == monitor) & (hc["dim"] == dim), 0.95)
 
 
+def _detection_rows(tb: dict) -> list[dict]:
+    """The experiment's detection table, computed once (at the paper's scale its trials are 1.8e7 rows)."""
+    from testbed.campaign.detection import detection_table
+
+    if "detection" not in tb:
+        tb["detection"] = detection_table(tb["cells"], tb["trials"])
+    return tb["detection"]
+
+
 def _rates(tb: dict, cells: list[dict], monitor: str) -> dict[float, dict]:
-    from testbed.campaign.report import detection_table
-
     ids = {c["cell"] for c in cells}
-    return {r["fault_size"]: r for r in detection_table(tb["cells"], tb["trials"]) if r["monitor"] == monitor
-            and r["cell"] in ids}
+    return {r["fault_size"]: r for r in _detection_rows(tb) if r["monitor"] == monitor and r["cell"] in ids}
 
 
-def _mdb(rates: dict[float, dict]) -> float:
+def _mdb(rates: dict[float, dict]):
+    """The per-epoch MDB at 99 % of a setting's faulty sizes (:class:`~testbed.campaign.detection.MDB`)."""
     import numpy as np
 
-    from testbed.campaign.report import minimal_detectable_bias
+    from testbed.campaign.detection import minimal_detectable_bias
 
-    sizes = np.array(sorted(k for k in rates if k > 0))
-    return minimal_detectable_bias(sizes, np.array([rates[k]["rate_ep"] for k in sizes]), 0.99) if sizes.size else float("nan")
+    sizes = sorted(k for k in rates if k > 0)
+    col = lambda key: np.array([rates[k][key] for k in sizes], float)  # noqa: E731
+    return minimal_detectable_bias(np.array(sizes, float), col("rate_ep"), 0.99, col("lo_ep"), col("hi_ep"))
 
 
 def _compare(va: float, gps: float, better: str, rtol: float = 0.0) -> bool | None:
@@ -462,11 +478,17 @@ def claims_section(tables: dict, bev: dict) -> list[str]:
     return md + [""]
 
 
-def _verdict(paper: bool | None, bev: bool | None, cam: str) -> str:
-    if paper:
+#: a claim's measured figures neither hold nor fail it: the swept sizes bracket both values too coarsely
+UNRESOLVED = "unresolved"
+
+
+def _verdict(paper: bool | str | None, bev: bool | str | None, cam: str) -> str:
+    if paper is True:
         return "holds"
-    if bev:
+    if bev is True:
         return f"holds only with the camera {cam}"
+    if UNRESOLVED in (paper, bev):
+        return "not resolved by the swept sizes"
     if paper is None and bev is None:
         return "not measured"
     return "does not hold"
@@ -484,13 +506,23 @@ def _detection_claim(tb, cells, size):
 
 
 def _mdb_claim(tb, cells):
+    """VA-RAIM's per-epoch MDB more than 5 % below GPS RAIM's. Where either is only a bracket of swept
+    steps the brackets decide: VA-RAIM's largest possible MDB below 95 % of GPS RAIM's smallest holds (GPS
+    RAIM not reaching the power at all included), VA-RAIM's smallest at or above 95 % of GPS RAIM's
+    largest does not; overlapping brackets leave it unresolved."""
     if tb is None or not cells:
         return "-", None
     va, gps = _mdb(_rates(tb, cells, "va_raim")), _mdb(_rates(tb, cells, "gps_raim"))
-    ok = _compare(va, gps, "lower", 0.05)
-    if ok is None and va == va:  # GPS RAIM never reached the power in the swept range
-        ok = True
-    return f"VA {_g(va)} vs GPS {_g(gps)}", ok
+    txt = f"VA {va.text('m')} vs GPS {gps.text('m')}"
+    if not (va.measured and gps.measured):
+        return txt, None
+    if va.resolved and gps.resolved:
+        return txt, _compare(va.value, gps.value, "lower", 0.05)
+    if va.upper < 0.95 * gps.lower:
+        return txt, True
+    if va.lower >= 0.95 * gps.upper:
+        return txt, False
+    return txt + " (brackets overlap)", UNRESOLVED
 
 
 def _calibration_claim(tb):
@@ -522,8 +554,8 @@ def _vision_fault_claim(tb):
     if big is None:
         return "-", None
     m = _mdb(rates)
-    return f"detected per epoch {rates[big]['rate_ep']:.4f} at {big:g} px; MDB {_g(m)} px", bool(m == m)
+    return f"detected per epoch {_f(rates[big]['rate_ep'], '{:.4f}')} at {big:g} px; MDB {m.text('px')}", m.reached
 
 
 def _g(x: float) -> str:
-    return "-" if x != x else f"{x:.2f}"
+    return f"{x:.2f}" if math.isfinite(x) else "-"
