@@ -67,7 +67,8 @@ def fault_never_happens(cell: Cell, spec) -> str:
     ctx = cell_context(cell, spec)
     fault = cell.config.faults[0]
     on = active(fault, ctx.t)
-    window = f"from the onset ({fault.onset_s:g} s) to {'the end of the sortie' if fault.end_s is None else f'{fault.end_s:g} s'}"
+    end = "the end of the sortie" if fault.end_s is None else f"{fault.end_s:g} s"
+    window = f"from the onset ({fault.onset_s:g} s) to {end}"
     if not on.any():
         return f"the sortie has no epoch {window}"
     if fault.kind in GNSS_KINDS:
@@ -95,6 +96,7 @@ def _vision_never(ctx, fault, on: np.ndarray, window: str) -> str:
     vg, lm, vision = ctx.v_geom, ctx.landmarks, ctx.setup.vision
     if vg is None:
         return "no monitor of the cell reads vision"
+    on = active(fault, vg.t)  # the vision epochs (the GNSS ones in a campaign)
     cam = vision.camera.build()
     slack = _dither_bound_rad(vision.dithering)  # the camera's attitude wanders this far from the nominal one
     det = vision.detection.model_copy(update={"margin_px": vision.detection.margin_px - cam.fx * math.tan(slack)})

@@ -776,6 +776,10 @@ def vision_range_figure(vr: list[dict]):
                                      for b in others), []).append(r)
         values = sorted({r[a] for r in rows})
         categorical = len(values) == 1
+        # the series side by side around each x (common random numbers make some coincide): a small dodge,
+        # raw and calibrated about each category, or every series about each swept value
+        n_series = 2 if categorical else 2 * len(grp)
+        dodge = (0.25 if categorical else 0.06 * (values[-1] - values[0])) / n_series
         uncalibrated = []
         for k, (g, rs) in enumerate(sorted(grp.items())):
             rs = sorted(rs, key=lambda r: r[a])
@@ -783,12 +787,12 @@ def vision_range_figure(vr: list[dict]):
             modes = {r["calibration"] for r in rs}
             raw = ("raw ranges (before GPS calibration)" if modes == {"gps"} else
                    "raw ranges (uncalibrated: calibration = none)" if modes == {"none"} else "raw ranges")
-            for tag, mk, label, dx in (("raw", "o--", raw, -0.08), ("cal", "s-", "after GPS calibration", 0.08)):
+            for j, (tag, mk, label) in enumerate((("raw", "o--", raw), ("cal", "s-", "after GPS calibration"))):
                 mu = np.array([r[f"{tag}_mean"] for r in rs], float)
                 sd = np.array([r[f"{tag}_std"] for r in rs], float)
+                shift = ((j if categorical else 2 * k + j) - (n_series - 1) / 2) * dodge
                 if np.isfinite(mu).any():
-                    ax.errorbar(x + (dx if categorical else 0.0), mu, yerr=sd, fmt=mk, ms=4, capsize=3,
-                                label=f"{label}{', ' + g if g else ''}")
+                    ax.errorbar(x + shift, mu, yerr=sd, fmt=mk, ms=4, capsize=3, label=f"{label}{', ' + g if g else ''}")
                 elif tag == "cal" and "gps" in modes:
                     uncalibrated.append(g or "every cell")
         if uncalibrated:

@@ -336,8 +336,9 @@ CLAIM_ASSUMPTIONS = {
              "epochs of this sky, so there is little for vision to add.",
     "detection": "Per faulty epoch at a 10 m step (Clopper-Pearson 95 % bands must separate); a random visible "
                  "satellite, onset 20 s; both monitors at P_FA 1e-5 per epoch.",
-    "mdb": "Per-epoch MDB at 99 % power, interpolated between swept steps (0-50 m, 0-80 m in the sweep); a win: "
-           "lower by more than 5 %.",
+    "mdb": "Per-epoch MDB at 99 % power, interpolated between the swept steps around it (0-50 m, 0-80 m in the "
+           "sweep) where they resolve it, else their bracket; a win: lower by more than 5 %, or, with a bracket, "
+           "VA-RAIM's largest possible MDB below 95 % of GPS RAIM's smallest.",
     "accuracy": "95th percentile of the horizontal / vertical error over epochs with a PL and no alert "
                 "(0.05-dex histogram: a win needs more than one bin, 12 %).",
     "calibration": "Holds when the raw mean error is significant (|mean| > 3 standard errors) and the calibrated "
