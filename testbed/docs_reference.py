@@ -34,6 +34,8 @@ import annotated_types as at
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
+from testbed.markdown import table as md_table
+
 COMMAND = "python -m testbed.docs_reference > docs/reference/configuration.md"
 
 #: approach-file tables held as free tables by ApproachConfig and validated by the monitor that reads
@@ -545,8 +547,7 @@ def sections() -> list[tuple[FileKind, list[Section]]]:
     return out
 
 
-HEADER = ("| Key | Type | Default | Unit | Allowed | Description |\n"
-          "|-----|------|---------|------|---------|-------------|")
+HEADER = ["Key", "Type", "Default", "Unit", "Allowed", "Description"]
 
 
 def render() -> str:
@@ -588,9 +589,7 @@ def render() -> str:
             lines += [f'<a id="{s.anchor}"></a>', "", f"### {s.heading}", ""]
             if s.intro:
                 lines += [s.intro, ""]
-            lines.append(HEADER)
-            for key, ttext, default, u, allowed, desc in s.rows:
-                lines.append(f"| `{key}` | {ttext} | {default} | {u} | {allowed} | {desc} |")
+            lines += md_table(HEADER, [[f"`{key}`", *rest] for key, *rest in s.rows])
             lines.append("")
     return "\n".join(lines).rstrip("\n") + "\n"
 

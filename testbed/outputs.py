@@ -36,7 +36,6 @@ import os
 import shutil
 import signal
 import tempfile
-import threading
 import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 
@@ -28,6 +29,13 @@ def assert_records_equal(a, b, path: str = "", rtol: float = 0.0, atol: float = 
     return n
 
 
+def _cells_in_row(line: str) -> int:
+    """Cells of one table row as a Markdown renderer splits it: at pipes neither escaped (``\\|``) nor
+    inside a code span."""
+    bare = re.sub(r"(`+).+?\1", "", line.strip())  # code spans out
+    return len(re.split(r"(?<!\\)\|", bare.strip("|"))) if bare.strip("|") else 1
+
+
 def markdown_table_problems(text: str) -> list[str]:
     """Markdown tables whose header, separator and rows do not all have the same number of cells."""
     problems, block = [], []
@@ -36,7 +44,7 @@ def markdown_table_problems(text: str) -> list[str]:
             block.append(line)
             continue
         if block:
-            counts = [len(r.strip().strip("|").split("|")) for r in block]
+            counts = [_cells_in_row(r) for r in block]
             if len(set(counts)) > 1 or len(block) < 2 or set(block[1]) - set("|-: "):
                 problems.append(f"{block[0]!r}: cells per line {counts}")
             block = []

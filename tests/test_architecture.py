@@ -18,7 +18,7 @@ PKG = Path(__file__).resolve().parents[1] / "testbed"
 
 #: the rooms (packages) and base modules, bottom to top; rooms of one layer do not import each other
 LAYERS = (
-    ("schema", "frames", "heap", "threads", "memo", "kernel_cache", "records", "docs_reference"),
+    ("schema", "frames", "heap", "threads", "memo", "kernel_cache", "records", "markdown"),
     ("correlation", "inertial", "resources", "outputs"),
     ("world", "flight"),
     ("sensors",),
@@ -29,7 +29,7 @@ LAYERS = (
     ("viz",),
     ("campaign",),
     ("rinex",),
-    ("api",),
+    ("api", "docs_reference"),
     ("cli",),
 )
 LAYER = {room: i for i, rooms in enumerate(LAYERS) for room in rooms}

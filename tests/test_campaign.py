@@ -395,8 +395,8 @@ def test_binomial_intervals_and_mdb():
     assert hi[2] == 1
     wl, wh = binomial_interval(np.array([5]), np.array([10]), 0.95, "wilson")
     assert wl[0] == pytest.approx(0.2366, abs=1e-3) and wh[0] == pytest.approx(0.7634, abs=1e-3)
-    assert minimal_detectable_bias(np.array([0, 10, 20]), np.array([0.0, 0.5, 1.0]), 0.99) == pytest.approx(19.8)
-    assert np.isnan(minimal_detectable_bias(np.array([0, 10]), np.array([0.0, 0.5]), 0.99))
+    assert minimal_detectable_bias(np.array([0, 10, 20]), np.array([0.0, 0.5, 1.0]), 0.99).value == pytest.approx(19.8)
+    assert not minimal_detectable_bias(np.array([0, 10]), np.array([0.0, 0.5]), 0.99).reached
 
 
 # ----------------------------------------------------------------------------- shipped specs, CLI
@@ -587,7 +587,8 @@ def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
     rows = detection_table(cells, table(reference))
     for r in rows:
         g = tr.xs(r["monitor"], level="monitor").loc[r["cell"]]
-        assert r["k"] == int(g.detected.sum()) and r["n"] == len(g)
+        exercised = (g.onset_epochs > 0) | (r["fault_kind"] == "none")
+        assert r["k"] == int((g.detected & exercised).sum()) and r["n"] == len(g) and r["n_ex"] == exercised.sum()
         assert r["k_ep"] == g.onset_alerts.sum() and r["n_ep"] == g.onset_epochs.sum()
         assert r["lo_ep"] <= r["rate_ep"] <= r["hi_ep"]
     faulted = [r for r in rows if r["fault_size"] > 0]
@@ -681,15 +682,26 @@ def test_stanford_counts_are_numpys_histogram2d():
         assert np.array_equal(H, want) and (c > 0).all()
 
 
-def test_every_table_of_a_report_is_well_formed(reference, tmp_path, capsys):
+def test_every_table_of_a_report_is_well_formed(reference, tmp_path, capsys, monkeypatch):
     """The report's Markdown tables render: the same number of cells in the header, the separator and every
     row, with swept axes (the tiny spec) and with none (quick-look: its cells differ by the fault only)."""
     from testbed.cli import main
 
     assert markdown_table_problems(write_report(reference).read_text()) == []
+    from testbed.campaign import report
+
+    calls = [0]
+
+    def counted(*a, **kw):
+        calls[0] += 1
+        return detection_table(*a, **kw)
+
+    detection_table = report.detection_table
+    monkeypatch.setattr(report, "detection_table", counted)
     out = tmp_path / "ql"
     assert main(["campaign", "quick-look", "--out", str(out), "--trials", "10", "--quiet", "--workers", "1"]) == 0
     assert markdown_table_problems((out / "report.md").read_text()) == []
+    assert calls == [1]  # the console's headlines and the report share one detection table
     said = capsys.readouterr().out  # the console's headline: each cell and monitor's result, not only paths
     assert "gps_raim, fault-free: false alarm in" in said and "va_raim, gps_step 20 m: detected in" in said
     from testbed.campaign.report import headlines
@@ -698,3 +710,145 @@ def test_every_table_of_a_report_is_well_formed(reference, tmp_path, capsys):
     assert len(lines) == 4 and all(" of 40 sorties (" in x for x in lines)
     lines = headlines(reference, limit=3)
     assert len(lines) == 4 and lines[-1] == "... and 1 more cell-monitor rows in report.md"
+
+
+def test_markdown_tables_have_one_maker_and_escape_what_would_split_a_cell():
+    """Every Markdown table of the testbed comes from testbed.markdown.table (no separator row written by hand
+    anywhere else), and a cell holding a pipe or a line break stays one cell: the claims table's calibration
+    assumption ("|mean| > 3 standard errors") split its row into more cells than the header."""
+    import re
+
+    from record_checks import markdown_table_problems
+    from testbed.campaign.reproduce import claims_section
+    from testbed.markdown import table
+
+    by_hand = [f"{p.relative_to(ROOT)}:{k}" for p in sorted((ROOT / "testbed").rglob("*.py"))
+               if p.name != "markdown.py"
+               for k, line in enumerate(p.read_text().splitlines(), 1) if re.search(r"\|-{3,}\|", line)]
+    assert by_hand == []
+    assert markdown_table_problems("\n".join(claims_section({}, {}))) == []
+    lines = table(["a", "b"], [["x | y", "`p|q` or r\nor s"], ["already \\| escaped", 1]])
+    assert lines[2] == "| x \\| y | `p|q` or r or s |" and lines[3] == "| already \\| escaped | 1 |"
+    assert markdown_table_problems("\n".join(lines)) == []
+    with pytest.raises(ValueError, match="rows \\[0\\]"):
+        table(["a", "b"], [["only one"]])
+
+
+# ----------------------------------------------------------------------------- faults that never happen
+
+NEVER = """
+name = "never"
+approaches = ["va-raim-2015"]
+monitors = {monitors}
+trials = 20
+block_trials = 10
+chunk_trials = 20
+per_epoch_trials = 20
+duration_s = 40.0
+{sorties}
+[[faults]]
+onset_s = 15.0
+{fault}
+"""
+
+
+@pytest.mark.parametrize("monitors, fault, said", [
+    ('["gps_raim"]', 'kind = "gps_step"\nmagnitudes = [0.0, 30.0]\nprn = 1',
+     "faults.0 (gps_step, prn = 1): in every cell that carries it (cell 1), PRN 1 is never in view"),
+    ('["va_raim"]', 'kind = "landmark_moved"\nmagnitudes = [0.0, 5000.0]\ndirection_enu = [0.0, 0.0, 1.0]',
+     "faults.0 (landmark_moved, landmark = 'random'): in every cell that carries it (cell 1), every landmark in "
+     "view at the onset, moved by (0.0, 0.0, 5000.0) m ENU, is never in the camera's image"),
+])
+def test_a_fault_no_trial_can_exercise_is_refused_before_any_work(tmp_path, capsys, monitors, fault, said):
+    """A step on a satellite that never rises over the sortie, a landmark moved out of the image for the
+    whole flight: exit 2 naming the fault table and its target, nothing written. The geometric verdict is
+    the sensors': a block drawn for the cell carries the fault in no observation (its satellite in view, its
+    landmark detected) and the trials' fault_target is -1 where no slot took it, which the report reads as
+    not exercised."""
+    from testbed.campaign.cli_commands import main
+    from testbed.campaign.runner import cell_context, draw_block
+
+    spec = write_spec(tmp_path, "never.toml", text=NEVER.format(monitors=monitors, fault=fault, sorties=""))
+    assert main(["campaign", str(spec), "--out", str(tmp_path / "o"), "--quiet", "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and said in err and "no trial could exercise the fault" in err
+    assert not (tmp_path / "o").exists()
+    loaded = load_spec(spec)
+    cell = expand_cells(loaded)[1]
+    ctx = cell_context(cell, loaded.spec)
+    d = draw_block(ctx, loaded.spec, 0)
+    observed = np.asarray(d.gnss_truth.faulty, bool) & np.asarray(d.obs.gnss.visible, bool)
+    if d.vision_truth is not None:
+        observed = np.concatenate([observed, np.asarray(d.vision_truth.faulty, bool)], axis=-1)
+        assert (d.fault_target == -1).all()
+    assert not observed.any()
+
+
+def test_sorties_that_do_not_exercise_the_fault_are_counted_apart_in_the_report(tmp_path, capsys):
+    """PRN 5 in view for only some of 20 sorties spread over 10 h: the campaign runs, and the sorties in which
+    no epoch carried the fault with a solution — counted by hand from the stored epochs — are reported as
+    not exercised, out of the detection rate, in the tables and the console's headline."""
+    from record_checks import markdown_table_problems
+    from testbed.campaign.cli_commands import main
+
+    text = NEVER.format(monitors='["gps_raim"]', fault='kind = "gps_step"\nmagnitudes = [0.0, 30.0]\nprn = 5',
+                        sorties='[sorties]\nstart = "consecutive"\nsortie_s = 1800.0\n')
+    out = tmp_path / "o"
+    assert main(["campaign", str(write_spec(tmp_path, "part.toml", text=text)), "--out", str(out), "--quiet",
+                 "--workers", "1"]) == 0
+    ep = table(out, "epochs.parquet").to_pandas()
+    ep = ep[(ep.cell == 1) & (ep.t >= 15.0)]
+    solved = ep[ep.fault_present & np.isfinite(ep.hpl)].groupby("trial").size()
+    exercised = set(solved.index)
+    assert 0 < len(exercised) < 20
+    tr = table(out).to_pandas()
+    tr = tr[tr.cell == 1]
+    detected = int(tr[tr.trial.isin(exercised)].detected.sum())
+    said = capsys.readouterr().out
+    assert (f"gps_step 30 m: detected in {detected} of the {len(exercised)} sorties that exercised the fault" in said
+            and f"{20 - len(exercised)} of 20 not exercised" in said)
+    report = (out / "report.md").read_text()
+    assert markdown_table_problems(report) == []
+    assert f"| 1 | gps_raim | gps_step | 30 m | 20 | {20 - len(exercised)} | {detected} |" in report
+    assert f"**Faults not exercised**: in {20 - len(exercised)} of 20 faulty sortie-monitor pairs" in report
+
+
+def test_a_landmark_move_whose_direction_overflows_still_moves_it():
+    """direction_enu is normalised with hypot: a direction of 1e200 (whose sum of squares overflows) gave a
+    move of 0 m, a fault that never happened; one of 1e-200 (whose sum of squares underflows) was refused as
+    a zero vector."""
+    from testbed.campaign.spec import FaultSweep
+
+    big = FaultSweep(kind="landmark_moved", magnitudes=[0.0, 10.0], direction_enu=(1e200, 0.0, -1e200))
+    assert big.fault(10.0)["delta_enu_m"] == pytest.approx((10 / np.sqrt(2), 0.0, -10 / np.sqrt(2)), rel=1e-15)
+    tiny = FaultSweep(kind="landmark_moved", magnitudes=[10.0], direction_enu=(1e-200, 1e-200, 0.0))
+    assert tiny.fault(10.0)["delta_enu_m"] == pytest.approx((10 / np.sqrt(2), 10 / np.sqrt(2), 0.0), rel=1e-15)
+    assert any(FaultSweep(kind="landmark_moved", magnitudes=[5e-324], direction_enu=(1.0, 1.0, 1.0)).fault(5e-324)
+               ["delta_enu_m"])  # the smallest magnitude still moves it
+
+
+def test_every_text_of_every_report_figure_lies_inside_it(reference, monkeypatch):
+    """Titles, labels and legends inside their figure once drawn (pl_time.png's title, wider than its one
+    panel, was clipped at both ends)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from testbed.campaign import report
+
+    seen = {}
+    save = report._save
+    monkeypatch.setattr(report, "_save", lambda fig, path: (save(fig, path), seen.__setitem__(path.name, fig)))
+    write_report(reference)
+    assert {"pl_time.png", "vision_range_error.png", "detection_0_gps_step.png"} <= set(seen)
+    for name, fig in seen.items():
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()
+        box = fig.bbox
+        texts = list(fig.texts)
+        for ax in fig.axes:
+            texts += [ax.title, ax.xaxis.label, ax.yaxis.label]
+            if ax.get_legend() is not None:
+                texts += ax.get_legend().get_texts()
+        outside = [t.get_text() for t in texts if t.get_text() and (
+            (e := t.get_window_extent(canvas.get_renderer())).x0 < box.x0 - 0.5 or e.x1 > box.x1 + 0.5
+            or e.y0 < box.y0 - 0.5 or e.y1 > box.y1 + 0.5)]
+        assert outside == [], name

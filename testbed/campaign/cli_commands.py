@@ -49,7 +49,7 @@ def _chunks_kept(resume_hint: str, written_at_the_end: str, restart: bool = Fals
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from testbed.campaign.budget import campaign_estimate
-    from testbed.campaign.report import REPORT_ENTRIES, headlines, write_report
+    from testbed.campaign.report import REPORT_ENTRIES, headlines, report_inputs, write_report
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import load_spec
     from testbed.outputs import OutputSet
@@ -66,10 +66,11 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
                            restart=args.restart, workers=args.workers)
         print(f"{res.cells} cells, {res.trials} trials: {res.chunks_run} chunks run, {res.chunks_skipped} already "
               f"stored; {res.wall_s:.1f} s ({res.epochs_per_s:,.0f} sortie-epochs/s)")
-        for line in headlines(out):
+        inputs = report_inputs(out)  # read once: the headlines and the report share its detection table
+        for line in headlines(inputs):
             print(line)
         if not args.no_report:
-            idx = write_report(out, outputs=outs)
+            idx = write_report(out, inputs=inputs, outputs=outs)
             outs.commit()
             print(f"report: {idx}")
         print(f"results: {out}")

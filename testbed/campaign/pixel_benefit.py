@@ -30,6 +30,7 @@ from testbed.campaign.context import cell_context
 from testbed.campaign.spec import LoadedSpec, expand_cells
 from testbed.integrity.pixel import pixel_monitor
 from testbed.integrity.raim import gps_raim
+from testbed.markdown import table as md_table
 from testbed.sim.evaluate import position_errors
 
 
@@ -99,13 +100,10 @@ def format_table(rows: list[dict], levels: tuple[str, ...]) -> str:
     """The table as Markdown."""
     head = ["variant", *(f"avail {lv}" for lv in levels), "HPL median / p95", "VPL median / p95",
             "HPE95 / VPE95", "alerts / epoch"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in rows:
-        cells = [r["variant"], *(f"{100 * r[f'avail_{lv}']:.1f} %" for lv in levels),
-                 f"{r['hpl_median']:.1f} / {r['hpl_p95']:.1f} m", f"{r['vpl_median']:.1f} / {r['vpl_p95']:.1f} m",
-                 f"{r['he95']:.1f} / {r['ve95']:.1f} m", f"{r['alert_rate']:.1e}"]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return "\n".join(md_table(head, [[r["variant"], *(f"{100 * r[f'avail_{lv}']:.1f} %" for lv in levels),
+                                      f"{r['hpl_median']:.1f} / {r['hpl_p95']:.1f} m",
+                                      f"{r['vpl_median']:.1f} / {r['vpl_p95']:.1f} m",
+                                      f"{r['he95']:.1f} / {r['ve95']:.1f} m", f"{r['alert_rate']:.1e}"] for r in rows]))
 
 
 def draw_benefit(rows: list[dict], level: str, path: str | Path, scene: str = "") -> Path:

@@ -6,27 +6,30 @@ and ``stanford_hist.parquet`` of a result folder and writes ``figures/*.png`` an
 figures are moved into place together (:mod:`testbed.outputs`): a failure or a Ctrl-C
 while drawing leaves the earlier report as it was.
 
-Statistics:
-- detection rate per cell = detected trials / trials, with a binomial confidence
-  band (Clopper-Pearson exact, or Wilson score; ``[report]`` of the spec);
+Statistics (:mod:`testbed.campaign.detection`):
+- detection rate per cell = detected trials / trials that exercised the fault, with a
+  binomial confidence band (Clopper-Pearson exact, or Wilson score; ``[report]`` of the
+  spec); the trials that never exercised it are counted apart ("not exercised"), never
+  as missed detections;
 - minimal detectable bias (MDB) at power P = the smallest fault size at which the
-  detection rate reaches P, linearly interpolated between swept sizes (NaN if never);
-  also given: the MDB from the *lower* confidence bound (conservative);
+  detection rate reaches P: its bracket of measured sizes, interpolated inside it only
+  where the bracket resolves it, and the bracket the rates' confidence bounds support;
 - pooled 95 % accuracy = 95th percentile of all epochs' errors, read from the
   Stanford histogram (0.05-decade bins: about ±6 % resolution).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from testbed.campaign.markdown import table as md_table
+from testbed.campaign.detection import MDB, binomial_interval, detection_table, minimal_detectable_bias
 from testbed.campaign.store import read_columns
+from testbed.markdown import table as md_table
 from testbed.outputs import OutputSet
 from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
@@ -39,38 +42,9 @@ AXIS_LABEL = {"approach": "approach", "start_time_utc": "start", "dpi": "dpi", "
               "max_satellites": "satellites (-1: the approach's)", "ground_features": "ground features"}
 
 
-def binomial_interval(k: np.ndarray, n: np.ndarray, confidence: float = 0.95,
-                      method: str = "clopper-pearson") -> tuple[np.ndarray, np.ndarray]:
-    """Two-sided confidence interval of a binomial proportion k/n (arrays, any shape)."""
-    from scipy import stats
-
-    k, n = np.asarray(k, float), np.asarray(n, float)
-    a = 1.0 - confidence
-    if method == "wilson":
-        z = stats.norm.ppf(1 - a / 2)
-        p = np.where(n > 0, k / np.maximum(n, 1), np.nan)
-        den = 1 + z**2 / n
-        c = (p + z**2 / (2 * n)) / den
-        h = z * np.sqrt(p * (1 - p) / n + z**2 / (4 * n**2)) / den
-        return np.clip(c - h, 0, 1), np.clip(c + h, 0, 1)
-    with np.errstate(invalid="ignore"):
-        lo = np.where(k > 0, stats.beta.ppf(a / 2, k, n - k + 1), 0.0)
-        hi = np.where(k < n, stats.beta.ppf(1 - a / 2, k + 1, n - k), 1.0)
-    return lo, hi
-
-
-def minimal_detectable_bias(size: np.ndarray, rate: np.ndarray, power: float) -> float:
-    """Smallest size where ``rate`` reaches ``power`` (linear interpolation; NaN if never)."""
-    o = np.argsort(size)
-    s, r = np.asarray(size, float)[o], np.asarray(rate, float)[o]
-    hit = np.flatnonzero(r >= power)
-    if hit.size == 0:
-        return float("nan")
-    i = hit[0]
-    if i == 0:
-        return float(s[0])
-    s0, s1, r0, r1 = s[i - 1], s[i], r[i - 1], r[i]
-    return float(s0 + (power - r0) * (s1 - s0) / (r1 - r0)) if r1 > r0 else float(s1)
+#: the two definitions of detection: (tag, title, rate, lower, upper key of detection_table rows)
+DETECTION_DEFINITIONS = (("sortie", "per sortie (any alert from the onset on)", "rate", "lo", "hi"),
+                         ("epoch", "per faulty epoch (alerted / faulty epochs with a solution)", "rate_ep", "lo_ep", "hi_ep"))
 
 
 def _load(out_dir: Path):
@@ -121,67 +95,36 @@ def _cols(t, names=None) -> dict[str, np.ndarray]:
     return out
 
 
-def detection_table(cells: list[dict], trials, confidence: float = 0.95, method: str = "clopper-pearson") -> list[dict]:
-    """Per cell and monitor, both definitions of detection with their binomial intervals.
-
-    Per sortie: ``n`` trials, ``k`` with any alert from the onset on, ``rate`` in [``lo``, ``hi``].
-    Per epoch: ``n_ep`` faulty epochs (from the onset, the fault in the observations: its
-    satellite visible, its landmark detected) at which the monitor gives a solution, ``k_ep``
-    of them alerted, ``rate_ep`` in [``lo_ep``, ``hi_ep``] (fault-free cells: the per-epoch
-    false-alarm rate). Stores written before the per-epoch columns give NaN there.
-    """
-    names = ["cell", "monitor", "detected"]
-    per_epoch = "onset_epochs" in _names(trials)
-    c = _cols(trials, names + (["onset_epochs", "onset_alerts"] if per_epoch else []))
-    rows = []
-    for m in sorted(set(c["monitor"].tolist())):
-        sel_m = c["monitor"] == m
-        cells_m = c["cell"][sel_m]
-
-        def total(col: str) -> np.ndarray:
-            return np.bincount(cells_m, weights=c[col][sel_m].astype(float), minlength=len(cells))
-
-        cnt = np.bincount(cells_m, minlength=len(cells))
-        det = total("detected")
-        lo, hi = binomial_interval(det, np.maximum(cnt, 1), confidence, method)
-        if per_epoch:
-            n_ep, k_ep = total("onset_epochs"), total("onset_alerts")
-            lo_ep, hi_ep = binomial_interval(k_ep, np.maximum(n_ep, 1), confidence, method)
-        else:
-            n_ep = k_ep = lo_ep = hi_ep = np.full(len(cells), np.nan)
-        for cell in cells:
-            i = cell["cell"]
-            if cnt[i] == 0:
-                continue
-            rows.append({**cell, "monitor": m, "n": int(cnt[i]), "k": int(det[i]), "rate": det[i] / cnt[i],
-                         "lo": float(lo[i]), "hi": float(hi[i]), "n_ep": float(n_ep[i]), "k_ep": float(k_ep[i]),
-                         "rate_ep": float(k_ep[i] / n_ep[i]) if n_ep[i] > 0 else float("nan"),
-                         "lo_ep": float(lo_ep[i]), "hi_ep": float(hi_ep[i])})
-    return rows
-
-
-def headlines(out_dir: str | Path, limit: int = 8) -> list[str]:
+def headlines(source: str | Path | ReportInputs, limit: int = 8) -> list[str]:
     """A finished campaign's result in a few console lines: per cell and monitor, the sorties alerted
-    (fault-free: false alarms; faulty: detections) with their interval, and the sorties with HMI."""
-    man, cells, trials, _, _ = _load(Path(out_dir))
-    rep = man["spec"].get("report", {})
-    conf = rep.get("confidence", 0.95)
-    rows = detection_table(cells, trials, conf, rep.get("interval", "clopper-pearson"))
-    c = _cols(trials, ["cell", "monitor", "hmi_epochs"]) if "hmi_epochs" in _names(trials) else None
-    varying = _varying(cells)
+    (fault-free: false alarms; faulty: detections among the sorties that exercised the fault, the others
+    counted apart) with their interval, and the sorties with HMI. ``source``: a result folder, or the
+    :func:`report_inputs` already read from it (the detection table is then not computed again)."""
+    inp = source if isinstance(source, ReportInputs) else report_inputs(source)
+    rows, conf, varying = inp.det_rows, inp.conf, inp.varying
+    tc = inp.tc if "hmi_epochs" in inp.tc else None
     lines = []
     for r in rows[:limit]:
-        what = ("fault-free" if r["fault_size"] == 0 else
-                f"{r['fault_sweep_kind']} {r['fault_size']:g} {r['fault_unit']}")
+        free = r["fault_kind"] == "none"
+        what = "fault-free" if free else f"{r['fault_sweep_kind']} {r['fault_size']:g} {r['fault_unit']}"
         where = _label(r, varying) if varying else ""
-        verb = "false alarm in" if r["fault_size"] == 0 else "detected in"
         hmi = ""
-        if c is not None:
-            sel = (c["cell"] == r["cell"]) & (c["monitor"] == r["monitor"])
-            hmi = f"; HMI in {int((c['hmi_epochs'][sel] > 0).sum())}"
-        lines.append(f"{r['monitor']}, {what}{', ' + where if where else ''}: {verb} {r['k']} of {r['n']} sorties "
-                     f"({100 * r['rate']:.1f} %, {100 * conf:g} % interval {100 * r['lo']:.1f}-{100 * r['hi']:.1f} %)"
-                     f"{hmi}")
+        if tc is not None:
+            sel = (tc["cell"] == r["cell"]) & (tc["monitor"] == r["monitor"])
+            hmi = f"; HMI in {int((tc['hmi_epochs'][sel] > 0).sum())}"
+        head = f"{r['monitor']}, {what}{', ' + where if where else ''}: "
+        if r["n_ex"] == 0:
+            lines.append(head + f"not exercised in any of its {r['n']} sorties (no epoch carried the fault while the "
+                                f"monitor gave a solution): no detection rate{hmi}")
+            continue
+        rate = (f"({100 * r['rate']:.1f} %, {100 * conf:g} % interval {100 * r['lo']:.1f}-{100 * r['hi']:.1f} %)")
+        if free:
+            lines.append(head + f"false alarm in {r['k']} of {r['n']} sorties {rate}{hmi}")
+        elif r["not_exercised"]:
+            lines.append(head + f"detected in {r['k']} of the {r['n_ex']} sorties that exercised the fault {rate}; "
+                                f"{r['not_exercised']} of {r['n']} not exercised{hmi}")
+        else:
+            lines.append(head + f"detected in {r['k']} of {r['n']} sorties {rate}{hmi}")
     if len(rows) > limit:
         lines.append(f"... and {len(rows) - limit} more cell-monitor rows in report.md")
     return lines
@@ -200,8 +143,9 @@ def _label(row: dict, axes: list[str]) -> str:
 
 
 @dataclass(frozen=True)
-class _ReportInputs:
-    """What every report section reads (the stored tables and the report settings)."""
+class ReportInputs:
+    """What every report section reads: the stored tables, the report settings and the detection table
+    (computed once, for the report and the console's headlines alike)."""
 
     out_dir: Path
     man: dict
@@ -217,16 +161,37 @@ class _ReportInputs:
     method: str
     hal: float
     val: float
-    figdir: Path
+    figdir: Path  # where the figures are drawn (staged until the report is committed)
+
+    @property
+    def calibration(self) -> str:
+        """The VA-RAIM calibration modes of the cells, as the spec sets them (``gps``, ``none`` or both)."""
+        return ", ".join(sorted({str(c.get("calibration", "gps")) for c in self.cells}))
 
 
 #: what a report writes into its campaign folder (a folder ends in "/")
 REPORT_ENTRIES = ("report.md", "figures/")
 
 
-def write_report(out_dir: str | Path, *, power: float | None = None, outputs: OutputSet | None = None) -> Path:
+def report_inputs(out_dir: str | Path, *, power: float | None = None) -> ReportInputs:
+    """Read a finished campaign's tables and settings once (a ConfigError naming what is missing or
+    unreadable); ``power`` overrides the spec's ``[report] power``."""
+    out_dir = Path(out_dir)
+    man, cells, trials, epochs, hist = _load(out_dir)
+    rep = man["spec"].get("report", {})
+    power = power if power is not None else rep.get("power", 0.99)
+    conf, method = rep.get("confidence", 0.95), rep.get("interval", "clopper-pearson")
+    return ReportInputs(out_dir=out_dir, man=man, cells=cells, trials=trials, epochs=epochs, hist=hist,
+                        tc=_cols(trials), varying=_varying(cells), det_rows=detection_table(cells, trials, conf, method),
+                        power=power, conf=conf, method=method, hal=min(c["hal"] for c in cells),
+                        val=min(c["val"] for c in cells), figdir=out_dir / "figures")
+
+
+def write_report(out_dir: str | Path, *, power: float | None = None, inputs: ReportInputs | None = None,
+                 outputs: OutputSet | None = None) -> Path:
     """Draw every figure of a finished campaign and write ``report.md``; returns its path.
 
+    ``inputs``: the campaign's :func:`report_inputs`, when the caller has read them already.
     Figures are drawn on :class:`matplotlib.figure.Figure` objects (no pyplot, no backend
     switch): the caller's matplotlib state is left as it was. The report and its figures are
     staged and committed together: before this returns, or with the caller's ``outputs``
@@ -235,29 +200,22 @@ def write_report(out_dir: str | Path, *, power: float | None = None, outputs: Ou
     out_dir = Path(out_dir)
     if not out_dir.is_dir():  # before trying to write in it: a missing folder is no campaign
         _load(out_dir)
+    inp = inputs if inputs is not None else report_inputs(out_dir, power=power)
     with OutputSet.using(outputs) as outs:
         if not outs.declares(out_dir):
             outs.folder(out_dir, "DIR", entries=REPORT_ENTRIES, complete=True)
-        return _write_report(out_dir, power, outs)
+        return _write_report(replace(inp, figdir=outs.staged_folder(out_dir / "figures")), outs)
 
 
-def _write_report(out_dir: Path, power: float | None, outs: OutputSet) -> Path:
-    man, cells, trials, epochs, hist = _load(out_dir)
-    rep = man["spec"].get("report", {})
-    power = power if power is not None else rep.get("power", 0.99)
-    conf, method = rep.get("confidence", 0.95), rep.get("interval", "clopper-pearson")
-    figdir = outs.staged_folder(out_dir / "figures")
-    varying = _varying(cells)
-    inp = _ReportInputs(out_dir=out_dir, man=man, cells=cells, trials=trials, epochs=epochs, hist=hist,
-                      tc=_cols(trials), varying=varying, det_rows=detection_table(cells, trials, conf, method),
-                      power=power, conf=conf, method=method, hal=min(c["hal"] for c in cells),
-                      val=min(c["val"] for c in cells), figdir=figdir)
+def _write_report(inp: ReportInputs, outs: OutputSet) -> Path:
+    man, cells = inp.man, inp.cells
     md = [f"# Campaign `{man['name']}`", "",
           f"{man['spec'].get('description', '')}".strip(), "",
           f"- spec hash `{man['spec_hash']}`, {len(cells)} cells x {man['spec']['trials']} trials, "
           f"monitors {', '.join(man['spec']['monitors'])}, base seed {man['spec']['base_seed']}",
           f"- tables: `cells.parquet`, `trials.parquet` (per trial and monitor), `epochs.parquet` "
           f"(first {man['spec']['per_epoch_trials']} trials per cell), `stanford_hist.parquet`", ""]
+    md += _exercise_lines(inp)
     figures: list[tuple[str, str]] = []
     for section in (_detection_section, _stanford_section, _misleading_section, _pl_and_availability_section,
                     _paired_section, _pl_time_section, _vision_range_section):
@@ -265,9 +223,26 @@ def _write_report(out_dir: Path, power: float | None, outs: OutputSet) -> Path:
         md += lines
         figures += figs
     md += _index_lines(inp, figures)
-    idx = out_dir / "report.md"
+    idx = inp.out_dir / "report.md"
     outs.staged(idx).write_text("\n".join(md) + "\n")
     return idx
+
+
+def _exercise_lines(inp: ReportInputs) -> list[str]:
+    """A warning near the top when some faulty trials never exercised their fault (they are out of every
+    detection rate; the MDB and per-cell tables count them)."""
+    faulty = [r for r in inp.det_rows if r["fault_kind"] != "none"]
+    ne = sum(r["not_exercised"] for r in faulty)
+    if not ne:
+        return []
+    dead = sorted({(r["cell"], r["monitor"]) for r in faulty if r["n_ex"] == 0})
+    return [f"**Faults not exercised**: in {ne} of {sum(r['n'] for r in faulty)} faulty sortie-monitor pairs no epoch "
+            "carried the fault while the monitor gave a solution (the satellite never in view, the landmark never "
+            "detected, or no solution then). They are left out of the detection rates and counted apart, never as "
+            "missed detections"
+            + (f"; no sortie exercised the fault at all for {len(dead)} cell-monitor pair(s) "
+               f"({', '.join(f'cell {c} {m}' for c, m in dead[:8])}{' ...' if len(dead) > 8 else ''})" if dead else "")
+            + ".", ""]
 
 
 def _figure(nrows: int = 1, ncols: int = 1, **kw):
@@ -280,16 +255,37 @@ def _figure(nrows: int = 1, ncols: int = 1, **kw):
 
 
 def _save(fig, path: Path) -> None:
+    """Lay a figure out with every title inside it and write it."""
+    fit_titles(fig)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
 
-#: the two definitions of detection: (tag, title, rate, lower, upper key of detection_table rows)
-DETECTION_DEFINITIONS = (("sortie", "per sortie (any alert from the onset on)", "rate", "lo", "hi"),
-                         ("epoch", "per faulty epoch (alerted / faulty epochs with a solution)", "rate_ep", "lo_ep", "hi_ep"))
+def fit_titles(fig) -> None:
+    """Wrap the figure's own texts (its suptitle) to the figure's width and each axes title to its axes'
+    width, at word boundaries: a title wider than its room was clipped at both ends (``pl_time.png``'s
+    over one panel). Drawn on an Agg canvas to measure (no pyplot, no backend switch)."""
+    import textwrap
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    if not isinstance(fig.canvas, FigureCanvasAgg):
+        FigureCanvasAgg(fig)
+    renderer = fig.canvas.get_renderer()
+    rooms = [(t, 0.96 * fig.bbox.width) for t in fig.texts]
+    rooms += [(ax.title, 1.05 * ax.get_window_extent(renderer).width) for ax in fig.axes]
+    for text, room in rooms:
+        paragraphs = text.get_text().split("\n")  # the title's own line breaks stay
+        chars = max(map(len, paragraphs))
+        for _ in range(6):  # a fill can still come out wide (long words): narrower until it fits
+            width = text.get_window_extent(renderer).width
+            if not text.get_text() or width <= room or chars <= 12:
+                break
+            chars = max(12, int(chars * min(room / width, 0.95)))
+            text.set_text("\n".join(textwrap.fill(p, chars) for p in paragraphs))
 
 
-def _detection_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+def _detection_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: detection rate vs fault size per fault family, per sortie and per epoch, and the MDB of each."""
     md: list[str] = []
     figures: list[tuple[str, str]] = []
@@ -300,56 +296,111 @@ def _detection_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, s
     for fam, kind, unit in fams:
         if kind == "none":
             continue
-        fig, axs = _figure(1, 2, figsize=(12, 4.8), sharey=True)
         rows = [r for r in det_rows if r["fault_family"] == fam]
         groups: dict[str, list[dict]] = {}
         for r in rows:
             groups.setdefault(_label(r, varying), []).append(r)
-        for lab, rs in sorted(groups.items()):
+        for rs in groups.values():
             rs.sort(key=lambda r: r["fault_size"])
-            x = np.array([r["fault_size"] for r in rs])
-            row = {"fault": kind, "unit": unit, "group": lab, "n": rs[0]["n"], "n_ep": rs[0]["n_ep"]}
-            for ax, (tag, _, key, klo, khi) in zip(axs, DETECTION_DEFINITIONS):
-                y = np.array([r[key] for r in rs])
-                lo, hi = np.array([r[klo] for r in rs]), np.array([r[khi] for r in rs])
-                (ln,) = ax.plot(x, y, "o-", ms=3, label=lab)
-                ax.fill_between(x, lo, hi, color=ln.get_color(), alpha=0.18, lw=0)
-                fa = [r for r in rs if r["fault_size"] == 0]
-                row.update({f"mdb_{tag}": minimal_detectable_bias(x, y, power),
-                            f"mdb_lo_{tag}": minimal_detectable_bias(x, lo, power),
-                            f"fa_{tag}": fa[0][key] if fa else float("nan")})
-            mdb_rows.append(row)
+        mdbs = {lab: group_mdbs(rs, power) for lab, rs in groups.items()}
+        for lab, rs in sorted(groups.items()):
+            faulty = [r for r in rs if r["fault_kind"] != "none"]
+            free = [r for r in rs if r["fault_kind"] == "none"]
+            mdb_rows.append({"fault": kind, "unit": unit, "group": lab, "n": rs[0]["n"],
+                             "not_exercised": f"{sum(r['not_exercised'] for r in faulty)} of {sum(r['n'] for r in faulty)}",
+                             "fa_sortie": free[0]["rate"] if free else float("nan"),
+                             "fa_epoch": free[0]["rate_ep"] if free else float("nan"), **mdbs[lab]})
         per_cell = {r["cell"]: r["n"] for r in rows}  # sorties of each cell (every monitor flies them all)
-        for ax, (tag, title, *_) in zip(axs, DETECTION_DEFINITIONS):
-            ax.axhline(power, color="k", ls=":", lw=0.8)
-            ax.set_xlabel(f"{kind} size ({unit})")
-            ax.set_ylim(-0.02, 1.02)
-            ax.set_title(f"detection rate {title}", fontsize=9)
-            ax.grid(alpha=0.3)
-        axs[0].set_ylabel("detection rate")
-        axs[1].legend(fontsize=7, loc="lower right")
-        fig.suptitle(f"{kind}: {sum(per_cell.values())} sorties in {len(per_cell)} cells; {method} "
-                     f"{100 * conf:.0f} % bands; "
-                     f"dotted: power {power:g}", fontsize=10)
+        fig = detection_figure(f"{kind} size ({unit})", groups, mdbs, power,
+                               f"{kind}: {sum(per_cell.values())} sorties in {len(per_cell)} cells; points: the "
+                               f"measured rates with their {method} {100 * conf:g} % intervals")
         name = f"detection_{fam}_{kind}.png"
         _save(fig, figdir / name)
         figures.append((f"Detection rate vs {kind} size, per sortie and per epoch", name))
     if mdb_rows:
+        band = f"{100 * conf:g} % bracket"
         md += [f"## Minimal detectable bias at {100 * power:g} % power", "",
-               "Per sortie: any alert from the onset on; per epoch: alerted epochs among the epochs from the onset "
+               "Per sortie: any alert from the onset on, among the sorties that exercised the fault (an epoch "
+               "carried it while the monitor gave a solution; the others are counted in \"not exercised\", never "
+               "as missed); per epoch: alerted epochs among the epochs from the onset that carried the fault and "
                "at which the monitor gives a solution (size 0: the per-epoch false-alarm rate).", "",
-               "| fault | group | sorties/cell | false alarms per sortie | MDB per sortie (lower bound) "
-               "| false alarms per epoch | MDB per epoch (lower bound) |", "|---|---|---|---|---|---|---|"]
-        for r in mdb_rows:
-            md.append(f"| {r['fault']} | {r['group']} | {r['n']} | {_f(r['fa_sortie'], '{:.4f}')} | "
-                      f"{_f(r['mdb_sortie'], '{:.1f}')} ({_f(r['mdb_lo_sortie'], '{:.1f}')}) {r['unit']} | "
-                      f"{_f(r['fa_epoch'], '{:.2e}')} | {_f(r['mdb_epoch'], '{:.1f}')} "
-                      f"({_f(r['mdb_lo_epoch'], '{:.1f}')}) {r['unit']} |")
+               "The MDB is the smallest size whose measured rate reaches the power. It lies between the measured "
+               "size before it and that size, and is interpolated between the two only when they are adjacent in "
+               "the sweep and the rate at the lower one is at least 1/2 (there a detection curve is concave, so "
+               "the interpolation errs on the large side); otherwise the bracket is the answer. The "
+               f"{band}: sizes whose rate's {method} interval lies wholly below the power (the MDB is above) or "
+               "wholly at or above it (the MDB is at most that), read size by size.", ""]
+        md += md_table(["fault", "group", "sorties/cell", "not exercised", "false alarms per sortie",
+                        "MDB per sortie", band, "false alarms per epoch", "MDB per epoch", band],
+                       [[r["fault"], r["group"], r["n"], r["not_exercised"], _f(r["fa_sortie"], "{:.4f}"),
+                         r["sortie"].text(r["unit"]), r["sortie"].ci_text(r["unit"]), _f(r["fa_epoch"], "{:.2e}"),
+                         r["epoch"].text(r["unit"]), r["epoch"].ci_text(r["unit"])] for r in mdb_rows])
         md.append("")
     return md, figures
 
 
-def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+def group_mdbs(rows: list[dict], power: float) -> dict[str, MDB]:
+    """The MDB of a group of detection-table rows (one setting, every size), per detection definition."""
+    def col(k: str) -> np.ndarray:
+        return np.array([r[k] for r in rows], float)
+
+    return {tag: minimal_detectable_bias(col("fault_size"), col(key), power, col(klo), col(khi))
+            for tag, _, key, klo, khi in DETECTION_DEFINITIONS}
+
+
+def detection_figure(xlabel: str, groups: dict[str, list[dict]], mdbs: dict[str, dict[str, MDB]], power: float,
+                     title: str):
+    """Detection rate vs fault size, per sortie and per epoch side by side, a colour per group.
+
+    Only what was measured is drawn: each size's rate as a point with its interval, a thin dotted line
+    joining sizes adjacent in the sweep (a size whose fault was not exercised breaks it, and is marked x on
+    the axis), and on the power line each group's MDB: its bracket of measured sizes as a thick segment and,
+    where the bracket resolves it, the interpolated value as a tick (``>`` at the largest size: not reached).
+    """
+    fig, axs = _figure(1, 2, figsize=(12, 5.2), sharey=True)
+    unexercised = False
+    for g, (lab, rs) in enumerate(sorted(groups.items())):
+        colour = f"C{g % 10}"
+        x = np.array([r["fault_size"] for r in rs], float)
+        for ax, (tag, _, key, klo, khi) in zip(axs, DETECTION_DEFINITIONS):
+            y, lo, hi = (np.array([r[k] for r in rs], float) for k in (key, klo, khi))
+            m = np.isfinite(y)
+            ax.errorbar(x[m], y[m], yerr=[y[m] - lo[m], hi[m] - y[m]], fmt="o", ms=4, capsize=2, color=colour,
+                        label=lab)
+            ax.plot(x, y, ls=":", lw=0.9, color=colour)  # NaN (not exercised) breaks the line
+            if (~m).any():
+                ax.plot(x[~m], np.zeros((~m).sum()), "x", ms=7, mew=1.5, color="0.45")
+                unexercised = True
+            _mark_mdb(ax, mdbs[lab][tag], power, colour)
+    for ax, (tag, title_, *_) in zip(axs, DETECTION_DEFINITIONS):
+        ax.axhline(power, color="k", ls=":", lw=0.8)
+        ax.set_xlabel(xlabel)
+        ax.set_ylim(-0.03, 1.03)
+        ax.set_title(f"detection rate {title_}", fontsize=9)
+        ax.grid(alpha=0.3)
+    axs[0].set_ylabel("detection rate")
+    axs[1].legend(fontsize=7, loc="lower right")
+    fig.suptitle(f"{title}\ndotted: power {power:g}, joins between adjacent measured sizes; on the power line the MDB: "
+                 "thick its bracket, | its interpolation where resolved, > not reached"
+                 + ("; x: fault not exercised" if unexercised else ""), fontsize=9)
+    return fig
+
+
+def _mark_mdb(ax, mdb: MDB, power: float, colour: str) -> None:
+    """The MDB on the power line: its bracket (a thick segment), its value (a tick) or ``>`` / ``<``."""
+    if not mdb.measured:
+        return
+    if mdb.reached and np.isfinite(mdb.low):
+        ax.plot([mdb.low, mdb.high], [power, power], lw=6, alpha=0.35, color=colour, solid_capstyle="butt")
+    if mdb.resolved:
+        ax.plot([mdb.value], [power], marker="|", ms=14, mew=2.5, color=colour)
+    elif not mdb.reached:
+        ax.plot([mdb.low], [power], marker=">", ms=8, color=colour)
+    elif np.isnan(mdb.low):
+        ax.plot([mdb.high], [power], marker="<", ms=8, color=colour)
+
+
+def _stanford_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: Stanford diagrams, region counts and pooled 95 % accuracy per monitor."""
     md: list[str] = []
     figures: list[tuple[str, str]] = []
@@ -382,16 +433,13 @@ def _stanford_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, st
         name = f"stanford_{m}.png"
         _save(stanford_figure(m, panels, edges), figdir / name)
         figures.append((f"Stanford diagrams, {m}", name))
-    md += ["## Integrity regions (all cells, all epochs; most demanding service level)", "",
-           "| monitor | dim | " + " | ".join(REGIONS) + " | epochs |", "|---|---|" + "---|" * (len(REGIONS) + 1)]
-    for r in region_rows:
-        md.append(f"| {r['monitor']} | {r['dim']} | " + " | ".join(str(r[k]) for k in REGIONS) + f" | {r['epochs']} |")
-    md += ["", "## 95 % accuracy (pooled over all cells and epochs, from the Stanford histograms)", "",
-           "| monitor | HPE95 (m) | VPE95 (m) |", "|---|---|---|"]
-    for m in monitors:
-        h = [a["e95"] for a in acc_rows if a["monitor"] == m and a["dim"] == "H"][0]
-        v = [a["e95"] for a in acc_rows if a["monitor"] == m and a["dim"] == "V"][0]
-        md.append(f"| {m} | {_f(h, '{:.2f}')} | {_f(v, '{:.2f}')} |")
+    md += ["## Integrity regions (all cells, all epochs; most demanding service level)", ""]
+    md += md_table(["monitor", "dim", *REGIONS, "epochs"],
+                   [[r["monitor"], r["dim"], *(r[k] for k in REGIONS), r["epochs"]] for r in region_rows])
+    md += ["", "## 95 % accuracy (pooled over all cells and epochs, from the Stanford histograms)", ""]
+    e95 = {(a["monitor"], a["dim"]): a["e95"] for a in acc_rows}
+    md += md_table(["monitor", "HPE95 (m)", "VPE95 (m)"],
+                   [[m, _f(e95[m, "H"], "{:.2f}"), _f(e95[m, "V"], "{:.2f}")] for m in monitors])
     md.append("")
     return md, figures
 
@@ -499,7 +547,7 @@ def _setting_label(cell: dict, varying: list[str]) -> str:
     return ", ".join(parts) or "all cells"
 
 
-def _pl_and_availability_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+def _pl_and_availability_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: PL statistics across sorties and per-epoch availability per service level, one table
     (settings x monitors as rows, statistics and levels as columns)."""
     cells, varying, tc = inp.cells, inp.varying, inp.tc
@@ -511,9 +559,8 @@ def _pl_and_availability_section(inp: _ReportInputs) -> tuple[list[str], list[tu
           "Per setting and monitor, pooled over its sorties (and start times): the median, 95th percentile and "
           "maximum of each sortie's largest HPL / VPL; the 95 % horizontal / vertical accuracy (95th percentile "
           "of the position error over its epochs with a protection level and no alert, from the 0.05-dex "
-          "error histogram: ±6 %); the fraction of epochs available per service level.", "",
-          "| setting | monitor | sorties | max HPL: median / p95 / max (m) | max VPL: median / p95 / max (m) | "
-          "H / V accuracy 95 % (m) | " + " | ".join(levels) + " |", "|---|---|---|---|---|---|" + "---|" * len(levels)]
+          "error histogram: ±6 %); the fraction of epochs available per service level.", ""]
+    rows = []
     for g in sorted(set(setting.tolist())):
         in_setting = None if hc is None else np.isin(hc["cell"], [k for k, v in cell_setting.items() if v == g])
         for m in sorted(set(tc["monitor"][setting == g].tolist())):
@@ -521,14 +568,15 @@ def _pl_and_availability_section(inp: _ReportInputs) -> tuple[list[str], list[tu
             stats3 = [" / ".join(_f(x, "{:.1f}") for x in _median_p95_max(tc[k][sel])) for k in ("max_hpl", "max_vpl")]
             acc = [hist_quantile(hc, None if hc is None else in_setting & (hc["monitor"] == m) & (hc["dim"] == d), 0.95)
                    for d in ("H", "V")]
-            md.append(f"| {g} | {m} | {int(sel.sum())} | {stats3[0]} | {stats3[1]} | "
-                      f"{_f(acc[0], '{:.2f}')} / {_f(acc[1], '{:.2f}')} | "
-                      + " | ".join(f"{100 * float(np.mean(tc[f'avail_{lv}'][sel])):.1f} %" for lv in levels) + " |")
+            rows.append([g, m, int(sel.sum()), stats3[0], stats3[1], f"{_f(acc[0], '{:.2f}')} / {_f(acc[1], '{:.2f}')}",
+                         *(f"{100 * float(np.mean(tc[f'avail_{lv}'][sel])):.1f} %" for lv in levels)])
+    md += md_table(["setting", "monitor", "sorties", "max HPL: median / p95 / max (m)",
+                    "max VPL: median / p95 / max (m)", "H / V accuracy 95 % (m)", *levels], rows)
     md.append("")
     return md, []
 
 
-def _misleading_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+def _misleading_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: misleading and hazardously misleading epochs per cell and monitor, with the per-epoch
     HMI rate's binomial interval (a monitor without detection, such as the DPE, shows its faults here)."""
     tc, cells = inp.tc, {int(c["cell"]): c for c in inp.cells}
@@ -536,16 +584,17 @@ def _misleading_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, 
           "Epochs whose error exceeds the protection level without an alert (MI), and those whose error also "
           "exceeds the alert limit while the PL is within it (HMI), on the dimensions each monitor bounds "
           f"(a vertical-only monitor on V); HMI rate per epoch with its {100 * inp.conf:g} % {inp.method} interval.",
-          "", "| cell | fault | size | monitor | epochs | MI | HMI | HMI per epoch | interval |",
-          "|---|---|---|---|---|---|---|---|---|"]
+          ""]
+    rows = []
     for cell in sorted(set(tc["cell"].tolist())):
         c = cells[int(cell)]
         for m in sorted(set(tc["monitor"][tc["cell"] == cell].tolist())):
             sel = (tc["cell"] == cell) & (tc["monitor"] == m)
             n, mi, hmi = (int(tc[k][sel].sum()) for k in ("epochs", "mi_epochs", "hmi_epochs"))
             lo, hi = binomial_interval(np.array([hmi]), np.array([n]), inp.conf, inp.method)
-            md.append(f"| {cell} | {c['fault_sweep_kind']} | {c['fault_size']:g} {c['fault_unit']} | {m} | {n} | {mi} | "
-                      f"{hmi} | {hmi / max(n, 1):.2e} | [{float(lo[0]):.2e}, {float(hi[0]):.2e}] |")
+            rows.append([cell, c["fault_sweep_kind"], f"{c['fault_size']:g} {c['fault_unit']}", m, n, mi, hmi,
+                         f"{hmi / max(n, 1):.2e}", f"[{float(lo[0]):.2e}, {float(hi[0]):.2e}]"])
+    md += md_table(["cell", "fault", "size", "monitor", "epochs", "MI", "HMI", "HMI per epoch", "interval"], rows)
     md.append("")
     return md, []
 
@@ -558,7 +607,7 @@ def mcnemar_p(a_only: int, b_only: int) -> float:
     return 1.0 if n == 0 else float(min(1.0, 2.0 * stats.binom.cdf(min(a_only, b_only), n, 0.5)))
 
 
-def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+def _paired_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: the monitors paired on the same epochs — availability (McNemar over epochs, and a sign test
     over sorties, which are independent where epochs are not), the VPL ratio, and the epochs with exactly
     four satellites (no redundancy for snapshot RAIM) counted apart."""
@@ -571,20 +620,17 @@ def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]
           "Availability at the same epochs and signals: epochs where only one is available, the exact McNemar "
           "test on them (epochs within a sortie are correlated, so its p is optimistic), and a sign test over "
           "sorties (independent: the sorties where one is available more often than the other); then the "
-          "epochs with exactly four satellites, where snapshot RAIM has no redundancy, counted apart.", "",
-          "| level | monitor A | monitor B | epochs | A only | B only | McNemar p | sorties A > B | A < B | sign test "
-          "p | 4-satellite epochs | A available there | B available there |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "epochs with exactly four satellites, where snapshot RAIM has no redundancy, counted apart.", ""]
     pairs = [(a, b) for i, a in enumerate(monitors) for b in monitors[i + 1:]]
-    for level in levels:
-        for a, b in pairs:
-            md.append(_paired_row(tc, level, a, b))
+    md += md_table(["level", "monitor A", "monitor B", "epochs", "A only", "B only", "McNemar p", "sorties A > B",
+                    "A < B", "sign test p", "4-satellite epochs", "A available there", "B available there"],
+                   [_paired_row(tc, level, a, b) for level in levels for a, b in pairs])
     md.append("")
     ep = inp.epochs
     if ep is not None and ep.num_rows:
         e = _cols(ep, ["cell", "trial", "t", "monitor", "vpl"])
-        md += ["VPL ratio on the per-epoch trials' epochs where both give a VPL:", "",
-               "| monitor A | monitor B | epochs | VPL_A / VPL_B median | 5 % | 95 % |", "|---|---|---|---|---|---|"]
+        md += ["VPL ratio on the per-epoch trials' epochs where both give a VPL:", ""]
+        rows = []
         for i, a in enumerate(monitors):
             for b in monitors[i + 1:]:
                 va = _keyed(e, a)
@@ -594,12 +640,13 @@ def _paired_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]
                 r = r[np.isfinite(r)]
                 if r.size:
                     q = np.percentile(r, [50, 5, 95])
-                    md.append(f"| {a} | {b} | {r.size} | {q[0]:.3f} | {q[1]:.3f} | {q[2]:.3f} |")
+                    rows.append([a, b, r.size, f"{q[0]:.3f}", f"{q[1]:.3f}", f"{q[2]:.3f}"])
+        md += md_table(["monitor A", "monitor B", "epochs", "VPL_A / VPL_B median", "5 %", "95 %"], rows)
         md.append("")
     return md, []
 
 
-def _paired_row(tc: dict, level: str, a: str, b: str) -> str:
+def _paired_row(tc: dict, level: str, a: str, b: str) -> list:
     """One row of the paired table: monitors ``a`` and ``b`` at ``level`` (trials matched by cell and trial)."""
     sa, sb = tc["monitor"] == a, tc["monitor"] == b
     ka = np.lexsort((tc["trial"][sa], tc["cell"][sa]))
@@ -608,9 +655,9 @@ def _paired_row(tc: dict, level: str, a: str, b: str) -> str:
     b_only = tc[f"only_available_vs_{a}_{level}"][sb][kb]
     more, less = int((a_only > b_only).sum()), int((a_only < b_only).sum())
     fa, fb = int(tc[f"four_sat_avail_{level}"][sa].sum()), int(tc[f"four_sat_avail_{level}"][sb].sum())
-    return (f"| {level} | {a} | {b} | {int(tc['epochs'][sa].sum())} | {int(a_only.sum())} | {int(b_only.sum())} | "
-            f"{mcnemar_p(int(a_only.sum()), int(b_only.sum())):.2g} | {more} | {less} | {mcnemar_p(more, less):.2g} | "
-            f"{int(tc['four_sat_epochs'][sa].sum())} | {fa} | {fb} |")
+    return [level, a, b, int(tc["epochs"][sa].sum()), int(a_only.sum()), int(b_only.sum()),
+            f"{mcnemar_p(int(a_only.sum()), int(b_only.sum())):.2g}", more, less, f"{mcnemar_p(more, less):.2g}",
+            int(tc["four_sat_epochs"][sa].sum()), fa, fb]
 
 
 def _keyed(e: dict, monitor: str) -> dict:
@@ -630,7 +677,7 @@ def _median_p95_max(x: np.ndarray) -> tuple[float, float, float]:
 MAX_PANELS = 4  # settings per PL-over-time figure (more settings: more figures)
 
 
-def _pl_time_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+def _pl_time_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: HPL/VPL over time, median and 5-95 % across trials; small multiples, one column per
     setting, every monitor of it in the panel (GPS RAIM the reference), the alert limit dashed."""
     figures: list[tuple[str, str]] = []
@@ -688,7 +735,7 @@ def _quantiles_over_time(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.n
     return tt, q
 
 
-def _vision_range_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+def _vision_range_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: vision-range error, raw and calibrated."""
     md: list[str] = []
     figures: list[tuple[str, str]] = []
@@ -699,61 +746,104 @@ def _vision_range_section(inp: _ReportInputs) -> tuple[list[str], list[tuple[str
         bt = int(inp.man["spec"].get("block_trials") or 0) or None
         vr = vision_range_error_table(cells, trials, bt)
         if vr:
-            vaxes = [a for a in ("lpe_sigma_m", "dpi", "sigma_px") if len({r[a] for r in vr}) > 1] or ["lpe_sigma_m"]
-            fig, axs = _figure(1, len(vaxes), figsize=(5.2 * len(vaxes), 4.2), squeeze=False)
-            for ax, a in zip(axs[0], vaxes):
-                others = [b for b in ("lpe_sigma_m", "dpi", "sigma_px", "calibration") if b != a and len({r[b] for r in vr}) > 1]
-                grp: dict[str, list] = {}
-                for r in vr:
-                    grp.setdefault(", ".join(f"{AXIS_LABEL[b]} {r[b]}" for b in others), []).append(r)
-                for g, rs in sorted(grp.items()):
-                    rs.sort(key=lambda r: r[a])
-                    x = np.array([r[a] for r in rs], float)
-                    for tag, mk in (("raw", "o--"), ("cal", "s-")):
-                        mu = np.array([r[f"{tag}_mean"] for r in rs])
-                        sd = np.array([r[f"{tag}_std"] for r in rs])
-                        if np.isfinite(mu).any():
-                            ax.errorbar(x, mu, yerr=sd, fmt=mk, ms=3, capsize=2,
-                                        label=f"{'calibrated' if tag == 'cal' else 'uncalibrated'} {g}".strip())
-                ax.set_xlabel(AXIS_LABEL[a])
-                ax.set_ylabel("vision-range error (m): mean ± 1 sd")
-                ax.grid(alpha=0.3)
-                if ax.get_legend_handles_labels()[0]:  # (no vision ranges at all: nothing to label)
-                    ax.legend(fontsize=6)
-            fig.suptitle("vision-range error (VA-RAIM) vs " + ", ".join(AXIS_LABEL[a] for a in vaxes))
-            _save(fig, figdir / "vision_range_error.png")
+            _save(vision_range_figure(vr), figdir / "vision_range_error.png")
             figures.append(("Vision-range error", "vision_range_error.png"))
-            md += ["## Vision-range error (VA-RAIM; error = estimated - true camera-landmark range)", "",
-                   "| cell | dpi | DE px | LPE m | cal mode | raw mean ± se | raw sd | calibrated mean ± se | "
-                   "calibrated sd | surveys |", "|---|---|---|---|---|---|---|---|---|---|"]
+            md += ["## Vision-range error (VA-RAIM; error = estimated - true camera-landmark range)", ""]
 
             def mean_se(r: dict, tag: str) -> str:
                 se = r.get(f"{tag}_se", float("nan"))
                 return _f(r[f"{tag}_mean"], "{:.3f}") + ("" if not np.isfinite(se) else f" ± {se:.3f}")
 
-            for r in vr:
-                md.append(f"| {r['cell']} | {r['dpi']:g} | {r['sigma_px']:g} | {r['lpe_sigma_m']:g} | {r['calibration']} | "
-                          f"{mean_se(r, 'raw')} | {_f(r['raw_std'], '{:.3f}')} | {mean_se(r, 'cal')} | "
-                          f"{_f(r['cal_std'], '{:.3f}')} | {r.get('raw_surveys', '')} |")
+            md += md_table(["cell", "dpi", "DE px", "LPE m", "cal mode", "raw mean ± se", "raw sd", "calibrated mean ± se",
+                            "calibrated sd", "surveys"],
+                           [[r["cell"], f"{r['dpi']:g}", f"{r['sigma_px']:g}", f"{r['lpe_sigma_m']:g}", r["calibration"],
+                             mean_se(r, "raw"), _f(r["raw_std"], "{:.3f}"), mean_se(r, "cal"), _f(r["cal_std"], "{:.3f}"),
+                             r.get("raw_surveys", "")] for r in vr])
             md += ["", "se: standard error of the mean with the landmark surveys as the independent units (one survey "
                    f"per block of {bt} sorties: every epoch of a block carries its survey's bias, so the epochs' "
                    "sd/√N would understate it; `report.clustered_mean_se`). sd: the spread of single errors.", ""]
     return md, figures
 
 
-def _index_lines(inp: _ReportInputs, figures: list[tuple[str, str]]) -> list[str]:
+#: the axes a vision-range figure may plot against (the first is the default with none swept)
+VISION_RANGE_AXES = ("lpe_sigma_m", "dpi", "sigma_px")
+
+
+def vision_range_figure(vr: list[dict]):
+    """The vision-range error's mean ± 1 sd per cell of :func:`vision_range_error_table`, a panel per swept
+    axis (LPE, dpi, detection error), a series per setting of the others.
+
+    The fault-free cells when there are some (a fault moves the errors it is about), else every cell. Each
+    series says what the spec made of it: ``raw ranges (before GPS calibration)`` and ``after GPS
+    calibration`` where the cells calibrate (with a note where no epoch was calibrated), ``raw ranges
+    (uncalibrated: calibration = none)`` where they do not. A panel whose axis takes one value places its
+    settings side by side as categories, named on the axis, instead of a window of a few thousandths
+    around one point."""
+    free = [r for r in vr if r.get("fault_kind") == "none"]
+    rows = free or vr
+    vary = lambda a: len({r[a] for r in rows}) > 1  # noqa: E731
+    vaxes = [a for a in VISION_RANGE_AXES if vary(a)] or [VISION_RANGE_AXES[0]]
+    fig, axs = _figure(1, len(vaxes), figsize=(5.6 * len(vaxes), 4.6), squeeze=False)
+    for ax, a in zip(axs[0], vaxes):
+        others = [b for b in (*VISION_RANGE_AXES, "calibration") if b != a and vary(b)]
+        grp: dict[str, list] = {}
+        for r in rows:
+            grp.setdefault(", ".join(f"{AXIS_LABEL[b]} {r[b]:g}" if isinstance(r[b], float) else f"{AXIS_LABEL[b]} {r[b]}"
+                                     for b in others), []).append(r)
+        values = sorted({r[a] for r in rows})
+        categorical = len(values) == 1
+        # the series side by side around each x (common random numbers make some coincide): a small dodge,
+        # raw and calibrated about each category, or every series about each swept value
+        n_series = 2 if categorical else 2 * len(grp)
+        dodge = (0.25 if categorical else 0.06 * (values[-1] - values[0])) / n_series
+        uncalibrated = []
+        for k, (g, rs) in enumerate(sorted(grp.items())):
+            rs = sorted(rs, key=lambda r: r[a])
+            x = np.array([k if categorical else r[a] for r in rs], float)
+            modes = {r["calibration"] for r in rs}
+            raw = ("raw ranges (before GPS calibration)" if modes == {"gps"} else
+                   "raw ranges (uncalibrated: calibration = none)" if modes == {"none"} else "raw ranges")
+            for j, (tag, mk, label) in enumerate((("raw", "o--", raw), ("cal", "s-", "after GPS calibration"))):
+                mu = np.array([r[f"{tag}_mean"] for r in rs], float)
+                sd = np.array([r[f"{tag}_std"] for r in rs], float)
+                shift = ((j if categorical else 2 * k + j) - (n_series - 1) / 2) * dodge
+                if np.isfinite(mu).any():
+                    ax.errorbar(x + shift, mu, yerr=sd, fmt=mk, ms=4, capsize=3, label=f"{label}{', ' + g if g else ''}")
+                elif tag == "cal" and "gps" in modes:
+                    uncalibrated.append(g or "every cell")
+        if uncalibrated:
+            ax.text(0.02, 0.02, "GPS calibration set, but no epoch was calibrated: " + "; ".join(uncalibrated),
+                    transform=ax.transAxes, fontsize=7, va="bottom", wrap=True)
+        if categorical:
+            ax.set_xticks(range(len(grp)), [g or "all cells" for g in sorted(grp)], fontsize=7)
+            ax.set_xlim(-0.6, len(grp) - 0.4)
+            ax.set_xlabel(f"{AXIS_LABEL[a]} = {values[0]:g} (one value)")
+        else:
+            ax.set_xlabel(AXIS_LABEL[a])
+        ax.set_ylabel("vision-range error (m): mean ± 1 sd")
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:  # (no vision ranges at all: nothing to label)
+            ax.legend(fontsize=6)
+    fig.suptitle("vision-range error (VA-RAIM) vs " + ", ".join(AXIS_LABEL[a] for a in vaxes)
+                 + (", fault-free cells" if free else ""))
+    return fig
+
+
+def _index_lines(inp: ReportInputs, figures: list[tuple[str, str]]) -> list[str]:
     """The figure index and the per-cell detection table."""
     varying, det_rows = inp.varying, inp.det_rows
     md: list[str] = []
     md += ["## Figures", ""]
     for title, name in figures:
         md += [f"### {title}", "", f"![{title}](figures/{name})", ""]
-    md += ["## Detection rates per cell", ""]
-    md += md_table(["cell", "monitor", "fault", "size", *(AXIS_LABEL[a] for a in varying), "trials", "detected",
-                    "rate", "interval"],
+    md += ["## Detection rates per cell", "",
+           "Per sortie: detected among the sorties that exercised the fault; \"not exercised\": sorties in which no "
+           "epoch carried the fault while the monitor gave a solution (out of the rate, not missed).", ""]
+    md += md_table(["cell", "monitor", "fault", "size", *(AXIS_LABEL[a] for a in varying), "trials", "not exercised",
+                    "detected", "rate", "interval"],
                    [[r["cell"], r["monitor"], r["fault_sweep_kind"], f"{r['fault_size']:g} {r['fault_unit']}",
-                     *(r[a] for a in varying), r["n"], r["k"], f"{r['rate']:.4f}", f"[{r['lo']:.4f}, {r['hi']:.4f}]"]
-                    for r in det_rows])
+                     *(r[a] for a in varying), r["n"], r["not_exercised"], r["k"], _f(r["rate"], "{:.4f}"),
+                     f"[{r['lo']:.4f}, {r['hi']:.4f}]" if r["n_ex"] else "not exercised"] for r in det_rows])
     return md
 
 

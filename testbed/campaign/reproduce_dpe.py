@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.markdown import table as md_table
 from testbed.outputs import OutputSet
 
 #: the DPE paper's claims, in the abstract's order (docs/design/dpe.md §1)
@@ -146,27 +147,24 @@ def summary(cases: list[dict], k_rec: dict, hmi: list[dict], trials: int) -> lis
     md = ["# Reproduction of the DPE paper (Chu & Gao, DPE vertical integrity)", "",
           "Experiments and assumptions: `testbed/campaign/reproduce_dpe.py` (module docstring) and "
           "docs/design/dpe.md §7.3.", "",
-          "## 1. The reference epoch, both variants (medians over the draws)", "",
-          "| case | variant | vertical error (m) | RMS (m) | σ_ob (m) | median (m) | about-solution feasible | √J_UU (m) |",
-          "|---|---|---|---|---|---|---|---|"]
-    for r in cases:
-        md.append(f"| {r['case']} | {r['variant']} | {r['vertical_error_m']:+.2f} | {r['rms_vertical_error_m']:.2f} | "
-                  f"{r['sigma_ob_m']:.2f} | {r['median_m']:+.3f} | {100 * r['about_solution_feasible']:.0f} % | "
-                  f"{'-' if not np.isfinite(r['crb_u_m']) else format(r['crb_u_m'], '.2f')} |")
+          "## 1. The reference epoch, both variants (medians over the draws)", ""]
+    md += md_table(["case", "variant", "vertical error (m)", "RMS (m)", "σ_ob (m)", "median (m)", "about-solution feasible",
+                    "√J_UU (m)"],
+                   [[r["case"], r["variant"], f"{r['vertical_error_m']:+.2f}", f"{r['rms_vertical_error_m']:.2f}",
+                     f"{r['sigma_ob_m']:.2f}", f"{r['median_m']:+.3f}", f"{100 * r['about_solution_feasible']:.0f} %",
+                     "-" if not np.isfinite(r["crb_u_m"]) else format(r["crb_u_m"], ".2f")] for r in cases])
     v = k_rec["validation"]
     md += ["", "## 2. K (the shipped calibration record)", "",
            f"K = {k_rec['k']:.3f} for P_HMI = {k_rec['p_hmi']:g} per epoch ({k_rec['k_from']}; σ_z {k_rec['sigma_z']:.3f}, "
            f"b_z {k_rec['b_z']:+.3f}; {k_rec['n_calibration']} calibration epochs); held-out {v['epochs']} epochs: "
            f"{'passed' if v['passed'] else 'FAILED'} ({v['exceedances']} with |e| > VPL, {v['allowed']} allowed).", "",
-           f"## 3. DPE beside GPS RAIM, GPS step from 20 s ({trials} sorties per cell)", "",
-           "| step (m) | monitor | epochs | MI | HMI | HMI per epoch |", "|---|---|---|---|---|---|"]
-    for r in hmi:
-        md.append(f"| {r['fault_size']:g} | {r['monitor']} | {r['epochs']} | {r['mi_epochs']} | {r['hmi_epochs']} | "
-                  f"{r['hmi_epochs'] / max(r['epochs'], 1):.2e} |")
-    md += ["", "## Claims", "", "| claim | our figure | verdict | assumption behind any difference |", "|---|---|---|---|"]
-    for key, text in CLAIMS:
-        fig, verdict, why = _claim(key, cases, k_rec, hmi)
-        md.append(f"| {text} | {fig} | {verdict} | {why} |")
+           f"## 3. DPE beside GPS RAIM, GPS step from 20 s ({trials} sorties per cell)", ""]
+    md += md_table(["step (m)", "monitor", "epochs", "MI", "HMI", "HMI per epoch"],
+                   [[f"{r['fault_size']:g}", r["monitor"], r["epochs"], r["mi_epochs"], r["hmi_epochs"],
+                     f"{r['hmi_epochs'] / max(r['epochs'], 1):.2e}"] for r in hmi])
+    md += ["", "## Claims", ""]
+    md += md_table(["claim", "our figure", "verdict", "assumption behind any difference"],
+                   [[text, *_claim(key, cases, k_rec, hmi)] for key, text in CLAIMS])
     return md
 
 

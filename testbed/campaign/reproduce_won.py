@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.markdown import table as md_table
 from testbed.outputs import OutputSet
 
 #: (case name, satellites (None: no GNSS), clock known, vision)
@@ -340,20 +341,19 @@ def _report(res: dict) -> str:
     c = res["cases"]
     lines = [f"# The Won et al. paper reproduced: {res['trials']} runs per case, {res['duration_s']:g} s",
              "", f"Satellites: DO-229 PRN {', '.join(map(str, res['prns']))} over Seoul at {START_UTC} "
-             "(module doc of `testbed/campaign/reproduce_won.py` for the set-up). Every case flies the same draws.", "",
-             "| case | horizontal RMS, last 60 s (m) | vertical RMS (m) | 3-D RMS (m) | per-run max 3-D, median / max (m) "
-             "| horizontal RMS at the end (m) | mean features in slots |", "|---|---|---|---|---|---|---|"]
-    for name, s in c.items():
-        lines.append(f"| {name} | {s['h_rms']:.2f} | {s['v_rms']:.2f} | {s['rms3']:.2f} | {s['max3_median']:.1f} / "
-                     f"{s['max3_max']:.1f} | {s['h_final']:.2f} | {s['features']:.1f} |")
+             "(module doc of `testbed/campaign/reproduce_won.py` for the set-up). Every case flies the same draws.", ""]
+    lines += md_table(["case", "horizontal RMS, last 60 s (m)", "vertical RMS (m)", "3-D RMS (m)",
+                       "per-run max 3-D, median / max (m)", "horizontal RMS at the end (m)", "mean features in slots"],
+                      [[name, f"{s['h_rms']:.2f}", f"{s['v_rms']:.2f}", f"{s['rms3']:.2f}",
+                        f"{s['max3_median']:.1f} / {s['max3_max']:.1f}", f"{s['h_final']:.2f}", f"{s['features']:.1f}"]
+                       for name, s in c.items()])
     lines += ["", "Paired differences of the mean squared error along a line of sight (case − vision/INS, last 60 s; "
               "negative: smaller with the satellites), mean ± standard error over runs:", ""]
     for name, vals in res["paired"].items():
         lines.append(f"- {name}: " + "; ".join(f"{m:+.2f} ± {se:.2f} m²" for m, se in vals))
-    lines += ["", "![position errors](won2013_errors.png)", "", "## Claims", "",
-              "| claim | the paper | ours | verdict | assumption behind a difference |", "|---|---|---|---|---|"]
-    for short, claim, fig, verdict, why in verdicts(res):
-        lines.append(f"| {short} | {claim} | {fig} | {verdict} | {why} |")
+    lines += ["", "![position errors](won2013_errors.png)", "", "## Claims", ""]
+    lines += md_table(["claim", "the paper", "ours", "verdict", "assumption behind a difference"],
+                      [list(v) for v in verdicts(res)])
     return "\n".join(lines) + "\n"
 
 

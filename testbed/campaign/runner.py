@@ -179,6 +179,9 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     check_workers(workers, scheduler)
     loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)
     check_output_folder(out_dir, "--out")
+    from testbed.campaign.exercised import check_faults_exercised  # (it reads this module's cell contexts)
+
+    check_faults_exercised(loaded)  # a fault no trial can exercise: refused before any chunk is drawn
     client, own = _client(scheduler) if scheduler is not None else (None, False)  # reachable before any work
     store = ResultStore(out_dir)
     cells = cells_of(loaded)

@@ -29,6 +29,7 @@ import datetime as dt
 import hashlib
 import itertools
 import json
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -70,9 +71,18 @@ class FaultSweep(StrictModel):
             raise ValueError(f"pixel_bias magnitudes must be >= 0, got {self.magnitudes}")
         if self.kind == "none" and any(m != 0 for m in self.magnitudes):
             raise ValueError(f"kind 'none' takes no magnitudes other than 0, got {self.magnitudes}")
-        if self.kind == "landmark_moved" and sum(c * c for c in self.direction_enu) == 0:
-            raise ValueError("direction_enu: expected a non-zero vector")
+        if self.kind == "landmark_moved":
+            if math.hypot(*self.direction_enu) == 0:
+                raise ValueError("direction_enu: expected a non-zero vector")
         return self
+
+    def _move(self, magnitude: float) -> tuple[float, float, float]:
+        """The landmark_moved displacement (ENU, m): ``magnitude`` along the unit ``direction_enu``, its norm by
+        hypot, which neither overflows nor underflows where the sum of squares would (a direction of 1e200
+        made every move 0 m, a fault that never happened; one of 1e-170 was refused as zero). The largest
+        unit component is at least 1/√3, so a non-zero magnitude always moves the landmark."""
+        n = math.hypot(*self.direction_enu)
+        return tuple(magnitude * (c / n) for c in self.direction_enu)
 
     def fault(self, magnitude: float) -> dict | None:
         """The fault table (testbed.sensors.faults) for one magnitude; None = no fault."""
@@ -86,9 +96,7 @@ class FaultSweep(StrictModel):
         if self.kind == "pixel_bias":
             return {"kind": "pixel_bias", "landmark": self.landmark, "magnitude_px": magnitude,
                     "angle_deg": self.angle_deg, **win}
-        n = sum(c * c for c in self.direction_enu) ** 0.5
-        return {"kind": "landmark_moved", "landmark": self.landmark,
-                "delta_enu_m": tuple(magnitude * c / n for c in self.direction_enu), **win}
+        return {"kind": "landmark_moved", "landmark": self.landmark, "delta_enu_m": self._move(magnitude), **win}
 
 
 class Sweep(StrictModel):

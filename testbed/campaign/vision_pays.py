@@ -6,8 +6,10 @@ random numbers (so both monitors see the same GPS draws):
 
 * :func:`ratio_table` – per (landmark set, focal length): VA-RAIM / GPS RAIM ratios of the
   median per-sortie maximum HPL and VPL (fault-free cells) and of the per-epoch minimal
-  detectable bias at the report's power (GPS-step cells; when GPS RAIM never reaches the
-  power in the swept range, VA-RAIM's MDB over the largest swept step, an upper bound);
+  detectable bias at the report's power (GPS-step cells). Where either MDB is only a bracket
+  of swept steps (:mod:`testbed.campaign.detection`: not resolved, or not reached), the ratio
+  is its upper bound, VA-RAIM's largest possible MDB over GPS RAIM's smallest, and
+  ``ratio_mdb_bound`` says so: a bound below 1 is a win for certain, one above is no win;
 * :func:`break_even` – the smallest focal length from which VA-RAIM beats GPS RAIM on all
   three (every ratio < 1 there and at every larger swept focal length), interpolated in
   log f between the last swept focal length that fails and the first that holds;
@@ -21,15 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.campaign.report import _cols, _figure, detection_table, minimal_detectable_bias
+from testbed.campaign.detection import detection_table, minimal_detectable_bias
+from testbed.campaign.report import _cols, _figure, fit_titles
 
 RATIOS = (("hpl", "median max HPL"), ("vpl", "median max VPL"), ("mdb", "per-epoch MDB"))
 
 
-def ratio_table(cells: list[dict], trials, power: float = 0.99) -> list[dict]:
-    """One row per (landmark_set, focal_px): the three VA-RAIM / GPS RAIM ratios and their parts."""
+def ratio_table(cells: list[dict], trials, power: float = 0.99, det: list[dict] | None = None) -> list[dict]:
+    """One row per (landmark_set, focal_px): the three VA-RAIM / GPS RAIM ratios and their parts
+    (``det``: the campaign's detection table, when the caller has it already)."""
     tc = _cols(trials, ["cell", "monitor", "max_hpl", "max_vpl"])
-    det = detection_table(cells, trials)
+    det = detection_table(cells, trials) if det is None else det
     rows = []
     for key in sorted({(c["landmark_set"], c["focal_px"]) for c in cells}):
         group = [c for c in cells if (c["landmark_set"], c["focal_px"]) == key]
@@ -40,17 +44,16 @@ def ratio_table(cells: list[dict], trials, power: float = 0.99) -> list[dict]:
             for k in ("hpl", "vpl"):
                 x = np.asarray(tc[f"max_{k}"][sel], float)
                 row[f"{m}_{k}"] = float(np.median(x[np.isfinite(x)])) if np.isfinite(x).any() else float("nan")
-            d = sorted((r for r in det if r["monitor"] == m and r["cell"] in {c["cell"] for c in group}
-                        and r["fault_kind"] in ("gps_step", "none")), key=lambda r: r["fault_size"])
-            sizes = np.array([r["fault_size"] for r in d if r["fault_size"] > 0])
-            rates = np.array([r["rate_ep"] for r in d if r["fault_size"] > 0])
-            row[f"{m}_mdb"] = minimal_detectable_bias(sizes, rates, power) if sizes.size else float("nan")
-            row["max_size"] = float(sizes.max()) if sizes.size else float("nan")
-        for k, _ in RATIOS:
+            d = [r for r in det if r["monitor"] == m and r["cell"] in {c["cell"] for c in group}
+                 and r["fault_kind"] == "gps_step"]
+            row[f"{m}_mdb"] = minimal_detectable_bias(*(np.array([r[k] for r in d], float) for k in (
+                "fault_size", "rate_ep")), power, *(np.array([r[k] for r in d], float) for k in ("lo_ep", "hi_ep")))
+        for k in ("hpl", "vpl"):
             row[f"ratio_{k}"] = row[f"va_raim_{k}"] / row[f"gps_raim_{k}"]
-        if np.isnan(row["gps_raim_mdb"]) and np.isfinite(row["va_raim_mdb"]):
-            # GPS RAIM does not reach the power in the swept range: the ratio is at most this
-            row["ratio_mdb"] = row["va_raim_mdb"] / row["max_size"]
+        va, gps = row["va_raim_mdb"], row["gps_raim_mdb"]
+        row["ratio_mdb_bound"] = not (va.resolved and gps.resolved)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            row["ratio_mdb"] = float(np.float64(va.upper) / gps.lower) if va.measured and gps.measured else float("nan")
         rows.append(row)
     return rows
 
@@ -107,6 +110,7 @@ def draw_break_even(rows: list[dict], set_names: dict[int, str], path: Path, sor
                title="landmark baseline (dotted line: its break-even)")
     fig.suptitle(f"Where vision pays: {sorties} sorties per setting over the sky's repeat, fault-free cells for "
                  f"the PLs, GPS-step cells for the per-epoch MDB")
+    fit_titles(fig)
     fig.tight_layout(rect=(0, 0.12, 1, 1))
     fig.savefig(path, dpi=110)
     return result
