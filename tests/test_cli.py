@@ -1,6 +1,7 @@
 """The `testbed` command: every subcommand end to end; nothing written to the working directory unasked."""
 
 import os
+import re
 import shutil
 import subprocess
 
@@ -49,7 +50,10 @@ def test_the_summary_names_the_injected_fault_and_why_a_monitor_never_served(cwd
     assert main(["fly", "zunz-rwy05-gps-step", "--no-record", "--monitors", "gps_raim", "dpe"]) == 0
     out = " ".join(capsys.readouterr().out.split())  # rich wraps at the terminal width
     assert "fault: gps_step +60 m on a random visible satellite from 100 s" in out
-    assert "in the observations: PRN 21 at 46 of 150 epochs (100-145 s)" in out
+    seen = re.search(r"in the observations: PRN (\d+) at (\d+) of 150 epochs \((\d+)-(\d+) s\)", out)
+    assert seen is not None, out  # the draw picks the satellite; it is in view from the onset, once a second
+    prn, n, first, last = map(int, seen.groups())
+    assert 1 <= prn <= 32 and first == 100 and n == last - first + 1
     assert "dpe: unavailable at every epoch: K not calibrated" in out
     assert out.count("x real time") == 1
 
