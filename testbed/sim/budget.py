@@ -347,9 +347,7 @@ def guarded(make):
     which run next, name the file and key (an estimate never replaces their message)."""
     try:
         return make()
-    except ConfigError:
-        raise
-    except Exception:  # an unreadable almanac or the like: preflight reports it
+    except Exception:  # an unreadable almanac or the like, a ConfigError of a file it names: the checks report it
         return None
 
 
