@@ -66,7 +66,7 @@ def main() -> None:
     from testbed.heap import keep_freed_memory
 
     keep_freed_memory()  # the process settings `testbed campaign` applies (run_campaign, a library call, does not)
-    from testbed.campaign.cli_commands import _positive_int  # argparse prints its message and exits 2
+    from testbed.campaign_cli import _positive_int  # argparse prints its message and exits 2
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--trials", type=_positive_int, default=2000, help="trials per cell (2 cells)")
@@ -81,7 +81,7 @@ def main() -> None:
         ap.error(f"--chunk ({args.chunk}) must be a multiple of --block ({args.block}), and --per-experiment "
                  f"({args.per_experiment}) of the reproduction's 100-sortie blocks")
 
-    from testbed.campaign.reproduce import FULL_TRIALS, experiments
+    from testbed.studies.reproduce import FULL_TRIALS, experiments
     from testbed.campaign.context import cell_context
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import expand_cells, load_spec
@@ -175,7 +175,7 @@ def _worker_setup(name: str, per_experiment: int, cores: int) -> None:
     """Pool initializer: experiment ``name`` with one chunk per worker and one more, which warms the kernels and
     tables here (not timed, on blocks no timed row draws); the cells' flight and geometry timed."""
     from testbed import memo
-    from testbed.campaign.reproduce import loaded_experiments
+    from testbed.studies.reproduce import loaded_experiments
     from testbed.campaign.context import cell_context
     from testbed.campaign.runner import run_chunk
     from testbed.campaign.spec import expand_cells

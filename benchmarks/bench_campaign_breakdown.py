@@ -43,8 +43,8 @@ PARTS = (
 
 
 def main() -> None:
-    from testbed.campaign.cli_commands import _positive_int  # argparse prints its message and exits 2
-    from testbed.campaign.reproduce import experiments
+    from testbed.campaign_cli import _positive_int  # argparse prints its message and exits 2
+    from testbed.studies.reproduce import experiments
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--experiment", default="where-vision-pays", choices=sorted(experiments(200)))
@@ -55,7 +55,7 @@ def main() -> None:
         ap.error(f"--sorties: expected a multiple of 100, got {args.sorties}")
 
     from testbed import memo
-    from testbed.campaign.reproduce import FULL_TRIALS, loaded_experiments
+    from testbed.studies.reproduce import FULL_TRIALS, loaded_experiments
     from testbed.campaign.context import cell_context
     from testbed.campaign.runner import run_chunk, run_chunk_row
     from testbed.campaign.spec import expand_cells

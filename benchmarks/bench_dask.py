@@ -49,8 +49,8 @@ def main() -> None:
     from testbed.heap import keep_freed_memory
 
     keep_freed_memory()  # the process settings `testbed campaign` applies (run_campaign, a library call, does not)
-    from testbed.campaign.cli_commands import _positive_int  # argparse prints its message and exits 2
-    from testbed.campaign.reproduce import experiments
+    from testbed.campaign_cli import _positive_int  # argparse prints its message and exits 2
+    from testbed.studies.reproduce import experiments
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--experiment", default="where-vision-pays", choices=sorted(experiments(200)))
@@ -63,7 +63,7 @@ def main() -> None:
 
     from testbed.campaign import context
     from testbed.campaign import runner
-    from testbed.campaign.reproduce import loaded_experiments
+    from testbed.studies.reproduce import loaded_experiments
     from testbed.campaign.spec import expand_cells
     from testbed.campaign.store import tables_equal
 

@@ -49,7 +49,7 @@ def _one_at_a_time(G, h, z, wd, Wb, mask, max_cond, J, A, ws, cond, r, sse, hslo
 def captured_inputs():
     """The integrated solve's Gauss-Newton and fit inputs and the cosine solve's, one where-vision-pays block,
     flat (P, ...)."""
-    from testbed.campaign.reproduce import loaded_experiments
+    from testbed.studies.reproduce import loaded_experiments
     from testbed.campaign.blocks import run_block
     from testbed.campaign.context import cell_context
     from testbed.campaign.spec import expand_cells

@@ -8,7 +8,7 @@ Usage::
    runway-05 final with the runway outline as landmarks, and with the patent's H and I
    ground markers as well; fault-free sorties started uniformly over a day), the same
    observations through GPS RAIM and the patent's PL rule with and without vision rows
-   and H3 (:mod:`testbed.campaign.pixel_benefit`): per-epoch availability, median / p95
+   and H3 (:mod:`testbed.studies.pixel_benefit`): per-epoch availability, median / p95
    PLs, 95 % accuracy. ``--figure`` draws the markers cell's table (docs/img/readme-pixel-benefit.png).
 2. On the markers cell (30 landmarks in view near the threshold), the pixel monitor with
    ``pixel_max_landmarks`` = 6, 12 and 30: median epochs/s over alternating runs and APV-I
@@ -26,7 +26,7 @@ import numpy as np
 from testbed.heap import keep_freed_memory
 
 keep_freed_memory()
-from testbed.campaign.pixel_benefit import benefit_table, draw_benefit, format_table  # noqa: E402
+from testbed.studies.pixel_benefit import benefit_table, draw_benefit, format_table  # noqa: E402
 from testbed.campaign.blocks import draw_block
 from testbed.campaign.context import cell_context  # noqa: E402
 from testbed.campaign.spec import expand_cells, load_spec  # noqa: E402

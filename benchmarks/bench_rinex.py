@@ -28,7 +28,7 @@ from testbed.flight.kinematic import straight_truth
 from testbed.records import Mount
 from testbed.rinex.obs import read_obs
 from testbed.rinex.observables import form_epochs
-from testbed.rinex.run import monitor_rinex
+from testbed.replay.run import monitor_rinex
 from testbed.rinex.settings import MonitorFileConfig
 from testbed.sensors.gnss.navfile import read_nav
 from testbed.sensors.gnss.rinex import write_rinex

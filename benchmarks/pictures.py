@@ -241,7 +241,7 @@ def where_vision_pays(trials: int):
     per setting (the same campaign ``testbed reproduce va-raim-2015`` runs), and its break-even figure."""
 
     def make(args: argparse.Namespace, work: Path, dst: Path) -> None:
-        from testbed.campaign.reproduce import loaded_experiments, write_summary
+        from testbed.studies.reproduce import loaded_experiments, write_summary
         from testbed.campaign.runner import run_campaign
         from testbed.campaign.store import ResultStore
 
@@ -261,7 +261,7 @@ def pixel_benefit(trials: int):
     and without vision rows and H3 (what ``benchmarks/bench_pixel_benefit.py --figure`` draws)."""
 
     def make(args: argparse.Namespace, work: Path, dst: Path) -> None:
-        from testbed.campaign.pixel_benefit import benefit_table, draw_benefit
+        from testbed.studies.pixel_benefit import benefit_table, draw_benefit
         from testbed.campaign.spec import load_spec
 
         rows = benefit_table(load_spec("pixel-benefit", trials=trials), cell_index=1)

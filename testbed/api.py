@@ -42,9 +42,9 @@ def fly_approach(approach: str | Path | Approach, *, gust_seed: int | None = Non
 
 
 def monitor_rinex(obs_path: str | Path, nav_path: str | Path, **kw):
-    """``testbed monitor``: GPS RAIM (FDE, PLs) over a RINEX observation file (:func:`testbed.rinex.run.monitor_rinex`;
+    """``testbed monitor``: GPS RAIM (FDE, PLs) over a RINEX observation file (:func:`testbed.replay.run.monitor_rinex`;
     keywords ``config``, ``out_dir``, ``rrd_path``, ``reference``, ``table_format``)."""
-    from testbed.rinex.run import monitor_rinex as run
+    from testbed.replay.run import monitor_rinex as run
 
     return run(obs_path, nav_path, **kw)
 

@@ -119,7 +119,7 @@ def _cmd_export_rinex(args: argparse.Namespace) -> int:
 
 def _cmd_monitor(args: argparse.Namespace) -> int:
     from testbed.outputs import OutputSet
-    from testbed.rinex.run import monitor_rinex, print_summary
+    from testbed.replay.run import monitor_rinex, print_summary
 
     with OutputSet() as outs:  # --out's files and --rrd: all or none
         run = monitor_rinex(args.obs, args.nav, config=args.config, out_dir=args.out, rrd_path=args.rrd,
@@ -141,8 +141,8 @@ def _cmd_observability(args: argparse.Namespace) -> int:
 def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
     from testbed.schema import ConfigError
     from testbed.api import check_run_arguments
-    from testbed.campaign.budget import calibration_estimate
-    from testbed.campaign.dpe_calibration import SET_C_TRAJECTORIES, calibrate_dpe, write_record
+    from testbed.studies.budget import calibration_estimate
+    from testbed.studies.dpe_calibration import SET_C_TRAJECTORIES, calibrate_dpe, write_record
     from testbed.sim.budget import budget_gate
     from testbed.config import load_approach
     from testbed.outputs import OutputSet
@@ -256,7 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="per-epoch table format")
     m.set_defaults(func=_cmd_monitor)
 
-    from testbed.campaign.cli_commands import add_campaign_parsers
+    from testbed.campaign_cli import add_campaign_parsers
 
     add_campaign_parsers(sub)
 

@@ -523,7 +523,7 @@ def test_reproduce_takes_the_restart_its_refusal_advises(work, capsys, monkeypat
     down to one tiny experiment (10 sorties, 20 with --full) so it runs in seconds."""
     import tomllib
 
-    import testbed.campaign.reproduce as rp
+    import testbed.studies.reproduce as rp
     from testbed.campaign.spec import CampaignSpec, resolve_spec
     from testbed.campaign.store import ResultStore
 

@@ -407,7 +407,7 @@ def test_shipped_specs_are_valid(spec):
 
 
 def test_reproduction_specs_are_valid():
-    from testbed.campaign.reproduce import loaded_experiments
+    from testbed.studies.reproduce import loaded_experiments
 
     exps = loaded_experiments(200)
     assert set(exps) == {"vision-calibration", "vision-calibration-precise", "resolution", "gps-faults",
@@ -423,7 +423,7 @@ def test_reproduction_specs_are_valid():
 def test_cli_parsers_register_three_subcommands(tmp_path, capsys):
     import argparse
 
-    from testbed.campaign.cli_commands import add_campaign_parsers
+    from testbed.campaign_cli import add_campaign_parsers
 
     parser = argparse.ArgumentParser()
     add_campaign_parsers(parser.add_subparsers(dest="command"))
@@ -432,7 +432,7 @@ def test_cli_parsers_register_three_subcommands(tmp_path, capsys):
     assert parser.parse_args(["report", "d"]).func is not None
     assert parser.parse_args(["reproduce", "va-raim-2015", "--full"]).full
     bad = write_spec(tmp_path, "bad.toml", text='name = "x"\n')
-    from testbed.campaign.cli_commands import main
+    from testbed.campaign_cli import main
 
     assert main(["campaign", str(bad), "--out", str(tmp_path / "o")]) == 2  # python -m testbed.campaign
     said = capsys.readouterr()
@@ -598,7 +598,7 @@ def test_per_epoch_and_per_sortie_detection_match_a_hand_count(reference):
 def test_accuracy_quantile_from_the_histogram_matches_the_sample_quantile():
     """hist_quantile on the runner's 0.05-dex bins against numpy's quantile of the raw errors."""
     from testbed.campaign.report import hist_quantile
-    from testbed.campaign.tables import HIST_BINS, HIST_LOG10_MAX, HIST_LOG10_MIN
+    from testbed.viz.stanford import HIST_BINS, HIST_LOG10_MAX, HIST_LOG10_MIN
 
     rng = np.random.default_rng(5)
     for scale in (0.7, 3.0, 25.0):
@@ -664,8 +664,9 @@ def test_stanford_counts_are_numpys_histogram2d():
     from types import SimpleNamespace
 
     from testbed.campaign import tables
+    from testbed.viz import stanford
 
-    edges = np.linspace(tables.HIST_LOG10_MIN, tables.HIST_LOG10_MAX, tables.HIST_BINS + 1)
+    edges = np.linspace(stanford.HIST_LOG10_MIN, stanford.HIST_LOG10_MAX, stanford.HIST_BINS + 1)
     rng = np.random.default_rng(3)
     e = 10.0 ** np.concatenate([rng.uniform(-4, 6, 4000), edges, [np.nan, -np.inf]])
     p = 10.0 ** rng.permutation(np.concatenate([rng.uniform(-4, 6, 4000), edges, [1.0, 2.0]]))
@@ -719,7 +720,7 @@ def test_markdown_tables_have_one_maker_and_escape_what_would_split_a_cell():
     import re
 
     from record_checks import markdown_table_problems
-    from testbed.campaign.reproduce import claims_section
+    from testbed.studies.reproduce import claims_section
     from testbed.markdown import table
 
     by_hand = [f"{p.relative_to(ROOT)}:{k}" for p in sorted((ROOT / "testbed").rglob("*.py"))
@@ -765,7 +766,7 @@ def test_a_fault_no_trial_can_exercise_is_refused_before_any_work(tmp_path, caps
     the sensors': a block drawn for the cell carries the fault in no observation (its satellite in view, its
     landmark detected) and the trials' fault_target is -1 where no slot took it, which the report reads as
     not exercised."""
-    from testbed.campaign.cli_commands import main
+    from testbed.campaign_cli import main
     from testbed.campaign.runner import cell_context, draw_block
 
     spec = write_spec(tmp_path, "never.toml", text=NEVER.format(monitors=monitors, fault=fault, sorties=""))
@@ -789,7 +790,7 @@ def test_sorties_that_do_not_exercise_the_fault_are_counted_apart_in_the_report(
     no epoch carried the fault with a solution — counted by hand from the stored epochs — are reported as
     not exercised, out of the detection rate, in the tables and the console's headline."""
     from record_checks import markdown_table_problems
-    from testbed.campaign.cli_commands import main
+    from testbed.campaign_cli import main
 
     text = NEVER.format(monitors='["gps_raim"]', fault='kind = "gps_step"\nmagnitudes = [0.0, 30.0]\nprn = 5',
                         sorties='[sorties]\nstart = "consecutive"\nsortie_s = 1800.0\n')

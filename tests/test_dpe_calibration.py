@@ -116,7 +116,7 @@ def test_calibrate_dpe_end_to_end_even_when_the_approach_names_a_stale_record(tm
     """7 + 7 sorties of the shipped DPE approach, whose k_factor names a record made for other settings
     (the usual state right after a settings change): the calibration ignores it, fits, validates, and
     its record is readable for the settings it was made for."""
-    from testbed.campaign.dpe_calibration import calibrate_dpe, write_record
+    from testbed.studies.dpe_calibration import calibrate_dpe, write_record
     from testbed.resources import approaches_dir
 
     text = (approaches_dir() / "zunz-rwy05-dpe.toml").read_text()
@@ -132,7 +132,7 @@ def test_calibrate_dpe_end_to_end_even_when_the_approach_names_a_stale_record(tm
 
 
 def test_the_sortie_plan_keeps_one_trajectorys_order_and_balances_three():
-    from testbed.campaign.dpe_calibration import CN0_OFFSETS_DB, MULTIPATH, sortie_plan
+    from testbed.studies.dpe_calibration import CN0_OFFSETS_DB, MULTIPATH, sortie_plan
 
     for j in range(40):  # one trajectory: the plan the shipped record was made with
         assert sortie_plan(j, 40, 1) == (0, j * 2160.0, CN0_OFFSETS_DB[j % 3], MULTIPATH[(j // 3) % 2],
@@ -146,7 +146,7 @@ def test_the_sortie_plan_keeps_one_trajectorys_order_and_balances_three():
 
 def test_vdop_of_a_zenith_satellite_and_three_on_the_horizon():
     """Closed form: zenith + three at 0 deg elevation 120 deg apart: VDOP = 2/sqrt(3)."""
-    from testbed.campaign.dpe_calibration import vdop
+    from testbed.studies.dpe_calibration import vdop
     from testbed.frames import LocalFrame
 
     f = LocalFrame(29.3, 94.3, 2939.0)
@@ -159,7 +159,7 @@ def test_vdop_of_a_zenith_satellite_and_three_on_the_horizon():
 
 
 def test_strata_cover_the_set_and_name_what_they_hold():
-    from testbed.campaign.dpe_calibration import strata
+    from testbed.studies.dpe_calibration import strata
 
     rng = np.random.default_rng(1)
     n = 3000
@@ -178,7 +178,7 @@ def test_strata_cover_the_set_and_name_what_they_hold():
 def test_a_chunked_killed_and_resumed_calibration_equals_one_run(tmp_path):
     """6 + 6 sorties of the DPE's settings on the VA-RAIM paper's sortie (61 epochs each): chunks of 2 stopped after
     3 chunks and resumed from the work folder give the sets one chunk of 6 gives, bit for bit."""
-    from testbed.campaign.dpe_calibration import CalibrationRun, run_chunks
+    from testbed.studies.dpe_calibration import CalibrationRun, run_chunks
     from testbed.config import resolve_approach
 
     src, traj = str(resolve_approach("zunz-rwy05-dpe")), str(resolve_approach("va-raim-2015"))

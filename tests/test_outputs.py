@@ -67,30 +67,30 @@ def rinex(tmp_path_factory):
 def no_work(monkeypatch) -> None:
     """Every command's work fails the test when reached (a refusal must come before it)."""
     import testbed.api
-    import testbed.campaign.dpe_calibration
+    import testbed.studies.dpe_calibration
     import testbed.campaign.report
-    import testbed.campaign.reproduce
-    import testbed.campaign.reproduce_dpe
-    import testbed.campaign.reproduce_won
+    import testbed.studies.reproduce
+    import testbed.studies.reproduce_dpe
+    import testbed.studies.reproduce_won
     import testbed.campaign.runner
-    import testbed.rinex.run
+    import testbed.replay.run
     import testbed.sim.loop
 
     def work(*a, **k):
         raise AssertionError("the work started before the outputs were refused")
 
-    for module, name in ((testbed.api, "fly"), (testbed.sim.loop, "run_loop"), (testbed.rinex.run, "form_epochs"),
-                         (testbed.campaign.runner, "chunk_plan"), (testbed.campaign.dpe_calibration, "calibrate_dpe"),
+    for module, name in ((testbed.api, "fly"), (testbed.sim.loop, "run_loop"), (testbed.replay.run, "form_epochs"),
+                         (testbed.campaign.runner, "chunk_plan"), (testbed.studies.dpe_calibration, "calibrate_dpe"),
                          (testbed.campaign.report, "detection_table"),
-                         (testbed.campaign.reproduce, "loaded_experiments"),
-                         (testbed.campaign.reproduce_won, "won_scene"), (testbed.campaign.reproduce_dpe, "epoch_cases")):
+                         (testbed.studies.reproduce, "loaded_experiments"),
+                         (testbed.studies.reproduce_won, "won_scene"), (testbed.studies.reproduce_dpe, "epoch_cases")):
         monkeypatch.setattr(module, name, work)
 
 
 # ------------------------------------------------------------------------------- A: all outputs or none
 
 def test_a_command_with_several_outputs_writes_all_or_none(rinex, tmp_path, monkeypatch, capsys):
-    import testbed.rinex.recording
+    import testbed.replay.recording
     import testbed.sensors.gnss.rinex
 
     (obs1, nav1), (obs2, nav2) = rinex
@@ -105,7 +105,7 @@ def test_a_command_with_several_outputs_writes_all_or_none(rinex, tmp_path, monk
     def stopped(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(testbed.rinex.recording, "write_recording", stopped)
+    monkeypatch.setattr(testbed.replay.recording, "write_recording", stopped)
     code, _, err = run(capsys, "monitor", obs2, nav2, *argv)
     assert contents(tmp_path) == before  # no temporary file left either
     assert code == 130 and err.startswith("interrupted: the outputs were not written"), err
@@ -114,7 +114,7 @@ def test_a_command_with_several_outputs_writes_all_or_none(rinex, tmp_path, monk
     def full(*a, **k):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(testbed.rinex.recording, "write_recording", full)
+    monkeypatch.setattr(testbed.replay.recording, "write_recording", full)
     code, _, err = run(capsys, "monitor", obs2, nav2, *argv)
     assert code == 2 and "No space left on device" in err and "the outputs were not written" in err, err
     assert "Traceback" not in err and contents(tmp_path) == before

@@ -87,7 +87,7 @@ def test_the_image_link_pattern():
 
 
 def _panel(dim: str, total: int, no_solution: int, al: float):
-    from testbed.campaign.tables import hist_edges
+    from testbed.viz.stanford import hist_edges
 
     edges = hist_edges()
     H = np.zeros((len(edges) - 1, len(edges) - 1))
@@ -103,7 +103,7 @@ def _plot_axes(fig) -> list:
 
 def test_a_monitor_without_hpl_gets_its_v_diagram_alone():
     """The DPE bounds the vertical only: no empty H panel (readme-dpe-vs-raim.png), the title says why."""
-    from testbed.campaign.report import stanford_figure
+    from testbed.viz.stanford import stanford_figure
 
     (h, edges), (v, _) = _panel("H", 100, 100, 40.0), _panel("V", 100, 3, 20.0)
     axes = _plot_axes(stanford_figure("dpe", [h, v], edges))
@@ -115,7 +115,7 @@ def test_a_monitor_without_hpl_gets_its_v_diagram_alone():
 
 
 def test_a_monitor_with_no_pl_at_all_keeps_both_panels_without_limit_lines():
-    from testbed.campaign.report import stanford_figure
+    from testbed.viz.stanford import stanford_figure
 
     (h, edges), (v, _) = _panel("H", 50, 50, 40.0), _panel("V", 50, 50, 20.0)
     axes = _plot_axes(stanford_figure("m", [h, v], edges))

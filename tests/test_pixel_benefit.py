@@ -2,7 +2,7 @@
 
 20 fault-free sorties of the JSBSim-flown runway-05 final (runway outline
 landmarks) started uniformly over a day, the same observations through every
-variant (testbed.campaign.pixel_benefit). Measured at base seed 3 (APV-I
+variant (testbed.studies.pixel_benefit). Measured at base seed 3 (APV-I
 availability per epoch): GPS RAIM 81.1 %; the patent rule on GNSS rows 7.7 %
 (64.0 % without H3); on GNSS + vision 36.1 % (90.4 % without H3). The checks
 hold those orderings with margins; ``benchmarks/bench_pixel_benefit.py`` gives
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import pytest
 
-from testbed.campaign.pixel_benefit import VARIANTS, benefit_table, format_table
+from testbed.studies.pixel_benefit import VARIANTS, benefit_table, format_table
 from testbed.campaign.spec import load_spec
 
 

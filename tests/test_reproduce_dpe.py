@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from testbed.campaign.reproduce_dpe import CLAIMS, epoch_cases, summary
+from testbed.studies.reproduce_dpe import CLAIMS, epoch_cases, summary
 from testbed.resources import approaches_dir
 
 

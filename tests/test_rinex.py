@@ -24,7 +24,7 @@ from testbed.integrity.monitor import MonitorContext, Observations
 from testbed.integrity.registry import build_monitor
 from testbed.records import Mount, NotVisible
 from testbed.rinex.obs import read_obs
-from testbed.rinex.run import monitor_rinex
+from testbed.replay.run import monitor_rinex
 from testbed.rinex.settings import MonitorFileConfig, MonitorIntegritySettings, RinexSettings
 from testbed.sensors.faults import GpsStep
 from testbed.sensors.gnss.navfile import read_nav
@@ -618,7 +618,7 @@ def test_a_reference_reads_the_same_from_csv_parquet_and_npz(tmp_path):
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from testbed.rinex.run import read_reference
+    from testbed.replay.run import read_reference
 
     rng = np.random.default_rng(3)
     t = 1.4e9 + np.arange(5.0)

@@ -138,7 +138,7 @@ def test_the_static_block_predicts_as_the_dense_numpy_filter():
 
 @pytest.fixture(scope="module")
 def scene():
-    from testbed.campaign.reproduce_won import won_scene
+    from testbed.studies.reproduce_won import won_scene
 
     return won_scene(duration_s=40.0)
 
@@ -147,7 +147,7 @@ def test_vision_ins_on_the_racetrack_is_consistent_and_bounds_the_ins_drift(scen
     """60 runs, 40 s, 1 px: the position NEES averaged over runs inside its 99 % χ²(3·60)/60 band at ≥ 90 % of
     the 1 Hz epochs (EKF-SLAM without first-estimate Jacobians is known to turn slightly optimistic; measured:
     see the print), and vision/INS's horizontal drift (the error's change since the start) below a third of INS alone's."""
-    from testbed.campaign.reproduce_won import CASES, run_case
+    from testbed.studies.reproduce_won import CASES, run_case
 
     vis = run_case(scene, CASES[1], 60, seed=5)
     ins = run_case(scene, CASES[0], 60, seed=5)
@@ -168,7 +168,7 @@ def test_each_satellite_lowers_the_error_along_its_line_of_sight(scene):
     """T-SAT-1, paired (the same draws), 40 runs of 40 s: with the clock known, 1, 2, 3 satellites each lower
     the mean squared error along every used satellite's line of sight against vision/INS (one-sided 99 %);
     with the clock estimated, 2 satellites lower it along e1 − e2."""
-    from testbed.campaign.reproduce_won import CASES, los_units, paired_along, run_case
+    from testbed.studies.reproduce_won import CASES, los_units, paired_along, run_case
 
     los = los_units(scene)
     base = run_case(scene, CASES[1], 40, seed=7)
@@ -186,7 +186,7 @@ def test_each_satellite_lowers_the_error_along_its_line_of_sight(scene):
 def test_no_features_in_view_leaves_the_filter_on_its_ins_and_nan_pixels_are_ignored(scene):
     """Tracks with no feature at any epoch, or NaN pixels: the filter runs, dead reckons (no rows, no slots)
     and gives what INS alone gives."""
-    from testbed.campaign.reproduce_won import CASES, run_case
+    from testbed.studies.reproduce_won import CASES, run_case
     from testbed.sensors.vision import features as feat
 
     real = feat.track_features
@@ -205,7 +205,7 @@ def test_no_features_in_view_leaves_the_filter_on_its_ins_and_nan_pixels_are_ign
 
 def test_the_reproduction_writes_its_claims_and_is_deterministic(tmp_path):
     from record_checks import markdown_table_problems
-    from testbed.campaign.reproduce_won import CLAIMS, reproduce_won_2013
+    from testbed.studies.reproduce_won import CLAIMS, reproduce_won_2013
 
     a = reproduce_won_2013(tmp_path / "a", trials=3, duration_s=12.0, progress=False, figure=False)
     b = reproduce_won_2013(tmp_path / "b", trials=3, duration_s=12.0, progress=False, figure=False)
@@ -249,7 +249,7 @@ def test_solution_separation_sub_filters_with_features(scene):
     linear map the main's static block takes. Against an own run without PRN 5 (3 → 2 satellites, clock known,
     30 runs, 40 s): positions within 2 % of σ_Δ, position σ within 0.5 %; at the last epoch Σ(Δ/σ_Δ)² over the
     runs, per mode and axis, inside its 99 % χ²(30) band."""
-    from testbed.campaign.reproduce_won import CASES, PRNS, _gnss, run_case
+    from testbed.studies.reproduce_won import CASES, PRNS, _gnss, run_case
 
     three = run_case(scene, CASES[7], 30, seed=3, separation=True)
     two = run_case(scene, CASES[6], 30, seed=3)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.campaign.vision_pays import break_even
+from testbed.studies.vision_pays import break_even
 
 
 def brute_break_even(f: np.ndarray, r: np.ndarray) -> float:

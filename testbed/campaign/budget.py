@@ -11,7 +11,6 @@ trial-epoch costs, over the cores, plus the flights and the geometry.
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +19,8 @@ from testbed.campaign.sorties import sky_windows, sortie_offsets
 from testbed.campaign.spec import LoadedSpec
 from testbed.integrity.batching import available_cores, physical_memory_bytes
 from testbed.memo import DEFAULT_LIMIT_BYTES
-from testbed.config import load_approach
 from testbed.sim.budget import (BASE_BYTES, FLIGHT_SECONDS_PER_S, PARALLEL_EFFICIENCY, Estimate, Shape,
-                                correlator_seconds, correlator_trial_bytes, feature_bytes, feature_seconds,
+                                correlator_trial_bytes, feature_bytes, feature_seconds,
                                 sortie_shape, trial_epoch_bytes, trial_epoch_seconds)
 
 #: the cached GNSS geometry, bytes per sky window, epoch and satellite (positions, lines of sight, masks)
@@ -161,49 +159,3 @@ def sequence_estimate(what: str, parts: list[Estimate]) -> Estimate:
     for e in parts:
         time[e.what] = e.wall_s
     return Estimate(what, dict(peak.memory), time, peak.shrink, cores=max(e.cores for e in parts))
-
-
-def reproduction_estimate(paper: str, full: bool, *, workers: int | str = "auto", out_dir=None,
-                          resume: bool = False) -> Estimate | None:
-    """``testbed reproduce``: va-raim-2015's experiments one after the other, dpe-vertical's campaign (its
-    per-epoch cases are seconds); None for won-2013, whose two sizes are fixed (19 min with --full)."""
-    from testbed.campaign.reproduce import FULL_TRIALS, QUICK_TRIALS, loaded_experiments
-    from testbed.campaign.spec import load_spec
-
-    if paper == "va-raim-2015":
-        out = Path(out_dir) if out_dir is not None else None
-        parts = [campaign_estimate(loaded, workers=workers, out_dir=None if out is None else out / name,
-                                   resume=True)  # a stored experiment resumes (reproduce_va_raim_2015)
-                 for name, loaded in loaded_experiments(FULL_TRIALS if full else QUICK_TRIALS).items()]
-        return sequence_estimate(f"reproduce va-raim-2015{' --full' if full else ''}", parts)
-    if paper == "dpe-vertical":
-        est = campaign_estimate(load_spec("dpe-vs-raim", trials=2000 if full else 30), workers=1, resume=True,
-                                out_dir=None if out_dir is None else Path(out_dir) / "dpe-vs-raim")
-        return Estimate(f"reproduce dpe-vertical{' --full' if full else ''}", est.memory, est.time,
-                        ("without --full: 30 sorties per cell",), cores=est.cores)
-    return None
-
-
-def calibration_estimate(approach: str, sorties: int, trajectories: tuple[str, ...] = ()) -> Estimate:
-    """``testbed calibrate-dpe``: 2 x ``sorties`` sorties of the dpe monitor (calibration and held-out), each a
-    whole flight of one of the trajectories (the approach's own by default) with the approach's correlator
-    settings, one trial at a time."""
-    ap = load_approach(approach)
-    shapes = []
-    for t in trajectories or (approach,):
-        other = load_approach(t)
-        corr = ap.config.gnss.correlators.model_copy(update={"pseudorange_source": "model"})  # one synthesis
-        cfg = other.config.model_copy(update={"gnss": other.config.gnss.model_copy(update={"correlators": corr}),
-                                              "monitors": ["dpe"], "dpe": ap.config.dpe})
-        shapes.append(sortie_shape(replace(other, config=cfg)))
-    epochs = sum(s.epochs for s in shapes) / len(shapes)
-    per_epoch = sum(s.monitor_cost("dpe")[1] + correlator_seconds(s) for s in shapes) / len(shapes)
-    kept = 2 * sorties * epochs * 6 * 8.0  # z, e, sigma, m, satellites, VDOP per epoch with a solution
-    memory = {"process and kernels": BASE_BYTES,
-              "one sortie's correlograms": max(correlator_trial_bytes(s) for s in shapes),
-              "the sorties' errors kept for the fit": kept}
-    time = {f"{2 * sorties} sorties x ~{epochs:.0f} epochs": 2 * sorties * epochs * per_epoch,
-            "flights": sum(s.flight_s for s in shapes) * FLIGHT_SECONDS_PER_S}
-    return Estimate(f"calibrate-dpe {approach}", memory, time,
-                    (f"fewer sorties (--sorties; now {sorties})", "--work DIR keeps every chunk, so a long run can "
-                     "be stopped and resumed (--resume)"), cores=1)

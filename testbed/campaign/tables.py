@@ -13,6 +13,7 @@ import pyarrow as pa
 from testbed import memo
 from testbed.records import MonitorOutput
 from testbed.sim.evaluate import REGIONS, misleading, position_errors, stanford_regions
+from testbed.viz.stanford import HIST_BINS, HIST_LOG10_MAX, HIST_LOG10_MIN
 
 if TYPE_CHECKING:  # annotations only: the blocks import the tables
     from testbed.campaign.blocks import BlockDraw
@@ -20,15 +21,6 @@ if TYPE_CHECKING:  # annotations only: the blocks import the tables
 
 
 TABLES = ("trials", "epochs", "hist")
-
-#: Stanford histogram bins: log10 of error and PL in metres, 0.01 m .. 10 km, 0.05 dex
-HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS = -2.0, 4.0, 120
-
-
-def hist_edges() -> np.ndarray:
-    """(HIST_BINS + 1,) bin edges in metres of the Stanford histograms."""
-    return 10.0 ** np.linspace(HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS + 1)
-
 
 def monitor_tables(ctx: CellContext, d: BlockDraw, out: MonitorOutput, ref: np.ndarray, keep_ep: np.ndarray
                    ) -> tuple[dict, dict, dict | None]:

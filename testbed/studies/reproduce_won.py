@@ -341,7 +341,7 @@ def _report(res: dict) -> str:
     c = res["cases"]
     lines = [f"# The Won et al. paper reproduced: {res['trials']} runs per case, {res['duration_s']:g} s",
              "", f"Satellites: DO-229 PRN {', '.join(map(str, res['prns']))} over Seoul at {START_UTC} "
-             "(module doc of `testbed/campaign/reproduce_won.py` for the set-up). Every case flies the same draws.", ""]
+             "(module doc of `testbed/studies/reproduce_won.py` for the set-up). Every case flies the same draws.", ""]
     lines += md_table(["case", "horizontal RMS, last 60 s (m)", "vertical RMS (m)", "3-D RMS (m)",
                        "per-run max 3-D, median / max (m)", "horizontal RMS at the end (m)", "mean features in slots"],
                       [[name, f"{s['h_rms']:.2f}", f"{s['v_rms']:.2f}", f"{s['rms3']:.2f}",

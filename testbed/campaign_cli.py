@@ -89,8 +89,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from testbed.campaign.budget import reproduction_estimate
-    from testbed.campaign.reproduce import PAPERS, reproduce_va_raim_2015
+    from testbed.studies.budget import reproduction_estimate
+    from testbed.studies.reproduce import PAPERS, reproduce_va_raim_2015
     from testbed.outputs import OutputSet
 
     if args.paper not in PAPERS:
@@ -113,12 +113,12 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     with OutputSet() as outs:  # every report and summary into place together, at the end
         outs.folder(out, "--out", kept=kept)
         if args.paper == "dpe-vertical":
-            from testbed.campaign.reproduce_dpe import reproduce_dpe_vertical
+            from testbed.studies.reproduce_dpe import reproduce_dpe_vertical
 
             idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet,
                                          restart=args.restart, outputs=outs)
         elif args.paper == "won-2013":
-            from testbed.campaign.reproduce_won import reproduce_won_2013
+            from testbed.studies.reproduce_won import reproduce_won_2013
 
             idx = reproduce_won_2013(out, trials=200 if args.full else 50, progress=not args.quiet, outputs=outs)
         else:

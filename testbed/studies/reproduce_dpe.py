@@ -145,7 +145,7 @@ def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int
 def summary(cases: list[dict], k_rec: dict, hmi: list[dict], trials: int) -> list[str]:
     """``reproduce.md``: the experiments' tables and the claims table."""
     md = ["# Reproduction of the DPE paper (Chu & Gao, DPE vertical integrity)", "",
-          "Experiments and assumptions: `testbed/campaign/reproduce_dpe.py` (module docstring) and "
+          "Experiments and assumptions: `testbed/studies/reproduce_dpe.py` (module docstring) and "
           "docs/design/dpe.md §7.3.", "",
           "## 1. The reference epoch, both variants (medians over the draws)", ""]
     md += md_table(["case", "variant", "vertical error (m)", "RMS (m)", "σ_ob (m)", "median (m)", "about-solution feasible",

@@ -17,7 +17,7 @@ import numpy as np
 from testbed.integrity.levels import strictest_limits
 from testbed.records import take_epochs
 from testbed.rinex.observables import hold_last_fix
-from testbed.rinex.run import RinexRun, geometry_enu
+from testbed.replay.run import RinexRun, geometry_enu
 from testbed.sim.events import EventTracker
 from testbed.sim.loop import LoopBlock
 from testbed.sim.setup import Scene

@@ -33,6 +33,7 @@ from testbed.schema import ConfigError
 from testbed.sensors.gnss.navfile import read_nav
 from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gps_seconds_to_calendar
 from testbed.sim.evaluate import MonitorSummary, summarise_monitor
+from testbed.viz.stanford import hist_edges, stanford_figure
 
 TABLE_SUFFIXES = (".parquet", ".csv")
 REFERENCE_SUFFIXES = (".csv", ".parquet", ".npz")
@@ -247,7 +248,7 @@ def _monitor(obs_path, nav_path, cfg: MonitorFileConfig, out_dir, rrd_path, refe
     if out_dir is not None:
         run.written += write_outputs(run, Path(out_dir), table_format, outs)
     if rrd_path is not None:
-        from testbed.rinex.recording import write_recording
+        from testbed.replay.recording import write_recording
 
         write_recording(run, outs.staged(rrd_path))
         run.written.append(Path(rrd_path))
@@ -334,8 +335,6 @@ def write_outputs(run: RinexRun, out_dir: Path, table_format: str, outs: OutputS
 
 def stanford_figures(run: RinexRun, out_dir: Path, outs: OutputSet) -> list[Path]:
     """Horizontal and vertical Stanford diagrams per monitor against the reference (most demanding level)."""
-    from testbed.campaign.report import stanford_figure
-    from testbed.campaign.tables import hist_edges
     from testbed.integrity.levels import strictest_limits
     from testbed.sim.evaluate import position_errors, stanford_regions
 

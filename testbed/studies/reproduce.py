@@ -199,7 +199,7 @@ def write_summary(out: Path, trials: int, walls: dict[str, float], outputs: Outp
 
 def _write_summary(out: Path, trials: int, walls: dict[str, float], outs: OutputSet) -> Path:
     md = [f"# Reproduction of the VA-RAIM paper (Fu et al. 2015), section 3: {trials} sorties x 60 s per setting", "",
-          "Assumptions: see `testbed/campaign/reproduce.py` (module docstring).", ""]
+          "Assumptions: see `testbed/studies/reproduce.py` (module docstring).", ""]
     for name, w in walls.items():
         md.append(f"- [{name}]({name}/report.md) ({w:.0f} s of computing, over every run of it)")
     md.append("")
@@ -315,7 +315,7 @@ def _detection_section(tb: dict | None, title: str) -> list[str]:
 
 def _where_vision_pays_section(tb: dict | None, figure: Path, trials: int) -> tuple[list[str], dict]:
     """The ratio table, the break-even figure (drawn into ``figure``) and the break-even per baseline."""
-    from testbed.campaign.vision_pays import draw_break_even, ratio_table
+    from testbed.studies.vision_pays import draw_break_even, ratio_table
 
     if tb is None:
         return [], {}
