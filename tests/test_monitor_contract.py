@@ -71,7 +71,7 @@ def test_the_shipped_monitors_follow_the_protocol():
         assert mon.inputs == registry.monitor_inputs(mon.name)
 
 
-def test_a_registered_monitor_runs_in_the_loop_the_recording_and_a_campaign(plain_lsq, tmp_path):
+def test_a_registered_monitor_runs_in_the_loop_the_recording_a_campaign_and_rinex_replay(plain_lsq, tmp_path):
     from testbed.api import load_approach, run_approach
     from testbed.campaign.runner import run_campaign
     from testbed.viz.readback import entity_paths, scalar_series
@@ -98,6 +98,18 @@ def test_a_registered_monitor_runs_in_the_loop_the_recording_and_a_campaign(plai
     trials = pq.read_table(tmp_path / "camp" / "trials.parquet").to_pydict()
     assert set(trials["monitor"]) == {plain_lsq} and len(trials["trial"]) == 20
     assert all(np.isfinite(trials["max_he"])) and not any(trials["detected"])
+
+    # RINEX replay: the flight's observations written as RINEX and read back, both monitors stepped over them
+    from testbed.api import export_rinex
+    from testbed.replay import monitor_rinex
+
+    obs, nav = export_rinex(ap, tmp_path / "rnx", seed=2)
+    replay = monitor_rinex(obs, nav, monitors=("gps_raim", plain_lsq), out_dir=tmp_path / "replay")
+    got, want = replay.outputs[plain_lsq], replay.outputs["gps_raim"]
+    fixed = want.reason == 0
+    assert fixed.mean() > 0.9
+    np.testing.assert_allclose(got.pos_enu[fixed], want.pos_enu[fixed], atol=0.01)
+    assert any(plain_lsq in p.name for p in replay.written)
 
 
 def test_an_unregistered_name_is_a_config_error_naming_the_list_item(tmp_path):
