@@ -533,8 +533,8 @@ def test_reproduce_takes_the_restart_its_refusal_advises(work, capsys, monkeypat
         return {"gps-faults": resolve_spec(CampaignSpec.model_validate(d), rp.approaches_dir() / "campaigns" / "t")}
 
     monkeypatch.setattr(rp, "loaded_experiments", tiny)
-    monkeypatch.setattr(rp, "write_summary", lambda out, n, walls: out / "reproduce.md")
-    monkeypatch.setattr("testbed.campaign.report.write_report", lambda d: d / "report.md")  # figures: not the point
+    monkeypatch.setattr(rp, "write_summary", lambda out, n, walls, outs=None: out / "reproduce.md")
+    monkeypatch.setattr("testbed.campaign.report.write_report", lambda d, **k: d / "report.md")  # figures: not the point
     cwd, inputs = work
     out = inputs / "r"
     assert run(capsys, "reproduce", "va-raim-2015", "--out", out, "--quiet")[0] == 0
