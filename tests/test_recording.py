@@ -536,7 +536,7 @@ def test_the_sensors_series_have_distinct_colours(run):
     """Satellites visible, used by each monitor and landmarks detected: each in its own colour, far
     apart (ΔE*76 > 25; two greens looked alike), and the panel's legend names each."""
     rrd = run.rrd_path
-    v = _view(rrd, "satellites, landmarks and features in view / in use")
+    v = next(v for v in readback.views(rrd) if v["origin"] == "/sensors")
     shown = sorted(readback.view_entities(rrd, v) & readback.scalar_entities(rrd))
     assert len(shown) == 5
     colours = [_lab(readback.rgba(readback.static_components(rrd, e)["SeriesLines:colors"][0])[:3]) for e in shown]

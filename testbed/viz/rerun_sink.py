@@ -63,7 +63,7 @@ COLOURS = {
     "frame": (150, 150, 150),
 }
 #: the aircraft marker's radius, ui points (constant on screen: the airframe is a pixel at valley scale)
-AIRCRAFT_MARKER_PX = 9.0
+AIRCRAFT_MARKER_PX = 12.0
 #: vertical spacing of the monitors' labels above the protection volumes, m (a label is ~11 m
 #: tall seen from the follow view's eye, 340 m away)
 LABEL_STACK_M = 14.0
@@ -115,7 +115,7 @@ SERIES = {  # entity suffix -> (colour, line name); "{hal}" / "{val}": the alert
     # the statistic and its threshold as computed (read by scripts), and the plotted ratio
     "detection/test_stat": ((80, 160, 255), "test statistic"), "detection/threshold": ((230, 60, 50), "threshold"),
     "detection/ratio": ((80, 160, 255), "test statistic / threshold"),
-    "detection/limit": ((230, 60, 50), "alert above 1"),
+    "detection/limit": ((230, 60, 50), "threshold = 1"),
     # drawn when the truth (a flight) or a reference trajectory (a recorded file) is known
     "horizontal/error": ((225, 150, 0), "HPE: error vs truth"), "vertical/error": ((225, 150, 0), "VPE: error vs truth"),
 }
@@ -123,7 +123,7 @@ SERIES = {  # entity suffix -> (colour, line name); "{hal}" / "{val}": the alert
 SEVERAL_TESTS_SERIES = {
     "tests/innovation": ((80, 160, 255), "innovation NIS / threshold"),
     "tests/windowed": ((40, 170, 70), "windowed NIS / threshold"),
-    "tests/separation": ((240, 140, 0), "separation max |Δ| / T"), "tests/limit": ((230, 60, 50), "alert above 1"),
+    "tests/separation": ((240, 140, 0), "separation max |Δ| / T"), "tests/limit": ((230, 60, 50), "threshold = 1"),
 }
 #: a monitor that publishes the vertical error density its VPL bounds (DPE)
 OVERBOUND_SERIES = {"overbound/sigma_ob": ((80, 160, 255), "σ_ob (overbound)"),
