@@ -69,10 +69,12 @@ class Picture:
 
 # ---- the recording screenshots
 
-def crop_recording(src: Path, dst: Path, t_end_s: float, scene, active: str | None = None) -> None:
+def crop_recording(src: Path, dst: Path, t_end_s: float, scene, active: str | None = None,
+                   follow: bool = False) -> None:
     """Copy ``src`` to ``dst`` keeping static data and the rows up to ``t_end_s`` on ``sim_time``, under
     the layout a flight of ``scene`` stores without the map view (its tiles come from the internet,
-    which the screenshot does not reach: an empty map tab would be the same as none)."""
+    which the screenshot does not reach: an empty map tab would be the same as none), ``follow``:
+    with the follow view's tab open."""
     import pyarrow.compute as pc
     import rerun as rr
     import rerun.chunk as rrc
@@ -83,8 +85,8 @@ def crop_recording(src: Path, dst: Path, t_end_s: float, scene, active: str | No
     rec.set_log_time_enabled(False)
     rec.set_sinks(rr.FileSink(str(dst)))
     # the layout first: a viewer reading the file applies it from the start
-    rec.send_blueprint(scene_blueprint(scene, play_state="following", active_monitor=active, map_view=False),
-                       make_active=True, make_default=True)
+    rec.send_blueprint(scene_blueprint(scene, play_state="following", active_monitor=active, map_view=False,
+                                       follow_open=follow), make_active=True, make_default=True)
     limit = int(round(t_end_s * 1e9))
     for ch in rrc.RrdReader(str(src)).stream():
         if ch.is_static or "sim_time" not in ch.timeline_names:
@@ -187,9 +189,10 @@ def _file_server(folder: Path, port: int):
     return server
 
 
-def recording(approach_name: str, bias_m: float, active: str | None = None):
+def recording(approach_name: str, bias_m: float, active: str | None = None, follow: bool = False):
     """A maker: fly ``approach_name`` with a ``bias_m`` GPS step on a random visible satellite at 100 s
-    (seed 0), crop the recording at ``--at`` s, screenshot it (the ``active`` monitor's tab open)."""
+    (seed 0), crop the recording at ``--at`` s, screenshot it (the ``active`` monitor's tab open; with
+    ``follow``, the follow view's)."""
 
     def make(args: argparse.Namespace, work: Path, dst: Path) -> None:
         _screenshot_tools()
@@ -206,7 +209,7 @@ def recording(approach_name: str, bias_m: float, active: str | None = None):
             run_approach(approach, seed=0, rrd_path=full)
             setup = build_setup(approach, load_terrain_for(approach))
             scene = build_scene(setup, setup.vision.camera.build())  # as the flight draws it (api.run_approach)
-            crop_recording(full, cut, args.at, scene, active)
+            crop_recording(full, cut, args.at, scene, active, follow)
             screenshot(cut, dst)
 
     return make
@@ -305,6 +308,10 @@ PICTURES: dict[str, Picture] = {p.name: p for p in (
             "testbed fly zunz-rwy05-final, 60 m GPS step on a random visible satellite at 100 s, seed 0; "
             "the recording cut at --at (110 s) in the web viewer", "", 3,
             recording("zunz-rwy05-final", 60.0)),
+    Picture("readme-recording-follow.png", "recording",
+            "testbed fly zunz-rwy05-final, 60 m GPS step on a random visible satellite at 100 s, seed 0; "
+            "the recording cut at --at (110 s) in the web viewer, the follow view open", "", 3,
+            recording("zunz-rwy05-final", 60.0, follow=True)),
     Picture("readme-recording-dpe.png", "recording",
             "testbed fly zunz-rwy05-dpe, 40 m GPS step on a random visible satellite at 100 s, seed 0; "
             "the recording cut at --at (110 s) in the web viewer, the dpe tab open", "", 3,

@@ -120,14 +120,15 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
                       alert_limits: tuple[float, float] = (float("nan"), float("nan")),
                       play_state: str | None = None, vertical_only: tuple[str, ...] = (),
                       active_monitor: str | None = None, several_tests: tuple[str, ...] = (),
-                      camera_resolution: tuple[int, int] | None = None, map_view: bool = True) -> rrb.Blueprint:
+                      camera_resolution: tuple[int, int] | None = None, map_view: bool = True,
+                      follow_open: bool = False) -> rrb.Blueprint:
     """The layout; ``play_state`` ("following": the cursor at the newest data) for the time panel;
     ``vertical_only`` monitors (DPE) get a VPL, overbound and error-density tab; ``active_monitor``
     the tab shown first (default: the first monitor's); ``several_tests`` monitors (the Won et al. filter) a
     panel of their tests, each over its threshold, instead of the single test's. ``camera_resolution``
     (w, h px; None: a flight without a camera) frames the camera view on the image, ``map_view=False``
     leaves out the map (its tiles come from the internet: the documentation's screenshots are taken
-    without it)."""
+    without it); ``follow_open`` opens the follow view's tab instead of the fixed view's."""
     hal, val = alert_limits
     monitor_tabs = [_monitor_tab(m, hal, val, m in vertical_only, m in several_tests) for m in monitors]
     # the flown trail is one point per epoch: show all of them up to the cursor
@@ -146,7 +147,7 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
     ]
     if map_view:
         views_3d.append(rrb.MapView(name="map", origin="/map"))
-    left = [rrb.Tabs(*views_3d)]
+    left = [rrb.Tabs(*views_3d, active_tab=1 if follow_open else None)]
     if camera_resolution is not None:
         w, h = camera_resolution
         pad = 0.02 * w  # the frame's outline inside the view
@@ -166,13 +167,15 @@ def default_blueprint(monitors: list[str], eye: rrb.EyeControls3D | None = None,
         row_shares=[3, 1.4],
     )
     # the time panel on the simulation's timeline (a viewer would otherwise pick the first one it sees)
-    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*left, row_shares=[3, 2][:len(left)]), right, column_shares=[3, 2]),
+    left_column = rrb.Vertical(*left, row_shares=[3, 2][:len(left)])
+    return rrb.Blueprint(rrb.Horizontal(left_column, right, column_shares=[3, 2]),
                          rrb.TimePanel(timeline="sim_time", state="collapsed", play_state=play_state),
                          collapse_panels=True)
 
 
 def scene_blueprint(scene: "Scene", **options) -> rrb.Blueprint:
-    """The layout of ``scene``'s recording (``options``: ``play_state``, ``active_monitor``, ``map_view``)."""
+    """The layout of ``scene``'s recording (``options``: those of :func:`default_blueprint` after
+    ``camera_resolution``, and ``play_state``, ``active_monitor``)."""
     return default_blueprint(list(scene.monitors), approach_eye(scene.planned_enu), tuple(scene.alert_limits),
                              vertical_only=tuple(scene.vertical_only), several_tests=tuple(scene.several_tests),
                              camera_resolution=tuple(scene.camera_resolution) if scene.camera_K is not None else None,

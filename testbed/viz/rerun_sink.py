@@ -117,7 +117,8 @@ SERIES = {  # entity suffix -> (colour, line name); "{hal}" / "{val}": the alert
     "detection/ratio": ((80, 160, 255), "test statistic / threshold"),
     "detection/limit": ((230, 60, 50), "threshold = 1"),
     # drawn when the truth (a flight) or a reference trajectory (a recorded file) is known
-    "horizontal/error": ((225, 150, 0), "HPE: error vs truth"), "vertical/error": ((225, 150, 0), "VPE: error vs truth"),
+    "horizontal/error": ((225, 150, 0), "HPE: error vs truth"),
+    "vertical/error": ((225, 150, 0), "VPE: error vs truth"),
 }
 #: a monitor with several tests (the Won et al. filter): each over its threshold, alert above 1
 SEVERAL_TESTS_SERIES = {
@@ -284,9 +285,9 @@ class RerunSink:
         drawn = sorted(self.monitors)
         for k, m in enumerate(self.monitors):
             colour = MONITOR_PALETTE[k % len(MONITOR_PALETTE)]
+            width = 1.5 + 1.5 * (len(drawn) - drawn.index(m))
             rec.log(f"sensors/satellites_used/{m}", rr.SeriesLines(
-                names=[f"measurements used by {m}"], colors=[colour], widths=[1.5 + 1.5 * (len(drawn) - drawn.index(m))]),
-                static=True)
+                names=[f"measurements used by {m}"], colors=[colour], widths=[width]), static=True)
             if self._has_features:
                 rec.log(f"sensors/features_in_state/{m}", rr.SeriesLines(
                     names=[f"features in {m}'s state"], colors=[colour], widths=[1.0]), static=True)
@@ -358,11 +359,12 @@ class RerunSink:
             v = np.gradient(pos_enu[:, :2], t, axis=0)
         else:
             v = np.zeros((len(t), 2))
-        yaw = np.empty(len(t))
-        for k, (ve, vn) in enumerate(v):
-            if np.hypot(ve, vn) >= 1.0:
-                self._track_yaw = float(np.arctan2(vn, ve))
-            yaw[k] = self._track_yaw
+        moving = np.hypot(v[:, 0], v[:, 1]) >= 1.0
+        raw = np.arctan2(v[:, 1], v[:, 0])
+        last = np.maximum.accumulate(np.where(moving, np.arange(len(t)), -1)) if len(t) else np.zeros(0, int)
+        yaw = np.where(last >= 0, raw[np.maximum(last, 0)], self._track_yaw)
+        if moving.any():
+            self._track_yaw = float(raw[np.flatnonzero(moving)[-1]])
         return yaw
 
     def _log_gnss(self, block: "LoopBlock", times) -> None:
