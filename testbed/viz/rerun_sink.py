@@ -455,9 +455,9 @@ class RerunSink:
             return
         w, h = self._resolution
         K = np.asarray(self._K, float)
-        horizons = [overlay.horizon(K, w, h, R) for R in R_c2w]
+        ends, ok = overlay.level_line(K, w, h, R_c2w)
         self.rec.send_columns("world/camera/scene/horizon", indexes=tv, columns=rr.LineStrips2D.columns(
-            strips=np.concatenate(horizons).reshape(-1, 2, 2)).partition([len(x) for x in horizons]))
+            strips=ends[ok]).partition(ok.astype(int)))
         if self._scene_landmarks is not None and len(self._scene_landmarks):
             Xc = overlay.to_camera(np.asarray(self._scene_landmarks, float)[None], cam_enu[:, None, :], R_c2w)
             front = Xc[..., 2] > overlay.NEAR_M
@@ -469,9 +469,10 @@ class RerunSink:
         if self._scene_runway is not None:
             ring = np.asarray(self._scene_runway, float)
             edges = np.stack([ring, np.roll(ring, -1, axis=0)], axis=1)  # (4, 2, 3) world
-            segs = [overlay.image_segments(K, w, h, overlay.to_camera(edges, c, R)) for c, R in zip(cam_enu, R_c2w)]
+            edges_c = overlay.to_camera(edges[None].reshape(1, 8, 3), cam_enu[:, None, :], R_c2w).reshape(-1, 4, 2, 3)
+            ends, ok = overlay.segments_in_image(K, w, h, edges_c)  # (Tv, 4, 2, 2), (Tv, 4)
             self.rec.send_columns("world/camera/scene/runway", indexes=tv, columns=rr.LineStrips2D.columns(
-                strips=np.concatenate(segs).reshape(-1, 2, 2)).partition([len(x) for x in segs]))
+                strips=ends[ok]).partition(ok.sum(axis=1)))
 
     def _log_monitor(self, name: str, out, block: "LoopBlock", times) -> None:
         tm = [rr.TimeColumn("sim_time", duration=out.t)]
