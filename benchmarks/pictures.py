@@ -26,7 +26,8 @@ A recording picture flies the approach with a GPS step on a random visible satel
 (seed 0) into a temporary recording, crops it at ``--at`` s (the viewer opens a recording at its
 last epoch, so the picture shows that moment: by default 10 s after the fault onset), hosts the
 web viewer (``rerun --serve-web``) and the file on loopback and screenshots the viewer in
-headless Chromium (software rendering). The layout is the recording's without its map view (the
+headless Chromium (software rendering) once the picture stops changing (the viewer takes the file in
+progressively: minutes on a busy machine). The layout is the recording's without its map view (the
 map's tiles come from the internet).
 """
 
@@ -67,25 +68,24 @@ class Picture:
 
 # ---- the recording screenshots
 
-def crop_recording(src: Path, dst: Path, t_end_s: float, monitors: list[str], approach,
-                   vertical_only: tuple[str, ...] = (), active: str | None = None, camera: bool = True) -> None:
+def crop_recording(src: Path, dst: Path, t_end_s: float, scene, active: str | None = None,
+                   follow: bool = False) -> None:
     """Copy ``src`` to ``dst`` keeping static data and the rows up to ``t_end_s`` on ``sim_time``, under
-    the recording's layout without the map view (its tiles come from the internet, which the
-    screenshot does not reach: an empty map would take a quarter of the picture)."""
+    the layout a flight of ``scene`` stores without the map view (its tiles come from the internet,
+    which the screenshot does not reach: an empty map tab would be the same as none), ``follow``:
+    with the follow view's tab open."""
     import pyarrow.compute as pc
     import rerun as rr
     import rerun.chunk as rrc
 
-    from testbed.viz.blueprint import approach_eye, default_blueprint
+    from testbed.viz.blueprint import scene_blueprint
 
     rec = rr.RecordingStream("testbed", recording_id="pictures", send_properties=False)
     rec.set_log_time_enabled(False)
     rec.set_sinks(rr.FileSink(str(dst)))
     # the layout first: a viewer reading the file applies it from the start
-    rec.send_blueprint(default_blueprint(monitors, approach_eye(approach[0]), approach[1], play_state="following",
-                                         vertical_only=vertical_only, active_monitor=active,
-                                         camera_view=camera, map_view=False),
-                       make_active=True, make_default=True)
+    rec.send_blueprint(scene_blueprint(scene, play_state="following", active_monitor=active, map_view=False,
+                                       follow_open=follow), make_active=True, make_default=True)
     limit = int(round(t_end_s * 1e9))
     for ch in rrc.RrdReader(str(src)).stream():
         if ch.is_static or "sim_time" not in ch.timeline_names:
@@ -125,10 +125,14 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def screenshot(rrd: Path, png: Path, wait_s: float = 120.0, size: tuple[int, int] = (1800, 1100)) -> None:
+def screenshot(rrd: Path, png: Path, wait_s: float = 900.0, size: tuple[int, int] = (1800, 1100),
+               settle_s: float = 60.0, every_s: float = 20.0) -> None:
     """Host the web viewer (``rerun --serve-web``) and the file (an HTTP server) on loopback, open
-    the viewer on the file's URL in headless Chromium (the file loads whole, the cursor at its
-    end), wait, screenshot."""
+    the viewer on the file's URL in headless Chromium, and screenshot it once the picture has
+    stopped changing: the viewer takes in a file progressively (minutes for a few MB with software
+    rendering on a busy machine), the cursor following the newest data, so a fixed wait could
+    catch it half-loaded. After ``settle_s``, a shot every ``every_s`` until two in a row are the
+    same; none within ``wait_s`` fails."""
     from playwright.sync_api import sync_playwright
 
     grpc, web, files = free_port(), free_port(), free_port()
@@ -146,8 +150,18 @@ def screenshot(rrd: Path, png: Path, wait_s: float = 120.0, size: tuple[int, int
                                               "--ignore-gpu-blocklist"])
             page = browser.new_page(viewport={"width": size[0], "height": size[1]})
             page.goto(url)
-            time.sleep(wait_s)  # wasm load, the file, software rendering
-            page.screenshot(path=str(png))
+            t0 = time.monotonic()
+            time.sleep(settle_s)  # wasm load, the first data, software rendering
+            shot = page.screenshot()
+            while True:
+                if time.monotonic() - t0 > wait_s:
+                    raise RuntimeError(f"{rrd.name}: the viewer's picture still changed after {wait_s:.0f} s")
+                time.sleep(every_s)
+                again = page.screenshot()
+                if again == shot:
+                    break
+                shot = again
+            png.write_bytes(shot)
             browser.close()
     finally:
         http.shutdown()
@@ -174,9 +188,10 @@ def _file_server(folder: Path, port: int):
     return server
 
 
-def recording(approach_name: str, bias_m: float, active: str | None = None):
+def recording(approach_name: str, bias_m: float, active: str | None = None, follow: bool = False):
     """A maker: fly ``approach_name`` with a ``bias_m`` GPS step on a random visible satellite at 100 s
-    (seed 0), crop the recording at ``--at`` s, screenshot it (the ``active`` monitor's tab open)."""
+    (seed 0), crop the recording at ``--at`` s, screenshot it (the ``active`` monitor's tab open; with
+    ``follow``, the follow view's)."""
 
     def make(args: argparse.Namespace, work: Path, dst: Path) -> None:
         _screenshot_tools()
@@ -192,9 +207,8 @@ def recording(approach_name: str, bias_m: float, active: str | None = None):
             full, cut = Path(tmp) / "full.rrd", Path(tmp) / "cut.rrd"
             run_approach(approach, seed=0, rrd_path=full)
             setup = build_setup(approach, load_terrain_for(approach))
-            scene = build_scene(setup)
-            crop_recording(full, cut, args.at, list(setup.monitor_names), (scene.planned_enu, tuple(setup.alert_limits)),
-                           tuple(scene.vertical_only), active, camera=setup.uses_vision)
+            scene = build_scene(setup, setup.vision.camera.build())  # as the flight draws it (api.run_approach)
+            crop_recording(full, cut, args.at, scene, active, follow)
             screenshot(cut, dst)
 
     return make
@@ -293,6 +307,10 @@ PICTURES: dict[str, Picture] = {p.name: p for p in (
             "testbed fly zunz-rwy05-final, 60 m GPS step on a random visible satellite at 100 s, seed 0; "
             "the recording cut at --at (110 s) in the web viewer", "", 3,
             recording("zunz-rwy05-final", 60.0)),
+    Picture("readme-recording-follow.png", "recording",
+            "testbed fly zunz-rwy05-final, 60 m GPS step on a random visible satellite at 100 s, seed 0; "
+            "the recording cut at --at (110 s) in the web viewer, the follow view open", "", 3,
+            recording("zunz-rwy05-final", 60.0, follow=True)),
     Picture("readme-recording-dpe.png", "recording",
             "testbed fly zunz-rwy05-dpe, 40 m GPS step on a random visible satellite at 100 s, seed 0; "
             "the recording cut at --at (110 s) in the web viewer, the dpe tab open", "", 3,

@@ -137,11 +137,12 @@ def test_the_layout_leaves_out_the_camera_and_map_views_when_asked(tmp_path, cam
     path = tmp_path / "layout.rrd"
     rec = rr.RecordingStream("testbed", recording_id="layout", send_properties=False)
     rec.set_sinks(rr.FileSink(str(path)))
-    rec.send_blueprint(default_blueprint(["gps_raim"], alert_limits=(40.0, 20.0), camera_view=camera, map_view=map_),
+    rec.send_blueprint(default_blueprint(["gps_raim"], alert_limits=(40.0, 20.0),
+                                         camera_resolution=(640, 480) if camera else None, map_view=map_),
                        make_active=True, make_default=True)
     rec.flush()
     rec.disconnect()
     origins = {v["origin"] for v in readback.views(path)}
-    assert {"/world", "/world/aircraft", "/alerts"} <= origins
+    assert {"/world", "/world/follow", "/alerts"} <= origins
     assert ("/world/camera" in origins) == camera
     assert ("/map" in origins) == map_

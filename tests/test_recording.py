@@ -173,7 +173,8 @@ def test_series_views_show_the_whole_flight(tmp_path):
 
 def test_events_are_marked_on_every_integrity_plot(run):
     """Fault onset and each monitor's first alert as markers on its HPL, VPL and test-statistic
-    plots, at the epochs the alert log gives (on the HAL / VAL / threshold line)."""
+    plots, at the epochs the alert log gives (the alert a tenth of the limit above the HAL / VAL /
+    threshold line, the onset a tenth below)."""
     log = readback.text_log(run.rrd_path)
     for m in ("gps_raim", "va_raim", "pixel"):
         t, v = readback.scalar_series(run.rrd_path, f"integrity/{m}/horizontal/marks/fault_onset")
@@ -184,10 +185,11 @@ def test_events_are_marked_on_every_integrity_plot(run):
             ta, va = readback.scalar_series(run.rrd_path, f"integrity/{m}/detection/marks/alert")
             assert ta[0] == pytest.approx(first)
             assert any(e[0] == pytest.approx(first) and e[2].startswith(f"{m}: ALERT") for e in log)
-            k = int(np.flatnonzero(out.t == first)[0])
-            assert va[0] == pytest.approx(out.threshold[k])  # on the threshold line
+            assert va[0] == pytest.approx(1.1)  # just above the threshold line (the ratio's 1)
             th, vh = readback.scalar_series(run.rrd_path, f"integrity/{m}/horizontal/marks/alert")
-            assert th[0] == pytest.approx(first) and np.all(vh == vh[0])  # on the HAL line
+            assert th[0] == pytest.approx(first) and np.all(vh == pytest.approx(1.1 * 40.0))  # above the HAL line
+        _, vo = readback.scalar_series(run.rrd_path, f"integrity/{m}/vertical/marks/fault_onset")
+        assert vo[0] == pytest.approx(0.9 * 20.0)  # just below the VAL line
 
 
 def test_protection_volumes_and_the_faulty_ray_in_3d(run):
@@ -228,13 +230,11 @@ def test_protection_volumes_and_the_faulty_ray_in_3d(run):
     assert marked and all(lb == [f"faulty PRN {prn}"] for lb in marked)
 
 
-def test_blueprint_has_a_view_that_follows_the_aircraft_and_titles_with_alert_limits(run):
-    vs = readback.views(run.rrd_path)
-    assert {"class": "3D", "name": "follow the aircraft", "origin": "/world/aircraft"} in vs
-    assert {"class": "3D", "name": "world", "origin": "/world"} in vs
-    names = [v["name"] for v in vs]
-    assert any(n.startswith("gps_raim: HPL (blue) vs HAL 40 m (red), m.") for n in names), names
-    assert any(n.startswith("gps_raim: VPL (blue) vs VAL 20 m (red), m.") for n in names), names
+def test_blueprint_has_a_view_that_follows_the_aircraft_and_names_the_alert_limits(run):
+    vs = {(v["class"], v["name"], v["origin"]) for v in readback.views(run.rrd_path)}
+    assert ("3D", "follow the aircraft", "/world/follow") in vs and ("3D", "world", "/world") in vs
+    for entity, name in (("horizontal/hal", "HAL 40 m"), ("vertical/val", "VAL 20 m")):  # in the legends
+        assert readback.static_components(run.rrd_path, f"/integrity/gps_raim/{entity}")["SeriesLines:names"] == [name]
 
 
 def test_camera_view_shows_where_the_landmarks_are_beside_the_detections(run):
@@ -311,3 +311,234 @@ def test_no_listener_is_opened_without_live(tmp_path, monkeypatch):
                        on_landed=lambda r: seen.append(_listening_sockets_of_this_process()))
     assert res.live_url is None and (tmp_path / "r.rrd").is_file()
     assert seen and seen[0] <= before
+
+
+# ---- the layout as a user reads it (issue 49): each test reads the STORED blueprint and recording back
+
+def _view(rrd, name):
+    found = [v for v in readback.views(rrd) if v["name"] == name]
+    assert len(found) == 1, [v["name"] for v in readback.views(rrd)]
+    return found[0]
+
+
+def _rotation_xyzw(q) -> np.ndarray:
+    """The rotation matrix of a unit quaternion (x, y, z, w), written out (not Rerun's code, not ours)."""
+    x, y, z, w = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def test_the_follow_view_rides_behind_and_above_the_aircraft(run):
+    """The follow view's origin is a level frame at the aircraft along its ground track (the truth's
+    position and velocity), its stored eye behind and above the aircraft looking at it, close enough
+    for the 36 m airframe to span more than 4°; the fixed view marks the aircraft with a labelled
+    disc of constant screen size."""
+    rrd = run.rrd_path
+    follow = _view(rrd, "follow the aircraft")
+    eye = follow["properties"]["EyeControls3D"]
+    e, target, up = (np.asarray(eye[k], float) for k in ("position", "look_target", "eye_up"))
+    np.testing.assert_allclose(target, 0.0, atol=1e-6)  # the aircraft, at the frame's origin
+    np.testing.assert_allclose(up, [0.0, 0.0, 1.0])
+    assert np.linalg.norm(e) < 18.0 / np.tan(np.radians(2.0))
+    t, trans = readback.component_rows(rrd, follow["origin"], "Transform3D:translation")
+    _, quat = readback.component_rows(rrd, follow["origin"], "Transform3D:quaternion")
+    truth = run.loop.truth_at_gnss
+    np.testing.assert_allclose(t, truth.t, atol=1e-9)
+    np.testing.assert_allclose(np.array([x[0] for x in trans]), truth.pos_enu, atol=0.01)
+    v_h = truth.vel_enu * np.array([1.0, 1.0, 0.0])
+    v_h /= np.linalg.norm(v_h, axis=1, keepdims=True)
+    for k, q in enumerate(quat):
+        R = _rotation_xyzw(q[0])
+        np.testing.assert_allclose(R @ [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], atol=1e-6)  # level
+        assert R[:, 0] @ v_h[k] > 0.9999  # x along the ground track
+        eye_world = truth.pos_enu[k] + R @ e
+        behind = (truth.pos_enu[k] - eye_world) @ v_h[k]
+        assert 150.0 < behind < 600.0 and 30.0 < eye_world[2] - truth.pos_enu[k][2] < 300.0
+    world = _view(rrd, "world")
+    marker = "/world/aircraft/marker"
+    assert marker in readback.view_entities(rrd, world) and marker not in readback.view_entities(rrd, follow)
+    comps = readback.static_components(rrd, marker)
+    assert comps["Points3D:radii"][0] <= -8.0  # negative: ui points, the same size at any range
+    assert comps["Points3D:labels"] == ["aircraft"] and comps["Points3D:show_labels"] == [True]
+
+
+def test_every_plot_names_every_curve_in_its_legend(run):
+    """Every time-series view of the stored layout shows its legend, and every series it plots names
+    itself (distinct names: the legend merges equal ones); titles stay short enough not to be cut."""
+    rrd = run.rrd_path
+    series = readback.scalar_entities(rrd)
+    plots = [v for v in readback.views(rrd) if v["class"] == "TimeSeries"]
+    assert len(plots) == 3 * 3 + 1
+    for v in plots:
+        assert len(v["name"]) <= 60, v["name"]
+        assert v["properties"]["PlotLegend"]["visible"] is True, v["name"]
+        shown = readback.view_entities(rrd, v) & series
+        assert shown, v["name"]
+        names = []
+        for entity in shown:
+            comps = readback.static_components(rrd, entity)
+            name = comps.get("SeriesLines:names") or comps.get("SeriesPoints:names")
+            assert name and name[0].strip(), entity
+            names.append(name[0])
+        assert len(set(names)) == len(names), (v["name"], names)
+    names = readback.static_components(rrd, "/integrity/gps_raim/horizontal/error")["SeriesLines:names"]
+    assert "error vs truth" in names[0]
+
+
+def test_plot_ranges_keep_the_limits_and_their_numbers_in_view(run):
+    """The PL plots span 0 to at least 1.2 x the alert limit in at most 9 decade steps (the viewer labels
+    the y axis at decade steps and drops all but 0 when there are too many); the test panel plots
+    the statistic over its threshold (alert above 1) on 0..2, not the raw statistic whose post-fault
+    ~1000 flattened the threshold."""
+    rrd = run.rrd_path
+    for m in ("gps_raim", "va_raim", "pixel"):
+        for panel, limit in (("horizontal", 40.0), ("vertical", 20.0)):
+            v = next(v for v in readback.views(rrd) if v["origin"] == f"/integrity/{m}/{panel}")
+            lo, hi = v["properties"]["ScalarAxis"]["range"]
+            assert lo == 0.0 and hi >= 1.2 * limit
+            assert hi / 10 ** np.floor(np.log10(hi)) <= 9
+        v = next(v for v in readback.views(rrd) if v["origin"] == f"/integrity/{m}/detection")
+        assert v["properties"]["ScalarAxis"]["range"] == [0.0, 2.0]
+        plotted = readback.view_entities(rrd, v) & readback.scalar_entities(rrd)
+        assert f"/integrity/{m}/detection/test_stat" not in plotted
+        out = run.outputs[m]
+        _, ratio = readback.scalar_series(rrd, f"integrity/{m}/detection/ratio")
+        np.testing.assert_allclose(ratio, out.test_stat / out.threshold, rtol=1e-12)
+        assert f"/integrity/{m}/detection/ratio" in plotted and f"/integrity/{m}/detection/limit" in plotted
+
+
+def test_an_alert_at_the_onset_epoch_is_drawn_beside_the_onset(run):
+    """GPS RAIM alerts at the fault's onset epoch: on each of its three plots the two marks are apart
+    (by a tenth of the limit or more), and every kind of mark has its own shape and colour."""
+    rrd = run.rrd_path
+    for panel, limit in (("horizontal", 40.0), ("vertical", 20.0), ("detection", 1.0)):
+        t_on, y_on = readback.scalar_series(rrd, f"integrity/gps_raim/{panel}/marks/fault_onset")
+        t_al, y_al = readback.scalar_series(rrd, f"integrity/gps_raim/{panel}/marks/alert")
+        assert t_on[0] == t_al[0] == pytest.approx(FAULT_ONSET_S)
+        assert abs(y_al[0] - y_on[0]) >= 0.1 * limit - 1e-9
+    styles = [readback.static_components(rrd, f"/integrity/gps_raim/detection/marks/{k}")
+              for k in ("fault_onset", "alert", "alert_cleared", "excluded", "unavailable", "available")]
+    pairs = {(s["SeriesPoints:markers"][0], s["SeriesPoints:colors"][0]) for s in styles}
+    assert len(pairs) == len(styles)
+
+
+def test_the_camera_view_shows_the_image_frame_horizon_and_runway(run):
+    """The camera view is framed on the image (its outline drawn, a dark background); the horizon is
+    where level directions project with the pose and intrinsics read back from the recording (to
+    0.5 px); the runway's drawn segments lie inside the image on the projected runway's edges."""
+    rrd = run.rrd_path
+    cam = readback.static_components(rrd, "/world/camera")
+    K = np.asarray(cam["Pinhole:image_from_camera"], float).reshape(3, 3).T  # stored column-major
+    w, h = cam["Pinhole:resolution"][0]
+    view = next(v for v in readback.views(rrd) if v["origin"] == "/world/camera")
+    xr, yr = (view["properties"]["VisualBounds2D"]["range"][k] for k in ("x_range", "y_range"))
+    assert xr[0] <= 0 and xr[1] >= w and yr[0] <= 0 and yr[1] >= h and xr[1] - xr[0] < 1.1 * w
+    assert sum(readback.rgba(view["properties"]["Background"]["color"])[:3]) < 3 * 60  # dark
+    frame = np.asarray(readback.static_components(rrd, "/world/camera/scene/frame")["LineStrips2D:strips"][0])
+    assert {tuple(p) for p in frame} == {(0, 0), (w, 0), (w, h), (0, h)}
+    t, trans = readback.component_rows(rrd, "/world/camera", "Transform3D:translation")
+    _, mats = readback.component_rows(rrd, "/world/camera", "Transform3D:mat3x3")
+    t_h, horizons = readback.component_rows(rrd, "/world/camera/scene/horizon", "LineStrips2D:strips")
+    t_r, runways = readback.component_rows(rrd, "/world/camera/scene/runway", "LineStrips2D:strips")
+    np.testing.assert_allclose(t_h, t)
+    np.testing.assert_allclose(t_r, t)
+    ring = np.asarray(readback.static_components(rrd, "/world/runway")["LineStrips3D:strips"][0], float)[:4]
+    truth = run.loop.truth_at_gnss
+    drawn = 0
+    for k in range(len(t)):
+        R = np.asarray(mats[k][0], float).reshape(3, 3).T  # camera axes in the world, stored column-major
+        c = np.asarray(trans[k][0], float)
+        v = truth.vel_enu[np.argmin(np.abs(truth.t - t[k]))]
+        assert R[:, 2] @ v / np.linalg.norm(v) > np.cos(np.radians(25))  # the optical axis looks ahead
+        # level directions across the view: their pixels, straight from K and the pose
+        fwd = R[:, 2] * [1.0, 1.0, 0.0]
+        fwd /= np.linalg.norm(fwd)
+        side = np.cross([0.0, 0.0, 1.0], fwd)
+        px = []
+        for a in np.radians(np.linspace(-20, 20, 9)):
+            d_cam = R.T @ (np.cos(a) * fwd + np.sin(a) * side)
+            p = K @ d_cam
+            px.append(p[:2] / p[2])
+        px = np.array(px)
+        seg = np.asarray(horizons[k][0], float)
+        assert seg.shape == (2, 2) and np.all((seg >= -1e-3) & (seg <= [w + 1e-3, h + 1e-3]))
+        normal = np.array([-(seg[1] - seg[0])[1], (seg[1] - seg[0])[0]]) / np.linalg.norm(seg[1] - seg[0])
+        inside = (px[:, 0] >= 0) & (px[:, 0] <= w) & (px[:, 1] >= 0) & (px[:, 1] <= h)
+        assert inside.any() and np.all(np.abs((px[inside] - seg[0]) @ normal) < 0.5)
+        # the runway's edges, projected where all four corners are in front of the camera
+        Xc = (ring - c) @ R
+        uv = (Xc @ K.T)[:, :2] / Xc[:, 2:3]
+        edges = [(uv[i], uv[(i + 1) % 4]) for i in range(4)]
+        for s in np.asarray(runways[k], float).reshape(-1, 2, 2):
+            drawn += 1
+            assert np.all((s >= -1e-3) & (s <= [w + 1e-3, h + 1e-3]))
+            off = [max(abs((b - a)[0] * (p - a)[1] - (b - a)[1] * (p - a)[0]) / np.linalg.norm(b - a) for p in s)
+                   for a, b in edges]  # each end's distance from the edge's line
+            assert (Xc[:, 2] > 0).all() and min(off) < 0.5
+    assert drawn > 0
+
+
+def test_labels_do_not_pile_up(run):
+    """In the camera view a detection's name is drawn only where it overlaps no other drawn name (a
+    faulty detection's always); in the fixed 3D view only the aircraft and the faulty ray carry
+    visible labels (the runway's landmarks and the protection volumes, a few pixels apart at valley
+    scale, are named on hover); in the follow view the monitors' names are stacked apart."""
+    from testbed.viz.image_overlay import LABEL_BOX
+
+    rrd = run.rrd_path
+    w, h = readback.static_components(rrd, "/world/camera")["Pinhole:resolution"][0]
+    bw, bh = LABEL_BOX[0] * w, LABEL_BOX[1] * h
+    t_l, label_pos = readback.component_rows(rrd, "/world/camera/labels", "Points2D:positions")
+    _, label_text = readback.component_rows(rrd, "/world/camera/labels", "Points2D:labels")
+    t_d, det_pos = readback.component_rows(rrd, "/world/camera/detections", "Points2D:positions")
+    np.testing.assert_allclose(t_l, t_d)
+    labelled = 0
+    for pos, text, det in zip(label_pos, label_text, det_pos):
+        pos, det = np.asarray(pos or [], float).reshape(-1, 2), np.asarray(det or [], float).reshape(-1, 2)
+        assert len(text or []) == len(pos) and (len(pos) > 0) == (len(det) > 0)
+        for i in range(len(pos)):
+            assert np.min(np.linalg.norm(det - pos[i], axis=1)) < 1e-3  # on a detection
+            for j in range(i):
+                assert abs(pos[i, 0] - pos[j, 0]) >= bw or abs(pos[i, 1] - pos[j, 1]) >= bh
+        labelled += len(pos)
+    assert labelled > 0
+    world = _view(rrd, "world")
+    for entity in readback.view_entities(rrd, world):
+        comps = readback.static_components(rrd, entity)
+        kinds = {k.split(":")[0] for k in comps if k.endswith(":labels")}
+        for kind in kinds:
+            if entity != "/world/aircraft/marker":
+                assert comps.get(f"{kind}:show_labels") == [False], entity
+    follow = _view(rrd, "follow the aircraft")
+    tops = []
+    for m in ("gps_raim", "va_raim", "pixel"):
+        entity = f"/world/integrity/{m}/name"
+        assert entity in readback.view_entities(rrd, follow) and entity not in readback.view_entities(rrd, world)
+        assert readback.static_components(rrd, entity)["Points3D:labels"] == [m]
+        _, pos = readback.component_rows(rrd, entity, "Points3D:positions")
+        tops.append(np.array([p[0][2] for p in pos]))
+    tops = np.array(tops)
+    assert np.all(np.abs(np.diff(np.sort(tops, axis=0), axis=0)) >= 10.0)
+
+
+def _lab(rgb) -> np.ndarray:
+    """CIE L*a*b* (D65) of an sRGB colour, from the standard formulas."""
+    c = np.asarray(rgb, float) / 255.0
+    c = np.where(c > 0.04045, ((c + 0.055) / 1.055) ** 2.4, c / 12.92)
+    xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]]) @ c
+    f = xyz / np.array([0.95047, 1.0, 1.08883])
+    f = np.where(f > (6 / 29) ** 3, np.cbrt(f), f / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def test_the_sensors_series_have_distinct_colours(run):
+    """Satellites visible, used by each monitor and landmarks detected: each in its own colour, far
+    apart (ΔE*76 > 25; two greens looked alike), and the panel's legend names each."""
+    rrd = run.rrd_path
+    v = next(v for v in readback.views(rrd) if v["origin"] == "/sensors")
+    shown = sorted(readback.view_entities(rrd, v) & readback.scalar_entities(rrd))
+    assert len(shown) == 5
+    colours = [_lab(readback.rgba(readback.static_components(rrd, e)["SeriesLines:colors"][0])[:3]) for e in shown]
+    gaps = [np.linalg.norm(a - b) for i, a in enumerate(colours) for b in colours[:i]]
+    assert min(gaps) > 25.0

@@ -58,21 +58,88 @@ def view_time_ranges(path: str | Path) -> list[list[dict]]:
 
 
 def views(path: str | Path) -> list[dict]:
-    """Every view of the stored blueprint: ``{"class", "name", "origin"}`` (e.g. Spatial3D, "world", "/world")."""
+    """Every view of the stored blueprint: ``{"class", "name", "origin", "contents", "properties"}``
+    (e.g. Spatial3D, "world", "/world"). ``contents`` is the view's entity query (a list of rules,
+    ``$origin`` as stored); ``properties`` maps each view property archetype to its fields, e.g.
+    ``{"EyeControls3D": {"position": [x, y, z], ...}, "ScalarAxis": {"range": [lo, hi]}}``
+    (a single-valued field as its value, as the blueprint stores it last)."""
     r = rrc.RrdReader(str(path))
-    out = []
+    found: dict[str, dict] = {}
     for bp in r.blueprints():
         for ch in r.stream(store=bp):
-            if not (ch.entity_path.startswith("/view/") and ch.entity_path.count("/") == 2):
+            parts = ch.entity_path.split("/")  # "", "view", id[, archetype]
+            if len(parts) < 3 or parts[1] != "view" or len(parts) > 4:
                 continue
-            rb = ch.to_record_batch()
-            cols = [_column(rb, f"ViewBlueprint:{k}") for k in ("class_identifier", "display_name", "space_origin")]
-            if any(c is None for c in cols):
-                continue
-            for k in range(rb.num_rows):
-                cls, name, origin = (c[k].as_py() for c in cols)
-                out.append({"class": _first(cls), "name": _first(name), "origin": _first(origin)})
+            view = found.setdefault(parts[2], {"properties": {}, "contents": ["$origin/**"]})
+            for field, value in _last_row(ch.to_record_batch()).items():
+                archetype, _, name = field.partition(":")
+                if archetype == "ViewBlueprint":
+                    view[{"class_identifier": "class", "display_name": "name", "space_origin": "origin"}.get(
+                        name, name)] = _first(value)
+                elif archetype == "ViewContents" and name == "query":
+                    view["contents"] = list(value)
+                elif len(parts) == 4:
+                    view["properties"].setdefault(archetype, {})[name] = _first(value) if _mono(value) else value
+    return [{"class": v.get("class"), "name": v.get("name"), "origin": v.get("origin"), "contents": v["contents"],
+             "properties": v["properties"]} for v in found.values() if "class" in v]
+
+
+def _last_row(rb) -> dict:
+    """The non-null components of a record batch's last row (``rerun.*``, timeline columns left out)."""
+    out = {}
+    for name, col in zip(rb.schema.names, rb.columns):
+        if ":" not in name or rb.num_rows == 0:
+            continue
+        value = col[rb.num_rows - 1].as_py()
+        if value is not None:
+            out[name] = value
     return out
+
+
+def _mono(value) -> bool:
+    return isinstance(value, list) and len(value) == 1
+
+
+def view_entities(path: str | Path, view: dict) -> set[str]:
+    """The entities of the recording that ``view``'s contents select (its origin's subtree by default):
+    rules ``PATH``, ``PATH/**`` (the path and everything under it) and ``- RULE`` (excluded), with
+    ``$origin`` replaced; an entity is in the view when an inclusion rule matches it and no exclusion
+    does."""
+    def norm(rule: str) -> str:
+        rule = rule.replace("$origin", view["origin"].rstrip("/"))
+        return rule if rule.startswith("/") else "/" + rule
+
+    def matches(rule: str, entity: str) -> bool:
+        if rule.endswith("/**"):
+            base = rule[:-3]
+            return entity == base or entity.startswith(base + "/")
+        return entity == rule
+
+    rules = [(r.strip().startswith("-"), norm(r.strip().lstrip("+-").strip())) for r in view["contents"]]
+    return {e for e in entity_paths(path)
+            if any(matches(r, e) for exc, r in rules if not exc) and not any(matches(r, e) for exc, r in rules if exc)}
+
+
+def static_components(path: str | Path, entity: str) -> dict:
+    """The static components an entity holds (last value of each), e.g. ``{"SeriesLines:names": ["HPL"]}``."""
+    entity = entity if entity.startswith("/") else "/" + entity
+    out: dict = {}
+    for ch in _chunks(path):
+        if ch.entity_path == entity and ch.is_static:
+            out.update(_last_row(ch.to_record_batch()))
+    return out
+
+
+def scalar_entities(path: str | Path) -> set[str]:
+    """The entities that hold a time series (``Scalars`` rows on a timeline)."""
+    return {ch.entity_path for ch in _chunks(path)
+            if not ch.is_static and "Scalars:scalars" in ch.to_record_batch().schema.names}
+
+
+def rgba(packed: int) -> tuple[int, int, int, int]:
+    """A stored colour (``0xRRGGBBAA``) as ``(r, g, b, a)``."""
+    packed = int(packed)
+    return (packed >> 24) & 255, (packed >> 16) & 255, (packed >> 8) & 255, packed & 255
 
 
 def _first(x):
