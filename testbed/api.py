@@ -292,9 +292,13 @@ def print_run_summary(result: RunResult) -> None:
     def nan(x, fmt):
         return "-" if x != x else fmt.format(x)
 
+    # a vertical-only monitor (no HPL by design) serves no level's horizontal limit: its availability is the
+    # vertical one alone, and says so
+    v_only = [result.outputs[n].dimensions == ("V",) for n in names]
     rows = [("reference", [s.reference for s in S])]
     for lv in (S[0].availability if S else {}):
-        rows.append((f"available {lv}", [f"{100 * s.availability[lv]:.0f} %" for s in S]))
+        rows.append((f"available {lv}", [f"{100 * s.availability[lv]:.0f} %" + (" (V only)" if v else "")
+                                          for s, v in zip(S, v_only)]))
     rows += [
         ("HPL max / p95", [f"{nan(s.hpl_max, '{:.1f}')} / {nan(s.hpl_p95, '{:.1f}')} m" for s in S]),
         ("VPL max / p95", [f"{nan(s.vpl_max, '{:.1f}')} / {nan(s.vpl_p95, '{:.1f}')} m" for s in S]),

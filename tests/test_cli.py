@@ -55,6 +55,7 @@ def test_the_summary_names_the_injected_fault_and_why_a_monitor_never_served(cwd
     prn, n, first, last = map(int, seen.groups())
     assert 1 <= prn <= 32 and first == 100 and n == last - first + 1
     assert "dpe: unavailable at every epoch: K not calibrated" in out
+    assert "0 % (V only)" in out  # the DPE bounds the vertical alone: its availability says so
     assert out.count("x real time") == 1
 
 
