@@ -14,6 +14,7 @@ from testbed.sensors.gnss.constellations import (BEIDOU_MEO_PRNS, GALILEO_EPOCH_
                                                  galileo_nominal, greenwich_mean_sidereal_angle,
                                                  nominal_constellation, nominal_constellations, repeat_period)
 from testbed.sensors.gnss.orbits import Ephemeris, concat_ephemerides, sat_states
+from testbed.sensors.gnss.rinex import write_nav
 from testbed.sensors.gnss.settings import GnssSettings
 from testbed.sensors.gnss.synth import gnss_geometry
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
@@ -287,3 +288,10 @@ def test_mixed_records_keep_systems_apart_and_bad_names_are_refused():
         nominal_constellations(["gps", "gps"], T_REF)
     with pytest.raises(ValueError, match="expected letters"):
         Ephemeris(**{**{k: getattr(gps, k) for k in gps.__dataclass_fields__}, "system": np.full(24, "R")})
+
+
+def test_the_gps_rinex_writers_refuse_other_systems(tmp_path):
+    mixed = nominal_constellations(["gps", "galileo"], T_REF)
+    with pytest.raises(ValueError, match=r"write_nav: writes GPS satellites only, got 24 others \(E01, E02"):
+        write_nav(mixed, (T_REF, T_REF + 3600.0), tmp_path / "x.nav")
+    assert not (tmp_path / "x.nav").exists()
