@@ -201,8 +201,8 @@ def beidou3_nominal(t_ref_gps: float | None = None, *, meo_raan_deg: float = 0.0
                                arg_latitude_deg=meo_arg_latitude_deg),
                         BEIDOU_MEO_PRNS, "C", epoch_utc=beidou_epoch_utc, source="BeiDou-3 MEO nominal 24/3/1")
     a_gso = geosynchronous_radius()
-    # One ground track for the three IGSOs: u_k = u0 − 120°k and node λ_k = λ_node − u_k at the
-    # epoch put each one on the equator at λ_node whenever its u is 0 (n = Ω̇e; derivation in the docs).
+    # One ground track for the three IGSOs: with n = Ω̇e, Δt after the epoch u = u_k + Ω̇e·Δt and the
+    # Earth-fixed node is at λ_k − Ω̇e·Δt, so when u passes 0 the node is at λ_k + u_k: λ_k = λ_node − u_k.
     u_igso = igso_arg_latitude_deg - 120.0 * np.arange(3)
     igso = circular_orbits(BEIDOU_IGSO_PRNS, "C", epoch_utc=beidou_epoch_utc, semi_major_axis_m=a_gso,
                            inclination_deg=BEIDOU_INCLINATION_DEG,
