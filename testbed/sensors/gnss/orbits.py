@@ -1,7 +1,9 @@
-"""GPS satellite orbits and clocks from almanac or broadcast ephemeris (IS-GPS-200).
+"""GNSS satellite orbits and clocks from almanac or broadcast ephemeris (IS-GPS-200).
 
 One record type, :class:`Ephemeris`, holds a constellation as arrays over
-satellite slots ``(S,)``. An almanac is an ephemeris whose perturbation terms
+satellite slots ``(S,)``; each slot carries its RINEX 3 system letter
+(``G`` GPS, ``E`` Galileo, ``C`` BeiDou) next to its PRN, so a mixed
+constellation (:func:`concat_ephemerides`) keeps G01 and E01 apart. An almanac is an ephemeris whose perturbation terms
 (Δn, IDOT, the six harmonic corrections, af2) are zero, so the same
 IS-GPS-200 equations (Table 20-IV) serve both: semi-major axis from √A,
 corrected mean motion, Kepler's equation, argument of latitude with harmonic
@@ -17,6 +19,7 @@ the position equations (checked against finite differences in the tests).
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -26,6 +29,8 @@ from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK
 
 #: WGS84 gravitational parameter used by GPS (IS-GPS-200), m³/s².
 MU_GPS = 3.986005e14
+#: RINEX 3 system letters the records carry, and what they name.
+SYSTEM_NAMES = {"G": "GPS", "E": "Galileo", "C": "BeiDou"}
 #: Relativistic clock-correction constant F = −2√μ/c² (IS-GPS-200 20.3.3.3.3.1), s/√m.
 F_REL = -4.442807633e-10
 _KEPLER_ITERATIONS = 8  # Newton from E0 = M: quadratic convergence, e < 0.03 -> machine precision in 3-4
@@ -36,7 +41,10 @@ class Ephemeris:
     """Keplerian orbit + clock parameters per satellite slot, all arrays ``(S,)``.
 
     Angles in rad, rates in rad/s, times in s. ``week`` is the full GPS week of
-    ``toe_sow``/``toc_sow`` (no 10-bit ambiguity left once a record is built).
+    ``toe_sow``/``toc_sow`` (no 10-bit ambiguity left once a record is built);
+    every time is GPS system time, whatever the satellite's system.
+    ``system`` (S,) holds the RINEX 3 system letter of each slot; omitted, every
+    slot is GPS (``"G"``), as for every loader that reads GPS records only.
     """
 
     prn: NDArray
@@ -65,6 +73,22 @@ class Ephemeris:
     tgd: NDArray
     iode: NDArray
     source: str = "ephemeris"
+    system: NDArray | None = None
+
+    def __post_init__(self) -> None:
+        prn_shape = np.shape(self.prn)
+        system = np.full(prn_shape, "G") if self.system is None else np.asarray(self.system, dtype="<U1")
+        if system.shape != prn_shape:
+            raise ValueError(f"Ephemeris.system: expected shape {prn_shape} (one letter per slot), got {system.shape}")
+        unknown = sorted(set(system.tolist()) - set(SYSTEM_NAMES))
+        if unknown:
+            raise ValueError(f"Ephemeris.system: expected letters from {sorted(SYSTEM_NAMES)}, got {unknown}")
+        object.__setattr__(self, "system", system)
+
+    @property
+    def sat_id(self) -> NDArray:
+        """RINEX 3 satellite identifiers ``(S,)``, e.g. ``"G05"``, ``"E12"``, ``"C59"``."""
+        return np.array([f"{s}{int(p):02d}" for s, p in zip(self.system, self.prn)], dtype="<U3")
 
     @property
     def toe_gps(self) -> NDArray:
@@ -91,9 +115,9 @@ class Ephemeris:
         a flight lasts minutes, so one record per satellite (the nearest) is used
         for the whole flight (its fit interval is ±2 h).
         """
-        prns = np.unique(self.prn)
+        ids = self.sat_id
         dist = np.abs(self.toe_gps - float(t_ref_gps))
-        keep = [np.flatnonzero(self.prn == p)[np.argmin(dist[self.prn == p])] for p in prns]
+        keep = [np.flatnonzero(ids == i)[np.argmin(dist[ids == i])] for i in np.unique(ids)]
         return self.take(np.asarray(keep, int))
 
     def rebased(self, toe_gps: ArrayLike) -> "Ephemeris":
@@ -123,9 +147,32 @@ class Ephemeris:
         )
 
 
+def concat_ephemerides(parts: Sequence[Ephemeris], source: str | None = None) -> Ephemeris:
+    """One constellation from several (e.g. GPS + Galileo + BeiDou), slots in the order given.
+
+    A satellite (system letter + PRN) present in two parts is refused: a mixed
+    constellation is a set of distinct satellites.
+    """
+    if not parts:
+        raise ValueError("concat_ephemerides: expected at least one constellation, got none")
+    ids = np.concatenate([p.sat_id for p in parts])
+    uniq, counts = np.unique(ids, return_counts=True)
+    if (counts > 1).any():
+        raise ValueError(f"concat_ephemerides: satellites {uniq[counts > 1].tolist()} appear more than once")
+    arrays = {f.name: np.concatenate([np.asarray(getattr(p, f.name)) for p in parts])
+              for f in fields(Ephemeris) if f.name != "source"}
+    return Ephemeris(**arrays, source=source if source is not None else " + ".join(p.source for p in parts))
+
+
 def from_keplerian(prn, *, week, toe_sow, sqrt_a, e, i0, omega0, omega_dot, w, m0, af0=0.0, af1=0.0,
-                   health=0, source: str = "almanac") -> Ephemeris:
-    """An :class:`Ephemeris` from almanac-type parameters (perturbations zero). Arrays ``(S,)``."""
+                   health=0, source: str = "almanac", delta_n=0.0, system="G") -> Ephemeris:
+    """An :class:`Ephemeris` from almanac-type parameters. Arrays ``(S,)``.
+
+    The harmonic terms, IDOT and af2 are zero. ``delta_n`` (rad/s) adds to the
+    Keplerian mean motion √(μ/A³) (μ of IS-GPS-200): a nominal orbit whose
+    published mean motion differs from it (another system's μ, secular
+    perturbations) is carried exactly. ``system``: RINEX 3 letter(s).
+    """
     prn = np.asarray(prn, np.int64)
     S = prn.shape
 
@@ -135,10 +182,10 @@ def from_keplerian(prn, *, week, toe_sow, sqrt_a, e, i0, omega0, omega_dot, w, m
     z = np.zeros(S)
     return Ephemeris(prn=prn, health=arr(health, np.int64), week=arr(week, np.int64), toe_sow=arr(toe_sow),
                      toc_sow=arr(toe_sow), sqrt_a=arr(sqrt_a), e=arr(e), i0=arr(i0), idot=z.copy(),
-                     omega0=arr(omega0), omega_dot=arr(omega_dot), w=arr(w), m0=arr(m0), delta_n=z.copy(),
+                     omega0=arr(omega0), omega_dot=arr(omega_dot), w=arr(w), m0=arr(m0), delta_n=arr(delta_n),
                      cuc=z.copy(), cus=z.copy(), crc=z.copy(), crs=z.copy(), cic=z.copy(), cis=z.copy(),
                      af0=arr(af0), af1=arr(af1), af2=z.copy(), tgd=z.copy(), iode=np.zeros(S, np.int64),
-                     source=source)
+                     source=source, system=arr(system, "<U1"))
 
 
 def _kepler_E(M: NDArray, e: NDArray) -> NDArray:

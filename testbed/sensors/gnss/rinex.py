@@ -84,6 +84,7 @@ def _pick(a: NDArray, trial: int, ndim: int) -> NDArray:
 
 def write_nav(eph: Ephemeris, t_gps_span: tuple[float, float], path: str | Path) -> Path:
     """RINEX 3.04 GPS navigation file covering ``t_gps_span`` (records every 2 h per satellite)."""
+    _require_gps_only(eph, "write_nav")
     t0, t1 = float(t_gps_span[0]), float(t_gps_span[1])
     toes = np.arange(np.round(t0 / _TOE_GRID_S), np.round(t1 / _TOE_GRID_S) + 1) * _TOE_GRID_S
     out = [_hl(f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{'G: GPS':<20}", "RINEX VERSION / TYPE"),
@@ -111,6 +112,14 @@ def write_nav(eph: Ephemeris, t_gps_span: tuple[float, float], path: str | Path)
     path = Path(path)
     path.write_text("".join(out))
     return path
+
+
+def _require_gps_only(eph: Ephemeris, what: str) -> None:
+    """Refuse a constellation with non-GPS slots: these writers label every satellite ``G``."""
+    other = sorted(set(eph.sat_id[eph.system != "G"].tolist()))
+    if other:
+        raise ValueError(f"{what}: writes GPS satellites only, got {len(other)} others ({', '.join(other[:4])}"
+                         f"{', ...' if len(other) > 4 else ''})")
 
 
 #: seed words of the satellite clocks given to a constellation whose almanac has none
@@ -144,6 +153,7 @@ def write_rinex(gnss: GnssEpochs, geometry: GnssGeometry, out_dir: str | Path, *
     -------
     (obs_path, nav_path)
     """
+    _require_gps_only(geometry.eph, "write_rinex")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if gnss.pseudorange.ndim not in (2, 3):
