@@ -1,8 +1,9 @@
 """ARAIM fault modes: events, their priors, the fault order to monitor, the modes (docs/design/araim.md §3).
 
 A *fault event* is one satellite (prior P_sat) or one constellation (P_const); events are independent.
-A *fault mode* is the set of rows a combination of events removes; its prior is the probability that
-exactly those events are faulted (eq. 5). The modes of one row structure (how many rows of which system,
+A *fault mode* is the set of rows a combination of events removes; its prior is the product of its events'
+priors (eq. 5), as the ADD writes it: at least those events faulted, an upper bound on exactly those by the
+factor 1/Π(1 − p) ≈ 1.0003, so a single-satellite mode's prior is P_sat itself. The modes of one row structure (how many rows of which system,
 with which priors) do not depend on the geometry, so they are built once per structure and reused for every
 epoch that has it.
 """
@@ -129,13 +130,11 @@ def fault_modes(system: NDArray, settings: AraimSettings) -> ModeSet:
     order, exceeded = fault_order(ev.p_exp, settings)
     log_none = float(np.sum(np.log1p(-ev.p)))
     log_none_exp = float(np.sum(np.log1p(-ev.p_exp)))
-    q, q_exp = ev.p / (1.0 - ev.p), ev.p_exp / (1.0 - ev.p_exp)
     modes: dict[frozenset[int], list[float]] = {}
     for r in range(1, order + 1):
         for combo in itertools.combinations(range(len(ev.rows)), r):
             rows = frozenset().union(*(ev.rows[e] for e in combo))
-            pr = [math.exp(log_none) * float(np.prod(q[list(combo)])),
-                  math.exp(log_none_exp) * float(np.prod(q_exp[list(combo)]))]
+            pr = [float(np.prod(ev.p[list(combo)])), float(np.prod(ev.p_exp[list(combo)]))]
             acc = modes.setdefault(rows, [0.0, 0.0])
             acc[0] += pr[0]
             acc[1] += pr[1]
