@@ -28,7 +28,7 @@ class FaultEvents:
     """The independent fault events of one row structure.
 
     rows : per event, the row indices it removes.  p : (E,) instantaneous priors.
-    p_exp : (E,) priors over the exposure, p·(1 + T_EXP/MFD) (eq. 4).  system : (E,) the system code of a
+    p_exp : (E,) priors over the exposure, p·(1 + T_EXP/MFD) (eq. 5).  system : (E,) the system code of a
     constellation event, -1 for a satellite event.
     """
 
