@@ -516,3 +516,19 @@ def test_bad_inputs_are_refused_before_any_work():
         AraimSettings(ism={"Beidou": ConstellationIsm()})
     with pytest.raises(ValueError, match="sigma_ure_m"):
         ConstellationIsm(sigma_ura_m=0.5, sigma_ure_m=0.75)
+
+
+def test_a_mode_below_its_threshold_counts_in_full():
+    """Q̃: a fault mode whose PL is at or below its threshold + bias counts p·min(1, α) — its error may sit
+    anywhere up to the threshold undetected — not p·Q(negative) (< p). A single-mode risk equation by hand."""
+    offset, sigma = np.array([[0.0, 10.0]]), np.array([[1.0, 2.0]])
+    weight, cap = np.array([[2.0, 1e-4]]), np.array([[1.0, 1.0]])
+    pl = np.array([9.0])
+    expected = 2.0 * stats.norm.sf(9.0) + 1e-4
+    assert integrity_risk(pl, offset, sigma, weight, cap)[0] == pytest.approx(expected, rel=1e-12)
+    cap = np.array([[1.0, 0.4]])
+    expected = 2.0 * stats.norm.sf(9.0) + 1e-4 * 0.4
+    assert integrity_risk(pl, offset, sigma, weight, cap)[0] == pytest.approx(expected, rel=1e-12)
+    pl = np.array([12.0])
+    expected = 2.0 * stats.norm.sf(12.0) + 1e-4 * min(stats.norm.sf(1.0), 0.4)
+    assert integrity_risk(pl, offset, sigma, weight, cap)[0] == pytest.approx(expected, rel=1e-12)
