@@ -1,0 +1,123 @@
+"""ARAIM thresholds, protection levels, EMT and availability (docs/design/araim.md §5-§7).
+
+The protection level of axis q solves the integrity-risk equation (eq. 16)
+
+    2·Q̃((PL − b_q⁽⁰⁾)/σ_q⁽⁰⁾) + Σ_{k≥1} p_k·min(Q̃((PL − T_k,q − b_q⁽ᵏ⁾)/σ_q⁽ᵏ⁾), α_k) = P_q / N_ES,int
+
+with Q̃(x) = 1 for x ≤ 0, else Q(x) = 1 − Φ(x), by the ADD's half-interval search: from a bracket that
+holds the root, halve until it is at most TOL_PL wide and return its upper end (within TOL_PL above the
+root, never below it). All arrays are batched: epochs first, modes next, axes last.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import ndtr, ndtri
+
+from testbed.integrity.levels import service_level
+
+#: LPV-200 limits on EMT and σ_acc,v (m) beside the HAL/VAL of the service level (eq. 19)
+EMT_LIMITS = {"LPV-200": 15.0}
+SIGMA_ACC_V_LIMITS = {"LPV-200": 1.87}
+
+
+def q_function(x: NDArray) -> NDArray:
+    """Q(x) = 1 − Φ(x), accurate in the far tail."""
+    return ndtr(-x)
+
+
+def q_inverse(p: NDArray) -> NDArray:
+    """Q⁻¹(p): the x with Q(x) = p."""
+    return -ndtri(p)
+
+
+def q_tilde(x: NDArray) -> NDArray:
+    """Q̃(x): 1 for x ≤ 0 (a mode's error may sit anywhere up to its threshold), else Q(x)."""
+    return np.where(x <= 0.0, 1.0, q_function(x))
+
+
+def fa_multipliers(n_modes: NDArray, p_fa_hor: float, p_fa_vert: float, n_es_cont: int) -> NDArray:
+    """K_fa per axis (eq. 14): Q⁻¹(P_FA,H/(4·N_ES·N_modes)) for E and N, Q⁻¹(P_FA,V/(2·N_ES·N_modes)) for U.
+
+    n_modes : (...) monitored fault modes.  Returns (..., 3).
+    """
+    n = np.maximum(np.asarray(n_modes, float), 1.0)
+    kh = q_inverse(p_fa_hor / (4.0 * n_es_cont * n))
+    kv = q_inverse(p_fa_vert / (2.0 * n_es_cont * n))
+    return np.stack([kh, kh, kv], axis=-1)
+
+
+def integrity_risk(pl: NDArray, offset: NDArray, sigma: NDArray, weight: NDArray, cap: NDArray) -> NDArray:
+    """The left side of eq. 16 at ``pl`` (...), terms along the last axis of ``offset``, ``sigma``, ``weight``,
+    ``cap`` (..., K): Σ weight·min(Q̃((pl − offset)/sigma), cap). Unused terms carry weight 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (pl[..., None] - offset) / sigma
+        term = weight * np.minimum(q_tilde(z), cap)
+    return np.sum(np.where(weight > 0.0, term, 0.0), axis=-1)
+
+
+def solve_protection_level(offset: NDArray, sigma: NDArray, weight: NDArray, cap: NDArray, target: NDArray,
+                           tol: float) -> tuple[NDArray, NDArray]:
+    """Half-interval search of eq. 16: the upper end of a bracket ≤ ``tol`` wide holding the root.
+
+    Parameters
+    ----------
+    offset, sigma, weight, cap : (..., K) per term: T + b (m), σ (m), the prior (2 for the fault-free term),
+        the cap α on the missed detection (1 for the fault-free term). A term with weight 0 is unused.
+    target : (...) the right side, P_q/N_ES,int (> 0).
+
+    Returns
+    -------
+    pl : (...) m.  iterations : (...) halvings taken.
+    """
+    used = weight > 0.0
+    # low end: a term that alone reaches the target puts the root above its own solution
+    alone = used & (weight * cap >= target[..., None])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo_k = offset + q_inverse(np.minimum(target[..., None] / weight, 1.0)) * sigma
+        n_terms = used.sum(-1, keepdims=True)
+        # high end: every term at most target/K makes the sum at most the target (a term whose share
+        # exceeds Q(0) is met just above its offset, where Q̃ < 1/2)
+        hi_k = offset + np.maximum(q_inverse(target[..., None] / (n_terms * weight)), 1e-6) * sigma
+    lo = np.max(np.where(alone, lo_k, -np.inf), axis=-1)
+    lo = np.where(np.isfinite(lo), lo, 0.0)
+    hi = np.max(np.where(used, hi_k, -np.inf), axis=-1)
+    iterations = np.zeros(lo.shape, int)
+    open_ = hi - lo > tol
+    while np.any(open_):
+        idx = np.nonzero(open_)
+        mid = 0.5 * (lo[idx] + hi[idx])
+        above = integrity_risk(mid, offset[idx], sigma[idx], weight[idx], cap[idx]) > target[idx]
+        lo[idx] = np.where(above, mid, lo[idx])
+        hi[idx] = np.where(above, hi[idx], mid)
+        iterations[idx] += 1
+        open_[idx] = hi[idx] - lo[idx] > tol
+    return hi, iterations
+
+
+def effective_monitor_threshold(threshold_u: NDArray, p: NDArray, monitored: NDArray, p_emt: float) -> NDArray:
+    """EMT (eq. 17): the largest vertical threshold over monitored modes with prior ≥ P_EMT (0 if none).
+
+    threshold_u : (E, M) m.  p : (M,) priors.  monitored : (E, M) bool (mode 0 excluded by the caller).
+    """
+    take = monitored & (p >= p_emt)
+    return np.max(np.where(take, threshold_u, 0.0), axis=-1, initial=0.0)
+
+
+def araim_availability(hpl: NDArray, vpl: NDArray, emt: NDArray, sigma_acc_v: NDArray,
+                       levels: tuple[str, ...]) -> NDArray:
+    """Per service level (eq. 19): HPL ≤ HAL ∧ VPL ≤ VAL, and for LPV-200 also EMT ≤ 15 m ∧ σ_acc,v ≤ 1.87 m.
+
+    All (...) m, NaN or ∞ where unavailable. Returns (..., K) bool.
+    """
+    out = []
+    for name in levels:
+        lv = service_level(name)
+        ok = (hpl <= lv.hal) & (vpl <= lv.val)
+        if name in EMT_LIMITS:
+            ok &= emt <= EMT_LIMITS[name]
+        if name in SIGMA_ACC_V_LIMITS:
+            ok &= sigma_acc_v <= SIGMA_ACC_V_LIMITS[name]
+        out.append(ok)
+    return np.stack(out, axis=-1)

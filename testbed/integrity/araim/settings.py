@@ -1,0 +1,148 @@
+"""Settings of the ARAIM monitor: the integrity support message (ISM) and the risk allocation.
+
+The ISM is what the ground segment broadcasts per constellation (σ_URA, σ_URE,
+b_nom, P_sat, P_const and their mean fault durations); the allocation is the
+airborne side (P_HMI, P_FA, P_THRES, P_EMT, the PL tolerance, the exposure
+model). Defaults and the ``add_v31`` preset are explained in docs/design/araim.md §1.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from testbed.integrity.levels import SERVICE_LEVELS
+from testbed.schema import StrictModel
+
+#: the systems a row may belong to, by code (the row's ``constellation`` index)
+SYSTEMS: tuple[str, ...] = ("GPS", "Galileo", "BeiDou", "GLONASS")
+
+#: the σ_user (airborne multipath + noise) curves :mod:`testbed.integrity.araim.error_model` knows
+USER_ERROR_MODELS = ("wgc_m3", "add_v31", "maast2_dfmc")
+
+
+class ConstellationIsm(StrictModel):
+    """The integrity support data of one constellation (applies to each of its satellites)."""
+
+    sigma_ura_m: float = Field(0.75, gt=0.0, description="σ_URA: the clock/ephemeris error overbound used for "
+                                                         "integrity (m, 1σ)")
+    sigma_ure_m: float = Field(0.50, gt=0.0, description="σ_URE: the clock/ephemeris error used for accuracy and "
+                                                         "continuity (m, 1σ)")
+    b_nom_m: float = Field(0.50, ge=0.0, description="b_nom: the nominal bias bound for integrity (m)")
+    b_cont_m: float = Field(0.0, ge=0.0, description="b_cont: the nominal bias for accuracy and continuity (m)")
+    p_sat: float = Field(1e-5, ge=0.0, lt=1.0, description="P_sat: prior probability of a satellite fault at any "
+                                                           "instant")
+    p_const: float = Field(1e-4, ge=0.0, lt=1.0, description="P_const: prior probability of a constellation-wide "
+                                                             "fault at any instant")
+    mfd_sat_h: float = Field(1.0, gt=0.0, description="mean duration of a satellite fault (h): the exposure of an "
+                                                      "approach adds T_EXP/MFD to the prior")
+    mfd_const_h: float = Field(1.0, gt=0.0, description="mean duration of a constellation fault (h)")
+
+    @model_validator(mode="after")
+    def _ure_below_ura(self):
+        if self.sigma_ure_m > self.sigma_ura_m:
+            raise ValueError(f"sigma_ure_m = {self.sigma_ure_m} exceeds sigma_ura_m = {self.sigma_ura_m}: the "
+                             "accuracy sigma is expected at most the integrity overbound")
+        return self
+
+
+def ism_preset(name: Literal["wgc_lpv200", "icao2024_draft"]) -> dict[str, ConstellationIsm]:
+    """A named ISM, per system.
+
+    ``wgc_lpv200``: σ_URA 0.75 m, σ_URE 0.50 m, b_nom 0.50 m, P_sat 1e-5, P_const 1e-4 for every system, the
+    LPV-200 example of the ARAIM Airborne Design Document v3.1, Appendix D (BeiDou and GLONASS given the same
+    figures by assumption: no public ISM of theirs was found). ``icao2024_draft``: the example MAAST-2 ships as
+    based on the June 2024 draft of ICAO Annex 10's default ISD (GPS σ_URA 2.4 m, P_const 1e-8; Galileo 6 m;
+    GLONASS 9 m), an H-ARAIM oriented set under which LPV-200 is rarely available.
+    """
+    if name == "wgc_lpv200":
+        return {s: ConstellationIsm() for s in SYSTEMS}
+    if name == "icao2024_draft":
+        return {
+            "GPS": ConstellationIsm(sigma_ura_m=2.4, sigma_ure_m=2.4, b_nom_m=0.0, p_sat=1e-5, p_const=1e-8),
+            "Galileo": ConstellationIsm(sigma_ura_m=6.0, sigma_ure_m=4.0, b_nom_m=0.0, p_sat=3e-5, p_const=2e-4,
+                                        mfd_sat_h=1.5, mfd_const_h=2.0),
+            "GLONASS": ConstellationIsm(sigma_ura_m=9.0, sigma_ure_m=8.0, b_nom_m=0.0, p_sat=1.02e-4, p_const=1e-4,
+                                        mfd_sat_h=3.0, mfd_const_h=10.0),
+        }
+    raise ValueError(f"ISM preset: expected 'wgc_lpv200' or 'icao2024_draft', got {name!r}")
+
+
+class AraimSettings(StrictModel):
+    """Risk allocation, exposure model and solver tolerance of the ARAIM monitor (docs/design/araim.md)."""
+
+    ism: dict[str, ConstellationIsm] = Field(default_factory=lambda: ism_preset("wgc_lpv200"),
+                                             description=f"integrity support data per system (some of {SYSTEMS})")
+    user_error: Literal["wgc_m3", "add_v31", "maast2_dfmc"] = Field(
+        "wgc_m3", description="airborne multipath + noise curve σ_user (docs/design/araim.md eq. 2-4)")
+    tropo_zenith_m: float = Field(0.12, gt=0.0, description="residual troposphere σ at zenith (m)")
+    p_hmi_vert: float = Field(9.8e-8, gt=0.0, lt=1.0, description="integrity budget of the vertical (per approach)")
+    p_hmi_hor: float = Field(2e-9, gt=0.0, lt=1.0, description="integrity budget of the horizontal (per approach)")
+    p_fa_vert: float = Field(3.9e-6, gt=0.0, lt=1.0, description="false-alert budget of the vertical tests")
+    p_fa_hor: float = Field(9e-8, gt=0.0, lt=1.0, description="false-alert budget of the horizontal tests")
+    p_thres: float = Field(8e-8, gt=0.0, lt=1.0, description="the largest prior left unmonitored")
+    p_emt: float = Field(1e-5, gt=0.0, lt=1.0, description="EMT = the largest vertical threshold of the modes whose "
+                                                           "prior is at least this")
+    tol_pl: float = Field(0.05, gt=0.0, le=10.0, description="protection level tolerance (m): the half-interval "
+                                                             "search stops when the bracket is this narrow and "
+                                                             "returns its upper end")
+    t_exp_s: float = Field(150.0, ge=0.0, description="exposure time of an approach (s): a fault present at any "
+                                                      "time in it counts (prior × (1 + T_EXP/MFD)); 0 = none")
+    n_es_int: int = Field(25, ge=1, description="effective independent samples over the exposure, integrity")
+    n_es_cont: int = Field(25, ge=1, description="effective independent samples over the exposure, continuity "
+                                                 "(divides P_FA)")
+    max_pmd: bool = Field(True, description="cap each fault mode's missed-detection probability at "
+                                            "p_exp/(p·N_ES_INT) (else p_exp/p)")
+    fc_thres: float = Field(0.01, ge=0.0, lt=1.0, description="fault consolidation: a mode inside one constellation "
+                                                              "whose prior is below fc_thres × that constellation's "
+                                                              "is folded into the constellation mode; 0 = off")
+    min_fault_order: int = Field(1, ge=1, le=4, description="monitor combinations of at least this many fault "
+                                                            "events even when the ADD rule asks for fewer")
+    max_fault_order: int = Field(3, ge=1, le=4, description="the largest combination of fault events enumerated; "
+                                                            "an epoch that needs more is unavailable (its reason "
+                                                            "says so)")
+    max_cond: float = Field(1e10, gt=1.0, description="largest accepted 1-norm condition number of a subset's "
+                                                      "Jacobi-scaled normal matrix; above it the subset is "
+                                                      "unobservable")
+    service_levels: tuple[str, ...] = Field(("LPV-200", "APV-I", "APV-II"),
+                                            description="levels whose availability is reported, in this order")
+
+    @field_validator("ism")
+    @classmethod
+    def _known_systems(cls, v: dict[str, ConstellationIsm]) -> dict[str, ConstellationIsm]:
+        unknown = [s for s in v if s not in SYSTEMS]
+        if unknown:
+            raise ValueError(f"unknown system(s) {unknown}; expected some of {list(SYSTEMS)}")
+        if not v:
+            raise ValueError(f"expected the ISM of at least one system of {list(SYSTEMS)}")
+        return v
+
+    @field_validator("service_levels")
+    @classmethod
+    def _known_levels(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        unknown = [s for s in v if s not in SERVICE_LEVELS]
+        if not v or unknown:
+            raise ValueError(f"expected some of {list(SERVICE_LEVELS)}, got {list(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _orders(self):
+        if self.min_fault_order > self.max_fault_order:
+            raise ValueError(f"min_fault_order = {self.min_fault_order} exceeds max_fault_order = "
+                             f"{self.max_fault_order}")
+        return self
+
+    @classmethod
+    def add_v31(cls, **changes) -> "AraimSettings":
+        """The ADD v3.1 allocation as its Appendix D example runs it: no exposure (T_EXP = 0), one effective
+        sample (N_ES = 1), no fault consolidation, no cap on the missed detection."""
+        base = dict(t_exp_s=0.0, n_es_int=1, n_es_cont=1, max_pmd=False, fc_thres=0.0)
+        return cls(**(base | changes))
+
+    def system_ism(self, system: int) -> ConstellationIsm:
+        """The ISM of system code ``system`` (an index into :data:`SYSTEMS`)."""
+        name = SYSTEMS[system]
+        if name not in self.ism:
+            raise ValueError(f"ARAIM: a row of system {name!r} but the ISM has only {list(self.ism)}")
+        return self.ism[name]

@@ -1,0 +1,108 @@
+"""Subset solutions of the ARAIM fault modes and their statistics (docs/design/araim.md §4).
+
+For fault mode k (rows ``removed[k]`` out), the weighted least squares on the kept rows
+
+    S⁽ᵏ⁾ = (Gᵀ W_k G)⁻¹ Gᵀ W_k,   W_k = diag(keep_k / C_int)                      (eq. 9)
+
+with a clock column that has no kept row dropped (its state pinned by a unit diagonal, which leaves the
+other states' solution unchanged). Then per position axis q = E, N, U (eq. 10-13)
+
+    σ_q⁽ᵏ⁾² = Σ_i (S_qi⁽ᵏ⁾)² C_int,i          b_q⁽ᵏ⁾ = Σ_i |S_qi⁽ᵏ⁾| b_nom,i
+    σ_ss,q⁽ᵏ⁾² = Σ_i (S_qi⁽ᵏ⁾ − S_qi⁽⁰⁾)² C_acc,i   b_ss,q⁽ᵏ⁾ = Σ_i |S_qi⁽ᵏ⁾ − S_qi⁽⁰⁾| b_cont,i
+
+Every subset is solved directly (no downdating) on batches of epochs that share one row structure:
+epochs first, then modes, rows last.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: elements of the largest temporary (epochs × modes × rows × states²) of one chunk
+CHUNK_ELEMENTS = 1 << 21
+
+
+@dataclass(frozen=True)
+class SubsetStats:
+    """Per epoch and mode: observable (E, M) bool; sigma, bias, sigma_ss, bias_ss, separation (E, M, 3) m in
+    E, N, U (separation = x̂⁽ᵏ⁾ − x̂⁽⁰⁾, NaN without residuals); s0 (E, 3, N), the all-in-view S rows of the
+    position."""
+
+    observable: NDArray
+    sigma: NDArray
+    bias: NDArray
+    sigma_ss: NDArray
+    bias_ss: NDArray
+    separation: NDArray
+    s0: NDArray
+
+
+def _inverse(A: NDArray, max_cond: float) -> tuple[NDArray, NDArray]:
+    """Inverses of symmetric (..., n, n) ``A`` and whether each is well conditioned (1-norm condition number of
+    the Jacobi-scaled matrix ≤ ``max_cond``). An ill-conditioned or singular one gets NaN, never an exception."""
+    d = np.sqrt(np.diagonal(A, axis1=-2, axis2=-1))
+    As = A / (d[..., :, None] * d[..., None, :])
+    try:
+        inv_s = np.linalg.inv(As)
+    except np.linalg.LinAlgError:  # an exactly singular subset somewhere in the batch: one at a time
+        inv_s = np.full_like(As, np.nan)
+        for idx in np.ndindex(As.shape[:-2]):
+            try:
+                inv_s[idx] = np.linalg.inv(As[idx])
+            except np.linalg.LinAlgError:
+                pass
+    with np.errstate(invalid="ignore"):
+        cond = np.abs(As).sum(-2).max(-1) * np.abs(inv_s).sum(-2).max(-1)
+        ok = np.isfinite(cond) & (cond <= max_cond)
+    inv = inv_s / (d[..., :, None] * d[..., None, :])
+    return np.where(ok[..., None, None], inv, np.nan), ok
+
+
+def subset_stats(G: NDArray, c_int: NDArray, c_acc: NDArray, b_nom: NDArray, b_cont: NDArray, removed: NDArray,
+                 clock_of_row: NDArray, max_cond: float, residual: NDArray | None = None) -> SubsetStats:
+    """Statistics of every mode's subset solution (eq. 9-13).
+
+    Parameters
+    ----------
+    G : (E, N, n) geometry rows [−LOS_ENU | clock one-hot], n = 3 + clocks.
+    c_int, c_acc : (E, N) m² row variances.  b_nom, b_cont : (E, N) m.
+    removed : (M, N) bool rows each mode removes (mode 0 removes none).
+    clock_of_row : (N,) clock column (0 … n−4) of each row.
+    residual : (E, N) prefit residuals Δy at the linearisation point (m), or None.
+    """
+    E, N, n = G.shape
+    M = removed.shape[0]
+    keep = (~removed).astype(float)
+    n_clock = n - 3
+    clock_rows = keep @ np.eye(n_clock)[clock_of_row]  # (M, C): kept rows per clock
+    empty_clock = clock_rows == 0
+    structurally_ok = keep.sum(1) >= 3 + (~empty_clock).sum(1)  # rows ≥ states left
+    pin = np.zeros((M, n, n))
+    pin[:, np.arange(3, n), np.arange(3, n)] = empty_clock
+    pin[~structurally_ok] = np.eye(n)  # solved as identity, flagged unobservable
+    w = 1.0 / c_int
+    Gw = G * w[..., None]
+    outer = (G[:, :, :, None] * Gw[:, :, None, :]).reshape(E, N, n * n)
+    A = (keep @ outer).reshape(E, M, n, n) + pin  # Gᵀ W_k G (eq. 9)
+    inv, ok = _inverse(A, max_cond)
+    observable = ok & structurally_ok
+    S = (inv[:, :, :3, :] @ np.swapaxes(Gw, -1, -2)[:, None]) * keep[None, :, None, :]  # (E, M, 3, N)
+    S = np.where(observable[..., None, None], S, np.nan)
+    dS = S - S[:, :1]
+    sigma = np.sqrt((S * S) @ c_int[:, None, :, None])[..., 0]
+    bias = (np.abs(S) @ b_nom[:, None, :, None])[..., 0]
+    sigma_ss = np.sqrt((dS * dS) @ c_acc[:, None, :, None])[..., 0]
+    bias_ss = (np.abs(dS) @ b_cont[:, None, :, None])[..., 0]
+    if residual is None:
+        separation = np.full(sigma.shape, np.nan)
+    else:
+        separation = (dS @ residual[:, None, :, None])[..., 0]
+    return SubsetStats(observable, sigma, bias, sigma_ss, bias_ss, separation, S[:, 0])
+
+
+def chunk_epochs(E: int, M: int, N: int, n: int) -> int:
+    """Epochs per chunk so a chunk's largest temporary stays about :data:`CHUNK_ELEMENTS`."""
+    return max(1, min(E, CHUNK_ELEMENTS // max(M * N * n * n, 1)))
