@@ -767,7 +767,8 @@ def test_a_fault_no_trial_can_exercise_is_refused_before_any_work(tmp_path, caps
     landmark detected) and the trials' fault_target is -1 where no slot took it, which the report reads as
     not exercised."""
     from testbed.campaign_cli import main
-    from testbed.campaign.runner import cell_context, draw_block
+    from testbed.campaign.blocks import draw_block
+    from testbed.campaign.context import cell_context
 
     spec = write_spec(tmp_path, "never.toml", text=NEVER.format(monitors=monitors, fault=fault, sorties=""))
     assert main(["campaign", str(spec), "--out", str(tmp_path / "o"), "--quiet", "--workers", "1"]) == 2

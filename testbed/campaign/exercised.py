@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from testbed.campaign.runner import cell_context
+from testbed.campaign.context import cell_context
 from testbed.campaign.spec import Cell, LoadedSpec, expand_cells
 from testbed.schema import ConfigError
 from testbed.sensors.faults import GNSS_KINDS, LandmarkMoved, active

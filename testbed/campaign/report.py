@@ -201,10 +201,10 @@ def write_report(out_dir: str | Path, *, power: float | None = None, inputs: Rep
     out_dir = Path(out_dir)
     if not out_dir.is_dir():  # before trying to write in it: a missing folder is no campaign
         _load(out_dir)
-    inp = inputs if inputs is not None else report_inputs(out_dir, power=power)
-    with OutputSet.using(outputs) as outs:
+    with OutputSet.using(outputs) as outs:  # the outputs tried first, then the tables read
         if not outs.declares(out_dir):
             outs.folder(out_dir, "DIR", entries=REPORT_ENTRIES, complete=True)
+        inp = inputs if inputs is not None else report_inputs(out_dir, power=power)
         return _write_report(replace(inp, figdir=outs.staged_folder(out_dir / "figures")), outs)
 
 

@@ -28,6 +28,7 @@ import pyarrow as pa
 
 from testbed.campaign.blocks import run_block
 from testbed.campaign.context import cached, cell_context
+from testbed.campaign.exercised import check_faults_exercised
 from testbed.campaign.plan import cells_of, chunk_plan, chunk_rows, check_workers, local_workers, worker_tasks
 from testbed.campaign.spec import CampaignSpec, LoadedSpec, load_spec, resolve_spec
 from testbed.campaign.store import ResultStore
@@ -179,8 +180,6 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     check_workers(workers, scheduler)
     loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)
     check_output_folder(out_dir, "--out")
-    from testbed.campaign.exercised import check_faults_exercised  # (it reads this module's cell contexts)
-
     check_faults_exercised(loaded)  # a fault no trial can exercise: refused before any chunk is drawn
     client, own = _client(scheduler) if scheduler is not None else (None, False)  # reachable before any work
     store = ResultStore(out_dir)

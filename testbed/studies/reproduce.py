@@ -544,7 +544,6 @@ def _mdb_claim(tb, cells):
 
 
 def _calibration_claim(tb):
-    import numpy as np
 
     from testbed.campaign.report import vision_range_error_table
 
