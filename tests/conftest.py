@@ -1,8 +1,14 @@
-"""Suite-wide settings: the Rerun SDK and viewer send no usage analytics from the tests.
+"""Suite-wide settings: the Rerun SDK and viewer send no usage analytics from the tests, and idle OpenMP threads sleep.
 
 Rerun reads its analytics switch from ``$XDG_CONFIG_HOME/rerun/analytics.json``; the suite
 points XDG_CONFIG_HOME at a private folder holding a disabled config (the user's own config
 is neither read nor touched). Users turn it off for themselves with ``rerun analytics disable``.
+
+Idle OpenMP threads sleep (``OMP_WAIT_POLICY=passive``, what testbed's commands set when they start;
+see testbed/threads.py) from the start of the run, whichever test starts numba's thread pool: the
+suite used to get it from its first in-process ``main()``, so a file or the slow set run on its own
+kept spinning threads, which beside a busy neighbour made the DPE calibration test 10x slower
+(230 s against 24 s). A value set in the environment wins.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ _HOME: Path | None = None
 
 def pytest_configure(config) -> None:
     global _HOME
+    os.environ.setdefault("OMP_WAIT_POLICY", "passive")  # before any kernel starts the OpenMP threads
     home = _HOME = Path(tempfile.mkdtemp(prefix="testbed-tests-config-"))
     (home / "rerun").mkdir()
     (home / "rerun" / "analytics.json").write_text(json.dumps(

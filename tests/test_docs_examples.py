@@ -64,10 +64,12 @@ def test_every_not_run_mark_gives_a_reason_and_sits_on_a_runnable_block():
 
 
 RUN_PAGES = [p for p in PAGES if any(b.lang in RUNNABLE and b.not_run is None for b in blocks(p))]
+#: a tutorial flies, runs a campaign or a reproduction (tens of seconds each): the slow set; the other
+#: pages' examples are one-line calculations and stay in the default set
+PAGE_PARAMS = [pytest.param(p, marks=pytest.mark.slow) if p.parent.name == "tutorials" else p for p in RUN_PAGES]
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("page", RUN_PAGES, ids=_id)
+@pytest.mark.parametrize("page", PAGE_PARAMS, ids=_id)
 def test_a_pages_examples_run(page, tmp_path):
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"

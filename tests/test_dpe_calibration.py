@@ -112,6 +112,7 @@ def test_the_shipped_k_records_are_valid():
         fit_k_tail(np.random.default_rng(0).normal(size=900), 1e-7)
 
 
+@pytest.mark.slow
 def test_calibrate_dpe_end_to_end_even_when_the_approach_names_a_stale_record(tmp_path):
     """7 + 7 sorties of the shipped DPE approach, whose k_factor names a record made for other settings
     (the usual state right after a settings change): the calibration ignores it, fits, validates, and

@@ -236,7 +236,6 @@ def _assert_consistent(trace, g1, cb, B: int) -> None:
     assert lo <= trace.nis[:, 1:].sum() <= hi
 
 
-@pytest.mark.slow
 def test_nees_and_nis_inside_their_chi2_bands_with_seven_satellites():
     """T-NEES-1/T-NIS-1 (straight, 7 satellites, 80 runs from the alignment's P₀): the mean NEES of
     position, velocity and attitude (3 dof each) and of the clock bias (1 dof) is inside its two-sided
@@ -253,7 +252,6 @@ def test_nees_and_nis_inside_their_chi2_bands_with_seven_satellites():
     assert lo <= alerts <= hi, (alerts, lo, hi, d.size)
 
 
-@pytest.mark.slow
 def test_range_rate_rows_keep_the_filter_consistent_and_sharpen_the_velocity():
     """The same 80 runs with a range-rate row per satellite (0.05 m/s): NEES of position, velocity, attitude
     and clock bias inside their 99 % χ² bands at ≥ 95 % of epochs, the NIS (pseudorange + range-rate rows)

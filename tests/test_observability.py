@@ -106,6 +106,7 @@ def test_seed_model_counts_do_not_depend_on_the_draw():
         assert seed_observability(0, True, J=1, seed=seed)["lom"] == 8
 
 
+@pytest.mark.slow
 def test_cli_prints_the_tables(capsys):
     from testbed.cli import main
 

@@ -18,8 +18,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-pytestmark = pytest.mark.slow
-
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
@@ -30,6 +28,7 @@ def wheel(tmp_path_factory) -> Path:
     return whl
 
 
+@pytest.mark.slow
 def test_wheel_holds_the_shipped_files_and_no_tests_recordings_or_build_products(wheel):
     names = zipfile.ZipFile(wheel).namelist()
     shipped = {n.split("testbed/_shipped/", 1)[1] for n in names if n.startswith("testbed/_shipped/")}
@@ -42,6 +41,7 @@ def test_wheel_holds_the_shipped_files_and_no_tests_recordings_or_build_products
     assert bad == []
 
 
+@pytest.mark.slow
 def test_installed_wheel_flies_the_default_approach_from_an_empty_folder(wheel, tmp_path):
     site = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site), str(wheel)],

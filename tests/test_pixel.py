@@ -251,7 +251,6 @@ def test_landmark_bias_injection_matches_slope():
     np.testing.assert_allclose(ratio_v.max(), out.diagnostics.vslope_lm[0, 0, lm], rtol=5e-4)
 
 
-@pytest.mark.slow
 def test_fault_free_statistic_with_attitude_errors_is_chi2():
     """Pixel noise + attitude-reference error drawn per epoch: SSE ~ χ²(n − 4) (KS),
     which only holds if the correlated pixel covariance is right; without the
