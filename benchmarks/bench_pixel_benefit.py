@@ -31,6 +31,7 @@ from testbed.campaign.blocks import draw_block
 from testbed.campaign.context import cell_context  # noqa: E402
 from testbed.campaign.spec import expand_cells, load_spec  # noqa: E402
 from testbed.integrity.pixel import pixel_monitor  # noqa: E402
+from testbed.integrity.settings import PixelOptions  # noqa: E402
 
 LEVELS = ("APV-I", "LPV-200", "APV-II")
 
@@ -45,16 +46,16 @@ def cap_sweep(loaded, cell_index: int, caps=(6, 12, 30), repeats: int = 3) -> li
     runs = {}
     for _ in range(repeats):
         for cap in caps:
-            st = ctx.setup.integrity.model_copy(update={"pixel_max_landmarks": cap, "fde": False})
+            st = ctx.setup.integrity.model_copy(update={"fde": False})
             t0 = time.perf_counter()
-            out = pixel_monitor(d.obs.gnss, d.obs.vision, ctx.setup.frame, st)
+            out = pixel_monitor(d.obs.gnss, d.obs.vision, ctx.setup.frame, st, options=PixelOptions(max_landmarks=cap))
             runs.setdefault(cap, []).append(time.perf_counter() - t0)
             runs[cap, "out"] = out
     for cap in caps:
         out = runs[cap, "out"]
-        st = ctx.setup.integrity.model_copy(update={"pixel_max_landmarks": cap, "pixel_two_faults": False,
-                                                    "fde": False})
-        no_h3 = pixel_monitor(d.obs.gnss, d.obs.vision, ctx.setup.frame, st)
+        st = ctx.setup.integrity.model_copy(update={"fde": False})
+        no_h3 = pixel_monitor(d.obs.gnss, d.obs.vision, ctx.setup.frame, st,
+                              options=PixelOptions(max_landmarks=cap, two_faults=False))
         lines.append(f"| {cap} | {np.mean(out.diagnostics.n_landmarks):.1f} | {n_ep / statistics.median(runs[cap]):,.0f} | "
                      f"{100 * np.mean(out.available[..., 0]):.1f} % | {100 * np.mean(no_h3.available[..., 0]):.1f} % |")
     return lines

@@ -13,14 +13,15 @@ import dataclasses
 import numpy as np
 
 from testbed.api import load_approach, run_approach
+from testbed.monitors import monitor_options
 
 
 def main(seeds: int) -> None:
     for rr in (False, True):
         ap = load_approach("zunz-rwy05-ekf")
-        ekf = dict(ap.config.ekf)
-        ekf["range_rate"] = rr
-        cfg = ap.config.model_copy(update={"ekf": ekf, "monitors": ["gps_raim", "ekf"]})
+        ekf = monitor_options("ekf", ap.config.monitor).model_copy(update={"range_rate": rr})
+        cfg = ap.config.model_copy(update={"monitor": {**ap.config.monitor, "ekf": ekf},
+                                           "monitors": ["gps_raim", "ekf"]})
         z2, hpe = [], []
         for seed in range(seeds):
             r = run_approach(dataclasses.replace(ap, config=cfg), rrd_path=None, seed=seed)

@@ -203,7 +203,7 @@ def _in_range(kind, lo, hi):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from testbed.integrity.registry import monitor_names
+    from testbed.monitors import monitor_names
     from testbed.sim.budget import add_allow_large
 
     p = argparse.ArgumentParser(prog="testbed", description="GNSS/vision integrity testbed for approaches into ZUNZ")

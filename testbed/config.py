@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from testbed.flight.settings import (
     AircraftSettings,
@@ -26,8 +26,8 @@ from testbed.flight.settings import (
     VerticalSettings,
     Wind,
 )
-from testbed.integrity.registry import MonitorName
 from testbed.integrity.settings import IntegritySettings
+from testbed.monitors import MonitorName, monitor_names, options_tables
 from testbed.sensors.imu.settings import ImuSettings
 from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir, shipped_or_path
 from testbed.schema import ConfigError, FileName, StrictModel, format_validation_error
@@ -73,14 +73,33 @@ class ApproachConfig(StrictModel):
                                                                           "variant, service levels, FDE and "
                                                                           "solver tolerances, shared by the "
                                                                           "monitors")
-    va_raim: dict[str, Any] = Field(default_factory=dict, description="VA-RAIM options (VaRaimSettings without integrity)")
-    imu: ImuSettings = Field(default_factory=ImuSettings, description="the IMU (read when a monitor uses it: ekf)")
-    ekf: dict[str, Any] = Field(default_factory=dict, description="ekf monitor options (navigation.monitor.EkfSettings)")
-    dpe: dict[str, Any] = Field(default_factory=dict, description="dpe monitor options (integrity.dpe.monitor.DpeSettings)")
+    imu: ImuSettings = Field(default_factory=ImuSettings, description="the IMU (read when a monitor uses it)")
+    monitor: dict[str, Any] = Field(default_factory=dict,
+                                    description="each monitor's own options, `[monitor.<name>]`, validated by the "
+                                                "model the monitor declares; a table for a monitor not listed in "
+                                                "`monitors` is checked too")
     monitors: list[MonitorName] = Field(default_factory=lambda: list(MONITORS), min_length=1,
-                                description="monitor names: gps_raim, va_raim, pixel, ekf, dpe, or one "
-                                            "registered with testbed.integrity.registry.register")
+                                description="monitor names: those `testbed fly --help` lists under --monitors, or "
+                                            "one registered with testbed.monitors.register")
     faults: list[Fault] = Field(default_factory=list, description="fault schedule ([[faults]] tables)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _moved_tables(cls, data):
+        """A monitor's options were a top-level table named after it; they are ``[monitor.<name>]`` now."""
+        if isinstance(data, dict):
+            moved = [f"[{k}] moved to [monitor.{k}]" for k in data if k in monitor_names()]
+            if moved:
+                raise ValueError("; ".join(moved))
+        return data
+
+    @field_validator("monitor", mode="before")
+    @classmethod
+    def _monitor_tables(cls, v):
+        if not isinstance(v, dict):
+            return v  # the dict type reports it
+        tables = options_tables().model_validate(v)
+        return {name: table for name, table in tables if table is not None}
 
     @field_validator("start_time_utc")
     @classmethod

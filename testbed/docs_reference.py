@@ -35,18 +35,12 @@ from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
 from testbed.markdown import table as md_table
+from testbed.monitors import entry, monitor_names
 
 COMMAND = "python -m testbed.docs_reference > docs/reference/configuration.md"
 
-#: approach-file tables held as free tables by ApproachConfig and validated by the monitor that reads
-#: them: key -> (module, model, keys of the model the table does not take, note)
-OPTION_TABLES: dict[str, tuple[str, str, tuple[str, ...], str]] = {
-    "va_raim": ("testbed.integrity.va_raim", "VaRaimSettings", ("integrity",),
-                "Read by the `va_raim` monitor. Its integrity settings are the approach's "
-                "[`[integrity]`](#approach-integrity) table (an `integrity` key here is not read)."),
-    "ekf": ("testbed.navigation.monitor", "EkfSettings", (), "Read by the `ekf` monitor."),
-    "dpe": ("testbed.integrity.dpe.monitor", "DpeSettings", (), "Read by the `dpe` monitor."),
-}
+#: the table of each monitor's own options (``[monitor.<name>]``), composed from the registry
+MONITOR_TABLES = "monitor"
 
 
 @dataclass(frozen=True)
@@ -405,14 +399,8 @@ def _anchor(*parts: str) -> str:
     return "-".join(re.sub(r"[^a-z0-9]+", "-", p.lower()).strip("-") for p in parts if p)
 
 
-def _option_model(name: str) -> tuple[type[BaseModel], tuple[str, ...], str]:
-    module, cls, skip, note = OPTION_TABLES[name]
-    return getattr(importlib.import_module(module), cls), skip, note
-
-
-def _is_option_table(model: type[BaseModel], name: str, path: tuple[str, ...], kind: FileKind) -> bool:
-    tp = _unwrap(model.model_fields[name].annotation)[0]
-    return kind.key == "approach" and not path and name in OPTION_TABLES and typing.get_origin(tp) is dict
+def _is_monitor_tables(name: str, path: tuple[str, ...]) -> bool:
+    return not path and name == MONITOR_TABLES
 
 
 def walk(kind: FileKind, w: _Walk) -> None:
@@ -448,11 +436,15 @@ def _table(w: _Walk, kind: FileKind, model: type[BaseModel], path: tuple[str, ..
             continue
         desc = f.description or ""
         tp = f.annotation
-        if _is_option_table(model, name, path, kind):
-            sub, sub_skip, sub_note = _option_model(name)
-            children.append((name, sub, False, None, sub_skip, sub_note, False))
-            a = _anchor(kind.key, *path, name)
-            sec.rows.append((name, f"table: [`[{_join(path, name)}]`](#{a})", "optional", "", "", cell(desc)))
+        if _is_monitor_tables(name, path):
+            links = []
+            for monitor in monitor_names():
+                a = _anchor("approach", name, monitor)
+                links.append(f"[`[{name}.{monitor}]`](#{a})")
+                if kind.key == "approach":
+                    children.append((f"{name}.{monitor}", entry(monitor).options, False, None, (),
+                                     f"The `{monitor}` monitor's own options.", False))
+            sec.rows.append((name, "tables: " + ", ".join(links), "optional", "", "", cell(desc)))
             continue
         models = _models(tp)
         if models:

@@ -114,11 +114,11 @@ def test_the_guides_configuration_example_is_a_valid_approach(tmp_path, monitors
     import shutil
 
     block = _guide_config_block()
-    assert "[gnss.correlators]" in block and "[dpe]" in block  # the whole example, not a fragment
+    assert "[gnss.correlators]" in block and "[monitor.pixel]" in block  # the whole example, not a fragment
     if monitors is not None:
         block, n = re.subn(r'^monitors = \[[^\]]*\]', f"monitors = {monitors}", block, count=1, flags=re.M)
         assert n == 1
-    shutil.copytree(approaches_dir() / "calibration", tmp_path / "calibration")  # [dpe] k_factor's file
+    shutil.copytree(approaches_dir() / "calibration", tmp_path / "calibration")  # [monitor.dpe] k_factor's file
     p = tmp_path / "example.toml"
     p.write_text(block)
     assert check_file(p) == []

@@ -19,9 +19,7 @@ from testbed.campaign.spec import CampaignSpec
 from testbed.config import ApproachConfig
 from testbed.docs_reference import COMMAND, numpy_prose, render
 from testbed.flight.settings import AircraftSettings
-from testbed.integrity.dpe.monitor import DpeSettings
-from testbed.integrity.va_raim import VaRaimSettings
-from testbed.navigation.monitor import EkfSettings
+from testbed.monitors import entry, monitor_names
 from testbed.rinex.settings import MonitorFileConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,10 +28,9 @@ PAGE = ROOT / "docs" / "reference" / "configuration.md"
 #: page section (H2) -> root model of that kind of file
 FILES = {"Approach file": ApproachConfig, "Aircraft file": AircraftSettings, "Campaign spec": CampaignSpec,
          "Monitor configuration file": MonitorFileConfig}
-#: approach-file tables that ApproachConfig holds as free tables: the model that validates each,
-#: and the keys of that model the table does not take
-OPTION_TABLES = {"va_raim": (VaRaimSettings, {"integrity"}), "ekf": (EkfSettings, set()),
-                 "dpe": (DpeSettings, set())}
+#: approach-file tables that ApproachConfig holds as free tables: each monitor's options, ``[monitor.<name>]``,
+#: validated by the model the monitor declares
+OPTION_TABLES = {f"monitor.{m}": (entry(m).options, set()) for m in monitor_names()}
 
 
 def _models_in(tp) -> list[type[BaseModel]]:
@@ -60,9 +57,9 @@ def _reachable(root: type[BaseModel]) -> dict[type[BaseModel], set[str]]:
         for name, f in model.model_fields.items():
             if name in skip:
                 continue
-            if model is ApproachConfig and name in OPTION_TABLES:
-                sub, sub_skip = OPTION_TABLES[name]
-                visit(sub, sub_skip)
+            if model is ApproachConfig and name == "monitor":
+                for sub, sub_skip in OPTION_TABLES.values():
+                    visit(sub, sub_skip)
                 continue
             for m in _models_in(f.annotation):
                 visit(m)
@@ -78,9 +75,10 @@ def _table_paths(model: type[BaseModel], prefix: str = "", skip=frozenset()) -> 
         path = prefix + name
         if name in skip:
             continue
-        if model is ApproachConfig and name in OPTION_TABLES:
-            out.append(f"[{path}]")
-            out += _table_paths(OPTION_TABLES[name][0], path + ".", OPTION_TABLES[name][1])
+        if model is ApproachConfig and name == "monitor":
+            for table, (sub, sub_skip) in OPTION_TABLES.items():
+                out.append(f"[{table}]")
+                out += _table_paths(sub, table + ".", sub_skip)
             continue
         tp = f.annotation
         arms = [a for a in typing.get_args(tp) if a is not type(None)] \
@@ -141,7 +139,8 @@ def test_every_key_of_every_model_is_in_the_page(page):
 
 def test_approach_free_tables_are_documented():
     free = [n for n, f in ApproachConfig.model_fields.items() if _is_free_table(f.annotation)]
-    assert sorted(free) == sorted(OPTION_TABLES), "a free table of ApproachConfig needs its model in the page"
+    assert free == ["monitor"], "a free table of ApproachConfig needs its model in the page"
+    assert sorted(OPTION_TABLES) == sorted(f"monitor.{m}" for m in monitor_names())
 
 
 def test_every_field_has_a_description():

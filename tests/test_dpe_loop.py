@@ -174,8 +174,8 @@ def test_the_dpe_variant_axis_runs_the_seed_over_sorties_beside_the_likelihood(t
     assert [c.params["dpe_variant"] for c in cells] == ["likelihood", "seed"]
     lik, seed = (c.approach.config for c in cells)
     assert (seed.gnss.correlators.statistic, seed.gnss.correlators.synthesis) == ("mag", "exact")
-    assert seed.dpe["variant"] == "seed" and seed.dpe["k_factor"] == gaussian_k(1e-7)
-    assert lik.gnss.correlators.statistic == "pow" and isinstance(lik.dpe["k_factor"], str)  # the record
+    assert seed.monitor["dpe"].variant == "seed" and seed.monitor["dpe"].k_factor == gaussian_k(1e-7)
+    assert lik.gnss.correlators.statistic == "pow" and isinstance(lik.monitor["dpe"].k_factor, str)  # the record
     run_campaign(spec, tmp_path / "out", progress=False)
     t = pq.read_table(tmp_path / "out" / "trials.parquet").to_pandas()
     vpl = t[t.monitor == "dpe"].groupby("cell").max_vpl.median()

@@ -12,6 +12,7 @@ from scipy import stats
 
 from testbed.api import load_approach, run_approach
 from testbed.frames import LocalFrame
+from testbed.navigation.monitor import EkfSettings
 from testbed.records import Mount
 from testbed.sensors.vision.camera import approach_camera
 from testbed.sensors.vision.features import features_in_view, observe, project
@@ -152,7 +153,7 @@ def test_same_seed_same_features_and_the_option_turns_them_off():
     np.testing.assert_array_equal(a.outputs["ekf"].pos_enu, b.outputs["ekf"].pos_enu)
     assert not np.array_equal(a.outputs["ekf"].pos_enu, c.outputs["ekf"].pos_enu)
     ap = _slam_short(start_distance_m=2500.0)
-    off = dataclasses.replace(ap, config=ap.config.model_copy(update={"ekf": {"features": False}}))
+    off = dataclasses.replace(ap, config=ap.config.model_copy(update={"monitor": {"ekf": EkfSettings(features=False)}}))
     d = run_approach(off, seed=5, rrd_path=None)
     assert (np.asarray(d.outputs["ekf"].diagnostics.n_features) == 0).all()
     assert not np.array_equal(a.outputs["ekf"].pos_enu, d.outputs["ekf"].pos_enu)

@@ -12,6 +12,7 @@ from record_checks import assert_records_equal
 
 from testbed.api import load_approach, load_terrain_for
 from testbed.integrity.raim import gps_raim
+from testbed.integrity.va_raim import VaRaimOptions
 from testbed.sensors.faults import GpsStep
 from testbed.sensors.gnss.almanac import load_constellation
 from testbed.sensors.gnss.synth import synthesize_gnss
@@ -82,7 +83,7 @@ def test_block_size_does_not_change_results(gps_setup, live):
 def vision_setup():
     ap = load_approach("va-raim-2015")
     # the seed's variant, so vision rows (and the calibration state) are exercised block by block
-    cfg = ap.config.model_copy(update={"monitors": ["gps_raim", "va_raim", "pixel"], "va_raim": {"variant": "seed"}})
+    cfg = ap.config.model_copy(update={"monitors": ["gps_raim", "va_raim", "pixel"], "monitor": {"va_raim": VaRaimOptions(variant="seed")}})
     ap = dataclasses.replace(ap, config=cfg)
     return build_setup(ap, load_terrain_for(ap))
 

@@ -17,6 +17,7 @@ from test_vision_detect import runway_final
 from testbed.api import load_approach
 from testbed.frames import ecef_to_geodetic
 from testbed.integrity.pixel import pixel_monitor
+from testbed.integrity.settings import PixelOptions
 from testbed.records import take_epochs
 from testbed.sensors.vision import synthesize_vision
 from testbed.sensors.vision.landmarks import build_landmarks
@@ -66,8 +67,7 @@ def test_markers_are_seen_from_the_final_and_a_biased_corner_is_excluded():
     uv[:, l, 0] += 30.0
     g, _, _ = make_gnss(FRAME, tr.pos_enu, 344063.0 + ep.t, np.random.default_rng(6))
     g = replace(g, t=ep.t)
-    st = ap.config.integrity.model_copy(update={"pixel_max_landmarks": 40})
-    out = pixel_monitor(g, replace(ep, pixel_uv=uv), FRAME, st)
+    out = pixel_monitor(g, replace(ep, pixel_uv=uv), FRAME, ap.config.integrity, options=PixelOptions(max_landmarks=40))
     S = g.visible.shape[-1]
     assert (out.reason == 0).all()
     assert (out.excluded == S + l).all() and not out.alert.any()

@@ -13,14 +13,24 @@ import pyarrow.parquet as pq
 import pytest
 from record_checks import assert_records_equal
 
-from testbed.integrity import lsq, registry
+from pydantic import Field
+
+from testbed import monitors as registry
+from testbed.integrity import lsq
 from testbed.integrity.monitor import ANTENNA, Monitor, MonitorContext, MonitorDefaults, Observations
 from testbed.records import Diagnostics, MonitorOutput, epoch_array
+from testbed.schema import ConfigError, StrictModel
 
 
 @dataclass(frozen=True)
 class PlainLsqDiagnostics(Diagnostics):
     n_iter: np.ndarray = epoch_array()
+
+
+class PlainLsqOptions(StrictModel):
+    """The test monitor's own options table, ``[monitor.plain_lsq]``."""
+
+    up_offset_m: float = Field(0.0, ge=-1000.0, le=1000.0, description="added to the fix's up coordinate")
 
 
 @dataclass(frozen=True)
@@ -29,6 +39,7 @@ class PlainLsq(MonitorDefaults):
 
     name: str
     context: MonitorContext
+    options: PlainLsqOptions = PlainLsqOptions()
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss"})
     reference: ClassVar[str] = ANTENNA
 
@@ -45,7 +56,7 @@ class PlainLsq(MonitorDefaults):
         nan = np.full(vis.shape[:-1], np.nan)
         levels = tuple(self.context.integrity.service_levels)
         out = MonitorOutput(
-            name=self.name, t=np.asarray(g.t), pos_enu=sol.x[..., :3], clock=sol.x[..., 3], hpl=nan, vpl=nan,
+            name=self.name, t=np.asarray(g.t), pos_enu=sol.x[..., :3] + [0.0, 0.0, self.options.up_offset_m], clock=sol.x[..., 3], hpl=nan, vpl=nan,
             test_stat=nan, threshold=nan, alert=np.zeros(nan.shape, bool),
             available=np.zeros(nan.shape + (len(levels),), bool), service_levels=levels,
             n_used=vis.sum(-1).astype(np.int16), excluded=np.full(nan.shape, -1, np.int16),
@@ -55,7 +66,8 @@ class PlainLsq(MonitorDefaults):
 
 @pytest.fixture
 def plain_lsq():
-    registry.register("plain_lsq", lambda ctx, options: PlainLsq("plain_lsq", ctx), {"gnss"})
+    registry.register("plain_lsq", lambda ctx, options: PlainLsq("plain_lsq", ctx, options), {"gnss"},
+                      PlainLsqOptions)
     yield "plain_lsq"
     registry.unregister("plain_lsq")
 
@@ -72,43 +84,56 @@ def test_the_shipped_monitors_follow_the_protocol():
 
 
 def test_a_registered_monitor_runs_in_the_loop_the_recording_a_campaign_and_rinex_replay(plain_lsq, tmp_path):
+    """...with its own options table read from the approach file (the campaign) or the monitor file (replay)."""
     from testbed.api import load_approach, run_approach
     from testbed.campaign.runner import run_campaign
+    from testbed.resources import approaches_dir
     from testbed.viz.readback import entity_paths, scalar_series
 
-    ap = load_approach("va-raim-2015")
-    ap = dataclasses.replace(ap, config=ap.config.model_copy(update={"monitors": ["gps_raim", plain_lsq]}))
+    path = tmp_path / "plain-approach.toml"
+    text = (approaches_dir() / "va-raim-2015.toml").read_text()
+    path.write_text(text.replace("\n[", f'\nmonitors = ["gps_raim", "{plain_lsq}"]\n\n[', 1)
+                    + f"\n[monitor.{plain_lsq}]\nup_offset_m = 5.0\n")
+    ap = load_approach(path)
+    assert ap.config.monitor[plain_lsq].up_offset_m == 5.0
     rrd = tmp_path / "plain.rrd"
     run = run_approach(ap, seed=2, rrd_path=rrd, block_s=7.0)
     out, ref = run.outputs[plain_lsq], run.outputs["gps_raim"]
-    # the same weighted fix as GPS RAIM's, solved by other code
+    # the same weighted fix as GPS RAIM's, solved by other code, moved up by its option
     ok = ref.reason == 0
     assert ok.mean() > 0.9
-    np.testing.assert_allclose(out.pos_enu[ok], ref.pos_enu[ok], atol=0.01)
+    np.testing.assert_allclose(out.pos_enu[ok], ref.pos_enu[ok] + [0.0, 0.0, 5.0], atol=0.01)
     assert run.summaries[plain_lsq].reference == ANTENNA
     assert run.summaries[plain_lsq].hpe95 == pytest.approx(run.summaries["gps_raim"].hpe95, abs=0.01)
+    assert run.summaries[plain_lsq].vpe95 > 4.0
     assert f"/integrity/{plain_lsq}/horizontal/hpl" in entity_paths(rrd)
     t, n_used = scalar_series(rrd, f"/sensors/satellites_used/{plain_lsq}")
     np.testing.assert_array_equal(n_used, out.n_used)
 
     spec = tmp_path / "plain.toml"
-    spec.write_text(f'name = "plain"\napproaches = ["va-raim-2015"]\nmonitors = ["{plain_lsq}"]\ntrials = 20\n'
+    spec.write_text(f'name = "plain"\napproaches = ["{path}"]\nmonitors = ["{plain_lsq}"]\ntrials = 20\n'
                     'block_trials = 10\nchunk_trials = 20\nduration_s = 20.0\n')
     run_campaign(spec, tmp_path / "camp", progress=False)
     trials = pq.read_table(tmp_path / "camp" / "trials.parquet").to_pydict()
     assert set(trials["monitor"]) == {plain_lsq} and len(trials["trial"]) == 20
     assert all(np.isfinite(trials["max_he"])) and not any(trials["detected"])
+    assert min(trials["max_ve"]) > 4.0  # the option reached the campaign's monitor
 
     # RINEX replay: the flight's observations written as RINEX and read back, both monitors stepped over them
     from testbed.api import export_rinex
     from testbed.replay import monitor_rinex
 
     obs, nav = export_rinex(ap, tmp_path / "rnx", seed=2)
-    replay = monitor_rinex(obs, nav, monitors=("gps_raim", plain_lsq), out_dir=tmp_path / "replay")
+    cfg = tmp_path / "monitor.toml"
+    cfg.write_text(f"[monitor.{plain_lsq}]\nup_offset_m = -3.0\n")
+    replay = monitor_rinex(obs, nav, config=cfg, monitors=("gps_raim", plain_lsq), out_dir=tmp_path / "replay")
     got, want = replay.outputs[plain_lsq], replay.outputs["gps_raim"]
     fixed = want.reason == 0
     assert fixed.mean() > 0.9
-    np.testing.assert_allclose(got.pos_enu[fixed], want.pos_enu[fixed], atol=0.01)
+    np.testing.assert_allclose(got.pos_enu[fixed], want.pos_enu[fixed] + [0.0, 0.0, -3.0], atol=0.01)
+    cfg.write_text(f"[monitor.{plain_lsq}]\nup_offset_m = 1e6\n")  # checked by the monitor's own model
+    with pytest.raises(ConfigError, match=f"monitor.{plain_lsq}.up_offset_m"):
+        monitor_rinex(obs, nav, config=cfg, monitors=(plain_lsq,), out_dir=tmp_path / "replay2")
     assert any(plain_lsq in p.name for p in replay.written)
 
 

@@ -26,7 +26,7 @@ from testbed.inertial import body_to_world
 from testbed.integrity import lsq
 from testbed.integrity.pixel import fault_units, pixel_monitor
 from testbed.integrity.pixel_model import attitude_pixel_jacobian, project_landmarks
-from testbed.integrity.settings import IntegritySettings
+from testbed.integrity.settings import IntegritySettings, PixelOptions
 from testbed.records import Mount, VisionEpochs
 from testbed.world.airport import RWY05_COURSE_DEG, runway_corners_enu, runway_frame
 
@@ -126,14 +126,14 @@ def test_pl_composition_follows_the_patent():
     d = out.diagnostics
     np.testing.assert_allclose(out.hpl, np.sqrt(np.maximum(d.hpl1, d.hpl2) ** 2 + d.hpl3 ** 2))
     np.testing.assert_allclose(out.vpl, np.sqrt(np.maximum(d.vpl1, d.vpl2) ** 2 + d.vpl3 ** 2))
-    p_ff = IntegritySettings().p_ff
+    p_ff = PixelOptions().p_ff
     np.testing.assert_allclose(d.hpl1, np.sqrt(-2 * np.log(p_ff)) * d.sigma_x)  # the radial default
-    patent = pixel_monitor(g, v, FRAME, IntegritySettings(pixel_h1="patent")).diagnostics
+    patent = pixel_monitor(g, v, FRAME, IntegritySettings(), options=PixelOptions(h1="patent")).diagnostics
     np.testing.assert_allclose(patent.hpl1, stats.norm.isf(p_ff / 2) * d.sigma_x)
     np.testing.assert_array_equal(patent.vpl1, d.vpl1)  # one axis: Φ⁻¹(1 − P_ff/2) is right there
     # the worst pair contains the worst single fault, so H3 ≥ H2
     assert np.all(d.hpl3 >= d.hpl2 * (1 - 1e-12))
-    one = pixel_monitor(g, v, FRAME, IntegritySettings(pixel_two_faults=False))
+    one = pixel_monitor(g, v, FRAME, IntegritySettings(), options=PixelOptions(two_faults=False))
     np.testing.assert_allclose(one.hpl, np.maximum(d.hpl1, d.hpl2))
 
 
@@ -241,8 +241,8 @@ def test_landmark_bias_injection_matches_slope():
     mag = 0.05  # px: keeps the position shift ~0.1 m, nonlinearity ~1e-4
     bias[:, 0, lm] = mag * np.stack([np.cos(th), np.sin(th)], -1)
     g, v, pos, _ = scene(T=1, batch=(n_th,), pixel_bias=bias)
-    st = IntegritySettings(pixel_attitude_noise=True, tol_m=1e-7, max_iter=12)
-    out = pixel_monitor(g, v, FRAME, st)
+    st = IntegritySettings(tol_m=1e-7, max_iter=12)
+    out = pixel_monitor(g, v, FRAME, st, options=PixelOptions(attitude_noise=True))
     err = out.pos_enu[:, 0] - pos[0]
     ratio_h = np.hypot(err[:, 0], err[:, 1]) / np.sqrt(out.test_stat[:, 0])
     ratio_v = np.abs(err[:, 2]) / np.sqrt(out.test_stat[:, 0])
@@ -263,7 +263,7 @@ def test_fault_free_statistic_with_attitude_errors_is_chi2():
     dof = out.n_used - 4
     p = stats.kstest(stats.chi2.cdf(out.test_stat[ok], dof[ok]), "uniform").pvalue
     assert p > 0.01
-    no_att = pixel_monitor(g, v, FRAME, IntegritySettings(pixel_attitude_noise=False))
+    no_att = pixel_monitor(g, v, FRAME, IntegritySettings(), options=PixelOptions(attitude_noise=False))
     assert np.mean(no_att.test_stat) > 1.5 * np.mean(dof)
 
 
@@ -448,11 +448,11 @@ def test_no_start_point_has_its_own_reason_and_a_block_carries_the_last_start():
 
 
 def test_landmark_cap_spreads_the_rows_and_equals_dropping_the_rest():
-    """``pixel_max_landmarks = 4``: the nearest landmark, then farthest-point picks in the image
+    """``max_landmarks = 4``: the nearest landmark, then farthest-point picks in the image
     (recomputed here by a plain loop), and the result equals the monitor run on those four alone."""
     g, v, pos, _ = scene(T=2, rng=np.random.default_rng(35))
-    st = IntegritySettings(pixel_max_landmarks=4)
-    out = pixel_monitor(g, v, FRAME, st)
+    st = IntegritySettings()
+    out = pixel_monitor(g, v, FRAME, st, options=PixelOptions(max_landmarks=4))
     tracked = out.diagnostics.tracked
     assert (tracked.sum(-1) == 4).all() and (out.diagnostics.n_landmarks == 4).all()
     for k in range(2):
@@ -493,8 +493,8 @@ def test_dithering_in_the_covariance_makes_the_fault_free_statistic_chi2():
     assert np.all(ep.dither_sigma > 0) and ep.detected.sum(-1).min() >= 4
     gnss, _, _ = make_gnss(FRAME, tr1.pos_enu, 344063.0 + ep.t, None, batch=(n,))
     gnss = replace(gnss, t=ep.t, visible=np.zeros_like(gnss.visible), pseudorange=np.full_like(gnss.pseudorange, np.nan))
-    st = IntegritySettings(p_fa=1e-2, pixel_max_landmarks=100)
-    out = pixel_monitor(gnss, ep, FRAME, st)
+    st = IntegritySettings(p_fa=1e-2)
+    out = pixel_monitor(gnss, ep, FRAME, st, options=PixelOptions(max_landmarks=100))
     ok = out.reason == 0
     assert ok.mean() > 0.99
     dof = (out.n_used - 3)[ok]
@@ -502,7 +502,7 @@ def test_dithering_in_the_covariance_makes_the_fault_free_statistic_chi2():
     assert stats.kstest(stats.chi2.cdf(stat, dof), "uniform").pvalue > 0.01
     lo, hi = stats.binom.interval(0.99, int(ok.sum()), 1e-2)
     assert lo <= int(out.alert[ok].sum()) <= hi
-    off = pixel_monitor(gnss, ep, FRAME, st.model_copy(update={"pixel_dither_noise": False}))
+    off = pixel_monitor(gnss, ep, FRAME, st, options=PixelOptions(max_landmarks=100, dither_noise=False))
     # most of a common rotation is absorbed by the position, but what is left breaks the law and the rate
     assert stats.kstest(stats.chi2.cdf(off.test_stat[ok], dof), "uniform").pvalue < 1e-4
     assert int(off.alert[ok].sum()) > hi

@@ -21,7 +21,7 @@ import pytest
 from testbed.cli import main
 from testbed.flight.kinematic import straight_truth
 from testbed.integrity.monitor import MonitorContext, Observations
-from testbed.integrity.registry import build_monitor
+from testbed.monitors import build_monitor
 from testbed.records import Mount, NotVisible
 from testbed.rinex.obs import read_obs
 from testbed.replay.run import monitor_rinex

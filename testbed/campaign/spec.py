@@ -38,7 +38,7 @@ from pydantic import Field, field_validator, model_validator
 
 from testbed.config import Approach, ApproachConfig, load_approach, read_toml, validate
 from testbed.integrity.levels import strictest_limits
-from testbed.integrity.registry import MonitorName, reads_vision
+from testbed.monitors import MonitorName, monitor_options, reads
 from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, FileName, StrictModel
 from testbed.sensors.vision.settings import LandmarkSet
@@ -244,7 +244,7 @@ class CampaignSpec(StrictModel):
     approaches: list[str] = Field(..., min_length=1, description="approach names or paths (relative to the spec)")
     monitors: list[MonitorName] = Field(..., min_length=1, description="monitor names: gps_raim, va_raim, pixel, "
                                                                        "ekf, dpe, or one registered with "
-                                                                       "testbed.integrity.registry.register")
+                                                                       "testbed.monitors.register")
     trials: int = Field(..., ge=1, le=10_000_000, description="trials (sorties) per cell")
     base_seed: int = Field(0, ge=0, description="random seed of the campaign: every trial's draws derive from it, "
                                                 "the cell and the draw block")
@@ -285,7 +285,7 @@ class CampaignSpec(StrictModel):
         if self.chunk_trials % self.block_trials:
             raise ValueError(f"chunk_trials ({self.chunk_trials}) must be a multiple of block_trials "
                              f"({self.block_trials})")
-        if not reads_vision(self.monitors):
+        if not reads("vision", self.monitors):
             vis = [f.kind for f in self.faults if f.kind in ("pixel_bias", "landmark_moved")]
             if vis:
                 raise ValueError(f"vision faults {vis} need a monitor that reads vision in monitors")
@@ -478,13 +478,13 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
             if c["lpe_sigma_m"] is not None:
                 _set(d, "landmarks.lpe_sigma_m", c["lpe_sigma_m"])
                 # the monitor is told the survey error it faces (seed: sigma_g known)
-                d.setdefault("va_raim", {})["landmark_survey_sigma_m"] = c["lpe_sigma_m"]
+                _monitor_table(d, "va_raim")["landmark_survey_sigma_m"] = c["lpe_sigma_m"]
             if c["landmark_set"] is not None:
                 _set(d, "landmarks.sets", [s.model_dump(mode="json") for s in sw.landmark_sets[c["landmark_set"][0]]])
             if c["calibration"] is not None:
-                d.setdefault("va_raim", {})["calibration"] = c["calibration"]
+                _monitor_table(d, "va_raim")["calibration"] = c["calibration"]
             if c["va_raim_variant"] is not None:
-                d.setdefault("va_raim", {})["variant"] = c["va_raim_variant"]
+                _monitor_table(d, "va_raim")["variant"] = c["va_raim_variant"]
             if c["dpe_variant"] is not None:
                 _dpe_variant(d, c["dpe_variant"])
             if c["multipath_echo_db"] is not None:
@@ -496,7 +496,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 d.setdefault("gnss", {})["schedule"] = [{"from_s": 0.0, "max_satellites": int(c["max_satellites"])}]
             if c["ground_features"] is not None:
                 _set(d, "vision.features.enabled", bool(c["ground_features"]))
-            if reads_vision(spec.monitors):
+            if reads("vision", spec.monitors):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
             idx = len(cells)
@@ -516,9 +516,9 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 "focal_px": float(c["focal_px"]) if c["focal_px"] is not None else float("nan"),
                 "sigma_px": float(vis.detection.sigma_px), "lpe_sigma_m": float(cfg.landmarks.lpe_sigma_m),
                 "landmark_set": -1 if c["landmark_set"] is None else int(c["landmark_set"][0]),
-                "calibration": str(cfg.va_raim.get("calibration", "gps")),
-                "va_raim_variant": str(cfg.va_raim.get("variant", "gated")),
-                "dpe_variant": str(cfg.dpe.get("variant", "likelihood")),
+                "calibration": str(monitor_options("va_raim", cfg.monitor).calibration),
+                "va_raim_variant": str(monitor_options("va_raim", cfg.monitor).variant),
+                "dpe_variant": str(monitor_options("dpe", cfg.monitor).variant),
                 "multipath_echo_db": (float(cfg.gnss.correlators.ground_echo_db)
                                       if cfg.gnss.correlators.multipath == "ground" else float("nan")),
                 "max_satellites": -1 if c["max_satellites"] is None else int(c["max_satellites"]),
@@ -531,6 +531,14 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
     return cells
 
 
+def _monitor_table(d: dict, name: str) -> dict:
+    """The ``[monitor.<name>]`` table of approach data ``d`` (made empty when absent)."""
+    tables = d.setdefault("monitor", {})
+    table = tables.get(name)
+    tables[name] = table = dict(table) if table is not None else {}
+    return table
+
+
 def _dpe_variant(d: dict, variant: str) -> None:
     """Set a cell's DPE variant. The seed's receiver reports (1/N_b)Σ|y_b| (``statistic = "mag"``,
     exact synthesis: GPS RAIM reads its peaks too when the approach derives pseudoranges from the
@@ -538,7 +546,7 @@ def _dpe_variant(d: dict, variant: str) -> None:
     calibration's P = 1e-7 (the seed's own empirical K needs N·P ≥ 10, 1e8 epochs: docs/design/dpe.md §6.3)."""
     from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, gaussian_k
 
-    dpe = d.setdefault("dpe", {})
+    dpe = _monitor_table(d, "dpe")
     dpe["variant"] = variant
     if variant == "seed":
         corr = d.setdefault("gnss", {}).setdefault("correlators", {})

@@ -10,9 +10,9 @@ block of epochs with an explicit, typed state::
 
 Stepping block by block gives the same output as one call on all epochs (the
 state carries exactly what later epochs need, nothing of the past beyond that).
-The registry (:mod:`testbed.integrity.registry`) maps names to builders; the
-loop, the campaign runner, the sinks and the API iterate over it and never name a
-monitor.
+The registry (:mod:`testbed.monitors`) maps names to builders and option models;
+the loop, the campaign runner, the sinks and the API iterate over it and never name
+a monitor.
 
 Writing one::
 
@@ -29,7 +29,7 @@ Writing one::
         def step(self, obs, state):
             return my_least_squares(obs.gnss, self.context.frame), state
 
-    register("plain_lsq", lambda ctx, options: PlainLsq("plain_lsq", ctx), {"gnss"})
+    register("plain_lsq", lambda ctx, options: PlainLsq("plain_lsq", ctx), {"gnss"})  # testbed.monitors
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from typing import Any, Callable, ClassVar, Mapping, Protocol, runtime_checkable
 
 from testbed.frames import LocalFrame
 from testbed.integrity.settings import IntegritySettings
+from testbed.schema import StrictModel
 from testbed.records import (CorrelatorEpochs, FeatureTracks, GnssEpochs, ImuSamples, MonitorOutput, NavInit,
                              VisionEpochs)
 
@@ -48,6 +49,34 @@ REFERENCE_POINT = "reference point (CG)"
 
 #: observation kinds a monitor may declare in ``inputs``
 INPUT_KINDS = frozenset({"gnss", "vision", "imu", "correlators", "features"})
+
+
+@dataclass(frozen=True)
+class MonitorCost:
+    """What a monitor costs per trial-epoch, measured (the resource estimate of a run, :mod:`testbed.sim.budget`):
+    its working arrays (bytes) and one thread's time (s), each a constant, a part per landmark it weighs and a
+    part per pair of them.
+
+    landmark_cap : at most this many landmarks weighed (None: every detected one).
+    features : (bytes, seconds) more when it tracks ground features (it reads "features" and the run has a scene).
+    provides : monitors whose output it computes on the way (they cost no time beside it).
+    """
+
+    bytes: tuple[float, float, float]
+    seconds: tuple[float, float, float]
+    landmark_cap: int | None = None
+    features: tuple[float, float] = (0.0, 0.0)
+    provides: tuple[str, ...] = ()
+
+    def at(self, landmarks: int) -> tuple[float, float]:
+        """(bytes, seconds) with ``landmarks`` in view."""
+        used = min(landmarks, self.landmark_cap) if self.landmark_cap else landmarks
+        x = (1.0, used, used * (used - 1) / 2)
+        return sum(a * b for a, b in zip(self.bytes, x)), sum(a * b for a, b in zip(self.seconds, x))
+
+
+class NoOptions(StrictModel):
+    """The options table of a monitor that takes none (any key in it is an error)."""
 
 
 @dataclass(frozen=True)
@@ -83,8 +112,8 @@ def compute(key: tuple, make: Callable[[], Any], guard: object = None) -> Any:
 class MonitorContext:
     """What every monitor is built from: the run's world frame and the shared integrity settings.
 
-    options : the approach file's per-monitor tables (``[va_raim]``...), by table name;
-        a builder validates its own.
+    options : the approach file's per-monitor tables (``[monitor.<name>]``), by monitor name, validated
+        by each monitor's options model (a builder receives its own).
     threads : worker threads a monitor may use on a batch (None: one per core).
     share : ``share(key, make, guard)`` returns ``make()``, or the value an earlier call with the same key made:
         a monitor hands it the parts of its work that other runs may have done alike (VA-RAIM's GPS step, its
@@ -94,7 +123,7 @@ class MonitorContext:
 
     frame: LocalFrame
     integrity: IntegritySettings
-    options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    options: Mapping[str, Any] = field(default_factory=dict)
     threads: int | None = None
     share: Callable[..., Any] = compute
 

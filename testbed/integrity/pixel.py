@@ -39,7 +39,7 @@ A_H the horizontal rows of A):
   ``VPL₁ = K_ff sqrt(J₃₃)``, ``K_ff = Φ⁻¹(1 − P_ff/2)``. The patent's
   ``K_H = K_ff`` bounds one axis, not the radial error: for a circular error
   P(r > K_ff σ) = exp(−K_ff²/2), 6.9 P_ff at P_ff = 1e-7. The default
-  (``pixel_h1 = "radial"``) takes ``K_H = sqrt(−2 ln P_ff)``, for which
+  (``[monitor.pixel] h1 = "radial"``) takes ``K_H = sqrt(−2 ln P_ff)``, for which
   P(r > K_H σ_x) ≤ P_ff for every ellipse; ``"patent"`` keeps the printed form;
 * H2 one fault (a satellite, or one landmark's (u, v) pair at the worst angle θ,
   a 2×2 generalised eigenvalue problem): ``HPL₂ = max slope · sqrt(λ_det)``;
@@ -67,10 +67,10 @@ from testbed.integrity import lsq
 from testbed.integrity.fde import Verdict, exclude
 from testbed.inertial import body_to_world
 from testbed.integrity.levels import availability, service_level
-from testbed.integrity.monitor import MonitorContext, MonitorDefaults, Observations, REFERENCE_POINT
+from testbed.integrity.monitor import MonitorContext, MonitorCost, MonitorDefaults, Observations, REFERENCE_POINT
 from testbed.integrity.pixel_model import attitude_pixel_jacobians, bearing_fix, pixel_covariance, project_landmarks
 from testbed.integrity.raim import compact_rows, scatter_rows
-from testbed.integrity.settings import IntegritySettings
+from testbed.integrity.settings import IntegritySettings, PixelOptions
 from testbed.records import Diagnostics, GnssEpochs, MonitorOutput, VisionEpochs, epoch_array
 
 __all__ = ["PIXEL_REASONS", "NO_LANDMARK", "NO_START", "PixelDiagnostics", "PixelMonitor", "PixelState",
@@ -106,7 +106,7 @@ def h1_factor(p_ff: float, form: str = "radial") -> float:
         return float(np.sqrt(-2.0 * np.log(p_ff)))
     if form == "patent":
         return float(stats.norm.isf(p_ff / 2))
-    raise ValueError(f"pixel_h1: expected 'radial' or 'patent', got {form!r}")
+    raise ValueError(f"h1: expected 'radial' or 'patent', got {form!r}")
 
 
 def _ffill_epochs(x: NDArray, carry: NDArray | None = None) -> NDArray:
@@ -144,7 +144,7 @@ class PixelDiagnostics(Diagnostics):
     hpl1/2/3, vpl1/2/3 : the three hypotheses' levels (m); ``sigma_x`` the error-ellipse
     semi-major axis; slopes per satellite slot (NaN unused), per landmark slot (NaN unused),
     and the worst pair; residuals in m (pseudoranges) and px (landmarks). ``tracked`` : the
-    landmarks used (detected and within ``pixel_max_landmarks``).
+    landmarks used (detected and within ``max_landmarks``).
     """
 
     x_start: NDArray = epoch_array(1)
@@ -240,7 +240,7 @@ def _nanmax(a: NDArray) -> NDArray:
     return np.max(np.where(np.isnan(a), -np.inf, a), axis=-1, initial=-np.inf)
 
 
-def _solve(pb: _Problem, st: IntegritySettings, keep: NDArray | None = None) -> _Fit:
+def _solve(pb: _Problem, st: IntegritySettings, opt: PixelOptions, keep: NDArray | None = None) -> _Fit:
     """Iterated WLS of the stacked rows (``keep`` (P, N): rows left in, for exclusion) and the PLs."""
     P, Ng = pb.z_g.shape
     Lc = pb.det.shape[-1]
@@ -273,13 +273,13 @@ def _solve(pb: _Problem, st: IntegritySettings, keep: NDArray | None = None) -> 
     sol = lsq.iterate_wls(model, z, W, mask, pb.x_start, n_iter=st.max_iter, tol_m=st.tol_m, max_cond=st.max_cond)
     geom = sol.geometry
     WS = geom.ws_matrix()
-    cols1, cols2, _ = fault_units(Ng, Lc, st.pixel_two_faults)
+    cols1, cols2, _ = fault_units(Ng, Lc, opt.two_faults)
     with np.errstate(invalid="ignore", over="ignore"):
         hs1, vs1 = lsq.subspace_slopes(geom, cols1, WS)
         hs2, vs2 = lsq.subspace_slopes(geom, cols2, WS) if len(cols2) else (np.zeros((P, 0)),) * 2
     lam = lsq.lambda_det(geom.dof, st.p_fa, st.p_md)
     sb = np.sqrt(lam)
-    k_ff, k_h = h1_factor(st.p_ff, "patent"), h1_factor(st.p_ff, st.pixel_h1)
+    k_ff, k_h = h1_factor(opt.p_ff, "patent"), h1_factor(opt.p_ff, opt.h1)
     J = geom.J
     with np.errstate(invalid="ignore"):
         Jh = np.where(np.isfinite(J[..., :2, :2]), J[..., :2, :2], 0.0)
@@ -292,7 +292,7 @@ def _solve(pb: _Problem, st: IntegritySettings, keep: NDArray | None = None) -> 
     reason = sol.reason.copy()
     undetectable = ~np.isfinite(hpl) | ~np.isfinite(vpl)
     reason = np.where((reason == lsq.Reason.OK) & undetectable & np.isfinite(sb), lsq.Reason.UNDETECTABLE, reason)
-    if st.pixel_vision_rows:
+    if opt.vision_rows:
         # without a landmark the solve is GPS RAIM's: the pixel monitor's integrity case does not apply
         reason = np.where((reason == lsq.Reason.OK) & ~det.any(-1), NO_LANDMARK, reason)
     # a solve started from nowhere (the frame origin) reports NO_START, unless too few rows explain it
@@ -318,7 +318,7 @@ class _Layout:
     start_kind: NDArray  # (P,)
 
 
-def _read_problem(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame, st: IntegritySettings,
+def _read_problem(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame, st: IntegritySettings, opt: PixelOptions,
                   x0: ArrayLike | None, x_carry: ArrayLike | None) -> tuple[_Problem, _Layout]:
     pr = np.asarray(gnss.pseudorange, float)
     uv_all = np.asarray(vision.pixel_uv, float)
@@ -329,7 +329,7 @@ def _read_problem(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame, st:
     vis = flat(np.asarray(gnss.visible, bool), (S,))
     sat_enu = frame.ecef_to_enu(flat(gnss.sat_pos_ecef, (S, 3)))
     det_all = flat(np.asarray(vision.detected, bool), (L,))
-    if not st.pixel_vision_rows:
+    if not opt.vision_rows:
         det_all = np.zeros_like(det_all)
     uv_all = flat(uv_all, (L, 2))
     q_ref = flat(vision.q_body_to_enu_ref, (4,))
@@ -347,8 +347,8 @@ def _read_problem(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame, st:
     has_start = np.isfinite(x_start).all(-1)
     x_start = np.where(has_start[:, None], x_start, 0.0)
 
-    # landmark rows: at most pixel_max_landmarks detected ones, spread over the image
-    Lc = max(min(int(det_all.sum(-1).max(initial=0)), st.pixel_max_landmarks), 1)
+    # landmark rows: at most max_landmarks detected ones, spread over the image
+    Lc = max(min(int(det_all.sum(-1).max(initial=0)), opt.max_landmarks), 1)
     lm_idx = _spread_landmarks(uv_all, det_all, np.linalg.norm(lm_all - x_start[:, None, :3], axis=-1), Lc)
     det = np.take_along_axis(det_all, lm_idx, -1)
     uv = np.take_along_axis(uv_all, lm_idx[..., None], -2)
@@ -359,9 +359,9 @@ def _read_problem(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame, st:
     Rb = body_to_world(frame, x_start[:, :3], q_ref)
     J_att, J_dith = attitude_pixel_jacobians(x_start[:, :3], Rb, vision.camera, lm, K)
     rotations = []
-    if st.pixel_attitude_noise:
+    if opt.attitude_noise:
         rotations.append((J_att, np.asarray(vision.attitude_sigma, float)))
-    if st.pixel_dither_noise:
+    if opt.dither_noise:
         rotations.append((J_dith, np.asarray(vision.dither_sigma, float)))
     Sig_pix = pixel_covariance(sigma_px, rotations)
     pb = _Problem(anchor=anchor, z_g=z_g, w_g=w_g, m_g=m_g, uv=uv, det=det, lm=lm, Sig_pix=Sig_pix, q_ref=q_ref,
@@ -444,7 +444,8 @@ def _scatter_landmarks(values: NDArray, lm_idx: NDArray, det: NDArray, L: int) -
     return out
 
 
-def _output(fit: _Fit, pb: _Problem, lay: _Layout, st: IntegritySettings, t: NDArray, name: str) -> MonitorOutput:
+def _output(fit: _Fit, pb: _Problem, lay: _Layout, st: IntegritySettings, opt: PixelOptions, t: NDArray,
+            name: str) -> MonitorOutput:
     lead, S, L = lay.lead, lay.S, lay.L
     Ng = pb.z_g.shape[-1]
     hs1, vs1, hs2, vs2 = fit.slopes
@@ -454,7 +455,7 @@ def _output(fit: _Fit, pb: _Problem, lay: _Layout, st: IntegritySettings, t: NDA
     lv = fit.levels
     diag = PixelDiagnostics(
         x_start=shape(np.where(pb.has_start[:, None], pb.x_start, np.nan)), start_kind=shape(lay.start_kind),
-        **{k: shape(v) for k, v in lv.items()}, k_ff=h1_factor(st.p_ff, "patent"), k_h1=h1_factor(st.p_ff, st.pixel_h1),
+        **{k: shape(v) for k, v in lv.items()}, k_ff=h1_factor(opt.p_ff, "patent"), k_h1=h1_factor(opt.p_ff, opt.h1),
         hslope_sat=shape(scatter_rows(hs1[:, :Ng], lay.sat_idx, fit.m_g, S)),
         vslope_sat=shape(scatter_rows(vs1[:, :Ng], lay.sat_idx, fit.m_g, S)),
         hslope_lm=shape(_scatter_landmarks(hs1[:, Ng:], lay.lm_idx, fit.det, L)),
@@ -476,7 +477,8 @@ def _output(fit: _Fit, pb: _Problem, lay: _Layout, st: IntegritySettings, t: NDA
         reason=shape(fit.reason), reasons=PIXEL_REASONS, diagnostics=diag)
 
 
-def _exclusion(out: MonitorOutput, fit: _Fit, pb: _Problem, lay: _Layout, st: IntegritySettings) -> MonitorOutput:
+def _exclusion(out: MonitorOutput, fit: _Fit, pb: _Problem, lay: _Layout, st: IntegritySettings,
+               opt: PixelOptions) -> MonitorOutput:
     """FDE (:func:`testbed.integrity.fde.exclude`): units are satellites' rows and landmarks' pixel pairs."""
     Ng, Lc = pb.z_g.shape[-1], pb.det.shape[-1]
     unit_rows = np.zeros((Ng + Lc, Ng + 2 * Lc), bool)
@@ -487,26 +489,28 @@ def _exclusion(out: MonitorOutput, fit: _Fit, pb: _Problem, lay: _Layout, st: In
     start = replace(pb, x_start=np.where(np.isfinite(fit.sol.x), fit.sol.x, pb.x_start))
 
     def solve_without(sel: NDArray, keep: NDArray) -> Verdict:
-        return _solve(start.take(sel), st, keep).verdict()
+        return _solve(start.take(sel), st, opt, keep).verdict()
 
     return exclude(out, unit_rows, label.reshape(lay.lead + label.shape[1:]), solve_without, st)
 
 
 def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
                   settings: IntegritySettings | None = None, x0: ArrayLike | None = None,
-                  name: str = "pixel", x_carry: ArrayLike | None = None) -> MonitorOutput:
+                  name: str = "pixel", x_carry: ArrayLike | None = None,
+                  options: PixelOptions | None = None) -> MonitorOutput:
     """The patent's pixel-domain integrity monitor, GPS + landmark pixels, batched.
 
     Parameters
     ----------
     gnss : GnssEpochs (B..., T, S); ``visible`` rows are used.
     vision : VisionEpochs (B..., T, L) at the same epochs; ``detected`` landmarks
-        give two rows each (u, v), at most ``pixel_max_landmarks`` of them, spread over the image;
+        give two rows each (u, v), at most ``options.max_landmarks`` of them, spread over the image;
         ``landmark_pos_ecef`` one survey (L, 3) or one per trial (B..., L, 3).
     frame : world frame of the state [E, N, U, clock] (clock dropped when an
         epoch has no pseudorange row).
-    settings : IntegritySettings (``p_fa``, ``p_md``, ``p_ff``, ``pixel_*``, ``fde*``,
-        solver tolerances, service levels).
+    settings : IntegritySettings (``p_fa``, ``p_md``, ``fde*``, solver tolerances, service levels).
+    options : PixelOptions, the monitor's own (``p_ff``, the H1 form, H3, the landmark cap, the
+        covariance terms, whether vision rows enter).
     x0 : (B..., T, 4) start of the iteration (e.g. the navigation prediction).
         Default: the module doc's start point.
     x_carry : (B..., 4) the start state in force before the first epoch (a live
@@ -519,13 +523,14 @@ def pixel_monitor(gnss: GnssEpochs, vision: VisionEpochs, frame: LocalFrame,
     FDE record when ``settings.fde``.
     """
     st = settings or IntegritySettings()
+    opt = options or PixelOptions()
     if len(gnss.t) != len(vision.t) or not np.allclose(gnss.t, vision.t, atol=1e-6):
         raise ValueError(f"pixel_monitor: gnss and vision epochs must coincide; got {len(gnss.t)} GNSS and "
                          f"{len(vision.t)} vision epochs (resample one onto the other first)")
-    pb, lay = _read_problem(gnss, vision, frame, st, x0, x_carry)
-    fit = _solve(pb, st)
-    out = _output(fit, pb, lay, st, gnss.t, name)
-    return _exclusion(out, fit, pb, lay, st) if st.fde else out
+    pb, lay = _read_problem(gnss, vision, frame, st, opt, x0, x_carry)
+    fit = _solve(pb, st, opt)
+    out = _output(fit, pb, lay, st, opt, gnss.t, name)
+    return _exclusion(out, fit, pb, lay, st, opt) if st.fde else out
 
 
 @dataclass(frozen=True)
@@ -541,6 +546,7 @@ class PixelMonitor(MonitorDefaults):
 
     name: str
     context: MonitorContext
+    options: PixelOptions = PixelOptions()
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss", "vision"})
     reference: ClassVar[str] = REFERENCE_POINT
     compiles_kernels: ClassVar[bool] = True
@@ -556,7 +562,7 @@ class PixelMonitor(MonitorDefaults):
 
     def step(self, obs: Observations, state: PixelState) -> tuple[MonitorOutput, PixelState]:
         out = pixel_monitor(obs.gnss, obs.vision, self.context.frame, self.context.integrity, name=self.name,
-                            x_carry=state.x_start)
+                            x_carry=state.x_start, options=self.options)
         x = out.diagnostics.x_start
         if not x.shape[-2]:
             return out, state
@@ -566,7 +572,12 @@ class PixelMonitor(MonitorDefaults):
         return out, PixelState(last)
 
 
-def build_monitor(context: MonitorContext, options) -> PixelMonitor:
-    if options:
-        raise ValueError(f"pixel takes no options (its settings are [integrity]); got {sorted(options)}")
-    return PixelMonitor("pixel", context)
+def build_monitor(context: MonitorContext, options: PixelOptions) -> PixelMonitor:
+    """The pixel monitor with the approach's ``[monitor.pixel]`` options."""
+    return PixelMonitor("pixel", context, options)
+
+
+def cost(options: PixelOptions) -> MonitorCost:
+    """Per trial-epoch, measured alone on va-raim-2015 and zunz-rwy05-markers (3 and 12 of 30 landmarks), the
+    draws subtracted: it weighs at most ``max_landmarks`` landmarks."""
+    return MonitorCost((5e3, 14e3, 0.0), (16e-6, 41e-6, 0.0), landmark_cap=options.max_landmarks)

@@ -1,7 +1,6 @@
-"""Settings of the integrity monitors (GPS-only RAIM, pixel-domain monitor).
+"""Settings every integrity monitor shares (``[integrity]``), and the pixel monitor's own (``[monitor.pixel]``).
 
-Composed by ``testbed/config.py`` into the run configuration (section
-``[integrity]``). Defaults are those of docs/design/integrity.md §3-§4 and §10; the sources do
+Composed by ``testbed/config.py`` into the run configuration. Defaults are those of docs/design/integrity.md §3-§4 and §10; the sources do
 not state P_FA / P_MD, so the values here are the testbed's recorded choice.
 """
 
@@ -9,14 +8,31 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from testbed.integrity.levels import DEFAULT_P_FA, DEFAULT_P_MD, SERVICE_LEVELS
 from testbed.schema import StrictModel
 
 
+#: keys ``[integrity]`` had before the monitors got their own tables, and where they are now
+MOVED_KEYS = {"p_ff": "[monitor.pixel] p_ff", "pixel_two_faults": "[monitor.pixel] two_faults",
+              "pixel_attitude_noise": "[monitor.pixel] attitude_noise",
+              "pixel_dither_noise": "[monitor.pixel] dither_noise", "pixel_h1": "[monitor.pixel] h1",
+              "pixel_max_landmarks": "[monitor.pixel] max_landmarks",
+              "pixel_vision_rows": "[monitor.pixel] vision_rows"}
+
+
 class IntegritySettings(StrictModel):
-    """Integrity risk allocation, PL variant, service levels and solver tolerances."""
+    """What every monitor shares: the integrity risk allocation, PL variant, service levels, the FDE policy
+    and solver tolerances."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _moved(cls, data):
+        moved = [f"{k} moved to {MOVED_KEYS[k]}" for k in (data if isinstance(data, dict) else ()) if k in MOVED_KEYS]
+        if moved:
+            raise ValueError("; ".join(moved))
+        return data
 
     p_fa: float = Field(DEFAULT_P_FA, gt=0.0, lt=1.0,
                          description="Probability of false alarm per epoch; sets the chi-square threshold "
@@ -31,27 +47,6 @@ class IntegritySettings(StrictModel):
     service_levels: tuple[str, ...] = Field(
         ("APV-I", "LPV-200", "APV-II"),
         description="Service levels whose availability (HPL ≤ HAL and VPL ≤ VAL) is reported, in this order.")
-    p_ff: float = Field(1e-7, gt=0.0, lt=1.0,
-                        description="Pixel monitor H1 (fault-free) risk: K_ff = Φ⁻¹(1 − P_ff/2) multiplies the "
-                                    "horizontal error-ellipse semi-major axis (and the vertical sigma).")
-    pixel_two_faults: bool = Field(True, description="Pixel monitor: include hypothesis H3 (two simultaneous "
-                                                     "faults) in the protection level, as the patent does.")
-    pixel_attitude_noise: bool = Field(True, description="Pixel monitor: add the attitude-reference error, "
-                                                         "propagated into pixels, to each landmark's 2×2 pixel "
-                                                         "covariance.")
-    pixel_dither_noise: bool = Field(True, description="Pixel monitor: add the camera dithering the vision front end "
-                                                       "publishes (its rms, VisionEpochs.dither_sigma), propagated "
-                                                       "into pixels, to the pixel covariance.")
-    pixel_h1: Literal["radial", "patent"] = Field(
-        "radial", description="Pixel monitor H1 multiplier of the horizontal error ellipse's semi-major axis: "
-                              "'radial' = sqrt(-2 ln P_ff) (bounds the radial fault-free risk by P_ff); "
-                              "'patent' = Φ⁻¹(1 − P_ff/2) as printed (a one-axis bound: up to 6.9 P_ff radially).")
-    pixel_max_landmarks: int = Field(12, ge=1, le=1000, description="Pixel monitor: landmarks used per epoch: the "
-                                                                    "nearest detected one, then farthest-point picks "
-                                                                    "in the image (the cost grows with the square of "
-                                                                    "the rows and with the H3 pairs).")
-    pixel_vision_rows: bool = Field(True, description="Pixel monitor: False = the patent's three-hypothesis rule on "
-                                                      "the GNSS rows alone (what vision buys, for comparison).")
     fde: bool = Field(False, description="Fault exclusion after an alert (GPS RAIM, VA-RAIM, pixel monitor; "
                                          "testbed.integrity.fde): re-solve without each measurement unit, keep the "
                                          "exclusion whose reduced test passes, protect with the reduced geometry's PLs.")
@@ -77,3 +72,29 @@ class IntegritySettings(StrictModel):
         if len(set(v)) != len(v):
             raise ValueError(f"service levels repeated: {list(v)}")
         return v
+
+
+class PixelOptions(StrictModel):
+    """The pixel-domain monitor's own options (``[monitor.pixel]``)."""
+
+    p_ff: float = Field(1e-7, gt=0.0, lt=1.0,
+                        description="H1 (fault-free) risk: K_ff = Φ⁻¹(1 − P_ff/2) multiplies the "
+                                    "horizontal error-ellipse semi-major axis (and the vertical sigma). The filter has its own, [monitor.ekf] p_ff.")
+    two_faults: bool = Field(True, description="Include hypothesis H3 (two simultaneous "
+                                                     "faults) in the protection level, as the patent does.")
+    attitude_noise: bool = Field(True, description="Add the attitude-reference error, "
+                                                         "propagated into pixels, to each landmark's 2×2 pixel "
+                                                         "covariance.")
+    dither_noise: bool = Field(True, description="Add the camera dithering the vision front end "
+                                                       "publishes (its rms, VisionEpochs.dither_sigma), propagated "
+                                                       "into pixels, to the pixel covariance.")
+    h1: Literal["radial", "patent"] = Field(
+        "radial", description="H1 multiplier of the horizontal error ellipse's semi-major axis: "
+                              "'radial' = sqrt(-2 ln P_ff) (bounds the radial fault-free risk by P_ff); "
+                              "'patent' = Φ⁻¹(1 − P_ff/2) as printed (a one-axis bound: up to 6.9 P_ff radially).")
+    max_landmarks: int = Field(12, ge=1, le=1000, description="Landmarks used per epoch: the "
+                                                                    "nearest detected one, then farthest-point picks "
+                                                                    "in the image (the cost grows with the square of "
+                                                                    "the rows and with the H3 pairs).")
+    vision_rows: bool = Field(True, description="False = the patent's three-hypothesis rule on "
+                                                      "the GNSS rows alone (what vision buys, for comparison).")

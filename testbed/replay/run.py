@@ -23,7 +23,7 @@ import numpy as np
 from testbed.config import read_toml, validate
 from testbed.frames import C_LIGHT, LocalFrame, ecef_to_geodetic
 from testbed.integrity.monitor import MonitorContext, Observations
-from testbed.integrity.registry import build_monitor
+from testbed.monitors import build_monitor, options_tables
 from testbed.outputs import OutputSet
 from testbed.records import GnssEpochs, MonitorOutput, NotVisible, concat_epochs, take_epochs
 from testbed.rinex.obs import RinexObs, read_obs
@@ -60,7 +60,9 @@ def load_config(path: str | Path | None) -> MonitorFileConfig:
     if path is None:
         return MonitorFileConfig()
     p = Path(path)
-    return validate(MonitorFileConfig, read_toml(p), p)
+    cfg = validate(MonitorFileConfig, read_toml(p), p)
+    validate(options_tables(), cfg.monitor, p, prefix="monitor.")  # each monitor's table, by its own model
+    return cfg
 
 
 def read_reference(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -226,7 +228,7 @@ def _monitor(obs_path, nav_path, cfg: MonitorFileConfig, out_dir, rrd_path, refe
     gnss, formation = form_epochs(obs, nav, cfg.rinex)
     tm["form"] = time.perf_counter() - t1
     frame = LocalFrame(*formation.origin_lat_lon_h)
-    ctx = MonitorContext(frame=frame, integrity=cfg.integrity)
+    ctx = MonitorContext(frame=frame, integrity=cfg.integrity, options=cfg.monitor)
     built = [build_monitor(m, ctx) for m in monitors]
     t2 = time.perf_counter()
     outputs = {}

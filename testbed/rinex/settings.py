@@ -7,7 +7,7 @@ file: P_FA, P_MD, PL variant, service levels, FDE).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
@@ -81,3 +81,7 @@ class MonitorFileConfig(StrictModel):
                                                                             "model")
     integrity: MonitorIntegritySettings = Field(default_factory=MonitorIntegritySettings,
                                                 description="integrity settings; fault exclusion on by default")
+    monitor: dict[str, dict[str, Any]] = Field(default_factory=dict,
+                                               description="each monitor's own options, `[monitor.<name>]`, as in "
+                                                           "an approach file (checked by the monitor's options model "
+                                                           "when the file is read)")

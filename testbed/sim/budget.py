@@ -24,7 +24,16 @@ import math
 import os
 from dataclasses import dataclass, field
 
+from testbed.flight.fly import approach_geometry
+from testbed.integrity.monitor import MonitorCost
+from testbed.monitors import monitor_cost, reads
 from testbed.schema import ConfigError
+from testbed.sensors.gnss.almanac import load_constellation
+from testbed.sensors.gnss.correlators import _EXACT_BYTES, delay_grid
+from testbed.sensors.gnss.timebase import utc_to_gps_seconds
+from testbed.sensors.vision.features import corridor_size
+from testbed.sensors.vision.landmarks import build_landmarks
+from testbed.sim.preflight import flight_duration_bound
 
 GB = 1e9
 
@@ -43,41 +52,11 @@ DRAW_SECONDS_PER_SAT = 0.12e-6
 VISION_BYTES_PER_LANDMARK = 700.0
 
 
-@dataclass(frozen=True)
-class MonitorCost:
-    """One monitor's working arrays (bytes) and one thread's time (s) per trial-epoch: a constant, a part per
-    landmark it weighs and a part per pair of them (VA-RAIM's cosine-rule pairs)."""
+#: a monitor whose cost was not measured (one registered by a user without a cost): the filter's figures, the
+#: costliest per epoch of the shipped monitors but the DPE's
+UNKNOWN_MONITOR = MonitorCost((25e3, 0.0, 0.0), (0.75e-3, 0.0, 0.0))
 
-    bytes: tuple[float, float, float]
-    seconds: tuple[float, float, float]
-    landmark_cap: str | None = None  # the integrity setting capping the landmarks it weighs
-
-    def at(self, landmarks: int, cap: int | None) -> tuple[float, float]:
-        used = min(landmarks, cap) if cap else landmarks
-        x = (1.0, used, used * (used - 1) / 2)
-        return sum(a * b for a, b in zip(self.bytes, x)), sum(a * b for a, b in zip(self.seconds, x))
-
-
-#: measured with each monitor alone on its shipped approach (gps_raim and va_raim: va-raim-2015, 24 satellites,
-#: 3 landmarks; pixel: va-raim-2015 and zunz-rwy05-markers, 3 and 12 of 30 landmarks; ekf: zunz-rwy05-ekf; dpe:
-#: zunz-rwy05-dpe less its correlograms), the GNSS draw and camera frames subtracted
-MONITORS: dict[str, MonitorCost] = {
-    "gps_raim": MonitorCost((1400.0, 0.0, 0.0), (6.5e-6, 0.0, 0.0)),
-    "va_raim": MonitorCost((2800.0, 0.0, 0.0), (24e-6, 0.0, 3e-6)),
-    "pixel": MonitorCost((5e3, 14e3, 0.0), (16e-6, 41e-6, 0.0), landmark_cap="pixel_max_landmarks"),
-    "ekf": MonitorCost((25e3, 0.0, 0.0), (0.75e-3, 0.0, 0.0)),
-    "dpe": MonitorCost((2e3, 0.0, 0.0), (3.5e-3, 0.0, 0.0)),
-    # the DPE paper's variant: 50 mean-shift passes over 390 625 candidates, ~0.29 s an epoch (dpe-variants.toml)
-    "dpe/seed": MonitorCost((2e3, 0.0, 0.0), (0.29, 0.0, 0.0)),
-}
-#: a monitor whose output another computes on the way (VA-RAIM's step 1 is GPS RAIM) costs no time beside it
-PROVIDED_BY = {"gps_raim": "va_raim"}
-#: a monitor this table does not know (one registered by a user): the costliest known one's figures
-UNKNOWN_MONITOR = MONITORS["ekf"]
-#: the ekf's tracked ground features (SLAM states), bytes and seconds per trial-epoch (zunz-rwy05-slam)
-EKF_FEATURES = (4.3e3, 3.8e-3)
-
-#: correlograms, one pass (the pseudoranges' or the dpe monitor's): bytes of one trial's synthesis per epoch,
+#: correlograms, one pass (the pseudoranges' or a monitor's that reads them): bytes of one trial's synthesis per epoch,
 #: satellite and delay (the float32 statistic, its float64 temporaries), and seconds per trial-epoch and delay
 #: (about 10 satellites in view); the exact synthesis takes this many times longer per block N_b (459 ms
 #: against 7.4 ms an epoch of 10 satellites at N_b = 50)
@@ -219,20 +198,19 @@ class Shape:
     vision_epochs: int  # camera frames of the sortie (0 without a vision monitor)
     features: int  # ground-feature scene points (0: no scene)
     correlator_delays: int  # correlogram delays M (0: no correlators synthesised)
-    correlator_passes: int  # syntheses per trial-epoch (the pseudoranges and the dpe monitor each make one)
+    correlator_passes: int  # syntheses per trial-epoch (the pseudoranges and a monitor reading correlators each make one)
     exact_blocks: int  # N_b of the exact synthesis (0: the fast one)
     monitors: tuple[str, ...]
-    landmark_caps: dict = field(default_factory=dict)  # integrity settings capping a monitor's landmarks
-    variants: dict = field(default_factory=dict)  # monitor -> its variant, where the cost depends on it
+    costs: dict = field(default_factory=dict)  # monitor -> its MonitorCost with the run's options
 
     def monitor_cost(self, name: str) -> tuple[float, float]:
         """(bytes, seconds) per trial-epoch of monitor ``name``."""
-        c = MONITORS.get(f"{name}/{self.variants.get(name)}", MONITORS.get(name, UNKNOWN_MONITOR))
-        b, s = c.at(self.landmarks, self.landmark_caps.get(c.landmark_cap) if c.landmark_cap else None)
-        if name == "ekf" and self.features:
-            b, s = b + EKF_FEATURES[0], s + EKF_FEATURES[1]
-        if PROVIDED_BY.get(name) in self.monitors:  # computed on the way by the other (no second solve)
-            s = 0.0
+        c = self.costs.get(name) or UNKNOWN_MONITOR
+        b, s = c.at(self.landmarks)
+        if self.features:
+            b, s = b + c.features[0], s + c.features[1]
+        if any(name in (self.costs.get(m) or UNKNOWN_MONITOR).provides for m in self.monitors if m != name):
+            s = 0.0  # computed on the way by another (no second solve)
         return b, s
 
 
@@ -240,14 +218,6 @@ def sortie_shape(approach, duration_s: float | None = None) -> Shape:
     """The :class:`Shape` of one sortie of ``approach`` (a loaded :class:`~testbed.config.Approach`; a campaign
     cell's, or the one ``testbed fly`` flies), ``duration_s`` of it (None: the whole flight). Reads only the
     settings, the planned path and the constellation file: nothing is flown or drawn."""
-    from testbed.flight.fly import approach_geometry
-    from testbed.integrity.registry import reads_correlators, reads_features, reads_vision
-    from testbed.sensors.gnss.almanac import load_constellation
-    from testbed.sensors.gnss.correlators import delay_grid
-    from testbed.sensors.gnss.timebase import utc_to_gps_seconds
-    from testbed.sensors.vision.features import corridor_size
-    from testbed.sensors.vision.landmarks import build_landmarks
-    from testbed.sim.preflight import flight_duration_bound
 
     c = approach.config
     frame, path = approach_geometry(approach.flight_plan)
@@ -258,18 +228,17 @@ def sortie_shape(approach, duration_s: float | None = None) -> Shape:
     g = c.gnss
     eph = load_constellation(g.almanac_source, g.almanac_path, utc_to_gps_seconds(c.start_time_utc), g.almanac_week)
     monitors = tuple(dict.fromkeys(c.monitors))
-    vision = reads_vision(monitors)
+    vision = reads("vision", monitors)
     scene = c.vision.features
-    features = corridor_size(path.sample(200.0)[0], scene) if scene.enabled and reads_features(monitors) else 0
-    passes = int(reads_correlators(monitors)) + int(g.correlator_pseudoranges)
+    features = corridor_size(path.sample(200.0)[0], scene) if scene.enabled and reads("features", monitors) else 0
+    passes = int(reads("correlators", monitors)) + int(g.correlator_pseudoranges)
     cs = g.correlators
     return Shape(epochs=int(sortie_s * g.rate_hz) + 1, flight_s=flight_s, flight_steps=int(flight_s / c.flight.dt_s),
                  satellites=int(len(set(eph.prn.tolist()))), landmarks=len(build_landmarks(c.landmarks)),
                  vision_epochs=int(sortie_s * c.vision.rate_hz) + 1 if vision else 0, features=features,
                  correlator_delays=delay_grid(cs).size if passes else 0, correlator_passes=passes,
                  exact_blocks=cs.n_noncoherent if cs.synthesis == "exact" else 0, monitors=monitors,
-                 landmark_caps={"pixel_max_landmarks": c.integrity.pixel_max_landmarks},
-                 variants={"dpe": c.dpe.get("variant", "likelihood")})
+                 costs={m: monitor_cost(m, c.monitor) for m in monitors})
 
 
 def trial_epoch_bytes(shape: Shape) -> dict[str, float]:
@@ -301,7 +270,6 @@ def correlator_trial_bytes(shape: Shape) -> float:
     """Bytes one trial's correlograms hold while they are synthesised and read."""
     if not shape.correlator_passes:
         return 0.0
-    from testbed.sensors.gnss.correlators import _EXACT_BYTES
 
     exact = _EXACT_BYTES if shape.exact_blocks else 0
     return CORRELATOR_BYTES_PER_DELAY * shape.epochs * shape.satellites * shape.correlator_delays + exact

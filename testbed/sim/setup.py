@@ -5,7 +5,6 @@ Nothing here flies or draws random numbers; :mod:`testbed.sim.loop` does.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,12 +16,13 @@ from pydantic import ValidationError
 from testbed.config import Approach
 from testbed.flight.fly import approach_geometry
 from testbed.flight.path import ApproachPath
-from testbed.frames import LocalFrame, euler_to_R_body_to_ned
+from testbed.frames import R_NED_TO_ENU, LocalFrame, R_ecef_to_enu, euler_to_R_body_to_ned
+from testbed.integrity.dpe.calibration import read_k_file, settings_fingerprint
 from testbed.integrity.levels import strictest_limits
 from testbed.integrity.monitor import Monitor, MonitorContext, compute
-from testbed.integrity.registry import build_monitor, monitor_names, reads_correlators, reads_features, reads_imu, reads_vision
 from testbed.integrity.settings import IntegritySettings
 from testbed.kernel_cache import compiled_before, mark_compiled
+from testbed.monitors import build_monitor, monitor_options, reads
 from testbed.records import Mount
 from testbed.schema import ConfigError, format_validation_error
 from testbed.sensors.gnss.settings import GnssSettings
@@ -30,6 +30,7 @@ from testbed.sensors.vision.features import corridor_features
 from testbed.sensors.vision.landmarks import Landmarks, build_landmarks
 from testbed.sensors.vision.settings import MountSettings, VisionSettings
 from testbed.world import airport
+from testbed.world.settings import load_terrain
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,7 @@ class RunSetup:
         does not build a scene of millions of points: `testbed check` of a dense corridor (10 000 per km², 40 km
         wide, 50 km beyond) peaked at 5.7 GB resident for 48 s when the set-up built it."""
         scene = self.vision.features
-        if not (scene.enabled and reads_features(self.approach.config.monitors)):
+        if not (scene.enabled and reads("features", self.approach.config.monitors)):
             return None
         return corridor_features(self.path.sample(200.0)[0], scene, self.frame, self.terrain)
 
@@ -77,7 +78,6 @@ class RunSetup:
 
 def load_terrain_for(approach: Approach):
     """The terrain model an approach names (its ``[terrain]`` table)."""
-    from testbed.world.settings import load_terrain
 
     try:
         return load_terrain(approach.config.terrain, approach.source.parent)
@@ -114,18 +114,18 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None,
     vision = vision_settings(approach)
     gnss = c.gnss
     ratio = vision.rate_hz / gnss.rate_hz
-    if reads_vision(c.monitors) and abs(ratio - round(ratio)) > 1e-9:
+    if reads("vision", c.monitors) and abs(ratio - round(ratio)) > 1e-9:
         raise ConfigError(approach.source, [
             f"vision.rate_hz ({vision.rate_hz}) must be an integer multiple of gnss.rate_hz ({gnss.rate_hz}): "
             "the vision monitors combine both at the GNSS epochs"])
-    if reads_imu(c.monitors):
+    if reads("imu", c.monitors):
         steps = 1.0 / (c.imu.rate_hz * c.flight.dt_s)  # flight steps per IMU interval
-        per_vision = vision.rate_hz / c.imu.rate_hz if reads_vision(c.monitors) else gnss.rate_hz / c.imu.rate_hz
+        per_vision = vision.rate_hz / c.imu.rate_hz if reads("vision", c.monitors) else gnss.rate_hz / c.imu.rate_hz
         if abs(steps - round(steps)) > 1e-6 * steps or round(steps) < 1 or abs(1 / per_vision - round(1 / per_vision)) > 1e-6:
             raise ConfigError(approach.source, [
                 f"imu.rate_hz = {c.imu.rate_hz:g}: expected a divisor of the flight rate {1.0 / c.flight.dt_s:g} Hz "
-                f"and a multiple of the {'vision' if reads_vision(c.monitors) else 'GNSS'} rate"])
-    if reads_correlators(c.monitors) or gnss.correlator_pseudoranges:
+                f"and a multiple of the {'vision' if reads('vision', c.monitors) else 'GNSS'} rate"])
+    if reads("correlators", c.monitors) or gnss.correlator_pseudoranges:
         cs = gnss.correlators
         if cs.coherent_s * cs.n_noncoherent > 1.0 / gnss.rate_hz * (1 + 1e-9):
             raise ConfigError(approach.source, [
@@ -135,11 +135,11 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None,
             raise ConfigError(approach.source, [
                 f"gnss.ura_tropo_tau_s = {gnss.ura_tropo_tau_s:g}: the correlators draw the SIS error white per "
                 f"epoch (a correlated SIS for the monitors reading correlators is not implemented); remove it"])
-        variant = c.dpe.get("variant", "likelihood") if "dpe" in c.monitors else None
+        variant = monitor_options("dpe", c.monitor).variant if "dpe" in c.monitors else None
         want = {"seed": "mag", "likelihood": "pow"}.get(variant)
         if want is not None and cs.statistic != want:
             raise ConfigError(approach.source, [
-                f"gnss.correlators.statistic = {cs.statistic!r}: dpe.variant = {variant!r} reads {want!r}"
+                f"gnss.correlators.statistic = {cs.statistic!r}: monitor.dpe.variant = {variant!r} reads {want!r}"
                 + (" (and needs synthesis = 'exact')" if want == "mag" else "")])
     monitors = build_monitors(approach, frame, monitor_threads, share)
     try:
@@ -151,42 +151,31 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None,
                     integrity=c.integrity, monitors=monitors, faults=tuple(c.faults), imu=c.imu)
 
 
-def _dpe_k_from_file(approach: Approach) -> float:
-    """``[dpe] k_factor = "file.json"``: K from a `testbed calibrate-dpe` record (relative to the approach
-    file), if it was calibrated for these settings; otherwise a ConfigError naming the key and the file."""
-    from testbed.integrity.dpe.calibration import read_k_file, settings_fingerprint
-    from testbed.integrity.dpe.monitor import DpeSettings
+def _dpe_k_from_file(approach: Approach, dpe) -> float:
+    """``[monitor.dpe] k_factor = "file.json"``: K from a `testbed calibrate-dpe` record (relative to the
+    approach file), if it was calibrated for these settings; otherwise a ConfigError naming the key and the file."""
 
     c = approach.config
-    path = Path(c.dpe["k_factor"])
+    path = Path(dpe.k_factor)
     path = path if path.is_absolute() else approach.source.parent / path
     try:
-        settings = DpeSettings.model_validate({**c.dpe, "k_factor": 1.0})
-        return read_k_file(path, settings_fingerprint(settings, c.gnss.correlators)[1])
-    except ValidationError as exc:
-        raise ConfigError(approach.source, ["dpe." + p for p in format_validation_error(exc)]) from None
+        return read_k_file(path, settings_fingerprint(dpe.model_copy(update={"k_factor": 1.0}), c.gnss.correlators)[1])
     except ValueError as exc:
-        raise ConfigError(approach.source, [f"dpe.k_factor = {c.dpe['k_factor']!r}: {exc}"]) from None
+        raise ConfigError(approach.source, [f"monitor.dpe.k_factor = {dpe.k_factor!r}: {exc}"]) from None
 
 
 def build_monitors(approach: Approach, frame: LocalFrame, threads: int | None = None,
                    share: Callable[..., Any] = compute) -> tuple[Monitor, ...]:
-    """The approach's monitors, from the registry; a bad option table is a ConfigError naming its key."""
+    """The approach's monitors, from the registry (their option tables were validated with the approach);
+    what only building finds (a K file that does not fit) is a ConfigError naming its key."""
     c = approach.config
     names = tuple(dict.fromkeys(c.monitors))
-    tables = {n: getattr(c, n) for n in monitor_names() if isinstance(getattr(c, n, None), dict)}
-    options = {n: t for n, t in tables.items() if n in names}
-    if "dpe" in options and isinstance(options["dpe"].get("k_factor"), str):
-        options["dpe"] = {**options["dpe"], "k_factor": _dpe_k_from_file(approach)}
+    options = {n: t for n, t in c.monitor.items() if n in names}
+    dpe = options.get("dpe")
+    if dpe is not None and isinstance(dpe.k_factor, str):
+        options["dpe"] = dpe.model_copy(update={"k_factor": _dpe_k_from_file(approach, dpe)})
     ctx = MonitorContext(frame=frame, integrity=c.integrity, options=options, threads=threads, share=share)
-    out = tuple(_built(name, ctx, approach) for name in names)
-    # the option table of a monitor not listed is checked too: a typo in it must not wait until the
-    # monitor is switched on (a K file is read only then)
-    for name in (n for n, t in tables.items() if t and n not in names):
-        table = tables[name] if name != "dpe" or not isinstance(tables[name].get("k_factor"), str) \
-            else {**tables[name], "k_factor": 1.0}
-        _built(name, dataclasses.replace(ctx, options={name: table}), approach)
-    return out
+    return tuple(_built(name, ctx, approach) for name in names)
 
 
 def _built(name: str, ctx: MonitorContext, approach: Approach) -> Monitor:
@@ -194,9 +183,9 @@ def _built(name: str, ctx: MonitorContext, approach: Approach) -> Monitor:
     try:
         return build_monitor(name, ctx)
     except ValidationError as exc:
-        raise ConfigError(approach.source, [f"{name}." + p for p in format_validation_error(exc)]) from None
+        raise ConfigError(approach.source, [f"monitor.{name}." + p for p in format_validation_error(exc)]) from None
     except ValueError as exc:
-        raise ConfigError(approach.source, [f"{name}: {exc}"]) from None
+        raise ConfigError(approach.source, [f"monitor.{name}: {exc}"]) from None
 
 
 def prepare_monitors(setup: RunSetup, announce: Callable[[str], None] | None = None) -> tuple[str, ...]:
@@ -268,7 +257,6 @@ def build_scene(setup: RunSetup, camera=None, mesh_half_size_m: float = 9_000.0,
 
 def R_body_to_world(frame: LocalFrame, euler: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
     """Body -> world-ENU rotations ``(T, 3, 3)`` from Euler angles at the aircraft's position."""
-    from testbed.frames import R_NED_TO_ENU, R_ecef_to_enu
 
     R_b2n = euler_to_R_body_to_ned(euler[:, 0], euler[:, 1], euler[:, 2])
     R_loc = R_ecef_to_enu(lat_deg, lon_deg)  # ECEF -> local ENU

@@ -42,7 +42,7 @@ def calibration_estimate(approach: str, sorties: int, trajectories: tuple[str, .
         other = load_approach(t)
         corr = ap.config.gnss.correlators.model_copy(update={"pseudorange_source": "model"})  # one synthesis
         cfg = other.config.model_copy(update={"gnss": other.config.gnss.model_copy(update={"correlators": corr}),
-                                              "monitors": ["dpe"], "dpe": ap.config.dpe})
+                                              "monitors": ["dpe"], "monitor": ap.config.monitor})
         shapes.append(sortie_shape(replace(other, config=cfg)))
     epochs = sum(s.epochs for s in shapes) / len(shapes)
     per_epoch = sum(s.monitor_cost("dpe")[1] + correlator_seconds(s) for s in shapes) / len(shapes)

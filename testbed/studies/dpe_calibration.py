@@ -36,6 +36,7 @@ from pydantic import ConfigDict, Field
 from testbed.campaign.store import StoredRecord
 from testbed.integrity.dpe.calibration import (DEFAULT_P_HMI, MIN_TAIL_EPOCHS, KFit, fit_k_tail,
                                                settings_fingerprint, validate)
+from testbed.monitors import monitor_options
 from testbed.schema import ConfigError, read_json
 
 #: strata cycled over the sorties (docs/design/dpe.md §6.4)
@@ -90,19 +91,18 @@ def _trajectory(approach: str, trajectory: str):
     correlator settings (K = 1: the one being fitted replaces the approach's); once per process."""
     from testbed.config import load_approach
     from testbed.flight.fly import fly
-    from testbed.integrity.dpe.monitor import DpeMonitor, DpeSettings
+    from testbed.integrity.dpe.monitor import DpeMonitor
     from testbed.integrity.monitor import MonitorContext
     from testbed.sim.preflight import preflight
 
     src = load_approach(approach)
-    dpe = {**src.config.dpe, "k_factor": 1.0}
+    dpe = monitor_options("dpe", src.config.monitor).model_copy(update={"k_factor": 1.0})
     ap = src if trajectory == approach else load_approach(trajectory)
     gnss = ap.config.gnss.model_copy(update={"correlators": src.config.gnss.correlators})
-    ap = dataclasses.replace(ap, config=ap.config.model_copy(update={"dpe": dpe, "gnss": gnss}
+    ap = dataclasses.replace(ap, config=ap.config.model_copy(update={"monitor": {**ap.config.monitor, "dpe": dpe}, "gnss": gnss}
                                                               | ({} if ap is src else {"monitors": ["dpe"]})))
     setup = preflight(ap)
-    mon = DpeMonitor("dpe", MonitorContext(frame=setup.frame, integrity=setup.integrity),
-                     DpeSettings.model_validate(dpe))
+    mon = DpeMonitor("dpe", MonitorContext(frame=setup.frame, integrity=setup.integrity), dpe)
     mon.prepare()
     truth_g = fly(ap.flight_plan, setup.terrain).truth.decimate(setup.gnss.rate_hz)
     return ap, setup, truth_g, mon
@@ -294,7 +294,6 @@ def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60,
     stopped the run early (resume it with the same ``work`` folder).
     """
     from testbed.config import load_approach, resolve_approach
-    from testbed.integrity.dpe.monitor import DpeSettings
 
     if sorties < 6:
         raise ValueError(f"sorties: expected at least 6 (one per stratum), got {sorties}")
@@ -308,7 +307,7 @@ def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60,
     names = run.trajectories or (src,)
     ap = load_approach(src)  # the settings K is for
     _enough_epochs(src, names, sorties)
-    fingerprint, cover = settings_fingerprint(DpeSettings.model_validate({**ap.config.dpe, "k_factor": 1.0}),
+    fingerprint, cover = settings_fingerprint(monitor_options("dpe", ap.config.monitor).model_copy(update={"k_factor": 1.0}),
                                               ap.config.gnss.correlators)
     sets = run_chunks(run, work=work, resume=resume, scheduler=scheduler, max_chunks=max_chunks, progress=progress)
     if sets is None:

@@ -30,6 +30,7 @@ from testbed.campaign.context import cell_context
 from testbed.campaign.spec import LoadedSpec, expand_cells
 from testbed.integrity.pixel import pixel_monitor
 from testbed.integrity.raim import gps_raim
+from testbed.integrity.settings import PixelOptions
 from testbed.markdown import table as md_table
 from testbed.sim.evaluate import position_errors
 
@@ -54,8 +55,8 @@ def _run(variant: Variant, obs, setup):
     st = setup.integrity
     if variant.vision_rows is None:
         return gps_raim(obs.gnss, setup.frame, st), "antenna"
-    st = st.model_copy(update={"pixel_vision_rows": variant.vision_rows, "pixel_two_faults": variant.two_faults})
-    return pixel_monitor(obs.gnss, obs.vision, setup.frame, st), "cg"
+    options = PixelOptions(vision_rows=variant.vision_rows, two_faults=variant.two_faults)
+    return pixel_monitor(obs.gnss, obs.vision, setup.frame, st, options=options), "cg"
 
 
 def benefit_table(loaded: LoadedSpec, cell_index: int = 0, blocks: int | None = None) -> list[dict]:
