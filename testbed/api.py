@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Callable
 
 from testbed.config import Approach, list_approaches, load_approach, read_toml, with_overrides
 from testbed.flight.fly import FlightResult, fly
+from testbed.outputs import OutputSet
 from testbed.schema import ConfigError
 from testbed.sim.preflight import check_output_file, check_output_folder
 from testbed.sim.setup import load_terrain_for
@@ -131,12 +132,12 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
                  monitors: list[str] | None = None, faults: list[dict] | None = None,
                  gust_seed: int | None = None, truth_path: str | Path | None = None, linger_s: float = 0.0,
                  on_landed: Callable[[RunResult], None] | None = None,
-                 progress: Callable[[str], None] | None = None) -> RunResult:
+                 progress: Callable[[str], None] | None = None, outputs: OutputSet | None = None) -> RunResult:
     """Fly an approach with sensors and monitors in the loop; record it; evaluate it.
 
-    Every input and output path is checked before the flight; the outputs are moved into
-    place only when the whole run succeeded (a failure leaves earlier files untouched and
-    removes its partial output).
+    Every input and output path is checked before the flight; the recording and the truth are
+    moved into place together, and only when the whole run succeeded (a failure leaves earlier
+    files untouched and removes its partial output).
 
     Parameters
     ----------
@@ -153,7 +154,16 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     linger_s : with ``live``, keep the server up this long after landing (the outputs are in
         place by then; ``on_landed(result)`` is called first, e.g. to print the summary).
     progress : called with a notice before a long step (the first compilation of the kernels).
+    outputs : the caller's :class:`~testbed.outputs.OutputSet` (the caller commits, e.g. in ``on_landed``);
+        by default the recording and the truth are committed together before ``on_landed``.
     """
+    with OutputSet.using(outputs) as outs:
+        return _run_approach(approach, seed, rrd_path, live, bind_ip, port, block_s, monitors, faults, gust_seed,
+                             truth_path, linger_s, on_landed, progress, outs, own=outputs is None)
+
+
+def _run_approach(approach, seed, rrd_path, live, bind_ip, port, block_s, monitors, faults, gust_seed, truth_path,
+                  linger_s, on_landed, progress, outs: OutputSet, own: bool) -> RunResult:
     import time
 
     from testbed.sim.evaluate import summarise_monitor
@@ -168,8 +178,8 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     if rrd_path == "default":
         rrd_path = default_rrd_path(ap, seed)
     check_run_arguments(seed=seed, block_s=block_s, port=port, linger_s=linger_s, gust_seed=gust_seed)
-    check_output_file(rrd_path, "--rrd", (".rrd",))
-    check_output_file(truth_path, "--truth", TRUTH_SUFFIXES)
+    rrd_path = _declared(outs, rrd_path, "--rrd", (".rrd",))
+    truth_path = _declared(outs, truth_path, "--truth", TRUTH_SUFFIXES)
     if live:
         _check_live_address(bind_ip, port)
     setup = preflight(ap)
@@ -180,7 +190,7 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     if rrd_path is not None or live:
         from testbed.viz.rerun_sink import RerunSink
 
-        sink = RerunSink(Path(rrd_path) if rrd_path is not None else None, live=live, bind_ip=bind_ip, port=port,
+        sink = RerunSink(outs.staged(rrd_path) if rrd_path is not None else None, live=live, bind_ip=bind_ip, port=port,
                          recording_id=f"{ap.name}-seed{seed}",
                          start_time_ns=int(ap.config.start_time_utc.timestamp() * 1e9))
         sink.start(build_scene(setup, setup.vision.camera.build()))
@@ -189,7 +199,7 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     try:
         loop = run_loop(setup, seed=seed, sinks=sinks, block_s=block_s, gust_seed=gust_seed)
         if truth_path is not None:
-            write_truth(loop.flight.truth, truth_path)  # before the recording is committed
+            write_truth(loop.flight.truth, outs.staged(truth_path))
         ok = True
     finally:
         if sink is not None and not (ok and live and linger_s > 0):
@@ -210,14 +220,26 @@ def run_approach(approach: str | Path | Approach, *, seed: int = 0, rrd_path: st
     if sink is not None and live and linger_s > 0:
         try:
             sink.commit()
+            if own:
+                outs.commit()
             if on_landed is not None:
                 on_landed(result)
             _linger(linger_s)
         finally:
             sink.close()
-    elif on_landed is not None:
-        on_landed(result)
+    else:
+        if own:
+            outs.commit()
+        if on_landed is not None:
+            on_landed(result)
     return result
+
+
+def _declared(outs: OutputSet, path, option: str, suffixes: tuple[str, ...]) -> Path | None:
+    """``path`` as an output of ``outs`` (declared here unless the caller declared it); None stays None."""
+    if path is None:
+        return None
+    return Path(path) if outs.declares(path) else outs.file(path, option, suffixes)
 
 
 TRUTH_SUFFIXES = (".npz", ".csv", ".parquet")

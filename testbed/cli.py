@@ -89,10 +89,10 @@ def _cmd_fly(args: argparse.Namespace) -> int:
                 print(f"live: serving on {args.bind}:{args.port} once the checks pass; connect with: rerun --connect "
                       f"rerun+http://{'127.0.0.1' if args.bind in ('0.0.0.0', '127.0.0.1') else args.bind}:{args.port}/proxy",
                       flush=True)
-            run_approach(ap, seed=args.seed, rrd_path=outs.staged(rrd) if rrd else None, live=args.live,
+            run_approach(ap, seed=args.seed, rrd_path=rrd, live=args.live,
                          bind_ip=args.bind, port=args.port, block_s=args.block, monitors=args.monitors, faults=faults,
-                         gust_seed=args.gust_seed, truth_path=staged_truth,
-                         linger_s=args.linger if args.live else 0.0, on_landed=landed,
+                         gust_seed=args.gust_seed, truth_path=truth,
+                         linger_s=args.linger if args.live else 0.0, on_landed=landed, outputs=outs,
                          progress=lambda text: print(text, file=sys.stderr, flush=True))
         if args.truth:
             print(f"truth written to {args.truth}")

@@ -24,6 +24,7 @@ import pytest
 
 from testbed.cli import main
 from testbed.outputs import OutputSet, _sigint_held
+from testbed.schema import ConfigError
 
 SPEC = ('name = "s"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\nblock_trials = 10\n'
         'chunk_trials = 10\nduration_s = 10.0\n')
@@ -296,3 +297,33 @@ def test_fly_writes_the_recording_and_the_truth_together(tmp_path, monkeypatch, 
     assert truth.read_bytes() == b"an earlier truth" and rrd.read_bytes() == b"an earlier recording"
     assert sorted(os.listdir(tmp_path)) == ["r.rrd", "t.csv"]
     assert code == 2 and "No space left on device" in err and f"--truth {truth}: as it was" in err, err
+
+
+def test_run_approach_from_python_writes_the_recording_and_the_truth_together(tmp_path, monkeypatch):
+    """The library call, not only the command: a failure while committing the recording leaves both earlier
+    files as they were; a run that succeeds has both in place when ``on_landed`` is called."""
+    import testbed.viz.rerun_sink
+    from testbed.api import run_approach
+
+    monkeypatch.chdir(tmp_path)
+    rrd, truth = tmp_path / "r.rrd", tmp_path / "t.csv"
+    rrd.write_bytes(b"an earlier recording")
+    truth.write_bytes(b"an earlier truth")
+    commit = testbed.viz.rerun_sink.RerunSink.commit
+
+    def full(self, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(testbed.viz.rerun_sink.RerunSink, "commit", full)
+    with pytest.raises(ConfigError, match="No space left") as said:
+        run_approach("va-raim-2015", monitors=["gps_raim"], rrd_path=rrd, truth_path=truth)
+    assert f"--truth {truth}: as it was" in str(said.value)
+    assert truth.read_bytes() == b"an earlier truth" and rrd.read_bytes() == b"an earlier recording"
+    assert sorted(os.listdir(tmp_path)) == ["r.rrd", "t.csv"]
+
+    monkeypatch.setattr(testbed.viz.rerun_sink.RerunSink, "commit", commit)
+    seen = []
+    run_approach("va-raim-2015", monitors=["gps_raim"], rrd_path=rrd, truth_path=truth,
+                 on_landed=lambda result: seen.append((rrd.read_bytes()[:4], truth.read_bytes()[:4])))
+    assert seen and seen[0][0] != b"an e" and seen[0][1] != b"an e"  # both new, both in place at landing
+    assert sorted(os.listdir(tmp_path)) == ["r.rrd", "t.csv"]
