@@ -97,12 +97,14 @@ def _pick(a: NDArray, trial: int, ndim: int) -> NDArray:
 
 def _records_at(eph: Ephemeris, toe_grid: float) -> Ephemeris:
     """``eph`` re-referenced to toe = toc on the grid point ``toe_grid`` of each system's own time scale
-    (a BeiDou toe a whole BDT hour), BeiDou GEO satellites as GEO-form records; slot order kept."""
+    (a BeiDou toe a whole BDT hour), BeiDou GEO satellites as GEO-form records (a GEO-form record already
+    there as it is); slot order kept."""
     geo = is_bds_geo(eph.system, eph.prn)
     toe = toe_grid - np.array([TIME_OFFSET_S[x] for x in eph.system])
+    as_is = geo & eph.bds_geo & (eph.toe_gps == toe) & (eph.toc_gps == toe)
     parts, order = [], []
     for letter in sorted(set(eph.system.tolist())):
-        for sel, build in ((~geo, lambda e, t: e.rebased(t)), (geo, geo_record)):
+        for sel, build in ((~geo, lambda e, t: e.rebased(t)), (geo & ~as_is, geo_record), (as_is, lambda e, t: e)):
             idx = np.flatnonzero((eph.system == letter) & sel)
             if idx.size:
                 parts.append(build(eph.take(idx), float(toe[idx[0]])))
@@ -358,17 +360,17 @@ def read_rtklib_residuals(path: str | Path) -> dict[str, NDArray]:
     """RTKLIB's per-satellite solution status (``$SAT`` records of a ``.pos.stat`` file, residual level).
 
     Returns ``t_gps`` (N,), ``sat`` (N,) RINEX 3 ids, ``az_deg``, ``el_deg`` (N,), ``resp_m`` (N,) the
-    pseudorange residual after the fix, ``valid`` (N,) whether it was used.
+    pseudorange residual after the fix (RTKLIB's validity flag is for RTK modes: 0 in single-point).
     """
     rows = []
     for ln in Path(path).read_text().splitlines():
         if ln.startswith("$SAT,"):
             f = ln.split(",")
             rows.append((float(f[1]) * SECONDS_PER_WEEK + float(f[2]), f[3], float(f[5]), float(f[6]),
-                         float(f[7]), int(f[9])))
-    t, sat, az, el, resp, vsat = zip(*rows) if rows else ((),) * 6
+                         float(f[7])))
+    t, sat, az, el, resp = zip(*rows) if rows else ((),) * 5
     return {"t_gps": np.array(t), "sat": np.array(sat, dtype="<U3"), "az_deg": np.array(az),
-            "el_deg": np.array(el), "resp_m": np.array(resp), "valid": np.array(vsat, bool)}
+            "el_deg": np.array(el), "resp_m": np.array(resp)}
 
 
 def read_rtklib_pos(path: str | Path) -> dict[str, NDArray]:
