@@ -14,9 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from testbed.cli import main
 from testbed.flight.kinematic import straight_truth
 from testbed.frames import C_LIGHT, R_ecef_to_enu, ecef_to_geodetic
 from testbed.records import Mount
+from testbed.replay.run import epoch_table, monitor_rinex, summary_record
+from testbed.rinex.obs import read_obs
+from testbed.rinex.settings import MonitorFileConfig, RinexSettings
 from testbed.sensors.gnss.almanac import load_do229
 from testbed.sensors.gnss.broadcast import from_broadcast, geo_record, is_bds_geo, to_broadcast
 from testbed.sensors.gnss.constellations import beidou3_nominal, nominal_constellations
@@ -269,3 +273,162 @@ def test_galileo_beidou_records_propagate_as_rtklib(mixed, tmp_path):
           f"{geo_res * 100:.2f} cm)")
     assert err.max() < FIVE_CM
     assert max(worst.values()) < 0.01 and geo_res < 0.01
+
+
+# ------------------------------------------------------------------------------------- testbed monitor on them
+
+def _export(mixed, tmp_path, name="mixed", **kw):
+    frame, truth, s, g = mixed
+    ep, tr = sample_gnss(g, s, rng=np.random.default_rng(7))
+    obs, nav = write_rinex(ep, g, tmp_path, name=name, clock_bias_m=tr.clock_bias, **kw)
+    return frame, g, ep, tr, obs, nav
+
+
+def test_monitor_uses_every_system_of_a_mixed_export(mixed, tmp_path):
+    """The G+E+C export read back: every satellite of every system is used (one clock: the export has no
+    inter-system bias), the satellite positions are the synthesis's to the millimetre, and the fix is the
+    truth within the noise (as with GPS alone, tests/test_rinex.py's round trip)."""
+    frame, g, ep, tr, obs, nav = _export(mixed, tmp_path)
+    cfg = MonitorFileConfig(rinex=RinexSettings(origin=(frame.lat_deg, frame.lon_deg, frame.h)))
+    run = monitor_rinex(obs, nav, config=cfg)
+    f = run.formation
+    assert f.systems == ("G", "E", "C") and f.skipped_systems == {}
+    assert f.codes == {"G": "C1C", "E": "C1C", "C": "C1P"}
+    ids = list(g.eph.sat_id)
+    seen = np.array([ids.index(x) for x in run.obs.sat_id])  # the file's order: by system, then PRN
+    assert sorted(run.obs.sat_id) == sorted(g.eph.sat_id[ep.visible.any(0)])
+    np.testing.assert_array_equal(run.gnss.visible, ep.visible[:, seen])
+    vis = run.gnss.visible
+    assert np.abs(run.gnss.sat_pos_ecef[vis] - g.sat_pos_ecef[:, seen][vis]).max() < ONE_MM
+    # ranges: the synthesised ones (satellite clock put back and taken out; 1 mm rounding)
+    assert np.abs(run.gnss.pseudorange[vis] - ep.pseudorange[:, seen][vis]).max() < ONE_MM
+    rec = summary_record(run)
+    assert rec["systems_used"] == ["G", "E", "C"] and rec["satellites"] == {
+        x: int(((g.eph.system == x) & ep.visible.any(0)).sum()) for x in "GEC"}
+    out = run.outputs["gps_raim"]
+    err = np.linalg.norm(out.pos_enu - frame.ecef_to_enu(g.ant_pos_ecef), axis=-1)
+    assert np.median(err) < 3.0 and np.isfinite(out.vpl).all()
+
+
+def test_monitor_reads_b1i_and_bdt_tags(mixed, tmp_path):
+    frame, g, ep, tr, obs, nav = _export(mixed, tmp_path, beidou_signal="B1I")
+    run = monitor_rinex(obs, nav)
+    assert run.formation.codes["C"] == "C2I"
+    # the same file with its tags written in BeiDou time (BDT = GPST − 14 s) gives the same epochs
+    text = obs.read_text().splitlines()
+    out = []
+    for ln in text:
+        if ln.startswith(">"):
+            t = float(ln[16:18]) * 60 + float(ln[18:29]) - 14.0  # minutes and seconds of the tag, minus 14 s
+            ln = ln[:16] + f"{int(t // 60):02d}{t % 60:11.7f}" + ln[29:]
+        elif ln[60:].strip() == "TIME OF FIRST OBS":
+            ln = ln[:48] + "BDT" + ln[51:]
+        out.append(ln)
+    bdt = tmp_path / "bdt.obs"
+    bdt.write_text("\n".join(out) + "\n")
+    assert all(ln[16:18] in ("00", "01") for ln in out if ln.startswith(">"))  # the flight stays in its hour
+    np.testing.assert_allclose(read_obs(bdt).t_tag, run.obs.t_tag, atol=1e-6)
+
+
+def test_monitor_auto_uses_gps_alone_from_another_receivers_mixed_file(mixed, tmp_path, capsys):
+    """A mixed file not written by the testbed: its inter-system bias is unknown, so 'auto' uses GPS alone
+    and says why; an explicit [rinex] systems uses the others too."""
+    frame, g, ep, tr, obs, nav = _export(mixed, tmp_path)
+    other = tmp_path / "receiver.obs"
+    other.write_text(obs.read_text().replace("TESTBED SYNTHETIC   ", "SOME RECEIVER       ", 1))
+    off = MonitorFileConfig(rinex=RinexSettings(ionosphere="off", troposphere="off"))  # the export has no delays
+    run = monitor_rinex(other, nav, config=off)
+    assert run.formation.systems == ("G",) and set(run.formation.skipped_systems) == {"E", "C"}
+    assert "one receiver clock" in run.formation.skipped_systems["E"]
+    assert set(run.obs.system.tolist()) == {"G", "E", "C"} and (run.gnss.prn.size == (run.obs.system == "G").sum())
+    cfg = tmp_path / "all.toml"
+    cfg.write_text('[rinex]\nsystems = ["G", "E", "C"]\nionosphere = "off"\ntroposphere = "off"\n')
+    out = tmp_path / "out"
+    assert main(["monitor", str(other), str(nav), "--config", str(cfg), "--out", str(out), "--format", "csv"]) == 0
+    printed = capsys.readouterr().out
+    assert "systems used" in printed and "Galileo" in printed and "BeiDou" in printed
+    table = (out / "epochs-gps_raim.csv").read_text().splitlines()
+    assert "excluded_system" in table[0].split(",")
+
+
+def test_gps_only_export_reads_as_before(tmp_path):
+    """A GPS-only export: no system keys in the summary, the table's columns as before."""
+    frame = runway_frame()
+    truth = straight_truth(frame, [-6300.0, -4450.0, 410.0], [-1600.0, -1130.0, 80.0], 20.0, rate_hz=1.0)
+    s = GnssSettings(terrain_masking=False)
+    g = gnss_geometry(truth, Mount(np.zeros(3)), s, start_utc=START)
+    ep, tr = sample_gnss(g, s, rng=np.random.default_rng(7))
+    obs, nav = write_rinex(ep, g, tmp_path, name="gps", clock_bias_m=tr.clock_bias)
+    run = monitor_rinex(obs, nav)
+    rec = summary_record(run)
+    assert "systems_used" not in rec and "excluded_system" not in epoch_table(run, "gps_raim")
+    assert run.formation.systems == ("G",)
+
+
+def _edited(src, dst, edit):
+    dst.write_text(edit(src.read_text()))
+    return dst
+
+
+BAD_MIXED = [  # (name, make (obs, nav, config text) from the export, fragments of the message)
+    ("nav-without-requested-system",
+     lambda d, obs, nav: (obs, _edited(nav, d / "gps-only.nav", _drop_records("EC")),
+                          '[rinex]\nsystems = ["G", "E"]\n'),
+     ["gps-only.nav", "Galileo (E)", "no E records"]),
+    ("unknown-observation-code",
+     lambda d, obs, nav: (_edited(obs, d / "code.obs", lambda t: t.replace("C    3 C1P D1P S1P", "C    3 C1C D1P S1P")),
+                          nav, None),
+     ["code.obs", "line 12", "'C1C'", "attribute C", "BeiDou"]),
+    ("unknown-system-in-header",
+     lambda d, obs, nav: (_edited(obs, d / "sys.obs", lambda t: t.replace("E    3 C1C D1C S1C", "X    3 C1C D1C S1C")),
+                          nav, None),
+     ["sys.obs", "line 11", "system letter 'X'"]),
+    ("unknown-system-in-record",
+     lambda d, obs, nav: (_edited(obs, d / "rec.obs", lambda t: t.replace("\nE", "\nY", 1)), nav, None),
+     ["rec.obs", "system letter 'Y'", "line "]),
+    ("system-not-observed",
+     lambda d, obs, nav: (obs, nav, '[rinex]\nsystems = ["G", "E", "C"]\n'),
+     None),  # fine: all three are there
+    ("bad-systems-setting", lambda d, obs, nav: (obs, nav, '[rinex]\nsystems = ["G", "R"]\n'),
+     ["rinex.systems", "R"]),
+    ("bad-beidou-code-setting", lambda d, obs, nav: (obs, nav, '[rinex]\nbeidou_codes = ["C1C"]\n'),
+     ["beidou_codes", "C1C"]),
+]
+
+
+def _drop_records(letters):
+    def edit(text):
+        all_lines = text.splitlines()
+        end = next(k for k, ln in enumerate(all_lines) if ln[60:].strip() == "END OF HEADER") + 1
+        lines, out, skip = all_lines[end:], [], 0
+        for ln in lines:
+            if skip:
+                skip -= 1
+                continue
+            if ln[:1] in letters:
+                skip = 7
+                continue
+            out.append(ln)
+        return "\n".join(all_lines[:end] + out) + "\n"
+    return edit
+
+
+@pytest.mark.parametrize("name, make, fragments", BAD_MIXED, ids=[c[0] for c in BAD_MIXED])
+def test_bad_mixed_input_exits_2_naming_file_line_value(mixed, tmp_path, capsys, name, make, fragments):
+    frame, g, ep, tr, obs, nav = _export(mixed, tmp_path)
+    o, n, cfg_text = make(tmp_path, obs, nav)
+    args = ["monitor", str(o), str(n), "--out", str(tmp_path / "out")]
+    if cfg_text is not None:
+        (tmp_path / "m.toml").write_text(cfg_text)
+        args += ["--config", str(tmp_path / "m.toml")]
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "summary.json").write_text("earlier run")
+    code = main(args)
+    err = capsys.readouterr().err
+    if fragments is None:
+        assert code == 0, err
+        return
+    assert code == 2 and "Traceback" not in err
+    for f in fragments:
+        assert f in err, (f, err)
+    assert (tmp_path / "out" / "summary.json").read_text() == "earlier run"
