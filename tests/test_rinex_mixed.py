@@ -26,10 +26,11 @@ from testbed.sensors.gnss.broadcast import from_broadcast, geo_record, is_bds_ge
 from testbed.sensors.gnss.constellations import beidou3_nominal, nominal_constellations
 from testbed.sensors.gnss.navfile import read_nav
 from testbed.sensors.gnss.orbits import OMEGA_EARTH_BDS, concat_ephemerides, sat_states
+from testbed.sensors.gnss.errors import F_L1
 from testbed.sensors.gnss.rinex import (read_rtklib_pos, read_rtklib_residuals, rtklib_single_point, write_nav,
-                                        write_rinex)
+                                        write_obs, write_rinex)
 from testbed.sensors.gnss.settings import GnssSettings
-from testbed.sensors.gnss.signals import code_problem
+from testbed.sensors.gnss.signals import FREQUENCY_HZ, code_problem
 from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.world.airport import runway_frame
@@ -432,3 +433,49 @@ def test_bad_mixed_input_exits_2_naming_file_line_value(mixed, tmp_path, capsys,
     for f in fragments:
         assert f in err, (f, err)
     assert (tmp_path / "out" / "summary.json").read_text() == "earlier run"
+
+
+def test_monitor_forms_iono_free_ranges_per_system(mixed, tmp_path):
+    """Two frequencies per system, written with the dual-frequency codes (L5 C5Q, E5a C5Q, B2a C5P) and an
+    ionosphere of 3-12 m on L1 scaled by (f_L1/f)² to each carrier: the iono-free ranges are the
+    single-frequency export's without it (to the 1 mm rounding × the combination's gain)."""
+    frame, g, ep, tr, obs, nav = _export(mixed, tmp_path)
+    base = read_obs(obs)
+    iono = np.random.default_rng(5).uniform(3.0, 12.0, base.values["C1C"].shape)
+    first, second = {"G": "C1C", "E": "C1C", "C": "C1P"}, {"G": "C5Q", "E": "C5Q", "C": "C5P"}
+    columns = {}
+    for x in "GEC":
+        f1, f5 = FREQUENCY_HZ[x][first[x][1]], FREQUENCY_HZ[x]["5"]
+        p = base.values[first[x]]
+        columns[x] = {first[x]: p + iono * (F_L1 / f1) ** 2, second[x]: p + iono * (F_L1 / f5) ** 2}
+    present = np.zeros_like(iono, bool)
+    for x in "GEC":
+        present |= np.isfinite(base.values[first[x]]) & (base.system == x)
+    dual = write_obs(tmp_path / "dual.obs", base.t_tag, base.system, base.prn, present, columns, name="dual")
+    assert "C    2 C1P C5P" in dual.read_text()
+    plain = monitor_rinex(obs, nav, config=MonitorFileConfig(rinex=RinexSettings(ionosphere="off")))
+    run = monitor_rinex(dual, nav, config=MonitorFileConfig(rinex=RinexSettings(ionosphere="iono_free")))
+    assert run.formation.second_codes == second and run.formation.systems == ("G", "E", "C")
+    vis = plain.gnss.visible
+    np.testing.assert_array_equal(run.gnss.visible, vis)
+    assert np.abs(run.gnss.pseudorange[vis] - plain.gnss.pseudorange[vis]).max() < 5e-3
+
+
+def test_galileo_fnav_records_give_way_to_inav(tmp_path):
+    """A file with both Galileo message types: the I/NAV records (clock for E5b/E1, the E1 user's) are used,
+    the F/NAV ones skipped and counted."""
+    eph = nominal_constellations(["galileo"], T_REF)
+    path = write_nav(eph, (T_REF, T_REF + 60.0), tmp_path / "i.nav")
+    lines = path.read_text().splitlines()
+    end = next(k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
+    fnav = []
+    for k in range(end, len(lines), 8):  # a copy of each record as F/NAV (data sources 258), clock 1 ms off
+        rec = lines[k:k + 8]
+        rec[0] = rec[0][:23] + f"{1e-3:19.12E}" + rec[0][42:]
+        rec[5] = rec[5][:23] + f"{258.0:19.12E}" + rec[5][42:]
+        fnav += rec
+    both = tmp_path / "both.nav"
+    both.write_text("\n".join(lines + fnav) + "\n")
+    nav = read_nav(both)
+    assert nav.skipped == {"Galileo F/NAV records (I/NAV used)": len(eph)} and len(nav.eph) == len(eph)
+    assert np.all(np.abs(nav.eph.af0) < 1e-9)  # the I/NAV clocks (zero for the nominal orbits)

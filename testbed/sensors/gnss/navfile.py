@@ -14,7 +14,8 @@ Formats (RINEX 2.11 and 3.04 specifications, IGS/RTCM):
   C59–C63, keep their GEO form). The group delay kept as ``tgd``: GPS TGD,
   Galileo BGD E5b/E1 (I/NAV, RTKLIB's default too), BeiDou TGD1 (B1I). Records of
   other systems (GLONASS, QZSS, NavIC, SBAS) are skipped by their line count
-  and counted in :attr:`NavData.skipped`.
+  and counted in :attr:`NavData.skipped`, as are Galileo F/NAV records when
+  the file has I/NAV ones (the E1 user's clock is I/NAV's).
 
 Broadcast orbit lines (both versions, 4 values each after the first):
 IODE Crs Δn M0 / Cuc e Cus √A / Toe Cic Ω0 Cis / i0 Crc ω Ω̇ / IDOT L2codes week L2P /
@@ -184,6 +185,7 @@ def read_nav(path: str | Path) -> NavData:
     if not recs:
         others = f" (skipped: {', '.join(f'{v} {q}' for q, v in sorted(skipped.items()))})" if skipped else ""
         raise text.fail(f"no GPS, Galileo or BeiDou ephemeris records after the header{others}")
+    recs = _inav_only(recs, skipped)
     P = np.array([r[3] for r in recs])
     system = np.array([r[0] for r in recs], dtype="<U1")
     prn = np.array([r[1] for r in recs])
@@ -208,6 +210,18 @@ def read_nav(path: str | Path) -> NavData:
                     source=f"RINEX nav {text.path.name}", system=system, bds_geo=geo)
     alpha, beta = _iono(text)
     return NavData(eph, alpha, beta, vers, text.path, skipped)
+
+
+def _inav_only(recs: list, skipped: dict[str, int]) -> list:
+    """Without Galileo F/NAV records when the file has I/NAV ones: an F/NAV record's clock is for E5a/E1, an
+    I/NAV record's for E5b/E1, whose group delay (BGD E5b/E1) is the one kept (RTKLIB's default choice too).
+    Data sources (RINEX 3.05 Table A8): bit 0 I/NAV E1-B, bit 1 F/NAV E5a-I, bit 2 I/NAV E5b-I."""
+    sources = [int(r[3][20]) if r[0] == "E" and np.isfinite(r[3][20]) else 0 for r in recs]
+    fnav = [r[0] == "E" and bool(q & 2) for r, q in zip(recs, sources)]
+    if not any(fnav) or not any(r[0] == "E" and q & 5 for r, q in zip(recs, sources)):
+        return recs
+    skipped["Galileo F/NAV records (I/NAV used)"] = sum(fnav)
+    return [r for r, f in zip(recs, fnav) if not f]
 
 
 #: RTKLIB's and the ICD's usual validity of a broadcast record about its toe (s)
