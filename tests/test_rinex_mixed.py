@@ -350,6 +350,15 @@ def test_monitor_auto_uses_gps_alone_from_another_receivers_mixed_file(mixed, tm
     assert "systems used" in printed and "Galileo" in printed and "BeiDou" in printed
     table = (out / "epochs-gps_raim.csv").read_text().splitlines()
     assert "excluded_system" in table[0].split(",")
+    # without GPS: Galileo alone, BeiDou skipped
+    base = read_obs(other)
+    keep = base.system != "G"
+    cols = {x: {c: base.values[c][:, keep] for c in base.types[x]} for x in "EC"}
+    seen = np.isfinite(np.where(base.system[keep] == "E", base.values["C1C"][:, keep], base.values["C1P"][:, keep]))
+    ec = write_obs(tmp_path / "ec.obs", base.t_tag, base.system[keep], base.prn[keep], seen, cols, name="ec")
+    ec.write_text(ec.read_text().replace("TESTBED SYNTHETIC   ", "SOME RECEIVER       ", 1))
+    run = monitor_rinex(ec, nav, config=off)
+    assert run.formation.systems == ("E",) and list(run.formation.skipped_systems) == ["C"]
 
 
 def test_gps_only_export_reads_as_before(tmp_path):

@@ -97,12 +97,12 @@ def choose_systems(obs: RinexObs, nav: NavData, s: RinexSettings) -> tuple[tuple
     skipped: dict[str, str] = {}
     if s.systems == "auto":
         use = list(present)
-        if len(use) > 1 and obs.receiver_type != TESTBED_RECEIVER and "G" in use:
+        if len(use) > 1 and obs.receiver_type != TESTBED_RECEIVER:  # the first of G, E, C present
             for x in use[1:]:
                 skipped[x] = ("the monitors solve one receiver clock and this file is not a testbed export, so its "
-                              "inter-system bias is not known to be zero; [rinex] systems = ['G', "
+                              f"inter-system bias is not known to be zero; [rinex] systems = ['{use[0]}', "
                               f"'{x}'] uses it with one clock")
-            use = ["G"]
+            use = use[:1]
         for x in list(use):
             if x not in in_nav:
                 skipped[x] = f"no {SYSTEM_NAMES[x]} records in {nav.path.name}"

@@ -56,7 +56,8 @@ class RinexSettings(StrictModel):
         "auto", description="Satellite systems to use (RINEX 3 letters: G GPS, E Galileo, C BeiDou). The monitors "
                             "solve one receiver clock, so several systems are used together only when their "
                             "inter-system bias is zero: 'auto' uses every system of a testbed export (one clock by "
-                            "construction) or of a single-system file, and GPS alone from other multi-system files "
+                            "construction) or of a single-system file, and one system from other multi-system files (GPS, "
+                            "else Galileo) "
                             "(the others skipped, the summary says why); a list uses those systems with one clock "
                             "(inter-system biases taken as zero) and each must be in both files.")
     galileo_codes: tuple[str, ...] = Field(GALILEO_CODES, min_length=1, description="Galileo E1 code observations, "
