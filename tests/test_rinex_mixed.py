@@ -488,3 +488,44 @@ def test_galileo_fnav_records_give_way_to_inav(tmp_path):
     nav = read_nav(both)
     assert nav.skipped == {"Galileo F/NAV records (I/NAV used)": len(eph)} and len(nav.eph) == len(eph)
     assert np.all(np.abs(nav.eph.af0) < 1e-9)  # the I/NAV clocks (zero for the nominal orbits)
+
+
+# ------------------------------------------------------------------ stored RTKLIB output (runs without RTKLIB)
+
+STORED = Path(__file__).parent / "references" / "rinex"
+
+
+def make_reference(folder: Path) -> None:
+    """Write ``gec_perturbed.obs/.nav`` (10 s, noise-free, perturbed G/E/C records) and RTKLIB's solution of them
+    (``gec_perturbed.rtklib.pos``) into ``folder``: how the stored files of tests/references/rinex were made."""
+    frame = runway_frame()
+    truth = straight_truth(frame, [-6300.0, -4450.0, 410.0], [-5600.0, -3950.0, 360.0], 10.0, rate_hz=1.0)
+    s = GnssSettings(terrain_masking=False)
+    eph0 = nominal_constellations(["gps", "galileo", "beidou"], T_REF)
+    g0 = gnss_geometry(truth, Mount(np.zeros(3)), s, start_utc=START, constellation=eph0)
+    nav_path = write_nav(_perturbed(g0.eph), (g0.t_gps[0], g0.t_gps[-1]), folder / "gec_records.nav")
+    g = gnss_geometry(truth, Mount(np.zeros(3)), s, start_utc=START,
+                      constellation=read_nav(nav_path).eph.select(float(g0.t_gps[0])))
+    ep, tr = sample_gnss(g, s, rng=np.random.default_rng(1))
+    ep = replace(ep, pseudorange=np.where(g.visible, g.geometric_range + tr.clock_bias[:, None], np.nan))
+    obs, nav = write_rinex(ep, g, folder, name="gec_perturbed", clock_bias_m=tr.clock_bias)
+    shutil.move(nav_path, nav)
+    pos = rtklib_single_point(obs, nav, folder / "gec_perturbed.rtklib.pos", systems="GEC")
+    pos.with_suffix(".conf").unlink()
+
+
+def test_monitor_agrees_with_stored_rtklib_solution_of_perturbed_gec_records():
+    """RTKLIB 2.4.3 b34's fixes of a stored noise-free G+E+C file (Galileo and BeiDou MEO/IGSO/GEO records with
+    every perturbation term): testbed monitor, reading the same two files, lands on them to 5 mm."""
+    obs, nav = STORED / "gec_perturbed.obs", STORED / "gec_perturbed.nav"
+    sol = read_rtklib_pos(STORED / "gec_perturbed.rtklib.pos")
+    cfg = MonitorFileConfig(rinex=RinexSettings(ionosphere="off", troposphere="off", error_model="rtklib"))
+    run = monitor_rinex(obs, nav, config=cfg)
+    assert run.formation.systems == ("G", "E", "C") and run.obs.systems == ("G", "E", "C")
+    assert read_nav(nav).eph.bds_geo.sum() == 3
+    ecef = run.frame.enu_to_ecef(run.outputs["gps_raim"].pos_enu)
+    k = np.clip(np.searchsorted(run.gnss.t_gps, sol["t_gps"] - 0.5), 0, run.gnss.t.size - 1)
+    assert np.all(np.abs(run.gnss.t_gps[k] - sol["t_gps"]) < 0.01) and k.size == run.gnss.t.size
+    gap = np.linalg.norm(ecef[k] - sol["pos_ecef"], axis=1)
+    print(f"\nstored RTKLIB fixes of perturbed G/E/C records vs testbed monitor: max {gap.max() * 1e3:.2f} mm")
+    assert gap.max() < 5e-3
