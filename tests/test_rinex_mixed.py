@@ -529,3 +529,30 @@ def test_monitor_agrees_with_stored_rtklib_solution_of_perturbed_gec_records():
     gap = np.linalg.norm(ecef[k] - sol["pos_ecef"], axis=1)
     print(f"\nstored RTKLIB fixes of perturbed G/E/C records vs testbed monitor: max {gap.max() * 1e3:.2f} mm")
     assert gap.max() < 5e-3
+
+
+def test_broadcast_ionosphere_scales_to_the_b1i_carrier(mixed, tmp_path):
+    """The Klobuchar delay (an L1 delay) removed from a B1I range is (f_L1 / f_B1I)² = 1.0184 times the one removed
+    from the same satellite's B1C range; GPS and Galileo (on L1 / E1) are corrected alike in both files.
+    (The header's coefficients: a plausible broadcast set, metres of delay here.)"""
+    frame, g, ep, tr, obs_c, nav = _export(mixed, tmp_path / "b1c")
+    _, _, _, _, obs_i, _ = _export(mixed, tmp_path / "b1i", beidou_signal="B1I")
+    klob = ("GPSA   1.1176E-08  7.4506E-09 -5.9605E-08 -5.9605E-08       IONOSPHERIC CORR    \n"
+            "GPSB   9.0112E+04  1.6384E+04 -1.9661E+05 -6.5536E+04       IONOSPHERIC CORR    \n")
+    lines = nav.read_text().splitlines(keepends=True)
+    k = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "LEAP SECONDS")
+    nav_k = tmp_path / "klob.nav"
+    nav_k.write_text("".join(lines[:k]) + klob + "".join(lines[k:]))
+
+    def correction(obs):
+        runs = [monitor_rinex(obs, nav_k, config=MonitorFileConfig(rinex=RinexSettings(ionosphere=i, troposphere="off")))
+                for i in ("off", "klobuchar")]
+        return runs[0].obs.system, runs[0].gnss.pseudorange - runs[1].gnss.pseudorange
+
+    sys_c, d_c = correction(obs_c)
+    sys_i, d_i = correction(obs_i)
+    c = sys_c == "C"
+    assert np.nanmin(d_c[:, c]) > 1.0  # metres of ionosphere removed
+    np.testing.assert_allclose(d_i[:, c] / d_c[:, c], (1575.42 / 1561.098) ** 2, rtol=1e-6)
+    # the fixes the delays are evaluated at differ by the B1I ranges' share: 0.1 µm here
+    np.testing.assert_allclose(d_i[:, ~c], d_c[:, ~c], rtol=0, atol=1e-5)
