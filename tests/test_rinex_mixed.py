@@ -141,6 +141,11 @@ def test_geo_record_reproduces_the_nominal_geo_orbits():
     p1, v1, c1, _ = sat_states(rec, t)
     assert np.abs(p1 - p0).max() < ONE_MM and np.abs(v1 - v0).max() < 1e-6 and np.abs(c1 - c0).max() < 1e-15
     np.testing.assert_allclose(np.degrees(rec.i0), 5.0, atol=1e-9)  # an equatorial orbit seen from the 5° frame
+    # an eccentric GEO-form record (two-body) re-referenced an hour later: the same orbit
+    ecc = replace(rec, e=np.full(3, 4e-4), w=np.array([1.0, -2.0, 0.3]))
+    moved = geo_record(ecc, toe + 3600.0)
+    t2 = toe + 3600.0 + np.linspace(-3600.0, 3600.0, 49)
+    assert np.abs(sat_states(moved, t2)[0] - sat_states(ecc, t2)[0]).max() < ONE_MM
 
 
 def test_mixed_nav_file_round_trip(tmp_path):

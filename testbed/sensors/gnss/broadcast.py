@@ -123,11 +123,12 @@ def geo_record(eph: Ephemeris, toe_gps: float) -> Ephemeris:
 
     The satellite's state at toe (from ``eph``, any form) is expressed in the GEO frame
     x_G = R_X(+5°)·r (the ICD turns x_G into ECEF by R_Z(Ω̇e·tk)·R_X(−5°)) and turned into
-    two-body elements with BeiDou's μ; Δn is set from the orbit's mean angular rate in
-    that frame over toe ± 30 min (so a satellite fixed over the Earth stays fixed, although
-    the GEO frame turns at BeiDou's Ω̇e and the Earth at the GPS value). The harmonic terms,
-    IDOT and Ω̇ are zero. For the nominal (circular, fixed) GEO orbits the record
-    reproduces the orbit to < 1 mm over ±2 h (tested).
+    two-body elements; the mean motion is the one the orbit shows in that frame over toe ± 30 min
+    (so a satellite fixed over the Earth stays fixed, although the GEO frame turns at
+    BeiDou's Ω̇e and the Earth at the GPS value), carried as Δn. The harmonic terms, IDOT
+    and Ω̇ are zero. A two-body orbit is reproduced exactly: the nominal (circular, fixed)
+    GEO orbits to < 1 mm over ±2 h, an eccentric GEO-form record re-referenced an hour
+    later likewise (tested); a broadcast record's harmonic terms are not carried over.
     """
     S = len(eph)
     t0 = float(toe_gps)
@@ -150,30 +151,44 @@ def geo_record(eph: Ephemeris, toe_gps: float) -> Ephemeris:
     def u_of(x):  # argument of latitude of x_G in the toe plane
         return np.arctan2(np.sum(x * q_ax, -1), np.sum(x * p_ax, -1))
 
-    # mean rate of u in the GEO frame: positions at toe ± span, taken back through R_Z(Ω̇e·tk)
-    ends = []
+    # u in the GEO frame at toe and toe ± span (positions taken back through R_Z(Ω̇e·tk))
+    u_at = [u_of(xg)]
     for tk in (-_GEO_RATE_SPAN_S, _GEO_RATE_SPAN_S):
         p_t = np.asarray(sat_states(eph, t0 + tk)[0])
         c, s = np.cos(OMEGA_EARTH_BDS * tk), np.sin(OMEGA_EARTH_BDS * tk)
         unrot = np.stack([c * p_t[:, 0] - s * p_t[:, 1], s * p_t[:, 0] + c * p_t[:, 1], p_t[:, 2]], -1)
-        ends.append(u_of(unrot @ P.T))
-    rate = _wrap(ends[1] - ends[0]) / (2 * _GEO_RATE_SPAN_S)
-    # Elements with the μ that makes the two-body mean motion equal that rate: the GEO frame turns at
-    # BeiDou's Ω̇e, the orbit was made with another; with BeiDou's μ a fixed satellite would get a spurious
-    # eccentricity (4e-8, 1.7 m). Vis-viva 1/a = 2/r − v²/μ with μ = rate²·a³ is the cubic
-    # 2a³/r − a² − v²/rate² = 0, solved by Newton from a = r.
-    k = v2 / rate**2
-    a = r.copy()
-    for _ in range(8):
-        a = a - (2 * a**3 / r - a**2 - k) / (6 * a**2 / r - 2 * a)
-    mu = rate**2 * a**3
-    e_vec = ((v2 - mu / r)[:, None] * xg - np.sum(xg * vg, -1)[:, None] * vg) / mu
-    e = np.linalg.norm(e_vec, axis=-1)
-    u0 = u_of(xg)
-    w = np.where(e > 1e-12, np.arctan2(np.sum(e_vec * q_ax, -1), np.sum(e_vec * p_ax, -1)), 0.0)
-    nu = u0 - w
-    E = 2.0 * np.arctan2(np.sqrt(1.0 - e) * np.sin(nu / 2), np.sqrt(1.0 + e) * np.cos(nu / 2))
-    M = E - e * np.sin(E)
+        u_at.append(u_of(unrot @ P.T))
+    # The mean motion is the one the orbit shows in the GEO frame, and the elements take the μ that makes the
+    # two-body motion match it: the GEO frame turns at BeiDou's Ω̇e, the orbit was made with another, and with
+    # BeiDou's μ a fixed satellite would get a spurious eccentricity (4e-8: 1.7 m). Start from the mean rate of
+    # u (exact for a circular orbit), then take the mean anomaly's (exact for an eccentric one) with the
+    # elements it gives. Vis-viva 1/a = 2/r − v²/μ with μ = n²·a³ is the cubic 2a³/r − a² − v²/n² = 0
+    # (Newton from a = r).
+    def elements(n):  # a, e, ω, M at toe for mean motion n, and the mean motion their M shows over toe ± span
+        k = v2 / n**2
+        a = r.copy()
+        for _ in range(8):
+            a = a - (2 * a**3 / r - a**2 - k) / (6 * a**2 / r - 2 * a)
+        mu = n**2 * a**3
+        e_vec = ((v2 - mu / r)[:, None] * xg - np.sum(xg * vg, -1)[:, None] * vg) / mu
+        e = np.linalg.norm(e_vec, axis=-1)
+        w = np.where(e > 1e-12, np.arctan2(np.sum(e_vec * q_ax, -1), np.sum(e_vec * p_ax, -1)), 0.0)
+        M0, M_minus, M_plus = (_mean_anomaly(u - w, e) for u in u_at)
+        return a, e, w, M0, _wrap(M_plus - M_minus) / (2 * _GEO_RATE_SPAN_S)
+
+    # the root of shown(n) − n by the secant method from the mean rate of u (the root for a circular orbit)
+    n0 = _wrap(u_at[2] - u_at[1]) / (2 * _GEO_RATE_SPAN_S)
+    n1 = n0 * (1.0 + 1e-7)
+    f0 = elements(n0)[4] - n0
+    for _ in range(12):
+        a, e, w, M, shown = elements(n1)
+        f1 = shown - n1
+        step = np.where(f1 != f0, f1 * (n1 - n0) / np.where(f1 != f0, f1 - f0, 1.0), 0.0)
+        n0, f0, n1 = n1, f1, n1 - step
+        if np.all(np.abs(step) < 1e-20):
+            break
+    a, e, w, M, _ = elements(n1)
+    rate = n1
     week = np.floor(t0 / SECONDS_PER_WEEK)
     toe_sow = t0 - week * SECONDS_PER_WEEK
     zeros = np.zeros(S)
@@ -185,6 +200,12 @@ def geo_record(eph: Ephemeris, toe_gps: float) -> Ephemeris:
         cis=zeros.copy(), af0=eph.af0 + eph.af1 * dtc + eph.af2 * dtc**2, af1=eph.af1 + 2 * eph.af2 * dtc,
         af2=eph.af2,
         bds_geo=np.ones(S, bool))
+
+
+def _mean_anomaly(nu: NDArray, e: NDArray) -> NDArray:
+    """Mean anomaly of true anomaly ``nu`` (rad) at eccentricity ``e``."""
+    E = 2.0 * np.arctan2(np.sqrt(1.0 - e) * np.sin(nu / 2), np.sqrt(1.0 + e) * np.cos(nu / 2))
+    return E - e * np.sin(E)
 
 
 def _wrap(angle: ArrayLike) -> NDArray:

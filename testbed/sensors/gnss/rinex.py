@@ -95,13 +95,18 @@ def _pick(a: NDArray, trial: int, ndim: int) -> NDArray:
     return a[trial] if a.ndim > ndim else a
 
 
+#: a GEO-form record this close to a grid point is written as it is (within every reader's validity)
+_GEO_AS_IS_S = 3600.0
+
+
 def _records_at(eph: Ephemeris, toe_grid: float) -> Ephemeris:
     """``eph`` re-referenced to toe = toc on the grid point ``toe_grid`` of each system's own time scale
-    (a BeiDou toe a whole BDT hour), BeiDou GEO satellites as GEO-form records (a GEO-form record already
-    there as it is); slot order kept."""
+    (a BeiDou toe a whole BDT hour), BeiDou GEO satellites as GEO-form records; slot order kept. A GEO-form
+    record (a navigation file's) within an hour of the grid point is written as it is: a re-fit would drop
+    its harmonic terms."""
     geo = is_bds_geo(eph.system, eph.prn)
     toe = toe_grid - np.array([TIME_OFFSET_S[x] for x in eph.system])
-    as_is = geo & eph.bds_geo & (eph.toe_gps == toe) & (eph.toc_gps == toe)
+    as_is = geo & eph.bds_geo & (np.abs(eph.toe_gps - toe) <= _GEO_AS_IS_S)
     parts, order = [], []
     for letter in sorted(set(eph.system.tolist())):
         for sel, build in ((~geo, lambda e, t: e.rebased(t)), (geo & ~as_is, geo_record), (as_is, lambda e, t: e)):
