@@ -358,13 +358,13 @@ def read_obs(path: str | Path) -> RinexObs:
         bad = next(i for i in keep if not rec.sat[i][1:3].strip().isdigit())
         raise text.fail(f"satellite id {rec.sat[bad]!r}: expected a system letter and a 2-digit PRN",
                         rec.line[bad]) from None
-    order = {x: k for k, x in enumerate(SYSTEM_NAMES)}
+    order = {x: k for k, x in enumerate(SYSTEM_NAMES)}  # columns sorted by system (G, E, C), then PRN
     sys_rec = sys[keep]
     key = np.array([order[x] for x in sys_rec], np.int64) * 100 + prn_rec
     uniq = np.unique(key)
     col = np.searchsorted(uniq, key)
     prn = uniq % 100
-    system = np.array([SYSTEM_NAMES_ORDER[k] for k in uniq // 100], dtype="<U1")
+    system = np.array([tuple(SYSTEM_NAMES)[k] for k in uniq // 100], dtype="<U1")
     ep = np.asarray(rec.epoch, np.intp)[keep]
     E, S = len(t_tag), prn.size
     values: dict[str, NDArray] = {}
@@ -397,5 +397,3 @@ def read_obs(path: str | Path) -> RinexObs:
                     comments=comments, skipped=skipped, system=system,
                     types={x: tuple(_field_columns(text, t)) for x, t in used.items()})
 
-
-SYSTEM_NAMES_ORDER = tuple(SYSTEM_NAMES)
