@@ -356,7 +356,8 @@ def print_run_summary(result: RunResult) -> None:
 
 def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: int = 0,
                  gust_seed: int | None = None) -> tuple[Path, Path]:
-    """Fly an approach, synthesise its GPS observations and write RINEX 3.04 obs + nav files.
+    """Fly an approach, synthesise its GNSS observations and write RINEX obs + nav files (3.04 GPS; 3.05 mixed
+    when the approach's constellation holds Galileo or BeiDou satellites: :func:`testbed.sensors.gnss.rinex.write_rinex`).
 
     The observations are the ones a ``testbed fly`` run with the same seed sees
     (the same GNSS stream of the same seed), including the approach's GNSS faults. Returns the

@@ -113,7 +113,12 @@ def _cmd_export_rinex(args: argparse.Namespace) -> int:
         outs.commit()
         obs, nav = args.dir / outs.final(obs).name, args.dir / outs.final(nav).name
         print(f"wrote {obs}\nwrote {nav}")
-        print(f"check with RTKLIB: rnx2rtkp -p 0 -sys G -o out.pos {obs} {nav}  (iono/tropo models off: see docs/guide/rinex.md)")
+        from testbed.sensors.gnss.rinex_text import read_lines
+
+        systems = ",".join(ln[0] for _, ln in read_lines(obs, "observation", "O").header("SYS / # / OBS TYPES")
+                           if ln[0] != " ")
+        print(f"check with RTKLIB: rnx2rtkp -p 0 -sys {systems} -o out.pos {obs} {nav}  (iono/tropo models off: see "
+              f"docs/guide/rinex.md)")
     return 0
 
 

@@ -290,8 +290,9 @@ def test_mixed_records_keep_systems_apart_and_bad_names_are_refused():
         Ephemeris(**{**{k: getattr(gps, k) for k in gps.__dataclass_fields__}, "system": np.full(24, "R")})
 
 
-def test_the_gps_rinex_writers_refuse_other_systems(tmp_path):
+def test_the_rinex_writers_label_each_system(tmp_path):
+    """Galileo slots are written as Galileo (E) records, not labelled G (tests/test_rinex_mixed.py has the rest)."""
     mixed = nominal_constellations(["gps", "galileo"], T_REF)
-    with pytest.raises(ValueError, match=r"write_nav: writes GPS satellites only, got 24 others \(E01, E02"):
-        write_nav(mixed, (T_REF, T_REF + 3600.0), tmp_path / "x.nav")
-    assert not (tmp_path / "x.nav").exists()
+    text = write_nav(mixed, (T_REF, T_REF + 3600.0), tmp_path / "x.nav").read_text().splitlines()
+    starts = [ln[:3] for ln in text if ln[:1] in "GE" and ln[1:3].isdigit()]
+    assert sorted(set(starts)) == sorted(mixed.sat_id.tolist())

@@ -31,6 +31,7 @@ from testbed.rinex.observables import Formation, form_epochs
 from testbed.rinex.settings import MonitorFileConfig
 from testbed.schema import ConfigError
 from testbed.sensors.gnss.navfile import read_nav
+from testbed.sensors.gnss.orbits import SYSTEM_NAMES
 from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gps_seconds_to_calendar
 from testbed.sim.evaluate import MonitorSummary, summarise_monitor
 from testbed.viz.stanford import hist_edges, stanford_figure
@@ -271,6 +272,9 @@ def epoch_table(run: RinexRun, name: str) -> dict[str, np.ndarray]:
             "u_m": out.pos_enu[:, 2], "clock_m": out.clock, "hpl_m": out.hpl, "vpl_m": out.vpl,
             "test_stat": out.test_stat, "threshold": out.threshold, "alert": out.alert,
             "excluded_prn": np.where(ex >= 0, np.asarray(g.prn)[np.clip(ex, 0, None)], -1), "reason": out.reason}
+    if run.formation.systems != ("G",):  # a PRN names a satellite only with its system
+        system = np.asarray(run.obs.system)
+        cols["excluded_system"] = np.where(ex >= 0, system[np.clip(ex, 0, None)], "")
     for k, lv in enumerate(out.service_levels):
         cols[f"available_{lv}"] = out.available[:, k]
     if run.reference_enu is not None:
@@ -285,10 +289,15 @@ def _write_table(cols: dict[str, np.ndarray], path: Path) -> Path:
         import pyarrow.parquet as pq
 
         pq.write_table(pa.table({k: np.asarray(v) for k, v in cols.items()}), path)
-    else:
+    elif all(np.asarray(v).dtype.kind != "U" for v in cols.values()):
         names = list(cols)
         np.savetxt(path, np.column_stack([np.asarray(cols[n], float) for n in names]), delimiter=",",
                    header=",".join(names), comments="", fmt="%.12g")
+    else:  # text columns (a satellite's system letter) beside the numbers
+        names = list(cols)
+        text = [np.asarray(cols[n]) if np.asarray(cols[n]).dtype.kind == "U"
+                else np.char.mod("%.12g", np.asarray(cols[n], float)) for n in names]
+        path.write_text(",".join(names) + "\n" + "".join(",".join(r) + "\n" for r in zip(*text)))
     return path
 
 
@@ -302,6 +311,11 @@ def summary_record(run: RinexRun) -> dict:
            "ionosphere": f.ionosphere, "troposphere": f.troposphere, "error_model": f.error_model,
            "measurements": f.counts, "skipped": o.skipped, "notes": list(f.notes),
            "frame_origin_lat_lon_h": list(f.origin_lat_lon_h), "timings_s": run.timings, "monitors": {}}
+    if o.systems != ("G",):  # a file with Galileo / BeiDou satellites: which systems were used, which not and why
+        rec["gps_satellites"] = int((o.system == "G").sum())
+        rec.update({"systems_used": list(f.systems), "systems_skipped": f.skipped_systems,
+                    "satellites": {x: int((o.system == x).sum()) for x in o.systems}, "codes": f.codes,
+                    "second_codes": f.second_codes})
     for name, out in run.outputs.items():
         m = {"availability": {lv: float(np.mean(out.available[:, k])) for k, lv in enumerate(out.service_levels)},
              "alert_epochs": int(np.sum(out.alert)), "excluded_epochs": int(np.sum(np.asarray(out.excluded) >= 0)),
@@ -371,6 +385,13 @@ def print_summary(run: RinexRun) -> None:
     t.add_row("pseudoranges", f"{rec['l1_code']}{' + ' + rec['second_code'] + ' (iono-free)' if rec['second_code'] else ''}"
                               f", ionosphere {rec['ionosphere']}, troposphere {rec['troposphere']}, σ model "
                               f"{rec['error_model']}")
+    if "systems_used" in rec:
+        used = ", ".join(f"{SYSTEM_NAMES[x]} ({rec['satellites'][x]} satellites, {rec['codes'][x]}"
+                         f"{' + ' + rec['second_codes'][x] if x in rec['second_codes'] else ''})"
+                         for x in rec["systems_used"])
+        t.add_row("systems used", used + (", one receiver clock" if len(rec["systems_used"]) > 1 else ""))
+        for x, why in rec["systems_skipped"].items():
+            t.add_row(f"{SYSTEM_NAMES[x]} skipped", why)
     t.add_row("measurements", ", ".join(f"{k.lower().replace('_', ' ')} {v}" for k, v in rec["measurements"].items()))
     if rec["skipped"]:
         t.add_row("skipped", ", ".join(f"{k} {v}" for k, v in rec["skipped"].items()))

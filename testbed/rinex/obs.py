@@ -1,4 +1,4 @@
-"""RINEX 2.xx and 3.xx observation files: GPS code, Doppler and C/N0 as arrays over (epoch, satellite).
+"""RINEX 2.xx and 3.xx observation files: GPS, Galileo and BeiDou code, Doppler and C/N0 over (epoch, satellite).
 
 The reader walks the epoch records once in Python (the record boundaries
 depend on each epoch's satellite count) and parses every measurement field
@@ -6,12 +6,16 @@ of every satellite record in one vectorised pass: the records are padded to
 a fixed width, viewed as a byte matrix and each field column converted with
 numpy. Phase (``L``) observables are not read: no monitor here uses them.
 
-Kept: GPS satellites (system ``G``, or blank in 2.xx), observation types
-whose code starts with C (code), D (Doppler) or S (signal strength), under
-their RINEX 3 names (2.xx ``C1``/``P1``/``P2``/``C2``/``C5``/``D1``/``S1``...
-are renamed, see :data:`V2_NAMES`). Skipped, and counted: other systems'
-measurements, event records (epoch flags 2-5) and cycle-slip records (flag 6).
-Epochs with flag 1 (power failure before the epoch) are kept.
+Kept: GPS satellites (system ``G``, or blank in 2.xx) and, in 3.xx files,
+Galileo (``E``) and BeiDou (``C``) satellites; observation types whose code
+starts with C (code), D (Doppler) or S (signal strength), under their RINEX 3
+names (2.xx ``C1``/``P1``/``P2``/``C2``/``C5``/``D1``/``S1``... are renamed, see
+:data:`V2_NAMES`; 2.xx files are read as GPS). Skipped, and counted: the other
+systems' measurements (GLONASS, QZSS, NavIC, SBAS), event records (epoch flags
+2-5) and cycle-slip records (flag 6). Epochs with flag 1 (power failure before
+the epoch) are kept. Refused, naming the line and the value: a system letter
+that is not RINEX 3's, and an observation code that RINEX 3.05 does not define
+for a GPS, Galileo or BeiDou satellite (:func:`testbed.sensors.gnss.signals.code_problem`).
 """
 
 from __future__ import annotations
@@ -22,24 +26,31 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from testbed.sensors.gnss.orbits import SYSTEM_NAMES
 from testbed.sensors.gnss.rinex_text import RinexText, read_lines, rinex_float
+from testbed.sensors.gnss.signals import RINEX_SYSTEMS, USED_SYSTEMS, code_problem
 from testbed.sensors.gnss.timebase import gpst_calendar_to_gps_seconds
 
 #: RINEX 2.xx observation codes -> the RINEX 3 names used here (GPS: P-code on L1/L2 is the W tracking)
 V2_NAMES = {"C1": "C1C", "P1": "C1W", "C2": "C2L", "P2": "C2W", "C5": "C5Q", "D1": "D1C", "D2": "D2W",
             "D5": "D5Q", "S1": "S1C", "S2": "S2W", "S5": "S5Q"}
 _KEPT_KINDS = ("C", "D", "S")
-_TIME_SYSTEMS = ("GPS", "GAL", "")  # Galileo system time is steered to GPS time (tags usable as GPST)
+#: time systems of the tags, and their offset to GPS time (s): Galileo time is steered to GPS time (tags usable
+#: as GPST); BeiDou time is GPST − 14 s (a BDT tag + 14 s is the GPST one)
+_TIME_SYSTEMS = {"GPS": 0.0, "GAL": 0.0, "": 0.0, "BDT": 14.0}
 
 
 @dataclass(frozen=True)
 class RinexObs:
-    """GPS measurements of an observation file.
+    """GPS, Galileo and BeiDou measurements of an observation file.
 
     t_tag : (E,) epoch time tags, s since the GPS epoch, in the *receiver's* time scale
         (true GPS time + the receiver clock offset, as a receiver writes them).
-    prn : (S,) the GPS PRNs observed at least once, sorted.
-    values : observation code (RINEX 3 name, e.g. ``C1C``) -> (E, S) float, NaN where absent.
+    prn : (S,) the satellites observed at least once, sorted by system (G, E, C) then PRN.
+    system : (S,) their RINEX 3 system letters.
+    values : observation code (RINEX 3 name, e.g. ``C1C``) -> (E, S) float, NaN where absent (a code a
+        system does not declare is NaN for its satellites).
+    types : the observation codes each system letter declares in the header.
     clock_offset_s : (E,) receiver clock offset written on the epoch line (NaN where blank).
     """
 
@@ -54,10 +65,26 @@ class RinexObs:
     receiver_type: str
     comments: tuple[str, ...]
     skipped: dict[str, int] = field(default_factory=dict)  # what was not used, with counts
+    system: NDArray | None = None
+    types: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.system is None:
+            object.__setattr__(self, "system", np.full(self.prn.shape, "G"))
 
     @property
     def epochs(self) -> int:
         return int(self.t_tag.size)
+
+    @property
+    def systems(self) -> tuple[str, ...]:
+        """The system letters with at least one satellite, in G, E, C order."""
+        return tuple(x for x in SYSTEM_NAMES if (self.system == x).any())
+
+    @property
+    def sat_id(self) -> NDArray:
+        """RINEX 3 satellite identifiers (S,), e.g. ``"G05"``, ``"E12"``."""
+        return np.array([f"{x}{int(p):02d}" for x, p in zip(self.system, self.prn)], dtype="<U3")
 
 
 @dataclass
@@ -70,9 +97,12 @@ class _Records:
     line: list[int] = field(default_factory=list)  # 1-based line number of the record's first line
 
 
-def _header_types(text: RinexText) -> dict[str, list[str]]:
-    """Observation types per system letter (2.xx: one list for every system, key '*')."""
+def _header_types(text: RinexText) -> tuple[dict[str, list[str]], dict[str, int]]:
+    """Observation types per system letter (2.xx: one list for every system, key '*'), and the header line
+    of each system's first record. A 3.xx system letter that is not RINEX 3's, or a code RINEX 3.05 does not
+    define for a GPS, Galileo or BeiDou satellite, is refused naming the line and the value."""
     types: dict[str, list[str]] = {}
+    where: dict[str, int] = {}
     if text.version.startswith("2"):
         recs = text.header("# / TYPES OF OBSERV")
         if not recs:
@@ -83,7 +113,8 @@ def _header_types(text: RinexText) -> dict[str, list[str]]:
             raise text.fail(f"unreadable observation type count {recs[0][1][:6]!r}", recs[0][0]) from None
         names = [ln[10 + 6 * j:12 + 6 * j].strip() for _, ln in recs for j in range(9)]
         types["*"] = [c for c in names if c][:n]
-        return types
+        where["*"] = recs[0][0]
+        return types, where
     recs = text.header("SYS / # / OBS TYPES")
     if not recs:
         raise text.fail("no 'SYS / # / OBS TYPES' header record")
@@ -91,24 +122,37 @@ def _header_types(text: RinexText) -> dict[str, list[str]]:
     for no, ln in recs:
         if ln[0] != " ":
             sys = ln[0]
+            if sys not in RINEX_SYSTEMS:
+                raise text.fail(f"system letter {sys!r} in 'SYS / # / OBS TYPES': expected one of RINEX 3's "
+                                f"{', '.join(RINEX_SYSTEMS)}", no)
             try:
                 int(ln[3:6])
             except ValueError:
                 raise text.fail(f"unreadable observation type count {ln[3:6]!r}", no) from None
             types[sys] = []
+            where[sys] = no
         if sys is None:
             raise text.fail("an observation-type continuation line before its system's line", no)
-        types[sys] += [ln[7 + 4 * j:10 + 4 * j].strip() for j in range(13) if ln[7 + 4 * j:10 + 4 * j].strip()]
-    return types
+        codes = [ln[7 + 4 * j:10 + 4 * j].strip() for j in range(13) if ln[7 + 4 * j:10 + 4 * j].strip()]
+        for c in codes:
+            problem = code_problem(sys, c)
+            if problem is not None:
+                raise text.fail(f"{SYSTEM_NAMES.get(sys, sys)} observation type {problem}", no)
+        types[sys] += codes
+    return types, where
 
 
-def _time_system(text: RinexText) -> None:
+def _time_system(text: RinexText) -> float:
+    """The offset (s) that turns the file's time tags into GPS time."""
     recs = text.header("TIME OF FIRST OBS")
     if recs:
         no, ln = recs[0]
         ts = ln[48:51].strip()
         if ts not in _TIME_SYSTEMS:
-            raise text.fail(f"time system {ts!r}: expected GPS time tags ('GPS', or blank in a GPS file)", no)
+            raise text.fail(f"time system {ts!r}: expected GPS, Galileo or BeiDou time tags ('GPS', 'GAL', 'BDT', "
+                            f"or blank in a GPS file)", no)
+        return _TIME_SYSTEMS[ts]
+    return 0.0
 
 
 def _walk_v3(text: RinexText, rec: _Records, skipped: dict[str, int]) -> tuple[list[float], list[float]]:
@@ -267,53 +311,70 @@ def _last_record_whole(text: RinexText, types: dict[str, list[str]], rec: _Recor
 
 
 def read_obs(path: str | Path) -> RinexObs:
-    """GPS code / Doppler / C/N0 of a RINEX 2.xx or 3.xx observation file (gzip and Hatanaka too)."""
+    """GPS, Galileo and BeiDou code / Doppler / C/N0 of a RINEX 2.xx or 3.xx observation file (gzip and
+    Hatanaka too)."""
     text = read_lines(path, "observation", "O")
     vers = text.version
-    _time_system(text)
-    types = _header_types(text)
+    tag_offset_s = _time_system(text)
+    types, where = _header_types(text)
     v2 = vers.startswith("2")
-    gps_types = types.get("*" if v2 else "G")
-    if not gps_types:
-        raise text.fail(f"no GPS observation types in the header (systems {sorted(types)}): expected GPS "
-                        f"measurements")
-    columns = _field_columns(text, gps_types)
-    if not any(c.startswith("C") for c in columns):
-        raise text.fail(f"GPS observation types {gps_types}: none is a pseudorange (C1C, C1W, C2W... / C1, P1, P2 in "
-                        f"RINEX 2); expected at least one code observation", text.header(
-                            "# / TYPES OF OBSERV" if v2 else "SYS / # / OBS TYPES")[0][0])
+    used = {"G": types.get("*", [])} if v2 else {x: types[x] for x in USED_SYSTEMS if types.get(x)}
+    used = {x: t for x, t in used.items() if t}
+    if not used:
+        raise text.fail(f"no GPS{'' if v2 else ', Galileo or BeiDou'} observation types in the header (systems "
+                        f"{sorted(types)}): expected GPS{'' if v2 else ', Galileo or BeiDou'} measurements")
+    columns = {x: _field_columns(text, t) for x, t in used.items()}
+    if not any(c.startswith("C") for cols in columns.values() for c in cols):
+        what = "GPS" if list(used) == ["G"] else "/".join(SYSTEM_NAMES[x] for x in used)
+        listed = used["G"] if list(used) == ["G"] else {x: t for x, t in used.items()}
+        raise text.fail(f"{what} observation types {listed}: none is a pseudorange (C1C, C1W, C2W... / C1, P1, P2 "
+                        f"in RINEX 2); expected at least one code observation", where["*" if v2 else next(iter(used))])
     rec, skipped = _Records(), {}
-    t_tag, clock = _walk_v2(text, len(gps_types), rec, skipped) if v2 else _walk_v3(text, rec, skipped)
+    n_types = max(len(t) for t in used.values()) if v2 else 0
+    t_tag, clock = _walk_v2(text, n_types, rec, skipped) if v2 else _walk_v3(text, rec, skipped)
     if not t_tag:
         raise text.fail("no observation epochs after the header")
     _last_record_whole(text, types, rec)
     sys = np.array([s[:1] if s[:1] != " " else "G" for s in rec.sat])
-    for letter in sorted(set(sys.tolist()) - {"G"}):
+    line_all = np.asarray(rec.line)
+    for letter in sorted(set(sys.tolist())):
+        if letter not in RINEX_SYSTEMS:
+            k = int(np.flatnonzero(sys == letter)[0])
+            raise text.fail(f"satellite {rec.sat[k]!r}: system letter {letter!r} is not RINEX 3's (expected one of "
+                            f"{', '.join(RINEX_SYSTEMS)})", int(line_all[k]))
+    for letter in sorted(set(sys.tolist()) - set(used)):  # not read here, or no types declared for them
         skipped[f"system {letter} satellite records"] = int((sys == letter).sum())
-    gps = np.flatnonzero(sys == "G")
-    if gps.size == 0:
+    keep = np.flatnonzero(np.isin(sys, list(used)))
+    if keep.size == 0:
         others = ", ".join(f"{k} {v}" for k, v in sorted(skipped.items())) or "none"
-        raise text.fail(f"no GPS satellite records in its {len(t_tag)} epochs (the header declares GPS types "
-                        f"{gps_types}, but no record starts with G{'' if not v2 else ' or a blank'}; skipped: "
-                        f"{others}); expected GPS measurements")
-    line = np.asarray(rec.line)[gps]
+        names = "/".join(SYSTEM_NAMES[x] for x in used)
+        raise text.fail(f"no {names} satellite records in its {len(t_tag)} epochs (the header declares {names} "
+                        f"types {used['G'] if list(used) == ['G'] else used}, but no record starts with "
+                        f"{'/'.join(used)}{'' if not v2 else ' or a blank'}; skipped: {others}); expected "
+                        f"{names} measurements")
     try:
-        prn_rec = np.array([int(rec.sat[i][1:3]) for i in gps], np.int64)
+        prn_rec = np.array([int(rec.sat[i][1:3]) for i in keep], np.int64)
     except ValueError:
-        bad = next(i for i in gps if not rec.sat[i][1:3].strip().isdigit())
+        bad = next(i for i in keep if not rec.sat[i][1:3].strip().isdigit())
         raise text.fail(f"satellite id {rec.sat[bad]!r}: expected a system letter and a 2-digit PRN",
                         rec.line[bad]) from None
-    vals = _parse_fields(text, [rec.text[i] for i in gps], line, columns)
-    prn = np.unique(prn_rec)
-    col = np.searchsorted(prn, prn_rec)
-    ep = np.asarray(rec.epoch, np.intp)[gps]
+    order = {x: k for k, x in enumerate(SYSTEM_NAMES)}  # columns sorted by system (G, E, C), then PRN
+    sys_rec = sys[keep]
+    key = np.array([order[x] for x in sys_rec], np.int64) * 100 + prn_rec
+    uniq = np.unique(key)
+    col = np.searchsorted(uniq, key)
+    prn = uniq % 100
+    system = np.array([tuple(SYSTEM_NAMES)[k] for k in uniq // 100], dtype="<U1")
+    ep = np.asarray(rec.epoch, np.intp)[keep]
     E, S = len(t_tag), prn.size
-    values = {}
-    for code, v in vals.items():
-        a = np.full((E, S), np.nan)
-        a[ep, col] = v
-        values[code] = a
-    t = np.asarray(t_tag)
+    values: dict[str, NDArray] = {}
+    for x, cols in columns.items():
+        sel = np.flatnonzero(sys_rec == x)
+        vals = _parse_fields(text, [rec.text[keep[i]] for i in sel], line_all[keep[sel]], cols)
+        for code, v in vals.items():
+            a = values.setdefault(code, np.full((E, S), np.nan))
+            a[ep[sel], col[sel]] = v
+    t = np.asarray(t_tag) + tag_offset_s
     if np.any(np.diff(t) <= 0):
         k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
         raise text.fail(f"epoch {k + 1} is not after the one before it (time tags must increase)")
@@ -333,4 +394,6 @@ def read_obs(path: str | Path) -> RinexObs:
     comments = tuple(ln[:60].rstrip() for _, ln in text.header("COMMENT"))
     return RinexObs(path=text.path, version=vers, t_tag=t, prn=prn, values=values, clock_offset_s=np.asarray(clock),
                     approx_pos_ecef=approx, interval_s=interval, receiver_type=rt[0][1][20:40].strip() if rt else "",
-                    comments=comments, skipped=skipped)
+                    comments=comments, skipped=skipped, system=system,
+                    types={x: tuple(_field_columns(text, t)) for x, t in used.items()})
+

@@ -1,4 +1,4 @@
-"""Monitor-ready GPS observations from a RINEX observation file and its navigation file.
+"""Monitor-ready GPS, Galileo and BeiDou observations from a RINEX observation file and its navigation file.
 
 What a receiver's code measurement is and what is done to it (IS-GPS-200, the
 RINEX definitions), for a tag t_r in the receiver's time scale:
@@ -21,7 +21,7 @@ serves them; the monitors then solve their own weighted fix from the result. A
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,14 +32,14 @@ from testbed.rinex.atmosphere import klobuchar_delay, klobuchar_sigma, saastamoi
 from testbed.rinex.obs import RinexObs
 from testbed.rinex.settings import RinexSettings
 from testbed.correlation import L1_WAVELENGTH_M
-from testbed.sensors.gnss.errors import F_L1, F_L2, F_L5, IONO_FREE_FACTOR, sigma_multipath, sigma_noise, sigma_tropo
+from testbed.sensors.gnss.errors import F_L1, IONO_FREE_FACTOR, sigma_multipath, sigma_noise, sigma_tropo
 from testbed.sensors.gnss.navfile import MAX_AGE_S, NavData, nearest_records
-from testbed.sensors.gnss.orbits import sat_states
+from testbed.sensors.gnss.orbits import SYSTEM_NAMES, sat_states
+from testbed.sensors.gnss.signals import FREQUENCY_HZ
 from testbed.sensors.gnss.synth import rotate_z
 from testbed.sensors.gnss.rinex_text import RinexError
 from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK, gps_seconds_to_calendar
 
-FREQUENCY = {"1": F_L1, "2": F_L2, "5": F_L5}
 #: REC # / TYPE of files `testbed export-rinex` writes: their ranges are iono-free-equivalent
 TESTBED_RECEIVER = "TESTBED SYNTHETIC"
 _FIX_ITERATIONS = 12
@@ -64,44 +64,118 @@ class Formation:
     notes: tuple[str, ...]
     fix_ecef: NDArray  # (E, 3) the preliminary fix per epoch (NaN where none)
     origin_lat_lon_h: tuple[float, float, float]
+    systems: tuple[str, ...] = ("G",)  # the systems used, in G, E, C order
+    skipped_systems: dict[str, str] = field(default_factory=dict)  # system letter -> why it was not used
+    codes: dict[str, str] = field(default_factory=dict)  # system letter -> first-frequency code used
+    second_codes: dict[str, str] = field(default_factory=dict)  # system letter -> second-frequency code used
 
 
-def _first_present(obs: RinexObs, codes: tuple[str, ...]) -> str | None:
-    return next((c for c in codes if c in obs.values and np.isfinite(obs.values[c]).any()), None)
+def _first_present(obs: RinexObs, codes: tuple[str, ...], system: str = "G") -> str | None:
+    cols = obs.system == system
+    return next((c for c in codes if c in obs.values and np.isfinite(obs.values[c][:, cols]).any()), None)
 
 
-def _codes_seen(obs: RinexObs) -> str:
-    """The GPS codes that have values, and those the header declares that have none."""
-    seen = [c for c in sorted(obs.values) if np.isfinite(obs.values[c]).any()]
-    empty = [c for c in sorted(obs.values) if c not in seen]
+def _codes_seen(obs: RinexObs, system: str = "G") -> str:
+    """The codes that have values for ``system``'s satellites, and those declared that have none."""
+    cols = obs.system == system
+    declared = sorted(c for c in obs.values if c in obs.types.get(system, obs.values))
+    seen = [c for c in declared if np.isfinite(obs.values[c][:, cols]).any()]
+    empty = [c for c in declared if c not in seen]
     return f"with values: {', '.join(seen) or 'none'}" + (f"; declared, never given: {', '.join(empty)}" if empty
                                                            else "")
 
 
-def _resolve(obs: RinexObs, nav: NavData, s: RinexSettings) -> tuple[str, str | None, str, str, list[str]]:
+#: the settings naming each system's code preferences (first frequency, second frequency)
+_CODE_SETTINGS = {"G": ("l1_codes", "second_codes"), "E": ("galileo_codes", "galileo_second_codes"),
+                  "C": ("beidou_codes", "beidou_second_codes")}
+_BAND_NAMES = {"G": "L1", "E": "E1", "C": "B1"}
+
+
+def choose_systems(obs: RinexObs, nav: NavData, s: RinexSettings) -> tuple[tuple[str, ...], dict[str, str]]:
+    """The systems to use and, for the others in the observation file, why not (see ``[rinex] systems``)."""
+    present, in_nav = obs.systems, set(nav.systems)
+    skipped: dict[str, str] = {}
+    if s.systems == "auto":
+        use = list(present)
+        if len(use) > 1 and obs.receiver_type != TESTBED_RECEIVER:  # the first of G, E, C present
+            for x in use[1:]:
+                skipped[x] = ("the monitors solve one receiver clock and this file is not a testbed export, so its "
+                              f"inter-system bias is not known to be zero; [rinex] systems = ['{use[0]}', "
+                              f"'{x}'] uses it with one clock")
+            use = use[:1]
+        for x in list(use):
+            if x not in in_nav:
+                skipped[x] = f"no {SYSTEM_NAMES[x]} records in {nav.path.name}"
+                use.remove(x)
+        if not use:
+            raise RinexError(nav.path, f"no records of the observed systems ({', '.join(present)}; it holds "
+                                       f"{', '.join(sorted(in_nav)) or 'none'}); expected a navigation file with "
+                                       f"records of the systems observed in {obs.path.name}")
+        return tuple(use), skipped
+    for x in s.systems:
+        if x not in present:
+            raise RinexError(obs.path, f"[rinex] systems asks for {SYSTEM_NAMES[x]} ({x}), but the file has no "
+                                       f"{x} satellite records (it has {', '.join(present)}); expected only "
+                                       f"systems it observes")
+        if x not in in_nav:
+            raise RinexError(nav.path, f"[rinex] systems asks for {SYSTEM_NAMES[x]} ({x}), but the navigation file "
+                                       f"has no {x} records (it has {', '.join(sorted(in_nav)) or 'none'}"
+                                       f"{'; skipped: ' + ', '.join(nav.skipped) if nav.skipped else ''}); expected "
+                                       f"a navigation file with {SYSTEM_NAMES[x]} records")
+    for x in present:
+        if x not in s.systems:
+            skipped[x] = "not in [rinex] systems"
+    return tuple(x for x in SYSTEM_NAMES if x in s.systems), skipped
+
+
+def _only(obs: RinexObs, systems: tuple[str, ...]) -> RinexObs:
+    """``obs`` with the satellites of ``systems`` only (itself when that is all of them)."""
+    keep = np.isin(obs.system, list(systems))
+    if keep.all():
+        return obs
+    return replace(obs, prn=obs.prn[keep], system=obs.system[keep], values={c: v[:, keep] for c, v in obs.values.items()},
+                   types={x: t for x, t in obs.types.items() if x in systems})
+
+
+def _resolve(obs: RinexObs, nav: NavData, s: RinexSettings
+             ) -> tuple[dict[str, str], dict[str, str], str, str, list[str]]:
     notes = []
-    l1 = _first_present(obs, s.l1_codes)
-    if l1 is None:
-        raise RinexError(obs.path, f"no L1 pseudorange: none of {list(s.l1_codes)} has a value in a GPS record "
-                                   f"({_codes_seen(obs)}); expected an L1 code observation ([rinex] l1_codes)")
-    second = _first_present(obs, s.second_codes)
+    l1, second = {}, {}
+    for x in obs.systems:
+        first_name, second_name = _CODE_SETTINGS[x]
+        codes = getattr(s, first_name)
+        code = _first_present(obs, codes, x)
+        if code is None:
+            what = f"{'L1' if x == 'G' else _BAND_NAMES[x]} pseudorange"
+            raise RinexError(obs.path, f"no {what}: none of {list(codes)} has a value in a {SYSTEM_NAMES[x]} record "
+                                       f"({_codes_seen(obs, x)}); expected {'an L1' if x == 'G' else 'a'} code "
+                                       f"observation ([rinex] {first_name})")
+        l1[x] = code
+        sec = _first_present(obs, getattr(s, second_name), x)
+        if sec is not None:
+            second[x] = sec
     synthetic = obs.receiver_type == TESTBED_RECEIVER
     iono, tropo = s.ionosphere, s.troposphere
     if iono == "auto":
-        iono = "off" if synthetic else ("iono_free" if second else "klobuchar")
+        iono = "off" if synthetic else ("iono_free" if len(second) == len(l1) else "klobuchar")
     if tropo == "auto":
         tropo = "off" if synthetic else "saastamoinen"
     if synthetic and (s.ionosphere == "auto" or s.troposphere == "auto"):
         notes.append("testbed export: ranges are iono-free-equivalent, atmosphere models off (docs/guide/rinex.md, the export)")
-    if iono == "iono_free" and second is None:
+    if iono == "iono_free" and len(second) < len(l1):
+        x = next(x for x in l1 if x not in second)
+        codes = getattr(s, _CODE_SETTINGS[x][1])
         raise RinexError(obs.path, f"[rinex] ionosphere = 'iono_free' needs a second-frequency code, but none of "
-                                   f"{list(s.second_codes)} has a value in a GPS record ({_codes_seen(obs)}); "
+                                   f"{list(codes)} has a value in a {SYSTEM_NAMES[x]} record ({_codes_seen(obs, x)}); "
                                    f"expected 'klobuchar' or 'off' for a single-frequency file")
     if iono == "klobuchar" and (nav.klobuchar_alpha is None or nav.klobuchar_beta is None):
         raise RinexError(nav.path, "no Klobuchar coefficients (ION ALPHA / ION BETA in RINEX 2, IONOSPHERIC CORR "
                                    "GPSA / GPSB in RINEX 3) in the header; the broadcast ionosphere needs them. "
                                    "Expected them, or [rinex] ionosphere = 'iono_free' or 'off'")
-    return l1, (second if iono == "iono_free" else None), iono, tropo, notes
+    if "C" in l1 and l1["C"][1] == "1" and iono != "iono_free":
+        notes.append(f"BeiDou {l1['C']} (B1C): no group delay applied (a RINEX 3 BeiDou record carries TGD1 for B1I "
+                     f"only)")
+    return l1, (second if iono == "iono_free" else {}), iono, tropo, notes
 
 
 def _span(t: NDArray) -> str:
@@ -179,8 +253,10 @@ def _sigma(s: RinexSettings, el: NDArray, iono: str, iono_m: NDArray, iono_sig: 
     return np.sqrt(s.sigma_ura_m**2 + sigma_tropo(el, s.sigma_tropo_zenith_m) ** 2 + air**2 + iono_sig**2)
 
 
-def _look_and_delays(sat: NDArray, r: NDArray, t_tag: NDArray, iono: str, tropo: str, nav: NavData):
-    """Elevation, azimuth (rad) and the modelled ionosphere (delay, residual 1σ) and troposphere (m) at fix ``r``."""
+def _look_and_delays(sat: NDArray, r: NDArray, t_tag: NDArray, iono: str, tropo: str, nav: NavData,
+                     carrier_hz: NDArray | float = F_L1):
+    """Elevation, azimuth (rad) and the modelled ionosphere (delay, residual 1σ) and troposphere (m) at fix ``r``.
+    The broadcast ionosphere (an L1 delay) is scaled by (f_L1/f)² to each satellite's carrier (B1I)."""
     E, S = sat.shape[:2]
     lat, lon, h = ecef_to_geodetic(r)
     tau = np.linalg.norm(sat - r[:, None], axis=-1) / C_LIGHT
@@ -193,23 +269,32 @@ def _look_and_delays(sat: NDArray, r: NDArray, t_tag: NDArray, iono: str, tropo:
         tow = np.mod(t_tag, SECONDS_PER_WEEK)[:, None]
         iono_m = klobuchar_delay(nav.klobuchar_alpha, nav.klobuchar_beta, latr, lonr, np.clip(el, 0, None), az, tow)
         iono_sig = klobuchar_sigma(latr, lonr, np.clip(el, 0, None), az, iono_m)
+        if np.any(np.asarray(carrier_hz) != F_L1):
+            scale = (F_L1 / np.asarray(carrier_hz)) ** 2
+            iono_m, iono_sig = iono_m * scale, iono_sig * scale
     tropo_m = saastamoinen_delay(latr, h[:, None], el) if tropo == "saastamoinen" else np.zeros((E, S))
     return el, az, iono_m, iono_sig, tropo_m
 
 
 def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[GnssEpochs, Formation]:
-    """GnssEpochs (the monitors' input; ``t`` from the first tag) and how they were formed."""
+    """GnssEpochs (the monitors' input; ``t`` from the first tag) and how they were formed.
+
+    Satellites of the systems :func:`choose_systems` keeps, in the observation file's order (G, E, C);
+    ``prn`` repeats across systems (G05 and E05 are two slots): the formation's ``systems`` and the
+    summary name them."""
     s = settings
-    l1, second, iono, tropo, notes = _resolve(obs, nav, s)
+    systems, skipped_systems = choose_systems(obs, nav, s)
+    obs = _only(obs, systems)
+    l1s, seconds, iono, tropo, notes = _resolve(obs, nav, s)
     E, S = obs.t_tag.size, obs.prn.size
-    p1 = obs.values[l1]
+    p1, f1 = _per_system(obs, l1s)
     reason = np.full((E, S), NotVisible.NOT_OBSERVED, np.int8)
     have = np.isfinite(p1) & (p1 > 1e6)  # a code range is > 1000 km; zeros and junk are not measurements
-    if second is not None:
-        p2 = obs.values[second]
+    if seconds:
+        p2, f2 = _per_system(obs, seconds)
         reason[have & ~np.isfinite(p2)] = NotVisible.NO_SECOND_FREQUENCY
         have &= np.isfinite(p2)
-    rec = nearest_records(nav.eph, obs.prn, obs.t_tag)
+    rec = nearest_records(nav.eph, obs.prn, obs.t_tag, system=obs.system)
     reason[have & (rec < 0)] = NotVisible.NO_EPHEMERIS
     use = have & (rec >= 0)
     if not use.any():
@@ -230,13 +315,14 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
     health = np.zeros((E, S), np.int64)
     sat.reshape(-1, 3)[flat], sat_v.reshape(-1, 3)[flat] = pos, vel
     dts.ravel()[flat], dts_rate.ravel()[flat], tgd.ravel()[flat] = clk, clk_rate, eph.tgd
+    if "C" in l1s and l1s["C"][1] != "2":  # TGD1 is B1I's; a B1C range gets none (see _resolve)
+        tgd[:, obs.system == "C"] = 0.0
     health.ravel()[flat] = eph.health
     reason[use & (health != 0)] = NotVisible.UNHEALTHY
     use &= health == 0
-    if second is not None:
-        f1, f2 = F_L1, FREQUENCY[second[1]]
-        code = (f1**2 * p1 - f2**2 * obs.values[second]) / (f1**2 - f2**2)
-        dual_factor = float(np.sqrt(f1**4 + f2**4) / (f1**2 - f2**2))
+    if seconds:
+        code = (f1**2 * p1 - f2**2 * p2) / (f1**2 - f2**2)
+        dual_factor = np.sqrt(f1**4 + f2**4) / (f1**2 - f2**2)
     else:
         code = p1 - C_LIGHT * tgd
         dual_factor = IONO_FREE_FACTOR if iono == "off" and obs.receiver_type == TESTBED_RECEIVER else 1.0
@@ -251,7 +337,7 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
     r_ref = hold_last_fix(r_fix)
     sat_use = use.copy()
     for _ in range(_ATMOSPHERE_ROUNDS):  # the delays at the fix, the fix with the delays removed
-        el, az, iono_m, iono_sig, tropo_m = _look_and_delays(sat0, r_ref, obs.t_tag, iono, tropo, nav)
+        el, az, iono_m, iono_sig, tropo_m = _look_and_delays(sat0, r_ref, obs.t_tag, iono, tropo, nav, f1)
         sat_use = use & (el >= np.radians(s.elevation_mask_deg))
         z = z_geo - iono_m - tropo_m
         r2, _ = preliminary_fix(np.where(sat_use[..., None], sat, 0.0), z, sat_use, r_ref)
@@ -262,8 +348,7 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
     tau = np.linalg.norm(np.where(use[..., None], sat, 0.0) - r_ref[:, None], axis=-1) / C_LIGHT
     s_rx = rotate_z(sat, OMEGA_EARTH * tau)
     v_rx = rotate_z(sat_v, OMEGA_EARTH * tau)
-    dop = next((obs.values[c] for c in ("D1C", "D1W", "D1X", "D1P") if c in obs.values), np.full((E, S), np.nan))
-    rr = -dop * L1_WAVELENGTH_M + C_LIGHT * dts_rate
+    rr = _range_rate_from_doppler(obs, l1s) + C_LIGHT * dts_rate
     sigma = _sigma(s, el, iono, iono_m, iono_sig, tropo, dual_factor)
     first = r2[np.isfinite(r2).all(1)][0] if np.isfinite(r2).any() else r_ref[0]  # noqa: F821 (set in the loop)
     origin = (tuple(float(x) for x in s.origin) if s.origin != "first_fix"
@@ -276,6 +361,43 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
                         antenna=Mount(np.zeros(3)))
     observed = reason[np.isfinite(p1)]
     counts = {NotVisible(k).name: int((observed == k).sum()) for k in np.unique(observed)}
-    return epochs, Formation(l1_code=l1, second_code=second, ionosphere=iono, troposphere=tropo,
+    main = "G" if "G" in l1s else systems[0]
+    return epochs, Formation(l1_code=l1s[main], second_code=seconds.get(main), ionosphere=iono, troposphere=tropo,
                              error_model=s.error_model, counts=counts, notes=tuple(notes), fix_ecef=r2,
-                             origin_lat_lon_h=origin)
+                             origin_lat_lon_h=origin, systems=systems, skipped_systems=skipped_systems,
+                             codes=l1s, second_codes=seconds)
+
+
+def _per_system(obs: RinexObs, codes: dict[str, str]) -> tuple[NDArray, NDArray]:
+    """(E, S) values of each system's code in its satellites' columns, and (S,) the carrier of each."""
+    if set(codes) == {"G"} and (obs.system == "G").all():  # one system: the column as it is
+        return obs.values[codes["G"]], np.full(obs.prn.shape, FREQUENCY_HZ["G"][codes["G"][1]])
+    v = np.full((obs.t_tag.size, obs.prn.size), np.nan)
+    f = np.full(obs.prn.shape, np.nan)
+    for x, c in codes.items():
+        cols = obs.system == x
+        v[:, cols] = obs.values[c][:, cols]
+        f[cols] = FREQUENCY_HZ[x][c[1]]
+    return v, f
+
+
+#: Doppler codes of each system's first band, in order of preference after the code's own
+_DOPPLERS = {"G": ("D1C", "D1W", "D1X", "D1P"), "E": ("D1C", "D1X", "D1B"), "C": ("D1P", "D1X", "D1D", "D2I", "D2X")}
+
+
+def _range_rate_from_doppler(obs: RinexObs, codes: dict[str, str]) -> NDArray:
+    """(E, S) −Doppler·λ (m/s) on each system's code band (NaN where none): the Doppler of the code's own
+    signal when given, else another on the same band."""
+    E, S = obs.t_tag.size, obs.prn.size
+    if set(codes) == {"G"} and (obs.system == "G").all():  # GPS as it always was: L1 Dopplers, λ_L1
+        dop = next((obs.values[c] for c in _DOPPLERS["G"] if c in obs.values), np.full((E, S), np.nan))
+        return -dop * L1_WAVELENGTH_M
+    rr = np.full((E, S), np.nan)
+    for x, c in codes.items():
+        cols = obs.system == x
+        own = "D" + c[1:]
+        cands = [own] + [d for d in _DOPPLERS[x] if d[1] == c[1] and d != own]
+        d = next((d for d in cands if d in obs.values and np.isfinite(obs.values[d][:, cols]).any()), None)
+        if d is not None:
+            rr[:, cols] = -obs.values[d][:, cols] * (C_LIGHT / FREQUENCY_HZ[x][c[1]])
+    return rr

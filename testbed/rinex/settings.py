@@ -13,10 +13,16 @@ from pydantic import Field, model_validator
 
 from testbed.integrity.settings import IntegritySettings
 from testbed.schema import StrictModel
+from testbed.sensors.gnss.signals import code_problem
 
 #: L1 code observations in order of preference, and second-frequency codes for the iono-free combination
 L1_CODES = ("C1C", "C1W", "C1X", "C1P", "C1S", "C1L")
 SECOND_CODES = ("C2W", "C2L", "C2X", "C2S", "C2P", "C5Q", "C5X", "C5I")
+#: Galileo E1 and BeiDou B1 (B1C pilot, data+pilot, data; then B1I) codes, and their E5a / B2a partners
+GALILEO_CODES = ("C1C", "C1X", "C1B")
+BEIDOU_CODES = ("C1P", "C1X", "C1D", "C2I", "C2X")
+GALILEO_SECOND_CODES = ("C5Q", "C5X", "C5I")
+BEIDOU_SECOND_CODES = ("C5P", "C5X", "C5D")
 
 
 class RinexSettings(StrictModel):
@@ -46,6 +52,23 @@ class RinexSettings(StrictModel):
     second_codes: tuple[str, ...] = Field(SECOND_CODES, min_length=1, description="Second-frequency code "
                                                                                   "observations for iono_free, in "
                                                                                   "order of preference.")
+    systems: Literal["auto"] | tuple[Literal["G", "E", "C"], ...] = Field(
+        "auto", description="Satellite systems to use (RINEX 3 letters: G GPS, E Galileo, C BeiDou). The monitors "
+                            "solve one receiver clock, so several systems are used together only when their "
+                            "inter-system bias is zero: 'auto' uses every system of a testbed export (one clock by "
+                            "construction) or of a single-system file, and one system from other multi-system files (GPS, "
+                            "else Galileo) "
+                            "(the others skipped, the summary says why); a list uses those systems with one clock "
+                            "(inter-system biases taken as zero) and each must be in both files.")
+    galileo_codes: tuple[str, ...] = Field(GALILEO_CODES, min_length=1, description="Galileo E1 code observations, "
+                                                                                     "in order of preference.")
+    beidou_codes: tuple[str, ...] = Field(BEIDOU_CODES, min_length=1, description="BeiDou code observations (B1C "
+                                                                                   "C1P/C1X/C1D, B1I C2I/C2X), in "
+                                                                                   "order of preference.")
+    galileo_second_codes: tuple[str, ...] = Field(GALILEO_SECOND_CODES, min_length=1,
+                                                  description="Galileo second-frequency (E5a) codes for iono_free.")
+    beidou_second_codes: tuple[str, ...] = Field(BEIDOU_SECOND_CODES, min_length=1,
+                                                 description="BeiDou second-frequency (B2a) codes for iono_free.")
     origin: tuple[float, float, float] | Literal["first_fix"] = Field(
         "first_fix", description="Origin of the local ENU frame the monitors report in: [lat_deg, lon_deg, h_m], or "
                                  "'first_fix' = the first epoch's preliminary position.")
@@ -57,6 +80,15 @@ class RinexSettings(StrictModel):
             if bad:
                 raise ValueError(f"{name}: {bad} are not {'L1' if band == '1' else 'L2/L5'} code observation names "
                                  f"(RINEX 3, such as {codes[0] if not bad else ('C1C' if band == '1' else 'C2W')})")
+        for name, codes, system in (("galileo_codes", self.galileo_codes, "E"), ("beidou_codes", self.beidou_codes, "C"),
+                                    ("galileo_second_codes", self.galileo_second_codes, "E"),
+                                    ("beidou_second_codes", self.beidou_second_codes, "C")):
+            bad = [p for p in (code_problem(system, c) if c[:1] == "C" else f"{c!r} is not a code observation"
+                               for c in codes) if p]
+            if bad:
+                raise ValueError(f"{name}: {'; '.join(bad)}")
+        if self.systems != "auto" and (not self.systems or len(set(self.systems)) != len(self.systems)):
+            raise ValueError(f"systems: expected 'auto' or distinct letters among G, E, C, got {list(self.systems)}")
         if self.error_model == "user" and self.sigma_a_m == 0.0 and self.sigma_b_m == 0.0:
             raise ValueError("sigma_a_m = sigma_b_m = 0: the 'user' model would weight every range by 1/0; "
                              "expected at least one of them > 0")

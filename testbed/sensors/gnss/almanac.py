@@ -117,14 +117,20 @@ def load_yuma(path: str | Path, t_ref_gps: float, week_mode: WeekMode = "auto") 
                           health=col["health"].astype(int), source=f"YUMA {path.name}").take(order)
 
 
-def load_rinex_nav(path: str | Path) -> Ephemeris:
-    """All GPS broadcast records of a RINEX 2.xx/3.xx navigation file (other systems skipped).
+def load_rinex_nav(path: str | Path, systems: str = "G") -> Ephemeris:
+    """The broadcast records of ``systems`` (letters among G, E, C; default GPS only) in a RINEX 2.xx/3.xx
+    navigation file (other systems skipped).
 
-    Returns every record (several per PRN); call :meth:`Ephemeris.select` to
+    Returns every record (several per satellite); call :meth:`Ephemeris.select` to
     keep the one nearest a flight. Full IS-GPS-200 model: Δn, IDOT, the six
     harmonic terms, af0..af2, TGD are all used (:func:`testbed.sensors.gnss.navfile.read_nav`).
     """
-    return read_nav(path).eph
+    eph = read_nav(path).eph
+    keep = np.flatnonzero(np.isin(eph.system, list(systems)))
+    if keep.size == 0:
+        raise ValueError(f"RINEX nav {Path(path).name}: no records of systems {list(systems)} (it has "
+                         f"{sorted(set(eph.system.tolist()))})")
+    return eph if keep.size == len(eph) else eph.take(keep)
 
 
 def load_constellation(source: str, path: str | Path | None, t_ref_gps: float,

@@ -45,6 +45,13 @@ class Ephemeris:
     every time is GPS system time, whatever the satellite's system.
     ``system`` (S,) holds the RINEX 3 system letter of each slot; omitted, every
     slot is GPS (``"G"``), as for every loader that reads GPS records only.
+    ``bds_geo`` (S,) marks BeiDou GEO broadcast records, whose orbit elements are
+    given in the ICD's GEO frame (inclined 5° and not rotating with the Earth over
+    tk; BDS-SIS-ICD-B1I-3.0 §5.2.4.12): :func:`sat_states` applies the GEO rotation
+    to them. Omitted, no slot is (every nominal orbit is in the ordinary form).
+    Records of every system follow the GPS conventions here (μ and Ω̇e of
+    IS-GPS-200, GPS time); :mod:`testbed.sensors.gnss.broadcast` converts
+    Galileo and BeiDou broadcast elements exactly on the way in and out.
     """
 
     prn: NDArray
@@ -74,6 +81,7 @@ class Ephemeris:
     iode: NDArray
     source: str = "ephemeris"
     system: NDArray | None = None
+    bds_geo: NDArray | None = None
 
     def __post_init__(self) -> None:
         prn_shape = np.shape(self.prn)
@@ -84,6 +92,13 @@ class Ephemeris:
         if unknown:
             raise ValueError(f"Ephemeris.system: expected letters from {sorted(SYSTEM_NAMES)}, got {unknown}")
         object.__setattr__(self, "system", system)
+        geo = np.zeros(prn_shape, bool) if self.bds_geo is None else np.asarray(self.bds_geo, dtype=bool)
+        if geo.shape != prn_shape:
+            raise ValueError(f"Ephemeris.bds_geo: expected shape {prn_shape} (one flag per slot), got {geo.shape}")
+        if (geo & (system != "C")).any():
+            raise ValueError(f"Ephemeris.bds_geo: only BeiDou slots can be GEO records, got "
+                             f"{self.sat_id[geo & (system != 'C')].tolist() if prn_shape else 'a non-C slot'}")
+        object.__setattr__(self, "bds_geo", geo)
 
     @property
     def sat_id(self) -> NDArray:
@@ -127,7 +142,12 @@ class Ephemeris:
         anomaly, the node, the inclination rate and the clock polynomial, all
         propagated here; the harmonic terms depend on the argument of latitude only.
         Used to write broadcast records valid (|t − toe| < 2 h) at a flight's time.
+        A BeiDou GEO record (``bds_geo``) cannot be moved so (its frame turns with
+        tk): refused; :func:`testbed.sensors.gnss.broadcast.geo_record` re-fits one.
         """
+        if np.any(self.bds_geo):
+            raise ValueError(f"Ephemeris.rebased: BeiDou GEO records {self.sat_id[self.bds_geo].tolist()} cannot be "
+                             f"re-referenced exactly; expected ordinary-form records only")
         new = np.broadcast_to(np.asarray(toe_gps, float), self.prn.shape)
         dt = new - self.toe_gps
         new_week = np.floor(new / SECONDS_PER_WEEK)
@@ -252,8 +272,47 @@ def sat_states(eph: Ephemeris, t_gps: ArrayLike, *, per_slot: bool = False
     vx = xp_dot * cO - yp_dot * ci * sO + yp * si * sO * i_dot - Omega_dot_k * y
     vy = xp_dot * sO + yp_dot * ci * cO - yp * si * cO * i_dot + Omega_dot_k * x
     vz = yp_dot * si + yp * ci * i_dot
+    pos, vel = np.stack([x, y, z], -1), np.stack([vx, vy, vz], -1)
+    if np.any(eph.bds_geo):
+        gpos, gvel = _bds_geo_states(eph, tk, xp, yp, xp_dot, yp_dot, si, ci, i_dot)
+        pos = np.where(eph.bds_geo[:, None], gpos, pos)
+        vel = np.where(eph.bds_geo[:, None], gvel, vel)
     tc = t - eph.toc_gps
     rel = F_REL * e * eph.sqrt_a * sE
     clock = eph.af0 + eph.af1 * tc + eph.af2 * tc**2 + rel
     clock_rate = eph.af1 + 2 * eph.af2 * tc + F_REL * e * eph.sqrt_a * cE * E_dot
-    return (np.stack([x, y, z], -1), np.stack([vx, vy, vz], -1), clock, clock_rate)
+    return pos, vel, clock, clock_rate
+
+
+#: BeiDou's Earth rotation rate (CGCS2000, BDS-SIS-ICD-B1I-3.0 §5.2.4.12), rad/s: the GEO frame turns at it
+OMEGA_EARTH_BDS = 7.292115e-5
+_GEO_TILT = np.radians(-5.0)  # the ICD's R_X(−5°)
+
+
+def _bds_geo_states(eph: Ephemeris, tk, xp, yp, xp_dot, yp_dot, si, ci, i_dot) -> tuple[NDArray, NDArray]:
+    """ECEF position and velocity (..., S, 3) of BeiDou GEO records (BDS-SIS-ICD-B1I-3.0 §5.2.4.12).
+
+    The orbit is placed in a frame whose node does not follow the Earth over tk,
+    Ω = Ω0 + Ω̇·tk − Ω̇e·toe, then turned by R_Z(Ω̇e·tk)·R_X(−5°) into ECEF. Ω̇e is
+    BeiDou's (:data:`OMEGA_EARTH_BDS`) for the turn; ``omega0`` holds the record's Ω0
+    re-referred by :mod:`~testbed.sensors.gnss.broadcast` so that the GPS Ω̇e·toe here
+    gives the ICD's Ω at toe.
+    """
+    Omega = eph.omega0 + eph.omega_dot * tk - OMEGA_EARTH * eph.toe_sow
+    sO, cO = np.sin(Omega), np.cos(Omega)
+    xg = xp * cO - yp * ci * sO
+    yg = xp * sO + yp * ci * cO
+    zg = yp * si
+    vxg = xp_dot * cO - yp_dot * ci * sO + yp * si * sO * i_dot - eph.omega_dot * yg
+    vyg = xp_dot * sO + yp_dot * ci * cO - yp * si * cO * i_dot + eph.omega_dot * xg
+    vzg = yp_dot * si + yp * ci * i_dot
+    c5, s5 = np.cos(_GEO_TILT), np.sin(_GEO_TILT)
+    # R_X(−5°): (x, y c5 + z s5, −y s5 + z c5); then R_Z(φ), φ = Ω̇e·tk: (x cφ + y sφ, −x sφ + y cφ, z)
+    y1, z1 = yg * c5 + zg * s5, -yg * s5 + zg * c5
+    vy1, vz1 = vyg * c5 + vzg * s5, -vyg * s5 + vzg * c5
+    phi = OMEGA_EARTH_BDS * tk
+    sp, cp = np.sin(phi), np.cos(phi)
+    pos = np.stack([xg * cp + y1 * sp, -xg * sp + y1 * cp, z1], -1)
+    vel = np.stack([vxg * cp + vy1 * sp + OMEGA_EARTH_BDS * (-xg * sp + y1 * cp),
+                    -vxg * sp + vy1 * cp - OMEGA_EARTH_BDS * (xg * cp + y1 * sp), vz1], -1)
+    return pos, vel
