@@ -12,7 +12,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOC_FILES = sorted([ROOT / "README.md", ROOT / "CHANGELOG.md", *(ROOT / "docs").rglob("*.md")])
 SOURCE_FILES = sorted([*(ROOT / "testbed").rglob("*.py"), *(ROOT / "tests").rglob("*.py"),
-                       *(ROOT / "benchmarks").rglob("*.py")])
+                       *(ROOT / "benchmarks").rglob("*.py"), *(ROOT / "aircraft").rglob("*.toml"),
+                       *(ROOT / "approaches").rglob("*.toml")])
 #: a path into the repository, as prose or a code span writes it
 REPO_PATH = re.compile(r"(?<![\w./-])((?:testbed|tests|benchmarks|docs|approaches|aircraft|\.ci)/[\w./-]*\w)")
 #: a Markdown file named by its bare name (ARCHITECTURE.md, DPE.md, ...): it must exist somewhere here
@@ -69,7 +70,7 @@ def test_a_page_names_only_files_that_exist(path):
 
 
 def test_module_texts_name_only_files_that_exist():
-    """Docstrings and comments of the package, the tests and the benchmarks: a cited design
+    """Docstrings and comments of the package, the tests, the benchmarks and the shipped files: a cited design
     page (docs/...) or Markdown file must be in the repository, not in a private note."""
     names = _markdown_names()
     bad = []

@@ -122,3 +122,25 @@ def test_rnp_flies_its_turn_over_the_synthetic_valley():
     agl_model = tr.h - terrain.height(tr.lat_deg, tr.lon_deg)
     assert np.median(np.abs(agl_model - tr.agl)) < 1.0
     assert s.min_agl_m > 10.0
+
+
+@pytest.mark.parametrize("speed_kt, trims", [(135.0, False), (140.0, True), (145.0, True)])
+def test_the_737_trims_at_zunz_from_140_kt(speed_kt, trims):
+    """Why the b737 file flies 145 kt CAS: at the final's start (3639 m, flaps 0.75, 3° path) the stock JSBSim
+    737 does not trim at 135 kt and does at 140 kt; 145 kt keeps a margin."""
+    import dataclasses
+
+    from testbed.config import ApproachConfig, load_approach, validate
+    from testbed.schema import ConfigError
+    from testbed.sim.preflight import check_trim
+    from testbed.sim.setup import load_terrain_for
+
+    ap = load_approach("zunz-rwy05-final")
+    data = ap.config.model_dump(exclude_unset=True)
+    data.setdefault("flight", {})["speed_kt"] = speed_kt
+    ap = dataclasses.replace(ap, config=validate(ApproachConfig, data, ap.source))
+    if trims:
+        check_trim(ap, load_terrain_for(ap))
+    else:
+        with pytest.raises(ConfigError, match="does not trim"):
+            check_trim(ap, load_terrain_for(ap))
