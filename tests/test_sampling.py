@@ -212,31 +212,86 @@ def test_vertical_misleading_rate_against_the_geometry_closed_form(tmp_path):
     probability 2 Q(VPL/σ_v) · P(χ²_{n-4} < T²). H and W are built here from the satellites' positions and
     the error model's σ (no monitor code); the weighted estimate's 99 % interval holds the exact rate."""
     from testbed.campaign.context import cell_context
-    from testbed.sensors.gnss.errors import sigma_pseudorange
 
     spec = loose_spec(tmp_path, "cf", 2000, 1000, '[sampling]\nmethod = "importance"', p_fa=1e-3, p_md=1e-2,
                       per_epoch=2000, duration=10.0)
     out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
     loaded = load_spec(spec)
     ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
-    g, frame, st = ctx.g_geom, ctx.setup.frame, ctx.setup.gnss
     ep = pq.read_table(out / "epochs.parquet").to_pydict()
     tr = pq.read_table(out / "trials.parquet").to_pydict()
     T = ctx.t.size
     vpl = np.asarray(ep["vpl"]).reshape(-1, T)[0]
     thr = np.asarray(ep["threshold"]).reshape(-1, T)[0]
-    exact = []
-    for t in range(T):
+    exact = float(np.mean([2 * stats.norm.sf(vpl[t] / np.sqrt(C[2, 2])) * stats.chi2.cdf(thr[t], n - 4)
+                           for t, (C, n) in enumerate(geometry_covariances(ctx))]))
+    over = (np.abs(np.asarray(ep["ve"])) > np.asarray(ep["vpl"])) & ~np.asarray(ep["alert"], bool)
+    per_trial = over.reshape(-1, T).sum(1)
+    r = weighted_rate(per_trial, T, np.asarray(tr["log_weight"]), 0.99)
+    assert 1e-12 < exact < 1e-6, exact
+    assert r.settled and r.lo <= exact <= r.hi, (r, exact)
+
+
+def horizontal_tail(C: np.ndarray, L: float) -> float:
+    """P(|x| > L) for x ~ N(0, C) in the plane: (1 / 2π√det C) ∫₀^{2π} exp(−L² q(θ)/2) / q(θ) dθ with
+    q(θ) = u(θ)ᵀ C⁻¹ u(θ) (polar coordinates, the radial integral done), by scipy's quadrature."""
+    from scipy import integrate
+
+    Ci = np.linalg.inv(C)
+
+    def f(th):
+        u = np.array([np.cos(th), np.sin(th)])
+        q = u @ Ci @ u
+        return np.exp(-0.5 * L**2 * q) / q
+
+    return integrate.quad(f, 0, 2 * np.pi, limit=200, epsabs=0)[0] / (2 * np.pi * np.sqrt(np.linalg.det(C)))
+
+
+def geometry_covariances(ctx):
+    """Per epoch: the ENU position covariance (HᵀWH)⁻¹[:3, :3] of a WLS fix on the visible satellites with the
+    error model's σ, and their count (built from the satellites' positions here, no monitor code)."""
+    from testbed.sensors.gnss.errors import sigma_pseudorange
+
+    g, frame, st = ctx.g_geom, ctx.setup.frame, ctx.setup.gnss
+    out = []
+    for t in range(ctx.t.size):
         vis = g.visible[t]
         los = g.sat_pos_ecef[t, vis] - g.ant_pos_ecef[t]
         u = (los / np.linalg.norm(los, axis=1, keepdims=True)) @ frame.R.T  # ENU
         H = np.column_stack([-u, np.ones(vis.sum())])
         W = np.diag(1 / sigma_pseudorange(g.elevation[t, vis], st.sigma_ura_m, st.sigma_tropo_zenith_m) ** 2)
-        sv = np.sqrt(np.linalg.inv(H.T @ W @ H)[2, 2])
-        exact.append(2 * stats.norm.sf(vpl[t] / sv) * stats.chi2.cdf(thr[t], vis.sum() - 4))
-    exact = float(np.mean(exact))
-    over = (np.abs(np.asarray(ep["ve"])) > np.asarray(ep["vpl"])) & ~np.asarray(ep["alert"], bool)
-    per_trial = over.reshape(-1, T).sum(1)
-    r = weighted_rate(per_trial, T, np.asarray(tr["log_weight"]), 0.99)
-    assert 1e-12 < exact < 1e-6, exact
+        out.append((np.linalg.inv(H.T @ W @ H)[:3, :3], int(vis.sum())))
+    return out
+
+
+def test_hmi_rate_at_the_default_settings_against_the_closed_form(tmp_path):
+    """The applied operating point (raim-hmi-fault-free: GPS RAIM on the runway-05 final at the default
+    settings, the proposal aimed at the alert limits), on the first 10 s. An epoch is hazardous when its error
+    exceeds the alert limit of a dimension whose PL is within it, with no alert: probability
+    P(|e_v| > VAL)·[VPL ≤ VAL] + P(|e_h| > HAL)·[HPL ≤ HAL], times P(χ²_{n-4} < T²) (the residual test is
+    independent of the error), less the two together, which is below the smaller of the two (here 1e-300
+    against 1e-23: the sum is exact to every digit). The vertical tail by scipy.stats.norm, the horizontal one by
+    quadrature of the geometry's 2-D Gaussian; the weighted estimate's 99 % interval holds the sum."""
+    from testbed.campaign.context import cell_context
+    from testbed.resources import campaigns_dir
+
+    text = (campaigns_dir() / "raim-hmi-fault-free.toml").read_text()
+    text = text.replace("trials = 20000", "trials = 2000").replace("chunk_trials = 2000", "chunk_trials = 1000")
+    text = text.replace("per_epoch_trials = 0", "per_epoch_trials = 2000\nduration_s = 10.0")
+    spec = tmp_path / "hmi.toml"
+    spec.write_text(text)
+    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
+    loaded = load_spec(spec)
+    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
+    ep = pq.read_table(out / "epochs.parquet").to_pydict()
+    tr = pq.read_table(out / "trials.parquet").to_pydict()
+    T = ctx.t.size
+    hpl, vpl, thr = (np.asarray(ep[k]).reshape(-1, T)[0] for k in ("hpl", "vpl", "threshold"))
+    parts = np.array([np.array([(2 * stats.norm.sf(ctx.val / np.sqrt(C[2, 2])) if vpl[t] <= ctx.val else 0.0),
+                                (horizontal_tail(C[:2, :2], ctx.hal) if hpl[t] <= ctx.hal else 0.0)])
+                      * stats.chi2.cdf(thr[t], n - 4) for t, (C, n) in enumerate(geometry_covariances(ctx))])
+    assert (parts.min(1) <= 1e-6 * parts.max(1)).all()  # the union is the sum
+    exact = float(parts.sum(1).mean())
+    r = weighted_rate(np.asarray(tr["hmi_epochs"], float), T, np.asarray(tr["log_weight"]), 0.99)
+    assert 1e-30 < exact < 1e-15, exact
     assert r.settled and r.lo <= exact <= r.hi, (r, exact)

@@ -334,7 +334,7 @@ def _weighted_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str
     md += md_table(["cell", "monitor", "fault", "rate", "per", "estimate", "standard error",
                     f"{100 * inp.conf:g} % interval", "trials", "trials with the event", "effective events",
                     "largest share", "VOV", "verdict"], rows)
-    md += ["The sections below count the trials as drawn, unweighted: the proposal moves one epoch of a sortie, so "
+    md += ["", "The sections below count the trials as drawn, unweighted: the proposal moves one epoch of a sortie, so "
            "their protection levels and availability are the error model's to within that epoch, their accuracy "
            "and figures are the proposal's.", ""]
     return md, []
