@@ -43,7 +43,7 @@ from scipy import special, stats
 
 from testbed.campaign.context import CellContext
 from testbed.integrity.monitor import Observations
-from testbed.integrity.registry import monitor_inputs
+from testbed.integrity.registry import monitor_inputs, monitor_names
 from testbed.schema import ConfigError
 from testbed.sim import pipeline
 from testbed.sim.streams import StreamTree
@@ -76,13 +76,15 @@ def check_sampling(loaded, cells) -> None:
         return
     problems = []
     name = sampling_monitor(spec)
+    alone = [m for m in monitor_names() if monitor_inputs(m) == frozenset({"gnss"})]
     if name is None:
         problems.append(f"[sampling] method = 'importance': no monitor of {list(spec.monitors)} reads the "
-                        "pseudoranges alone (gps_raim does); the proposal is aimed from such a monitor's linear "
-                        "model: add one to monitors, or set method = 'plain'")
+                        f"pseudoranges alone ({', '.join(alone)} do); the proposal is aimed from such a monitor's "
+                        "linear model: add one to monitors, or set method = 'plain'")
     elif monitor_inputs(name) != frozenset({"gnss"}):
         problems.append(f"[sampling.monitor] {name!r} reads {sorted(monitor_inputs(name))}: expected a monitor "
-                        "that reads the pseudoranges alone (gps_raim), whose position error is linear in them")
+                        f"that reads the pseudoranges alone ({', '.join(alone)}), whose position error is linear "
+                        "in them")
     for c in cells:
         g = c.config.gnss
         coloured = [k for k in ("multipath_tau_s", "ura_tropo_tau_s") if getattr(g, k) is not None]
