@@ -28,16 +28,15 @@ def gaussian_model(T: int, S: int, limit_sigmas: np.ndarray, seed: int = 3) -> L
     """A vertical-only monitor whose error is ``A_v · z`` (z standard normal, S satellites) and whose VPL at
     epoch t is ``limit_sigmas[t]`` standard deviations of that error."""
     rng = np.random.default_rng(seed)
-    A = np.zeros((T, 3, S))
-    A[:, 2] = rng.normal(size=(T, S)) * rng.uniform(0.5, 2.0, size=(T, 1))
+    A = rng.normal(size=(T, 3, S)) * rng.uniform(0.5, 2.0, size=(T, 1, 1))
     sigma_v = np.linalg.norm(A[:, 2], axis=-1)
-    return LinearModel(e0=np.zeros((T, 3)), A=A, used=np.ones((T, S), bool), hpl=np.full(T, np.nan),
-                       vpl=limit_sigmas * sigma_v, dimensions=("V",))
+    return LinearModel(e0=np.zeros((T, 3)), A=A, clock=rng.normal(size=(T, S)), used=np.ones((T, S), bool),
+                       hpl=np.full(T, np.nan), vpl=limit_sigmas * sigma_v, dimensions=("V",))
 
 
-def estimate(model: LinearModel, plan, n: int, seed: int, comps: Components | None = None, confidence=0.99):
-    """The per-epoch rate of ``|e_v| > VPL`` from ``n`` trials drawn from ``plan``'s proposal (or ``comps``),
-    through the campaign's own path: standard-normal draws, the pipeline's tilt, the mixture's weights."""
+def weighted_draws(model: LinearModel, plan, n: int, seed: int, comps: Components | None = None):
+    """``n`` trials' draws from ``plan``'s proposal (or ``comps``) and their log-weights, through the campaign's
+    own path: standard-normal draws, the pipeline's tilt, the mixture's weights."""
     T, _, S = model.A.shape
     comps = components(model, plan, np.inf, np.inf) if comps is None else comps
     rng = np.random.default_rng(seed)
@@ -46,11 +45,16 @@ def estimate(model: LinearModel, plan, n: int, seed: int, comps: Components | No
                         clock_drift=np.zeros((n, T)), rr_noise=np.zeros((n, T, S)), fault_seed=(0, (), 4, 0),
                         fault_bit_generator=np.random.PCG64)
     which = np.zeros(n, np.int64)
-    draw = draw_proposal([comps], which, plan, n, T, S, rng)
-    _, zt = pipeline.tilt_gnss_errors(errors, draw.shift, draw.scale)
-    lw = log_weights([comps], which, plan, zt)
+    draw = draw_proposal([comps], which, plan, z, rng)
+    _, zt = pipeline.tilt_gnss_errors(errors, draw.shift)
+    return zt, log_weights([comps], which, plan, zt)
+
+
+def estimate(model: LinearModel, plan, n: int, seed: int, comps: Components | None = None, confidence=0.99):
+    """The per-epoch rate of ``|e_v| > VPL`` from :func:`weighted_draws`."""
+    zt, lw = weighted_draws(model, plan, n, seed, comps)
     e_v = np.einsum("ts,nts->nt", model.A[:, 2], zt)
-    return weighted_rate((np.abs(e_v) > model.vpl).sum(-1), T, lw, confidence)
+    return weighted_rate((np.abs(e_v) > model.vpl).sum(-1), model.A.shape[0], lw, confidence)
 
 
 @pytest.mark.parametrize("T", [1, 4])
@@ -77,6 +81,23 @@ def test_efficiency_against_plain_sampling(p, goal):
     assert ratio > goal, ratio
 
 
+@pytest.mark.parametrize("p", [1e-5, 1e-7, 1e-9])
+def test_chi_square_tail_against_the_closed_form(p):
+    """The residual test's false alarm: the squared norm of the draws in the fit's parity space (12 slots, a
+    4-row fit: 8 degrees of freedom) exceeds T² with probability scipy.stats.chi2.sf(T², 8). The scale
+    proposal's weighted estimate holds it in its 99 % interval."""
+    model = gaussian_model(1, 12, np.array([5.0]))
+    comps = components(model, SamplingPlan(method="importance", proposal="scale", scale=3.0), np.inf, np.inf)
+    P, dof = comps.parity[0], int(comps.dof[0])
+    assert dof == 8 and np.allclose(P @ P, P) and np.allclose(P @ model.A[0].T, 0) and np.allclose(P @ model.clock[0], 0)
+    T2 = stats.chi2.isf(p, dof)
+    zt, lw = weighted_draws(model, SamplingPlan(method="importance", proposal="scale", scale=3.0), 4000, seed=9)
+    sse = np.einsum("ns,st,nt->n", zt[:, 0], P, zt[:, 0])
+    r = weighted_rate((sse > T2).astype(float), 1.0, lw, 0.99)
+    assert r.settled, r.problems
+    assert r.lo <= p <= r.hi, (r, p)
+
+
 def test_plain_method_reduces_to_the_binomial_mean():
     """With every log-weight 0 the estimate is k/n and its standard error √(p(1-p)/n) (ddof 1)."""
     hits = np.zeros(1000)
@@ -97,10 +118,11 @@ def test_weight_degeneracy_is_detected_on_bad_proposals():
     a = model.vpl[0] / np.linalg.norm(s)
     beside = np.linalg.svd(s[None])[2][-1]  # a unit direction with s · beside = 0
     plan = SamplingPlan(method="importance", defensive=0.0)
+    none = np.zeros((2, 8, 8)), np.zeros(2, np.int64)
     bad = {
-        "beside the event": Components(np.array([0]), (2 * a * beside)[None], np.ones((1, 8), bool)),
+        "beside the event": Components(np.array([0, 0]), np.stack([2 * a * beside, -2 * a * beside]), *none),
         "four times past it": Components(np.array([0, 0]), np.stack([4 * a * s, -4 * a * s]) / np.linalg.norm(s),
-                                         np.ones((2, 8), bool)),
+                                         *none),
     }
     for what, comps in bad.items():
         r = estimate(model, plan, 4000, seed=2, comps=comps)
@@ -294,4 +316,27 @@ def test_hmi_rate_at_the_default_settings_against_the_closed_form(tmp_path):
     exact = float(parts.sum(1).mean())
     r = weighted_rate(np.asarray(tr["hmi_epochs"], float), T, np.asarray(tr["log_weight"]), 0.99)
     assert 1e-30 < exact < 1e-15, exact
+    assert r.settled and r.lo <= exact <= r.hi, (r, exact)
+
+
+@pytest.mark.parametrize("p_fa", [1e-5, 1e-7])
+def test_false_alarm_rate_against_the_chi_square_closed_form(tmp_path, p_fa):
+    """Fault-free GPS RAIM on the runway-05 final's first 20 s, its false-alarm allocation ``p_fa``: the
+    residual test's statistic is χ² with n − 4 degrees of freedom (n: the satellites in view, counted here from
+    the geometry), so an epoch alerts with probability scipy.stats.chi2.sf(T², n − 4). The scale proposal's
+    weighted per-epoch false-alarm rate holds it in its 99 % interval."""
+    from testbed.campaign.context import cell_context
+
+    spec = loose_spec(tmp_path, "fa", 4000, 2000, '[sampling]\nmethod = "importance"\nproposal = "scale"\n'
+                      'scale = 3.0', p_fa=p_fa, p_md=1e-3, per_epoch=1, duration=20.0)
+    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
+    loaded = load_spec(spec)
+    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
+    thr = np.asarray(pq.read_table(out / "epochs.parquet").column("threshold").to_numpy())
+    n = ctx.g_geom.visible.sum(-1)
+    exact = float(np.mean(stats.chi2.sf(thr, n - 4)))
+    tr = pq.read_table(out / "trials.parquet").to_pydict()
+    r = weighted_rate(np.asarray(tr["onset_alerts"], float), np.asarray(tr["onset_epochs"], float),
+                      np.asarray(tr["log_weight"]), 0.99)
+    assert exact == pytest.approx(p_fa, rel=1e-6)  # T² is the χ² quantile at p_fa
     assert r.settled and r.lo <= exact <= r.hi, (r, exact)

@@ -20,8 +20,8 @@ A sortie has many epochs, and a shift at every one would multiply their likeliho
 weight. The proposal is a mixture instead: each trial shifts one epoch's errors, a component ``k`` (epoch,
 dimension, sign) chosen uniformly, and a share ``α`` of the trials (``defensive``) is drawn from ``p`` itself
 (Hesterberg 1995), so the weight ``w = 1 / (α + (1−α)/K · Σ_k q_k/p)`` is at most ``1/α`` and the mixture
-covers every epoch's event (Owen & Zhou 2000). ``proposal = "scale"`` scales one epoch's errors by ``c``
-instead (the test statistic's tail: false alarms). The component choice comes from the block's own stream
+covers every epoch's event (Owen & Zhou 2000). ``proposal = "scale"`` instead scales by ``c`` one epoch's
+errors in the fit's residual (parity) space, where the test statistic lives: its tail is the false alarm. The component choice comes from the block's own stream
 (``sampling``), so a trial is a pure function of (spec, cell, trial) as before.
 
 Estimates (:func:`weighted_rate`): the mean of ``w·X`` (a ratio of two weighted means where the denominator
@@ -106,12 +106,14 @@ class LinearModel:
     """A monitor's position error as a linear function of the standard-normal pseudorange draws, per epoch.
 
     e0 : (T, 3) ENU error on the error-free observations.  A : (T, 3, S) the error per unit draw of each slot
-    (σ times the error per metre).  used : (T, S) the slots the fix uses.  hpl, vpl : (T,) the protection levels
-    on the error-free observations (NaN: no solution).  dimensions : the dimensions the monitor bounds.
+    (σ times the error per metre).  clock : (T, S) the receiver clock's, likewise.  used : (T, S) the slots the
+    fix uses.  hpl, vpl : (T,) the protection levels on the error-free observations (NaN: no solution).
+    dimensions : the dimensions the monitor bounds.
     """
 
     e0: np.ndarray
     A: np.ndarray
+    clock: np.ndarray
     used: np.ndarray
     hpl: np.ndarray
     vpl: np.ndarray
@@ -120,12 +122,14 @@ class LinearModel:
 
 @dataclass(frozen=True)
 class Components:
-    """The mixture's components: component k acts on epoch ``epoch[k]`` with mean ``shift[k]`` (S,) (standard
-    units) or scales the draws of its ``used[k]`` slots by the plan's factor."""
+    """The mixture's components: component k acts on epoch ``epoch[k]``, with mean ``shift[k]`` (S,) (standard
+    units), or scaling the draws' part in the fit's residual space, the projector ``parity[k]`` (S, S) of rank
+    ``dof[k]``, by the plan's factor."""
 
     epoch: np.ndarray  # (K,)
     shift: np.ndarray  # (K, S)
-    used: np.ndarray  # (K, S) bool
+    parity: np.ndarray  # (K, S, S)
+    dof: np.ndarray  # (K,)
 
     @property
     def size(self) -> int:
@@ -152,6 +156,7 @@ def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None
     out, _ = mon.step(Observations(gnss), mon.initial_state())
     ref = pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
     pos = np.asarray(out.pos_enu, float).reshape(W, P, T, 3)
+    clk = np.asarray(out.clock, float).reshape(W, P, T)
     sigma = np.broadcast_to(np.asarray(base.sigma, float), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
     visible = np.broadcast_to(np.asarray(gnss.visible, bool), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
     ok = np.asarray(out.reason).reshape(W, P, T)[:, 0] == 0
@@ -163,7 +168,9 @@ def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None
         per_m = np.where(np.isfinite(per_m), per_m, 0.0)
         used = visible[w] & ok[w][:, None] & (np.abs(per_m).sum(1) > 0)
         A = per_m * np.where(used, sigma[w], 0.0)[:, None, :]
-        models.append(LinearModel(e0=pos[w, 0] - ref, A=A, used=used, hpl=np.where(ok[w], hpl[w], np.nan),
+        clock = np.nan_to_num(np.moveaxis(clk[w, 1:] - clk[w, :1], 0, -1) / PROBE_M) * np.where(used, sigma[w], 0.0)
+        models.append(LinearModel(e0=pos[w, 0] - ref, A=A, clock=clock, used=used,
+                                  hpl=np.where(ok[w], hpl[w], np.nan),
                                   vpl=np.where(ok[w], vpl[w], np.nan), dimensions=tuple(out.dimensions)))
     return models
 
@@ -194,11 +201,30 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
                 epochs.append(t)
                 shifts.append((sign * limit[t] - e0) * s / norm2)
     if plan.proposal == "scale":
-        ts = np.array(sorted(set(epochs)), np.int64)
-        return Components(ts, np.zeros((ts.size, S)), model.used[ts])
+        return _parity_components(model)
     ep = np.array(epochs, np.int64)
-    return Components(ep, np.array(shifts, float).reshape(ep.size, S), model.used[ep] if ep.size else
-                      np.zeros((0, S), bool))
+    return Components(ep, np.array(shifts, float).reshape(ep.size, S), np.zeros((ep.size, S, S)),
+                      np.zeros(ep.size, np.int64))
+
+
+def _parity_components(model: LinearModel) -> Components:
+    """One component per epoch with a solution and redundancy: the projector onto the residual (parity) space
+    of the fit, the orthogonal complement, among the used slots, of the span of the solution's rows (position
+    and clock: the whitened fit's column space). The test statistic is the draws' squared norm there."""
+    T, _, S = model.A.shape
+    epochs, proj, dof = [], [], []
+    for t in range(T):
+        u = np.flatnonzero(model.used[t])
+        if u.size <= 4 or not np.isfinite(model.vpl[t]):
+            continue
+        rows = np.vstack([model.A[t][:, u], model.clock[t][u][None]])  # (4, n_used)
+        q, r = np.linalg.qr(rows.T)
+        rank = int((np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()).sum())
+        P = np.zeros((S, S))
+        P[np.ix_(u, u)] = np.eye(u.size) - q[:, :rank] @ q[:, :rank].T
+        epochs.append(t), proj.append(P), dof.append(u.size - rank)
+    ep = np.array(epochs, np.int64)
+    return Components(ep, np.zeros((ep.size, S)), np.array(proj).reshape(ep.size, S, S), np.array(dof, np.int64))
 
 
 def cell_components(ctx: CellContext, spec, windows: np.ndarray | None) -> list[Components]:
@@ -231,27 +257,25 @@ class ProposalDraw:
     """One block's proposal: per trial the component drawn (−1: the error model itself) and the tilt."""
 
     component: np.ndarray  # (n,) int
-    shift: np.ndarray | None  # (n, T, S) standard units, or None
-    scale: np.ndarray | None  # (n, T, S) factor, or None
+    shift: np.ndarray  # (n, T, S) standard units
 
 
-def draw_proposal(comps: list[Components], which: np.ndarray, plan, n: int, T: int, S: int,
+def draw_proposal(comps: list[Components], which: np.ndarray, plan, z: np.ndarray,
                   rng: np.random.Generator) -> ProposalDraw:
-    """Choose each trial's component (defensive share: none) from ``rng`` and build its tilt. ``which`` (n,):
-    the index into ``comps`` of each trial's sky window (all 0 at a fixed start)."""
+    """Choose each trial's component (defensive share: none) from ``rng`` and the shift of its draws ``z``
+    (n, T, S): the component's mean, or ``(c − 1)`` times the draws' part in its parity space (which scales that
+    part by ``c``). ``which`` (n,): the index into ``comps`` of each trial's sky window (all 0 at a fixed start)."""
+    n = z.shape[0]
     u = rng.random(n)
     pick = rng.random(n)  # one uniform per trial whatever K: the stream does not depend on the geometry
     K = np.array([c.size for c in comps])[which]
     comp = np.where((u < plan.defensive) | (K == 0), -1, np.minimum((pick * K).astype(np.int64), K - 1))
-    shift = np.zeros((n, T, S)) if plan.proposal == "shift" else None
-    scale = np.ones((n, T, S)) if plan.proposal == "scale" else None
+    shift = np.zeros(z.shape)
     for i in np.flatnonzero(comp >= 0):
         c, k = comps[which[i]], comp[i]
-        if shift is not None:
-            shift[i, c.epoch[k]] = c.shift[k]
-        else:
-            scale[i, c.epoch[k]] = np.where(c.used[k], plan.scale, 1.0)
-    return ProposalDraw(comp, shift, scale)
+        t = c.epoch[k]
+        shift[i, t] = c.shift[k] if plan.proposal == "shift" else (plan.scale - 1.0) * (c.parity[k] @ z[i, t])
+    return ProposalDraw(comp, shift)
 
 
 def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray) -> np.ndarray:
@@ -268,7 +292,8 @@ def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray)
             ell = np.einsum("mks,ks->mk", zk, c.shift) - 0.5 * np.einsum("ks,ks->k", c.shift, c.shift)
         else:
             s = float(plan.scale)
-            ell = (-c.used.sum(-1) * np.log(s) + 0.5 * (1.0 - 1.0 / s**2) * np.einsum("mks,ks->mk", zk**2, c.used))
+            pz = np.einsum("kst,mkt->mks", c.parity, zk)  # the draws' part in each parity space
+            ell = -c.dof * np.log(s) + 0.5 * (1.0 - 1.0 / s**2) * np.einsum("mks,mks->mk", pz, pz)
         mix = special.logsumexp(ell, axis=1) - np.log(c.size)
         log_q = np.logaddexp(np.log(alpha), np.log1p(-alpha) + mix) if alpha > 0 else mix
         out[sel] = -log_q
@@ -279,10 +304,10 @@ def tilted_errors(ctx: CellContext, spec, errors, windows: np.ndarray | None, tr
     """The block's errors drawn from the proposal: ``(errors, log_weight (n,), component (n,))``."""
     comps = cell_components(ctx, spec, windows)
     n = errors.noise.shape[0]
-    T, S = errors.noise.shape[-2:]
     which = np.zeros(n, np.int64) if windows is None else np.searchsorted(np.unique(windows), windows)
-    draw = draw_proposal(comps, which, spec.sampling, n, T, S, tree.generator("sampling"))
-    tilted, z = pipeline.tilt_gnss_errors(errors, draw.shift, draw.scale)
+    _, z0 = pipeline.tilt_gnss_errors(errors)  # the draws as drawn
+    draw = draw_proposal(comps, which, spec.sampling, z0, tree.generator("sampling"))
+    tilted, z = pipeline.tilt_gnss_errors(errors, draw.shift)
     return tilted, log_weights(comps, which, spec.sampling, z), draw.component
 
 

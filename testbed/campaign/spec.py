@@ -256,10 +256,11 @@ class SamplingPlan(StrictModel):
                                   "protection level, no alert) or hazardous (beyond the alert limit, the "
                                   "protection level within it, no alert)")
     proposal: Literal["shift", "scale"] = Field(
-        "shift", description="importance: shift the mean of one epoch's errors to the event's nearest point, or "
-                             "scale one epoch's errors by `scale`")
+        "shift", description="importance: shift the mean of one epoch's errors to the event's nearest point "
+                             "(misleading information), or scale one epoch's errors in the fit's residual space by "
+                             "`scale` (the test statistic's tail: false alarms; `event` is not read)")
     scale: float = Field(2.0, gt=1.0, le=100.0, description="importance, proposal = 'scale': the factor on the "
-                                                            "errors' standard deviation")
+                                                            "residual-space errors' standard deviation")
     defensive: float = Field(0.1, ge=0.0, lt=1.0, description="importance: share of the trials drawn from the error "
                                                               "model itself (bounds every weight by 1/defensive)")
 
@@ -274,6 +275,9 @@ class SamplingPlan(StrictModel):
         if self.proposal == "shift" and self.scale != type(self).model_fields["scale"].default:
             raise ValueError(f"[scale] read only with proposal = 'scale', not with proposal = 'shift' "
                              f"(got {self.scale!r})")
+        if self.proposal == "scale" and self.event != type(self).model_fields["event"].default:
+            raise ValueError(f"[event] read only with proposal = 'shift' (proposal = 'scale' aims at the test "
+                             f"statistic's tail), got {self.event!r}")
         return self
 
 

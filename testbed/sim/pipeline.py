@@ -91,17 +91,15 @@ def draw_gnss(plan: SensorPlan, geom: GnssGeometry, streams: StreamTree, n_trial
     return gnss_observations(geom, gnss_errors(plan, geom, streams, n_trials), list(faults))
 
 
-def tilt_gnss_errors(errors: GnssErrors, shift: np.ndarray | None = None, scale: np.ndarray | None = None
-                     ) -> tuple[GnssErrors, np.ndarray]:
-    """``errors`` with their standard-normal pseudorange draws ``z`` moved to ``scale·z + shift`` (each
-    (n, T, S) or broadcast to the noise; None: 0 / 1): an importance-sampling proposal
-    (:mod:`testbed.campaign.sampling`). Only for white errors, ``noise = σ·z`` (no Gauss-Markov component:
-    the caller checks). Returns the tilted errors and their draws ``z' = noise'/σ`` (0 where σ is 0), where
-    the caller evaluates its likelihood ratio; the clock, range-rate and fault streams are left as drawn."""
+def tilt_gnss_errors(errors: GnssErrors, shift: np.ndarray | None = None) -> tuple[GnssErrors, np.ndarray]:
+    """``errors`` with their standard-normal pseudorange draws ``z`` moved to ``z + shift`` (``shift`` (n, T, S)
+    or broadcast to the noise; None: none): an importance-sampling proposal (:mod:`testbed.campaign.sampling`,
+    whose shift may itself be a function of ``z``: a scaling). Only for white errors, ``noise = σ·z`` (no
+    Gauss-Markov component: the caller checks). Returns the tilted errors and their draws ``z' = noise'/σ`` (0
+    where σ is 0), where the caller evaluates its likelihood ratio; the clock, range-rate and fault streams are
+    left as drawn."""
     sigma = np.broadcast_to(np.asarray(errors.sigma, float), np.shape(errors.noise))
     noise = np.asarray(errors.noise, float)
-    if scale is not None:
-        noise = noise * scale
     if shift is not None:
         noise = noise + sigma * shift
     with np.errstate(invalid="ignore", divide="ignore"):
