@@ -187,11 +187,14 @@ def test_importance_agrees_with_brute_force_on_the_campaign_path(tmp_path):
 
 
 def test_importance_campaign_is_deterministic_and_reported(tmp_path):
-    """Same seed, other chunking: the same weights and tables bit for bit; the report prints the weighted
-    rates with their diagnostics and leaves the count-based sections out."""
+    """Same seed, other chunking, stopped after two chunks and resumed: the same weights and tables bit for
+    bit; the report prints the weighted rates with their diagnostics and leaves the count-based sections out."""
     samp = '[sampling]\nmethod = "importance"'
     one = run_campaign(loose_spec(tmp_path, "a", 400, 400, samp, duration=10.0), tmp_path / "a", progress=False)
-    two = run_campaign(loose_spec(tmp_path, "b", 400, 100, samp, duration=10.0), tmp_path / "b", progress=False)
+    spec_b = loose_spec(tmp_path, "b", 400, 100, samp, duration=10.0)
+    assert run_campaign(spec_b, tmp_path / "b", progress=False, max_chunks=2).chunks_run == 2
+    two = run_campaign(spec_b, tmp_path / "b", progress=False, resume=True)
+    assert two.chunks_skipped == 2
     ta, tb = pq.read_table(one.out_dir / "trials.parquet"), pq.read_table(two.out_dir / "trials.parquet")
     assert "log_weight" in ta.column_names and np.isfinite(ta.column("log_weight").to_numpy()).all()
     assert tables_equal(ta, tb)
