@@ -13,7 +13,7 @@ from scipy import stats
 from testbed.campaign.report import write_report
 from testbed.campaign.runner import run_campaign
 from testbed.campaign.sampling import Components, LinearModel, components, draw_proposal, log_weights, weighted_rate
-from testbed.campaign.spec import SamplingPlan, expand_cells, load_spec
+from testbed.campaign.spec import SamplingPlan, expand_cells, load_spec, spec_changes
 from testbed.campaign.store import tables_equal
 from testbed.schema import ConfigError
 from testbed.sensors.gnss.synth import GnssErrors
@@ -209,6 +209,11 @@ def test_plain_campaigns_are_as_before(tmp_path):
     """A plain plan (the default, or written out) changes neither the spec hash a stored run is resumed by
     (pinned: the hash before the table existed) nor any table, and adds no weight column."""
     assert load_spec("quick-look").hash == "9f1e4ceb12fda31d"
+    now = load_spec("quick-look").spec.model_dump(mode="json")
+    stored = {k: v for k, v in now.items() if k != "sampling"}  # a manifest written before the table existed
+    assert spec_changes(stored, now) == [] and spec_changes(now, stored) == []
+    imp = {**now, "sampling": {**now["sampling"], "method": "importance"}}
+    assert 'sampling.method: (not set) → "importance"' in spec_changes(stored, imp)  # a resume is refused
     bare = run_campaign(loose_spec(tmp_path, "bare", 200, 100, duration=10.0), tmp_path / "bare", progress=False)
     said = run_campaign(loose_spec(tmp_path, "said", 200, 100, '[sampling]\nmethod = "plain"', duration=10.0),
                         tmp_path / "said", progress=False)
