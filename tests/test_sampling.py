@@ -205,6 +205,20 @@ def test_importance_campaign_is_deterministic_and_reported(tmp_path):
     assert "## Minimal detectable bias" not in text and "## Misleading information per cell" not in text
 
 
+def test_importance_weights_are_the_same_on_dask_workers(tmp_path):
+    """Chunks on a Dask cluster's workers (their own threads and caches) give the in-process weights and tables."""
+    from distributed import Client, LocalCluster
+
+    samp = '[sampling]\nmethod = "importance"'
+    here = run_campaign(loose_spec(tmp_path, "a", 300, 100, samp, duration=10.0), tmp_path / "a", progress=False)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        there = run_campaign(loose_spec(tmp_path, "b", 300, 100, samp, duration=10.0), tmp_path / "b",
+                             scheduler=client, progress=False)
+    assert there.chunks_run == 3
+    assert tables_equal(pq.read_table(here.out_dir / "trials.parquet"), pq.read_table(there.out_dir / "trials.parquet"))
+
+
 def test_plain_campaigns_are_as_before(tmp_path):
     """A plain plan (the default, or written out) changes neither the spec hash a stored run is resumed by
     (pinned: the hash before the table existed) nor any table, and adds no weight column."""
