@@ -79,11 +79,11 @@ def check_sampling(loaded, cells) -> None:
     alone = [m for m in monitor_names() if monitor_inputs(m) == frozenset({"gnss"})]
     if name is None:
         problems.append(f"[sampling] method = 'importance': no monitor of {list(spec.monitors)} reads the "
-                        f"pseudoranges alone ({', '.join(alone)} do); the proposal is aimed from such a monitor's "
+                        f"pseudoranges alone (monitors that do: {', '.join(alone)}); the proposal is aimed from such a monitor's "
                         "linear model: add one to monitors, or set method = 'plain'")
     elif monitor_inputs(name) != frozenset({"gnss"}):
         problems.append(f"[sampling.monitor] {name!r} reads {sorted(monitor_inputs(name))}: expected a monitor "
-                        f"that reads the pseudoranges alone ({', '.join(alone)}), whose position error is linear "
+                        f"that reads the pseudoranges alone (monitors that do: {', '.join(alone)}), whose position error is linear "
                         "in them")
     for c in cells:
         g = c.config.gnss
