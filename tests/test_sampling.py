@@ -363,3 +363,29 @@ def test_false_alarm_rate_against_the_chi_square_closed_form(tmp_path, p_fa):
                       np.asarray(tr["log_weight"]), 0.99)
     assert exact == pytest.approx(p_fa, rel=1e-6)  # T² is the χ² quantile at p_fa
     assert r.settled and r.lo <= exact <= r.hi, (r, exact)
+
+
+def test_horizontal_misleading_rate_against_the_quadrature(tmp_path):
+    """The horizontal event, whose region is the outside of an ellipse the proposal meets at the two ends of
+    its major axis: GPS RAIM at the default settings, first 10 s, epochs with |e_h| > HPL and no alert
+    (about 1e-27 per epoch). Exact: the geometry's 2-D Gaussian tail by quadrature times P(χ²_{n-4} < T²);
+    the weighted estimate's 99 % interval holds it."""
+    from testbed.campaign.context import cell_context
+
+    spec = tmp_path / "mi.toml"
+    spec.write_text('name = "mi"\napproaches = ["zunz-rwy05-final"]\nmonitors = ["gps_raim"]\ntrials = 2000\n'
+                    'base_seed = 4\nchunk_trials = 1000\nper_epoch_trials = 2000\nduration_s = 10.0\n'
+                    '[sampling]\nmethod = "importance"\nevent = "misleading"\n')
+    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
+    loaded = load_spec(spec)
+    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
+    ep = pq.read_table(out / "epochs.parquet").to_pydict()
+    tr = pq.read_table(out / "trials.parquet").to_pydict()
+    T = ctx.t.size
+    hpl, thr = (np.asarray(ep[k]).reshape(-1, T)[0] for k in ("hpl", "threshold"))
+    exact = float(np.mean([horizontal_tail(C[:2, :2], hpl[t]) * stats.chi2.cdf(thr[t], n - 4)
+                           for t, (C, n) in enumerate(geometry_covariances(ctx))]))
+    over = (np.asarray(ep["he"]) > np.asarray(ep["hpl"])) & ~np.asarray(ep["alert"], bool)
+    r = weighted_rate(over.reshape(-1, T).sum(1), T, np.asarray(tr["log_weight"]), 0.99)
+    assert 1e-32 < exact < 1e-20, exact
+    assert r.settled and r.lo <= exact <= r.hi, (r, exact)
