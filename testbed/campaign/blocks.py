@@ -19,9 +19,10 @@ from typing import Callable
 import numpy as np
 
 from testbed import memo
+from testbed.campaign import sampling
 from testbed.campaign.context import CellContext
 from testbed.campaign.sorties import sky_windows, sortie_offsets
-from testbed.campaign.tables import monitor_tables, paired_columns
+from testbed.campaign.tables import monitor_tables, paired_columns, weight_columns
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.monitor import Observations, provided_output
 from testbed.records import MonitorOutput, map_epoch_arrays
@@ -55,6 +56,10 @@ class BlockDraw:
     #: the modelled observations the correlograms are synthesised from (their channel references); the
     #: monitors read ``obs.gnss``, which holds the correlograms' code delays when the approach says so
     correlator_gnss: object = None
+    #: importance sampling (:mod:`.sampling`): each trial's log p/q and the proposal component it was drawn
+    #: from (-1: the error model itself); None with plain sampling
+    log_weight: np.ndarray | None = None
+    component: np.ndarray | None = None
 
 
 def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
@@ -73,6 +78,11 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     # the fault-free errors are shared by every GNSS fault of the sweep, the observations by its cells of one fault
     errors = lambda: memo.shared(sky_key + ("errors", memo.seed_key(tree.seed("gnss")), n),  # noqa: E731
                                  lambda: pipeline.gnss_errors(plan, geom(), tree, n))
+    log_weight = component = None
+    if spec.sampling.method == "importance":  # the errors from the cell's proposal: its observations its own
+        drawn, log_weight, component = sampling.tilted_errors(ctx, spec, errors(), windows, tree)
+        errors = lambda: drawn  # noqa: E731
+        sky_key = sky_key + ("importance", ctx.cell.index)
     gnss, gtruth = _shared_draw(sky_key, faults, GNSS_KINDS, tree.seed("gnss"), n,
                                 lambda: pipeline.gnss_observations(geom(), errors(), faults))
     vis = vtruth = None
@@ -96,7 +106,8 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
         tracks = pipeline.draw_features(plan, ctx.feature_ids, vtruth, tree, n_trials=n)
     present = _fault_present(gnss, gtruth, vis, vtruth, faulted=bool(faults))
     return BlockDraw(trials, Observations(gnss, vis, imu, init, features=tracks), gtruth, vtruth, target, offsets,
-                     np.full(n, -1, np.int64) if windows is None else windows, present, tree, model_gnss)
+                     np.full(n, -1, np.int64) if windows is None else windows, present, tree, model_gnss,
+                     log_weight, component)
 
 
 def _shared_draw(key: tuple, faults: list, kinds: tuple, seed: np.random.SeedSequence, n: int, draw: Callable):
@@ -214,7 +225,7 @@ def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndar
             ref = pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
             own_rows, own_hist, own_ep = monitor_tables(ctx, d, out, ref, keep_ep)
             rows[mon.name] = {"cell": np.full(d.trials.size, ctx.cell.index, np.int32), **own_rows,
-                              **paired_columns(ctx, d, out, outs)}
+                              **paired_columns(ctx, d, out, outs), **weight_columns(d)}
             hist.update(own_hist)
             if own_ep is not None:
                 ep[mon.name] = {"cell": np.full(own_ep["trial"].size, ctx.cell.index, np.int32), **own_ep}

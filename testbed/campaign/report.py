@@ -28,7 +28,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from testbed.campaign.detection import MDB, binomial_interval, detection_table, minimal_detectable_bias
+from testbed.campaign.sampling import MAX_LARGEST_SHARE, MAX_VOV, MIN_EFFECTIVE_EVENTS, weighted_rate
 from testbed.campaign.store import read_columns
+from testbed.monitors import monitor_inputs
 from testbed.markdown import table as md_table
 from testbed.outputs import OutputSet
 from testbed.viz.stanford import hist_edges, stanford_figure
@@ -102,6 +104,8 @@ def headlines(source: str | Path | ReportInputs, limit: int = 8) -> list[str]:
     counted apart) with their interval, and the sorties with HMI. ``source``: a result folder, or the
     :func:`report_inputs` already read from it (the detection table is then not computed again)."""
     inp = source if isinstance(source, ReportInputs) else report_inputs(source)
+    if inp.weighted:
+        return weighted_headlines(inp, limit)
     rows, conf, varying = inp.det_rows, inp.conf, inp.varying
     tc = inp.tc if "hmi_epochs" in inp.tc else None
     lines = []
@@ -165,6 +169,11 @@ class ReportInputs:
     figdir: Path  # where the figures are drawn (staged until the report is committed)
 
     @property
+    def weighted(self) -> bool:
+        """The trials were drawn by importance sampling: every rate is a weighted estimate (:mod:`.sampling`)."""
+        return "log_weight" in self.tc
+
+    @property
     def calibration(self) -> str:
         """The VA-RAIM calibration modes of the cells, as the spec sets them (``gps``, ``none`` or both)."""
         return ", ".join(sorted({str(c.get("calibration", "gps")) for c in self.cells}))
@@ -218,8 +227,11 @@ def _write_report(inp: ReportInputs, outs: OutputSet) -> Path:
           f"(first {man['spec']['per_epoch_trials']} trials per cell), `stanford_hist.parquet`", ""]
     md += _exercise_lines(inp)
     figures: list[tuple[str, str]] = []
-    for section in (_detection_section, _stanford_section, _misleading_section, _pl_and_availability_section,
-                    _paired_section, _pl_time_section, _vision_range_section):
+    sections = (_detection_section, _stanford_section, _misleading_section, _pl_and_availability_section,
+                _paired_section, _pl_time_section, _vision_range_section)
+    if inp.weighted:  # counts under the proposal are no rates of the error model: the weighted estimates instead
+        sections = (_weighted_section, _pl_and_availability_section, _pl_time_section)
+    for section in sections:
         lines, figs = section(inp)
         md += lines
         figures += figs
@@ -227,6 +239,105 @@ def _write_report(inp: ReportInputs, outs: OutputSet) -> Path:
     idx = inp.out_dir / "report.md"
     outs.staged(idx).write_text("\n".join(md) + "\n")
     return idx
+
+
+#: the rates of an importance-sampled campaign: (name, per, numerator, denominator, which cells), from the
+#: trials table's columns (``den`` None: an indicator per sortie, among the trials ``den_sortie`` selects)
+WEIGHTED_RATES = (
+    ("P_FA", "epoch", "free"), ("P_FA", "sortie", "free"),
+    ("P_MD", "epoch", "faulty"), ("P_MD", "sortie", "faulty"),
+    ("P_MI", "epoch", "all"), ("P_MI", "sortie", "all"),
+    ("P_HMI", "epoch", "all"), ("P_HMI", "sortie", "all"),
+)
+
+
+def _rate_terms(tc: dict, sel: np.ndarray, rate: str, per: str) -> tuple[np.ndarray, np.ndarray]:
+    """The numerator and denominator per trial of one rate (:data:`WEIGHTED_RATES`) on the rows ``sel``.
+    Per epoch: false alarms among the epochs with a solution, missed detections among the faulty epochs with
+    one, MI and HMI among all epochs; per sortie: an indicator (MD: among the sorties that exercised the fault)."""
+    col = lambda k: np.asarray(tc[k][sel], float)  # noqa: E731
+    if rate == "P_FA":
+        return (col("onset_alerts"), col("onset_epochs")) if per == "epoch" else (col("detected"), np.ones(sel.sum()))
+    if rate == "P_MD":
+        if per == "epoch":
+            return col("onset_epochs") - col("onset_alerts"), col("onset_epochs")
+        ex = col("onset_epochs") > 0
+        return (ex & (col("detected") == 0)).astype(float), ex.astype(float)
+    k = "mi_epochs" if rate == "P_MI" else "hmi_epochs"
+    return (col(k), col("epochs")) if per == "epoch" else ((col(k) > 0).astype(float), np.ones(sel.sum()))
+
+
+def weighted_rates(inp: ReportInputs) -> list[dict]:
+    """Every rate of :data:`WEIGHTED_RATES` per cell and monitor, as :func:`~.sampling.weighted_rate` estimates it
+    from the trials' log-weights (rows: cell, monitor, fault, rate, per, and the :class:`~.sampling.Rate`)."""
+    tc = inp.tc
+    lw = np.asarray(tc["log_weight"], float)
+    out = []
+    for c in inp.cells:
+        free = c["fault_kind"] == "none"
+        for m in sorted(set(tc["monitor"][tc["cell"] == c["cell"]].tolist())):
+            sel = (tc["cell"] == c["cell"]) & (tc["monitor"] == m)
+            for rate, per, which in WEIGHTED_RATES:
+                if (which == "free" and not free) or (which == "faulty" and free):
+                    continue
+                num, den = _rate_terms(tc, sel, rate, per)
+                out.append({"cell": int(c["cell"]), "monitor": m, "fault": "fault-free" if free else
+                            f"{c['fault_sweep_kind']} {c['fault_size']:g} {c['fault_unit']}", "rate": rate,
+                            "per": per, "est": weighted_rate(num, den, lw[sel], inp.conf)})
+    return out
+
+
+def weighted_headlines(inp: ReportInputs, limit: int = 8) -> list[str]:
+    """:func:`headlines` of an importance-sampled campaign: the per-epoch HMI and MI rates of each cell and
+    monitor with their intervals, or why there is no rate."""
+    rows = [r for r in weighted_rates(inp) if r["per"] == "epoch" and r["rate"] in ("P_HMI", "P_MI")]
+    lines = [f"{r['monitor']}, cell {r['cell']} ({r['fault']}): {r['rate']} per epoch "
+             + (f"{r['est'].estimate:.3g}, {100 * inp.conf:g} % interval [{r['est'].lo:.3g}, {r['est'].hi:.3g}] "
+                f"({r['est'].ess_events:.0f} effective events in {r['est'].trials} sorties)" if r["est"].settled
+                else r["est"].text()) for r in rows[:limit]]
+    if len(rows) > limit:
+        lines.append(f"... and {len(rows) - limit} more rows in report.md")
+    return lines
+
+
+def _aimed_monitor(spec: dict) -> str:
+    """The monitor an importance plan was aimed from (:func:`~.sampling.sampling_monitor`), from a stored spec."""
+    samp = spec.get("sampling", {})
+    return samp.get("monitor") or next((m for m in spec["monitors"] if monitor_inputs(m) == frozenset({"gnss"})),
+                                       "?")
+
+
+def _weighted_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section: the weighted estimates of every rate, with their diagnostics."""
+    samp = inp.man["spec"].get("sampling", {})
+    md = ["## Rates by importance sampling", "",
+          f"The trials were drawn from a proposal (`[sampling]`: proposal `{samp.get('proposal')}` aimed at the "
+          f"`{samp.get('event')}` event of `{_aimed_monitor(inp.man['spec'])}`, defensive "
+          f"share {samp.get('defensive')}), each carrying its log-likelihood ratio (`log_weight` in "
+          "`trials.parquet`). Every rate is the weighted mean over the trials with its standard error and "
+          f"{100 * inp.conf:g} % normal interval (the upper end: the {100 * (1 + inp.conf) / 2:g} % upper bound). "
+          "Counts under the proposal are not rates of the error model, so the count-based sections (detection, "
+          "Stanford regions, misleading information) are left out. A rate whose weights have not settled (fewer "
+          f"than {MIN_EFFECTIVE_EVENTS:g} effective events, one trial carrying more than "
+          f"{100 * MAX_LARGEST_SHARE:g} % of it, or a variance of the variance above {MAX_VOV:g}) or whose event no "
+          "trial reached is not printed: the reason is. Per epoch: false alarms among the epochs with a solution, "
+          "missed detections among the faulty epochs with one, MI and HMI among all epochs; per sortie: a sortie "
+          "with at least one.", ""]
+    rows = []
+    for r in weighted_rates(inp):
+        e = r["est"]
+        rows.append([r["cell"], r["monitor"], r["fault"], r["rate"], r["per"],
+                     f"{e.estimate:.3e}" if e.settled else "-", f"{e.se:.2e}" if e.settled else "-",
+                     f"[{e.lo:.3e}, {e.hi:.3e}]" if e.settled else "-", e.trials, e.events,
+                     _f(e.ess_events, "{:.1f}"), _f(e.largest_share, "{:.3f}"), _f(e.vov, "{:.3f}"),
+                     "settled" if e.settled else "; ".join(e.problems)])
+    md += md_table(["cell", "monitor", "fault", "rate", "per", "estimate", "standard error",
+                    f"{100 * inp.conf:g} % interval", "trials", "trials with the event", "effective events",
+                    "largest share", "VOV", "verdict"], rows)
+    md += ["", "The sections below count the trials as drawn, unweighted: the proposal moves one epoch of a sortie, so "
+           "their protection levels and availability are the error model's to within that epoch, their accuracy "
+           "and figures are the proposal's.", ""]
+    return md, []
 
 
 def _exercise_lines(inp: ReportInputs) -> list[str]:
@@ -765,6 +876,8 @@ def _index_lines(inp: ReportInputs, figures: list[tuple[str, str]]) -> list[str]
     md += ["## Figures", ""]
     for title, name in figures:
         md += [f"### {title}", "", f"![{title}](figures/{name})", ""]
+    if inp.weighted:  # the per-cell counts are the proposal's, not rates
+        return md
     md += ["## Detection rates per cell", "",
            "Per sortie: detected among the sorties that exercised the fault; \"not exercised\": sorties in which no "
            "epoch carried the fault while the monitor gave a solution (out of the rate, not missed).", ""]

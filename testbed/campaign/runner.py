@@ -30,6 +30,7 @@ from testbed.campaign.blocks import run_block
 from testbed.campaign.context import cached, cell_context
 from testbed.campaign.exercised import check_faults_exercised
 from testbed.campaign.plan import cells_of, chunk_plan, chunk_rows, check_workers, local_workers, worker_tasks
+from testbed.campaign.sampling import check_sampling
 from testbed.campaign.spec import CampaignSpec, LoadedSpec, load_spec, resolve_spec
 from testbed.campaign.store import ResultStore
 from testbed.campaign.tables import chunk_tables
@@ -181,6 +182,7 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
     loaded = spec if isinstance(spec, LoadedSpec) else load_spec(spec)
     check_output_folder(out_dir, "--out")
     check_faults_exercised(loaded)  # a fault no trial can exercise: refused before any chunk is drawn
+    check_sampling(loaded, cells_of(loaded))  # an importance plan it cannot draw: refused likewise
     client, own = _client(scheduler) if scheduler is not None else (None, False)  # reachable before any work
     store = ResultStore(out_dir)
     cells = cells_of(loaded)

@@ -235,6 +235,52 @@ class ReportSettings(StrictModel):
                                        "Wilson")
 
 
+#: the [sampling] keys read only with method = "importance" (refused, not ignored, with "plain")
+IMPORTANCE_KEYS = ("monitor", "event", "proposal", "scale", "defensive")
+
+
+class SamplingPlan(StrictModel):
+    """How a campaign draws its trials (``[sampling]`` in a spec; :mod:`testbed.campaign.sampling`).
+
+    ``plain``: every trial from the error model itself (every table as without the table).
+    ``importance``: the fault-free pseudorange errors drawn from a proposal aimed at a monitor's failure
+    event, each trial carrying its log-likelihood ratio (``log_weight``); the report weights every rate.
+    """
+
+    method: Literal["plain", "importance"] = Field("plain", description="plain | importance")
+    monitor: str | None = Field(None, description="importance: the monitor whose linear model aims the proposal "
+                                                  "(one of the spec's monitors reading the pseudoranges alone; "
+                                                  "default: the first such)")
+    event: Literal["misleading", "hazardous"] = Field(
+        "misleading", description="importance: the failure event aimed at: misleading (an error beyond the "
+                                  "protection level, no alert) or hazardous (beyond the alert limit, the "
+                                  "protection level within it, no alert)")
+    proposal: Literal["shift", "scale"] = Field(
+        "shift", description="importance: shift the mean of one epoch's errors to the event's nearest point "
+                             "(misleading information), or scale one epoch's errors in the fit's residual space by "
+                             "`scale` (the test statistic's tail: false alarms; `event` is not read)")
+    scale: float = Field(2.0, gt=1.0, le=100.0, description="importance, proposal = 'scale': the factor on the "
+                                                            "residual-space errors' standard deviation")
+    defensive: float = Field(0.1, ge=0.0, lt=1.0, description="importance: share of the trials drawn from the error "
+                                                              "model itself (bounds every weight by 1/defensive)")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.method == "plain":
+            for key in IMPORTANCE_KEYS:
+                value, default = getattr(self, key), type(self).model_fields[key].default
+                if value != default:
+                    raise ValueError(f"[{key}] read only with method = 'importance', not with method = 'plain': "
+                                     f"remove it, or set method = 'importance' (got {value!r})")
+        if self.proposal == "shift" and self.scale != type(self).model_fields["scale"].default:
+            raise ValueError(f"[scale] read only with proposal = 'scale', not with proposal = 'shift' "
+                             f"(got {self.scale!r})")
+        if self.proposal == "scale" and self.event != type(self).model_fields["event"].default:
+            raise ValueError(f"[event] read only with proposal = 'shift' (proposal = 'scale' aims at the test "
+                             f"statistic's tail), got {self.event!r}")
+        return self
+
+
 class CampaignSpec(StrictModel):
     """A fault-injection Monte Carlo campaign (``approaches/campaigns/<name>.toml``)."""
 
@@ -262,6 +308,8 @@ class CampaignSpec(StrictModel):
     sweep: Sweep = Field(default_factory=Sweep, description="sensor and scenario axes")
     sorties: SortieStarts = Field(default_factory=SortieStarts, description="when each sortie is flown")
     report: ReportSettings = Field(default_factory=ReportSettings, description="statistics of the report")
+    sampling: SamplingPlan = Field(default_factory=SamplingPlan, description="how the trials are drawn: plain, or "
+                                                                             "importance sampling")
 
     @model_validator(mode="after")
     def _chunks(self):
@@ -285,6 +333,9 @@ class CampaignSpec(StrictModel):
         if self.chunk_trials % self.block_trials:
             raise ValueError(f"chunk_trials ({self.chunk_trials}) must be a multiple of block_trials "
                              f"({self.block_trials})")
+        if self.sampling.monitor is not None and self.sampling.monitor not in self.monitors:
+            raise ValueError(f"[sampling.monitor] {self.sampling.monitor!r}: expected one of the spec's monitors "
+                             f"{list(self.monitors)}")
         if not reads("vision", self.monitors):
             vis = [f.kind for f in self.faults if f.kind in ("pixel_bias", "landmark_moved")]
             if vis:
@@ -322,8 +373,16 @@ NOT_HASHED = ("report", "description")
 
 def spec_hash(spec: CampaignSpec) -> str:
     """A short hash of everything that changes results (the report settings excluded)."""
-    d = spec.model_dump(mode="json", exclude=set(NOT_HASHED))
+    d = _plain_sampling_unset(spec.model_dump(mode="json", exclude=set(NOT_HASHED)))
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _plain_sampling_unset(d: dict) -> dict:
+    """A spec dump without its ``[sampling]`` table when that is the default (plain): a plain campaign hashes,
+    and compares on resume, as it did before the table existed."""
+    if d.get("sampling") == SamplingPlan().model_dump(mode="json"):
+        d = {k: v for k, v in d.items() if k != "sampling"}
+    return d
 
 
 def input_fingerprint(cells: list[Cell]) -> dict:
@@ -363,7 +422,7 @@ def fingerprint_changes(old: dict, new: dict) -> list[str]:
 def spec_changes(stored: dict, now: dict) -> list[str]:
     """What differs between a stored spec and this one (both as ``model_dump(mode="json")`` gives them),
     one ``key.path: stored → now`` line per value, the keys of :data:`NOT_HASHED` left out."""
-    old, new = _flat(stored), _flat(now)
+    old, new = _flat(_plain_sampling_unset(stored)), _flat(_plain_sampling_unset(now))
     show = lambda d, k: json.dumps(d[k], ensure_ascii=False) if k in d else "(not set)"  # noqa: E731
     keys = [k for k in {**old, **new} if k.split(".")[0] not in NOT_HASHED]
     return [f"{k}: {show(old, k)} → {show(new, k)}" for k in keys if old.get(k, ...) != new.get(k, ...)]

@@ -103,6 +103,16 @@ def paired_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, outs: dic
     return col
 
 
+def weight_columns(d: BlockDraw) -> dict:
+    """Per trial, with importance sampling (:mod:`.sampling`): its ``log_weight`` (log p/q: the weight every
+    rate of the trial carries) and the ``proposal_component`` it was drawn from (-1: the error model itself);
+    none with plain sampling (the tables as they were)."""
+    if d.log_weight is None:
+        return {}
+    return {"log_weight": np.asarray(d.log_weight, np.float64),
+            "proposal_component": np.asarray(d.component, np.int32)}
+
+
 def _stanford_counts(name: str, out: MonitorOutput, he: np.ndarray, ve: np.ndarray) -> dict[str, list]:
     """Sparse Stanford histograms over the epochs the regions place (alerted ones are counted apart)."""
     edges_log = np.linspace(HIST_LOG10_MIN, HIST_LOG10_MAX, HIST_BINS + 1)

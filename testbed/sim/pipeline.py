@@ -17,7 +17,7 @@ The rules every caller used to restate are here once: which true point a monitor
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -25,7 +25,7 @@ import numpy as np
 from testbed.integrity.monitor import ANTENNA, Monitor, Observations, compute
 from testbed.records import ImuSamples, MonitorOutput
 from testbed.sensors.gnss.almanac import load_constellation
-from testbed.sensors.gnss.synth import GnssGeometry, apply_gnss_errors, draw_gnss_errors
+from testbed.sensors.gnss.synth import GnssErrors, GnssGeometry, apply_gnss_errors, draw_gnss_errors
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.imu import ImuErrorStream, apply_errors
 from testbed.sensors.imu.alignment import align
@@ -89,6 +89,22 @@ def draw_gnss(plan: SensorPlan, geom: GnssGeometry, streams: StreamTree, n_trial
     """:func:`gnss_errors` then :func:`gnss_observations` with the set-up's faults (or ``faults``)."""
     faults = plan.setup.faults if faults is None else faults
     return gnss_observations(geom, gnss_errors(plan, geom, streams, n_trials), list(faults))
+
+
+def tilt_gnss_errors(errors: GnssErrors, shift: np.ndarray | None = None) -> tuple[GnssErrors, np.ndarray]:
+    """``errors`` with their standard-normal pseudorange draws ``z`` moved to ``z + shift`` (``shift`` (n, T, S)
+    or broadcast to the noise; None: none): an importance-sampling proposal (:mod:`testbed.campaign.sampling`,
+    whose shift may itself be a function of ``z``: a scaling). Only for white errors, ``noise = σ·z`` (no
+    Gauss-Markov component: the caller checks). Returns the tilted errors and their draws ``z' = noise'/σ`` (0
+    where σ is 0), where the caller evaluates its likelihood ratio; the clock, range-rate and fault streams are
+    left as drawn."""
+    sigma = np.broadcast_to(np.asarray(errors.sigma, float), np.shape(errors.noise))
+    noise = np.asarray(errors.noise, float)
+    if shift is not None:
+        noise = noise + sigma * shift
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.where(sigma > 0, noise / np.where(sigma > 0, sigma, 1.0), 0.0)
+    return replace(errors, noise=noise), z
 
 
 def correlator_words(streams: StreamTree, trial: int = 0) -> np.ndarray:

@@ -29,6 +29,7 @@ STREAMS = (
     "imu",  # IMU turn-on biases, in-run instabilities, white noise
     "alignment",  # the inertial filter's initial error
     "features",  # the ground-feature tracker's noise
+    "sampling",  # an importance-sampling campaign's choice of proposal component per trial
 )
 
 

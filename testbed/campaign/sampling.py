@@ -1,0 +1,389 @@
+"""Importance sampling of a campaign's fault-free pseudorange errors, and the weighted estimates of its rates.
+
+A rate of 10⁻⁷ per epoch is out of reach of plain Monte Carlo: with no event in ``n`` trials the 95 % upper bound
+is about ``3/n``. Importance sampling draws the trials from a *proposal* ``q`` that reaches the failure event
+often and weights each trial by the likelihood ratio ``w = p/q`` of the error model ``p``: ``E_q[w·X] = E_p[X]``
+for every quantity ``X`` of the trial (Rubinstein & Kroese 2017, ch. 5). One weight per trial serves every
+monitor, every rate and every epoch of it.
+
+The proposal (``[sampling]`` of the spec, :class:`~testbed.campaign.spec.SamplingPlan`) is aimed from the
+monitor's own linear model: its position error is linear in the pseudorange errors, ``e = e₀ + A·z`` with ``z``
+the standard-normal draws (``noise = σ·z``: white errors), ``A`` measured by running the monitor on the error-free
+observations and on one 0.1 m bias per satellite (:func:`linear_model`; exact for a snapshot least-squares
+monitor). The nearest point of ``{|e_v| > L}`` to the origin (the *dominating point*, Sadowsky & Bucklew 1990)
+is ``z* = (±L − e₀)·s/|s|²`` along ``s = A_v``; in the horizontal plane along the major axis of ``A_h A_hᵀ``. It
+lies in the solution space of the least-squares fit, so its residual (the test statistic) is zero: it is the
+nearest error that is *misleading without an alert*. ``L`` is the protection level (``event = "misleading"``)
+or the alert limit at the epochs whose protection level is within it (``"hazardous"``).
+
+A sortie has many epochs, and a shift at every one would multiply their likelihood ratios into a degenerate
+weight. The proposal is a mixture instead: each trial shifts one epoch's errors, a component ``k`` (epoch,
+dimension, sign) chosen uniformly, and a share ``α`` of the trials (``defensive``) is drawn from ``p`` itself
+(Hesterberg 1995), so the weight ``w = 1 / (α + (1−α)/K · Σ_k q_k/p)`` is at most ``1/α`` and the mixture
+covers every epoch's event (Owen & Zhou 2000). ``proposal = "scale"`` instead scales by ``c`` one epoch's
+errors in the fit's residual (parity) space, where the test statistic lives: its tail is the false alarm. The component choice comes from the block's own stream
+(``sampling``), so a trial is a pure function of (spec, cell, trial) as before.
+
+Estimates (:func:`weighted_rate`): the mean of ``w·X`` (a ratio of two weighted means where the denominator
+varies), its standard error from the sample variance, a normal interval, and three diagnostics that say when
+the weights have not settled and the report must print no rate: the effective number of events (Kish 1965),
+the largest trial's share of the estimate, and the relative variance of the variance (VOV, the check of
+X-5 Monte Carlo Team 2003).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import special, stats
+
+from testbed.campaign.context import CellContext
+from testbed.integrity.monitor import Observations
+from testbed.monitors import monitor_inputs, monitor_names
+from testbed.schema import ConfigError
+from testbed.sim import pipeline
+from testbed.sim.streams import StreamTree
+
+#: the bias (m) put on one satellite at a time to measure the monitor's linear model (the fix converges to
+#: ~1e-10 m, the range's curvature over it is ~1e-9 m, and no alert is raised by a bias this small)
+PROBE_M = 0.1
+
+#: the diagnostics' limits: fewer effective events, a larger share of the estimate carried by one trial, or a
+#: larger relative variance of the variance, and the report prints no rate (module doc)
+MIN_EFFECTIVE_EVENTS = 10.0
+MAX_LARGEST_SHARE = 0.25
+MAX_VOV = 0.1
+
+
+# ----------------------------------------------------------------------------- checks before any work
+
+def sampling_monitor(spec) -> str | None:
+    """The monitor whose linear model aims the proposal: ``[sampling] monitor``, else the first of the spec's
+    monitors that reads the pseudoranges alone (None: none does)."""
+    if spec.sampling.monitor is not None:
+        return spec.sampling.monitor
+    return next((m for m in spec.monitors if monitor_inputs(m) == frozenset({"gnss"})), None)
+
+
+def check_sampling(loaded, cells) -> None:
+    """An importance-sampling spec that cannot be run as asked: a ConfigError naming the key, before any work."""
+    spec = loaded.spec
+    if spec.sampling.method != "importance":
+        return
+    problems = []
+    name = sampling_monitor(spec)
+    alone = [m for m in monitor_names() if monitor_inputs(m) == frozenset({"gnss"})]
+    if name is None:
+        problems.append(f"[sampling] method = 'importance': no monitor of {list(spec.monitors)} reads the "
+                        f"pseudoranges alone (monitors that do: {', '.join(alone)}); the proposal is aimed from such a monitor's "
+                        "linear model: add one to monitors, or set method = 'plain'")
+    elif monitor_inputs(name) != frozenset({"gnss"}):
+        problems.append(f"[sampling.monitor] {name!r} reads {sorted(monitor_inputs(name))}: expected a monitor "
+                        f"that reads the pseudoranges alone (monitors that do: {', '.join(alone)}), whose position error is linear "
+                        "in them")
+    for c in cells:
+        g = c.config.gnss
+        coloured = [k for k in ("multipath_tau_s", "ura_tropo_tau_s") if getattr(g, k) is not None]
+        if coloured:
+            problems.append(f"cell {c.index} ({c.approach.name}): [gnss] {', '.join(coloured)} set: importance "
+                            "sampling shifts white pseudorange errors (noise = σ·z); expected them unset (white)")
+        if g.correlator_pseudoranges:
+            problems.append(f"cell {c.index} ({c.approach.name}): the pseudoranges come from the correlators; "
+                            "importance sampling shifts the modelled pseudorange errors: expected the default "
+                            "pseudorange source")
+    if problems:
+        raise ConfigError(loaded.source, problems)
+
+
+# ----------------------------------------------------------------------------- the proposal
+
+@dataclass(frozen=True)
+class LinearModel:
+    """A monitor's position error as a linear function of the standard-normal pseudorange draws, per epoch.
+
+    e0 : (T, 3) ENU error on the error-free observations.  A : (T, 3, S) the error per unit draw of each slot
+    (σ times the error per metre).  clock : (T, S) the receiver clock's, likewise.  used : (T, S) the slots the
+    fix uses.  hpl, vpl : (T,) the protection levels on the error-free observations (NaN: no solution).
+    dimensions : the dimensions the monitor bounds.
+    """
+
+    e0: np.ndarray
+    A: np.ndarray
+    clock: np.ndarray
+    used: np.ndarray
+    hpl: np.ndarray
+    vpl: np.ndarray
+    dimensions: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Components:
+    """The mixture's components: component k acts on epoch ``epoch[k]``, with mean ``shift[k]`` (S,) (standard
+    units), or scaling the draws' part in the fit's residual space, the projector ``parity[k]`` (S, S) of rank
+    ``dof[k]``, by the plan's factor."""
+
+    epoch: np.ndarray  # (K,)
+    shift: np.ndarray  # (K, S)
+    parity: np.ndarray  # (K, S, S)
+    dof: np.ndarray  # (K,)
+
+    @property
+    def size(self) -> int:
+        return int(self.epoch.size)
+
+
+def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None) -> list[LinearModel]:
+    """The monitor's :class:`LinearModel` on the cell's geometry, one per sky window of ``windows`` (None: the
+    fixed start's one): the monitor on the error-free observations and on a :data:`PROBE_M` bias per slot."""
+    mon = next(m for m in ctx.setup.monitors if m.name == monitor_name)
+    S = ctx.g_geom.prn.size
+    W = 1 if windows is None else windows.size
+    P = S + 1
+    geom = ctx.gnss_geometry_of(None if windows is None else np.repeat(windows, P))
+    base = pipeline.gnss_errors(ctx.plan, geom, StreamTree(0), W * P)  # for its σ and shapes; the draws are replaced
+    T = ctx.t.size
+    noise = np.zeros((W, P, T, S))
+    noise[:, np.arange(1, P), :, np.arange(S)] = PROBE_M
+    zero = np.zeros((W * P, T))
+    errors = type(base)(batch=base.batch, sigma=base.sigma, noise=noise.reshape(W * P, T, S), clock_bias=zero,
+                        clock_drift=zero, rr_noise=np.zeros_like(base.rr_noise), fault_seed=base.fault_seed,
+                        fault_bit_generator=base.fault_bit_generator)
+    gnss, _ = pipeline.gnss_observations(geom, errors, [])
+    out, _ = mon.step(Observations(gnss), mon.initial_state())
+    ref = pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
+    pos = np.asarray(out.pos_enu, float).reshape(W, P, T, 3)
+    clk = np.asarray(out.clock, float).reshape(W, P, T)
+    sigma = np.broadcast_to(np.asarray(base.sigma, float), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
+    visible = np.broadcast_to(np.asarray(gnss.visible, bool), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
+    ok = np.asarray(out.reason).reshape(W, P, T)[:, 0] == 0
+    hpl = np.asarray(out.hpl, float).reshape(W, P, T)[:, 0]
+    vpl = np.asarray(out.vpl, float).reshape(W, P, T)[:, 0]
+    models = []
+    for w in range(W):
+        per_m = np.moveaxis(pos[w, 1:] - pos[w, :1], 0, -1) / PROBE_M  # (T, 3, S)
+        per_m = np.where(np.isfinite(per_m), per_m, 0.0)
+        used = visible[w] & ok[w][:, None] & (np.abs(per_m).sum(1) > 0)
+        A = per_m * np.where(used, sigma[w], 0.0)[:, None, :]
+        clock = np.nan_to_num(np.moveaxis(clk[w, 1:] - clk[w, :1], 0, -1) / PROBE_M) * np.where(used, sigma[w], 0.0)
+        models.append(LinearModel(e0=pos[w, 0] - ref, A=A, clock=clock, used=used,
+                                  hpl=np.where(ok[w], hpl[w], np.nan),
+                                  vpl=np.where(ok[w], vpl[w], np.nan), dimensions=tuple(out.dimensions)))
+    return models
+
+
+def components(model: LinearModel, plan, hal: float, val: float) -> Components:
+    """The mixture components of ``plan`` (``[sampling]``) on one :class:`LinearModel` (module doc): per epoch
+    with a solution, per bounded dimension, the two dominating points ``±L`` (``proposal = "shift"``), or one
+    scaled epoch (``"scale"``). Epochs whose event cannot happen (``"hazardous"`` where the PL exceeds the
+    alert limit: unavailable) have none."""
+    T, _, S = model.A.shape
+    epochs, shifts = [], []
+    for dim, pl, al in (("V", model.vpl, val), ("H", model.hpl, hal)):
+        if dim not in model.dimensions:
+            continue
+        limit = pl if plan.event == "misleading" else np.where(pl <= al, al, np.nan)
+        for t in np.flatnonzero(np.isfinite(limit)):
+            A = model.A[t]
+            if dim == "V":
+                s, e0 = A[2], model.e0[t, 2]
+            else:
+                vals, vecs = np.linalg.eigh(A[:2] @ A[:2].T)
+                u = vecs[:, -1]
+                s, e0 = u @ A[:2], float(u @ model.e0[t, :2])
+            norm2 = float(s @ s)
+            if not norm2 > 0:
+                continue
+            for sign in (1.0, -1.0):
+                epochs.append(t)
+                shifts.append((sign * limit[t] - e0) * s / norm2)
+    if plan.proposal == "scale":
+        return _parity_components(model)
+    ep = np.array(epochs, np.int64)
+    return Components(ep, np.array(shifts, float).reshape(ep.size, S), np.zeros((ep.size, S, S)),
+                      np.zeros(ep.size, np.int64))
+
+
+def _parity_components(model: LinearModel) -> Components:
+    """One component per epoch with a solution and redundancy: the projector onto the residual (parity) space
+    of the fit, the orthogonal complement, among the used slots, of the span of the solution's rows (position
+    and clock: the whitened fit's column space). The test statistic is the draws' squared norm there."""
+    T, _, S = model.A.shape
+    epochs, proj, dof = [], [], []
+    for t in range(T):
+        u = np.flatnonzero(model.used[t])
+        if u.size <= 4 or not np.isfinite(model.vpl[t]):
+            continue
+        rows = np.vstack([model.A[t][:, u], model.clock[t][u][None]])  # (4, n_used)
+        q, r = np.linalg.qr(rows.T)
+        rank = int((np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()).sum())
+        P = np.zeros((S, S))
+        P[np.ix_(u, u)] = np.eye(u.size) - q[:, :rank] @ q[:, :rank].T
+        epochs.append(t), proj.append(P), dof.append(u.size - rank)
+    ep = np.array(epochs, np.int64)
+    return Components(ep, np.zeros((ep.size, S)), np.array(proj).reshape(ep.size, S, S), np.array(dof, np.int64))
+
+
+def cell_components(ctx: CellContext, spec, windows: np.ndarray | None) -> list[Components]:
+    """:func:`components` of the cell's monitor on each distinct sky window of ``windows`` (sorted; None: the
+    fixed start), kept per process by what fixes them (the cell's configuration, the plan, the window)."""
+    plan = spec.sampling
+    name = sampling_monitor(spec)
+    key_cell = hashlib.sha256(json.dumps([ctx.cell.config.model_dump(mode="json"), plan.model_dump(mode="json"),
+                                          name, spec.duration_s, spec.segment], sort_keys=True, default=str)
+                              .encode()).hexdigest()
+    want = [None] if windows is None else [int(w) for w in np.unique(windows)]
+    with _LOCK:  # blocks on threads: each window's model measured once
+        missing = [w for w in want if (key_cell, w) not in _COMPONENTS]
+        if missing:
+            models = linear_model(ctx, name, None if windows is None else np.array(missing))
+            if len(_COMPONENTS) + len(missing) > _MAX_KEPT:
+                _COMPONENTS.clear()
+            for w, m in zip(missing, models):
+                _COMPONENTS[key_cell, w] = components(m, plan, ctx.hal, ctx.val)
+        return [_COMPONENTS[key_cell, w] for w in want]
+
+
+_COMPONENTS: dict = {}
+_LOCK = threading.Lock()
+_MAX_KEPT = 20_000  # windows' components kept (a cell has at most 1436 sky windows of 60 s)
+
+
+@dataclass(frozen=True)
+class ProposalDraw:
+    """One block's proposal: per trial the component drawn (−1: the error model itself) and the tilt."""
+
+    component: np.ndarray  # (n,) int
+    shift: np.ndarray  # (n, T, S) standard units
+
+
+def draw_proposal(comps: list[Components], which: np.ndarray, plan, z: np.ndarray,
+                  rng: np.random.Generator) -> ProposalDraw:
+    """Choose each trial's component (defensive share: none) from ``rng`` and the shift of its draws ``z``
+    (n, T, S): the component's mean, or ``(c − 1)`` times the draws' part in its parity space (which scales that
+    part by ``c``). ``which`` (n,): the index into ``comps`` of each trial's sky window (all 0 at a fixed start)."""
+    n = z.shape[0]
+    u = rng.random(n)
+    pick = rng.random(n)  # one uniform per trial whatever K: the stream does not depend on the geometry
+    K = np.array([c.size for c in comps])[which]
+    comp = np.where((u < plan.defensive) | (K == 0), -1, np.minimum((pick * K).astype(np.int64), K - 1))
+    shift = np.zeros(z.shape)
+    for i in np.flatnonzero(comp >= 0):
+        c, k = comps[which[i]], comp[i]
+        t = c.epoch[k]
+        shift[i, t] = c.shift[k] if plan.proposal == "shift" else (plan.scale - 1.0) * (c.parity[k] @ z[i, t])
+    return ProposalDraw(comp, shift)
+
+
+def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray) -> np.ndarray:
+    """(n,) ``log p/q`` of each trial's tilted draws ``z`` (n, T, S) under the mixture (module doc)."""
+    n = z.shape[0]
+    out = np.zeros(n)
+    alpha = float(plan.defensive)
+    for j, c in enumerate(comps):
+        sel = np.flatnonzero(which == j)
+        if sel.size == 0 or c.size == 0:
+            continue  # no component: the trials were drawn from p (weight 1)
+        zk = z[sel][:, c.epoch, :]  # (m, K, S)
+        if plan.proposal == "shift":
+            ell = np.einsum("mks,ks->mk", zk, c.shift) - 0.5 * np.einsum("ks,ks->k", c.shift, c.shift)
+        else:
+            s = float(plan.scale)
+            pz = np.einsum("kst,mkt->mks", c.parity, zk)  # the draws' part in each parity space
+            ell = -c.dof * np.log(s) + 0.5 * (1.0 - 1.0 / s**2) * np.einsum("mks,mks->mk", pz, pz)
+        mix = special.logsumexp(ell, axis=1) - np.log(c.size)
+        log_q = np.logaddexp(np.log(alpha), np.log1p(-alpha) + mix) if alpha > 0 else mix
+        out[sel] = -log_q
+    return out
+
+
+def tilted_errors(ctx: CellContext, spec, errors, windows: np.ndarray | None, tree: StreamTree):
+    """The block's errors drawn from the proposal: ``(errors, log_weight (n,), component (n,))``."""
+    comps = cell_components(ctx, spec, windows)
+    n = errors.noise.shape[0]
+    which = np.zeros(n, np.int64) if windows is None else np.searchsorted(np.unique(windows), windows)
+    _, z0 = pipeline.tilt_gnss_errors(errors)  # the draws as drawn
+    draw = draw_proposal(comps, which, spec.sampling, z0, tree.generator("sampling"))
+    tilted, z = pipeline.tilt_gnss_errors(errors, draw.shift)
+    return tilted, log_weights(comps, which, spec.sampling, z), draw.component
+
+
+# ----------------------------------------------------------------------------- the estimates
+
+@dataclass(frozen=True)
+class Rate:
+    """A weighted estimate of a rate (:func:`weighted_rate`)."""
+
+    estimate: float
+    se: float
+    lo: float
+    hi: float
+    trials: int
+    events: int  # trials with a non-zero numerator
+    ess_weights: float  # Kish's effective sample size of the weights
+    ess_events: float  # ... of the numerator's terms: the effective number of events
+    largest_share: float  # the largest single trial's share of the estimate
+    vov: float  # relative variance of the variance of the numerator's terms
+    problems: tuple[str, ...]  # why no rate is printed (empty: settled)
+
+    @property
+    def settled(self) -> bool:
+        return not self.problems
+
+    def text(self, fmt: str = "{:.3g}") -> str:
+        """The estimate with its interval, or why there is none."""
+        if self.problems:
+            return "no rate: " + "; ".join(self.problems)
+        return f"{fmt.format(self.estimate)} [{fmt.format(self.lo)}, {fmt.format(self.hi)}]"
+
+
+def weighted_rate(num: np.ndarray, den: np.ndarray | float, log_weight: np.ndarray, confidence: float = 0.95
+                  ) -> Rate:
+    """``E_p[num] / E_p[den]`` from trials drawn with ``log_weight = log p/q`` (all 0: plain sampling).
+
+    A denominator that is the same for every trial (an indicator's 1, a sortie's epochs) is exact; one that
+    varies is estimated too (the ratio estimator, its variance by the delta method). The interval is the
+    normal one at ``confidence``, its lower end at 0 at least. A rate whose diagnostics fail (module doc),
+    or whose event no trial reached, carries its ``problems`` instead of being printed.
+    """
+    num = np.asarray(num, float)
+    lw = np.asarray(log_weight, float)
+    den = np.broadcast_to(np.asarray(den, float), num.shape)
+    n = num.size
+    hit = num != 0
+    events = int(hit.sum())
+    if n == 0 or not (den > 0).any():
+        return Rate(np.nan, np.nan, np.nan, np.nan, n, events, np.nan, np.nan, np.nan, np.nan, ("no trials",))
+    w_all = np.exp(lw - lw.max())
+    ess_w = float(w_all.sum() ** 2 / np.sum(w_all**2))
+    if events == 0:
+        return Rate(0.0, 0.0, 0.0, np.nan, n, 0, ess_w, 0.0, np.nan, np.nan,
+                    (f"no event in {n} trials{' under the proposal' if lw.any() else ''}",))
+    z = stats.norm.ppf(0.5 + confidence / 2)
+    if np.all(den == den.flat[0]):  # an exact denominator: the weights scaled by the largest event's
+        c = float(lw[hit].max())  # (they reach 1e-300 and below; the event's terms keep their digits)
+        f = np.exp(lw - c) * num / float(den.flat[0])
+        est = f.mean() * np.exp(c)
+        se = (f.std(ddof=1) / np.sqrt(n) if n > 1 else np.inf) * np.exp(c)
+    else:  # a ratio of two weighted means (free of the common factor)
+        w = w_all
+        f, g = w * num, w * den
+        est = f.sum() / g.sum()
+        se = np.std(f - est * g, ddof=1) / np.sqrt(n) / g.mean() if n > 1 else np.inf
+    ess_e = float(f.sum() ** 2 / np.sum(f**2))
+    share = float(np.abs(f).max() / np.abs(f).sum())
+    dev = f - f.mean()
+    m2 = np.sum(dev**2)
+    vov = float(np.sum(dev**4) / m2**2 - 1.0 / n) if m2 > 0 else 0.0
+    problems = []
+    if ess_e < MIN_EFFECTIVE_EVENTS:
+        problems.append(f"{ess_e:.1f} effective events (< {MIN_EFFECTIVE_EVENTS:g})")
+    if share > MAX_LARGEST_SHARE:
+        problems.append(f"one trial carries {100 * share:.0f} % of the estimate (> {100 * MAX_LARGEST_SHARE:g} %)")
+    if vov > MAX_VOV:
+        problems.append(f"variance of the variance {vov:.2f} (> {MAX_VOV:g}): the variance has not settled")
+    return Rate(float(est), float(se), float(max(est - z * se, 0.0)), float(est + z * se), n, events, ess_w, ess_e,
+                share, vov, tuple(problems))
