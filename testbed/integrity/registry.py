@@ -23,6 +23,7 @@ _SHIPPED = {
     "pixel": ("testbed.integrity.pixel:build_monitor", frozenset({"gnss", "vision"})),
     "ekf": ("testbed.navigation.monitor:build_monitor", frozenset({"gnss", "vision", "imu", "features"})),
     "dpe": ("testbed.integrity.dpe.monitor:build_monitor", frozenset({"gnss", "correlators"})),
+    "araim": ("testbed.integrity.araim.monitor:build_monitor", frozenset({"gnss"})),
 }
 _ADDED: dict[str, tuple[Builder, frozenset[str]]] = {}
 

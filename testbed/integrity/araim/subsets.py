@@ -40,7 +40,7 @@ class SubsetStats:
     s0: NDArray
 
 
-def _inverse(A: NDArray, max_cond: float) -> tuple[NDArray, NDArray]:
+def checked_inverse(A: NDArray, max_cond: float) -> tuple[NDArray, NDArray]:
     """Inverses of symmetric (..., n, n) ``A`` and whether each is well conditioned (1-norm condition number of
     the Jacobi-scaled matrix ≤ ``max_cond``). An ill-conditioned or singular one gets NaN, never an exception."""
     d = np.sqrt(np.diagonal(A, axis1=-2, axis2=-1))
@@ -87,7 +87,7 @@ def subset_stats(G: NDArray, c_int: NDArray, c_acc: NDArray, b_nom: NDArray, b_c
     Gw = G * w[..., None]
     outer = (G[:, :, :, None] * Gw[:, :, None, :]).reshape(E, N, n * n)
     A = (keep @ outer).reshape(E, M, n, n) + pin  # Gᵀ W_k G (eq. 9)
-    inv, ok = _inverse(A, max_cond)
+    inv, ok = checked_inverse(A, max_cond)
     observable = ok & structurally_ok
     S = (inv[:, :, :3, :] @ np.swapaxes(Gw, -1, -2)[:, None]) * keep[None, :, None, :]  # (E, M, 3, N)
     S = np.where(observable[..., None, None], S, np.nan)
