@@ -48,6 +48,11 @@ class Diagnostics:
         truth): none by default."""
         return {}
 
+    def summary_rows(self) -> dict[str, str]:
+        """The monitor's own rows of a run's summary table (label -> text, over the run's epochs): none by
+        default."""
+        return {}
+
 
 def _record_fields(rec):
     """(name, value, metadata) of a MonitorOutput or Diagnostics record's fields."""

@@ -131,6 +131,7 @@ def test_gps_only_at_the_default_ism_is_unavailable_with_its_reason():
     gnss, _, _ = make_gnss(FRAME, receiver_track(5), T_WEEK0 + np.arange(5.0), None)
     out = araim_gnss(gnss, FRAME)
     assert (out.reason == AraimReason.UNMONITORED).all() and np.isnan(out.vpl).all() and not out.available.any()
+    np.testing.assert_allclose(out.pos_enu, receiver_track(5), atol=FIX_M)  # a fix, without protection
     assert "too few satellites" in out.reasons[AraimReason.UNMONITORED]
 
 

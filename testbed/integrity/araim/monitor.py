@@ -64,6 +64,17 @@ class AraimDiagnostics(Diagnostics):
             return {"max_emt": np.nanmax(self.emt, -1), "max_sigma_acc_v": np.nanmax(self.sigma_acc_v, -1),
                     "mean_fault_modes": np.mean(self.n_modes, -1)}
 
+    def summary_rows(self) -> dict[str, str]:
+        """EMT and σ_acc,v (largest and 95th percentile over the protected epochs) and the fault modes."""
+        def spread(x: NDArray) -> str:
+            x = np.asarray(x, float)
+            x = x[np.isfinite(x)]
+            return f"{x.max():.2f} / {np.percentile(x, 95):.2f} m" if x.size else "-"
+
+        modes = np.asarray(self.n_modes)
+        return {"EMT max / p95": spread(self.emt), "σ_acc,v max / p95": spread(self.sigma_acc_v),
+                "fault modes (min-max)": f"{modes.min()}-{modes.max()}" if modes.size else "-"}
+
 
 def system_codes(gnss: GnssEpochs) -> NDArray:
     """(S,) int system code of each satellite slot: from ``gnss.system`` (RINEX 3 letters) when the
@@ -95,10 +106,11 @@ def _solve(sat_enu: NDArray, pr: NDArray, system: NDArray, used: NDArray, alloca
     reason = ep.reason.astype(np.int8)
     reason = np.where((reason == AraimReason.OK) & ~np.isfinite(fix.x[:, 0]), AraimReason.SINGULAR, reason)
     reason = np.where((reason == AraimReason.OK) & ~fix.converged, NOT_CONVERGED, reason).astype(np.int8)
-    ok = reason == AraimReason.OK
-    pos = np.where(ok[:, None], fix.x[:, :3] + ep.dx_enu, np.nan)  # S⁽⁰⁾Δy: zero at a converged fix
+    # a position wherever the fix stands, protected or not (FAULT_ORDER, UNMONITORED: no PLs, a fix)
+    fixed = ~np.isin(reason, (AraimReason.NAN_INPUT, AraimReason.NO_POSITION, AraimReason.SINGULAR, NOT_CONVERGED))
+    pos = np.where(fixed[:, None], fix.x[:, :3] + np.nan_to_num(ep.dx_enu), np.nan)  # S⁽⁰⁾Δy: 0 at the fix
     first = np.argmax([(used & (system == s)).any(-1) for s in range(len(SYSTEMS))], 0)  # the first system's clock
-    clock = np.where(ok, np.take_along_axis(fix.x[:, 3:], first[:, None], -1)[:, 0], np.nan)
+    clock = np.where(fixed, np.take_along_axis(fix.x[:, 3:], first[:, None], -1)[:, 0], np.nan)
     return _Solved(fix, ep, reason, pos, clock)
 
 
@@ -179,14 +191,15 @@ def _output(name: str, t: NDArray, bt: tuple, S: int, idx: NDArray, used: NDArra
     ratio = nan_where_not(ep.test_ratio)
     with np.errstate(invalid="ignore"):
         alert = ok & (ratio > 1.0)
-    residual = _scatter(sv.fix.rows.residual, idx, used & ok[:, None], S)
+    residual = _scatter(sv.fix.rows.residual, idx, used & np.isfinite(sv.pos_enu[:, :1]), S)
     present = np.stack([(used & (sv.fix.rows.system == s)).any(-1) for s in range(len(SYSTEMS))], -1)
     diag = AraimDiagnostics(
         emt=shape(nan_where_not(ep.emt)), sigma_acc_v=shape(nan_where_not(ep.sigma_acc_enu[:, 2])),
         sigma_acc_h=shape(nan_where_not(np.hypot(ep.sigma_acc_enu[:, 0], ep.sigma_acc_enu[:, 1]))),
         n_modes=shape(ep.n_modes.astype(np.int16)), fault_order=shape(ep.fault_order.astype(np.int8)),
         p_unmonitored=shape(ep.p_unmonitored), k_fa_v=shape(nan_where_not(ep.k_fa[:, 2])),
-        clock=shape(np.where(present & ok[:, None], sv.fix.x[:, 3:], np.nan)), residual=shape(residual),
+        clock=shape(np.where(present & np.isfinite(sv.pos_enu[:, :1]), sv.fix.x[:, 3:], np.nan)),
+        residual=shape(residual),
         converged=shape(sv.fix.converged), n_iter=shape(sv.fix.iterations.astype(np.int16)))
     return MonitorOutput(
         name=name, t=t, pos_enu=shape(sv.pos_enu), clock=shape(sv.clock), hpl=shape(nan_where_not(ep.hpl)),
