@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from testbed.integrity.araim.kernels import subset_stats_epochs
 from testbed.integrity.kernels import kernel_input
 
-#: elements of the largest temporary (epochs × modes × rows × states²) of one chunk
+#: elements of the temporaries of one chunk of epochs
 CHUNK_ELEMENTS = 1 << 21
 
 
@@ -95,5 +95,6 @@ def subset_stats(G: NDArray, c_int: NDArray, c_acc: NDArray, b_nom: NDArray, b_c
 
 
 def chunk_epochs(E: int, M: int, N: int, n: int) -> int:
-    """Epochs per chunk so a chunk's largest temporary stays about :data:`CHUNK_ELEMENTS`."""
-    return max(1, min(E, CHUNK_ELEMENTS // max(M * N * n * n, 1)))
+    """Epochs per chunk so a chunk's per-mode arrays (about eight of (epochs, M, 3) in the caller) and its
+    rows stay about :data:`CHUNK_ELEMENTS`."""
+    return max(1, min(E, CHUNK_ELEMENTS // max(24 * M + 4 * N * n, 1)))
