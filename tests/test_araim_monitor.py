@@ -272,3 +272,40 @@ def test_fault_free_false_alerts_inside_the_binomial_interval_of_the_allocation(
     print(f"false-alert rate {k / n_epochs:.5f}, 99 % interval [{lo:.5f}, {hi:.5f}], allocated {allocated}")
     assert lo <= allocated and hi >= largest_single, (k / n_epochs, lo, hi, allocated)
     assert k / n_epochs > 0.3 * allocated  # the split is not wildly conservative here (measured ~0.8)
+
+
+@pytest.mark.slow
+def test_araim_runs_in_the_loop_a_campaign_and_rinex_replay(tmp_path, capsys):
+    """The monitor through every path that steps monitors: a flight (its summary rows), a campaign (its own
+    trial columns) and the RINEX replay of the same flight (the same fix as GPS RAIM's to a centimetre)."""
+    import pyarrow.parquet as pq
+
+    from testbed.api import export_rinex, load_approach, print_run_summary, run_approach
+    from testbed.campaign.runner import run_campaign
+    from testbed.replay import monitor_rinex
+
+    ap = load_approach("zunz-rwy05-final")
+    ap = dataclasses.replace(ap, config=ap.config.model_copy(update={"monitors": ["gps_raim", "araim"]}))
+    run = run_approach(ap, seed=1, rrd_path=None)
+    out, ref = run.outputs["araim"], run.outputs["gps_raim"]
+    fixed = np.isfinite(out.pos_enu[:, 0]) & (ref.reason == 0)
+    assert fixed.mean() > 0.9
+    np.testing.assert_allclose(out.pos_enu[fixed], ref.pos_enu[fixed], atol=0.05)
+    print_run_summary(run)
+    text = capsys.readouterr().out
+    assert "EMT max / p95" in text and "fault modes (min-max)" in text
+
+    spec = tmp_path / "a.toml"
+    spec.write_text('name = "a"\napproaches = ["zunz-rwy05-final"]\nmonitors = ["araim"]\ntrials = 10\n'
+                    'block_trials = 10\nchunk_trials = 10\nduration_s = 10.0\n')
+    run_campaign(spec, tmp_path / "camp", progress=False)
+    trials = pq.read_table(tmp_path / "camp" / "trials.parquet").to_pydict()
+    assert set(trials["monitor"]) == {"araim"} and len(trials["trial"]) == 10
+    assert {"max_emt", "max_sigma_acc_v", "mean_fault_modes"} <= set(trials)
+
+    obs, nav = export_rinex(ap, tmp_path / "rnx", seed=1)
+    replay = monitor_rinex(obs, nav, monitors=("gps_raim", "araim"), out_dir=tmp_path / "replay")
+    got, want = replay.outputs["araim"], replay.outputs["gps_raim"]
+    ok = np.isfinite(got.pos_enu[:, 0]) & (want.reason == 0)
+    assert ok.mean() > 0.9
+    np.testing.assert_allclose(got.pos_enu[ok], want.pos_enu[ok], atol=0.05)

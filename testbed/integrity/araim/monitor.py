@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
-from testbed.integrity.araim.core import ARAIM_REASONS, AraimEpochs, AraimReason, araim
+from testbed.integrity.araim.core import ARAIM_REASONS, AraimEpochs, AraimReason, AraimRows, araim
 from testbed.integrity.araim.settings import SYSTEMS, AraimMonitorSettings, AraimSettings
 from testbed.integrity.araim.solution import AllInViewFix, all_in_view_fix
 from testbed.integrity.batching import map_trial_chunks
@@ -276,6 +276,17 @@ class AraimMonitor(MonitorDefaults):
     settings: AraimMonitorSettings
     inputs: ClassVar[frozenset[str]] = frozenset({"gnss"})
     reference: ClassVar[str] = ANTENNA
+    compiles_kernels: ClassVar[bool] = True
+
+    def prepare(self) -> None:
+        """Compile (or load from numba's cache) the subset and PL kernels before the first epoch: one call on
+        a small sky of two systems."""
+        az = np.radians(np.arange(8) * 45.0)
+        el = np.radians(np.array([15.0, 60.0, 35.0, 80.0, 25.0, 50.0, 20.0, 70.0]))
+        los = np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)], -1)
+        rows = AraimRows.from_elevation(los, np.arange(8) % 2, np.ones(8, bool), AraimSettings(),
+                                        residual=np.zeros(8))
+        araim(rows, AraimSettings())
 
     def initial_state(self) -> None:
         return None
