@@ -53,6 +53,11 @@ class Diagnostics:
         default."""
         return {}
 
+    def plot_series(self) -> dict[str, tuple[NDArray, str]]:
+        """The monitor's own curves in its recording tab: entity suffix under ``integrity/<monitor>/`` (a
+        panel's path, e.g. ``"vertical/emt"``) -> (values (T,), legend name). None by default."""
+        return {}
+
 
 def _record_fields(rec):
     """(name, value, metadata) of a MonitorOutput or Diagnostics record's fields."""

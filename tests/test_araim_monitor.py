@@ -286,7 +286,8 @@ def test_araim_runs_in_the_loop_a_campaign_and_rinex_replay(tmp_path, capsys):
 
     ap = load_approach("zunz-rwy05-final")
     ap = dataclasses.replace(ap, config=ap.config.model_copy(update={"monitors": ["gps_raim", "araim"]}))
-    run = run_approach(ap, seed=1, rrd_path=None)
+    rrd = tmp_path / "a.rrd"
+    run = run_approach(ap, seed=1, rrd_path=rrd)
     out, ref = run.outputs["araim"], run.outputs["gps_raim"]
     fixed = np.isfinite(out.pos_enu[:, 0]) & (ref.reason == 0)
     assert fixed.mean() > 0.9
@@ -294,6 +295,12 @@ def test_araim_runs_in_the_loop_a_campaign_and_rinex_replay(tmp_path, capsys):
     print_run_summary(run)
     text = capsys.readouterr().out
     assert "EMT max / p95" in text and "fault modes (min-max)" in text
+    from testbed.viz.readback import entity_paths, scalar_series
+
+    t, limit = scalar_series(rrd, "/integrity/araim/vertical/emt_limit")  # the recording tab's EMT panel
+    np.testing.assert_allclose(t, out.t, atol=1e-9)  # the recording keeps times in nanoseconds
+    assert (limit == 15.0).all()
+    assert "/integrity/araim/vertical/sigma_acc_v" in entity_paths(rrd)
 
     spec = tmp_path / "a.toml"
     spec.write_text('name = "a"\napproaches = ["zunz-rwy05-final"]\nmonitors = ["araim"]\ntrials = 10\n'

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
 from testbed.integrity.araim.core import ARAIM_REASONS, AraimEpochs, AraimReason, AraimRows, araim
+from testbed.integrity.araim.protection import EMT_LIMITS, SIGMA_ACC_V_LIMITS
 from testbed.integrity.araim.settings import SYSTEMS, AraimMonitorSettings, AraimSettings
 from testbed.integrity.araim.solution import AllInViewFix, all_in_view_fix
 from testbed.integrity.batching import map_trial_chunks
@@ -74,6 +75,15 @@ class AraimDiagnostics(Diagnostics):
         modes = np.asarray(self.n_modes)
         return {"EMT max / p95": spread(self.emt), "σ_acc,v max / p95": spread(self.sigma_acc_v),
                 "fault modes (min-max)": f"{modes.min()}-{modes.max()}" if modes.size else "-"}
+
+
+    def plot_series(self) -> dict[str, tuple[NDArray, str]]:
+        """EMT and σ_acc,v on the vertical panel, each with its LPV-200 limit."""
+        n = np.shape(self.emt)[-1]
+        return {"vertical/emt": (self.emt, "EMT"),
+                "vertical/emt_limit": (np.full(n, EMT_LIMITS["LPV-200"]), "EMT limit (LPV-200)"),
+                "vertical/sigma_acc_v": (self.sigma_acc_v, "σ_acc,v"),
+                "vertical/sigma_acc_limit": (np.full(n, SIGMA_ACC_V_LIMITS["LPV-200"]), "σ_acc,v limit (LPV-200)")}
 
 
 def system_codes(gnss: GnssEpochs) -> NDArray:
