@@ -151,6 +151,21 @@ def test_two_constellations_get_two_clocks_and_the_librarys_protection():
     assert out.available[:, list(out.service_levels).index("LPV-200")].all()
 
 
+def test_own_outputs_for_the_summary_table_the_campaign_and_the_recording():
+    gnss, _ = two_constellations(12)
+    out = araim_gnss(gnss, FRAME)
+    d = out.diagnostics
+    rows = d.summary_rows()
+    emt = d.emt[np.isfinite(d.emt)]
+    assert emt.size == 12 and rows["EMT max / p95"] == f"{emt.max():.2f} / {np.percentile(emt, 95):.2f} m"
+    assert rows["fault modes (min-max)"] == f"{d.n_modes.min()}-{d.n_modes.max()}"
+    batched = araim_gnss(two_constellations(12, batch=(3,))[0], FRAME).diagnostics.trial_columns(None)
+    np.testing.assert_allclose(batched["max_emt"], emt.max())
+    curves = d.plot_series()
+    np.testing.assert_array_equal(curves["vertical/emt"][0], d.emt)
+    assert (curves["vertical/sigma_acc_limit"][0] == 1.87).all()
+
+
 def test_degenerate_epochs_get_reasons_never_an_exception():
     gnss, _ = two_constellations(4)
     pr, vis = gnss.pseudorange.copy(), gnss.visible.copy()
