@@ -331,6 +331,9 @@ def print_run_summary(result: RunResult) -> None:
         ("misleading (err > PL, no alert)", [str(s.mi_epochs) for s in S]),
         ("hazardously misleading", [str(s.hmi_epochs) for s in S]),
     ]
+    own = [result.outputs[n].diagnostics.summary_rows() if result.outputs[n].diagnostics is not None else {}
+           for n in names]  # a monitor's own rows (ARAIM's EMT, σ_acc, fault modes); "-" for the others
+    rows += [(label, [o.get(label, "-") for o in own]) for label in dict.fromkeys(k for o in own for k in o)]
     for label, vals in rows:
         t.add_row(label, *vals)
     con = Console()

@@ -28,6 +28,7 @@ PACKAGE = Path(__file__).resolve().parent
 #: Every module of the package with ``cache=True`` kernels, relative to the package
 #: (``tests/test_kernel_cache.py`` checks that the list is complete and each calls :func:`keep_in_step`).
 KERNEL_SOURCES = (
+    "integrity/araim/kernels.py",
     "integrity/kernels/calibration.py",
     "integrity/kernels/dpe.py",
     "integrity/kernels/geometry.py",

@@ -14,8 +14,9 @@ from typing import Annotated, Any, Callable, Mapping
 
 from pydantic import AfterValidator, ConfigDict, create_model
 
-from testbed.integrity import raim, va_raim
-from testbed.integrity import pixel
+from testbed.integrity import pixel, raim, va_raim
+from testbed.integrity.araim import monitor as araim
+from testbed.integrity.araim.settings import AraimMonitorSettings
 from testbed.integrity.dpe import monitor as dpe
 from testbed.integrity.monitor import INPUT_KINDS, Monitor, MonitorContext, MonitorCost, NoOptions, contract_problems
 from testbed.integrity.settings import PixelOptions
@@ -43,6 +44,8 @@ _SHIPPED: dict[str, MonitorEntry] = {
     "ekf": MonitorEntry(ekf.build_monitor, frozenset({"gnss", "vision", "imu", "features"}), ekf.EkfSettings,
                         ekf.cost),
     "dpe": MonitorEntry(dpe.build_monitor, frozenset({"gnss", "correlators"}), dpe.DpeSettings, dpe.cost),
+    # cost not measured for the resource estimate yet: the costliest shipped figures are assumed
+    "araim": MonitorEntry(araim.build_monitor, frozenset({"gnss"}), AraimMonitorSettings),
 }
 _ADDED: dict[str, MonitorEntry] = {}
 

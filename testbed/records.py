@@ -48,6 +48,16 @@ class Diagnostics:
         truth): none by default."""
         return {}
 
+    def summary_rows(self) -> dict[str, str]:
+        """The monitor's own rows of a run's summary table (label -> text, over the run's epochs): none by
+        default."""
+        return {}
+
+    def plot_series(self) -> dict[str, tuple[NDArray, str]]:
+        """The monitor's own curves in its recording tab: entity suffix under ``integrity/<monitor>/`` (a
+        panel's path, e.g. ``"vertical/emt"``) -> (values (T,), legend name). None by default."""
+        return {}
+
 
 def _record_fields(rec):
     """(name, value, metadata) of a MonitorOutput or Diagnostics record's fields."""

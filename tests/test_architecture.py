@@ -36,7 +36,7 @@ LAYERS = (
 LAYER = {room: i for i, rooms in enumerate(LAYERS) for room in rooms}
 
 #: the monitors' names, which only their own modules and the registry may spell
-MONITOR_NAMES = ("gps_raim", "va_raim", "pixel", "ekf", "dpe")
+MONITOR_NAMES = ("gps_raim", "va_raim", "pixel", "ekf", "dpe", "araim")
 #: modules that name monitors on purpose: the registry and the monitors themselves, the experiments that
 #: reproduce a paper's monitor (they are about it), and what still configures a monitor in generic code (each
 #: with its reason; the list shrinks as monitors declare their own option tables)

@@ -182,6 +182,7 @@ class RerunSink:
         self._several_tests: tuple[str, ...] = ()
         self._track_yaw = 0.0  # the follow frame's last heading (held while the aircraft hovers)
         self._volumes: dict[str, tuple] = {}  # this block's protection volumes: (t, centres, half sizes, colours)
+        self._own_series: set[str] = set()  # monitors' own curves already named (Diagnostics.plot_series)
 
     # -- static ----------------------------------------------------------------
     def start(self, scene: "Scene") -> None:
@@ -494,6 +495,12 @@ class RerunSink:
         self._log_normalised_tests(name, out)
         self._log_vertical_density(name, out)
         d = out.diagnostics
+        for suffix, (x, label) in ({} if d is None else d.plot_series()).items():  # a monitor's own curves
+            entity = f"integrity/{name}/{suffix}"
+            if entity not in self._own_series:
+                self.rec.log(entity, rr.SeriesLines(names=[label], widths=[1.5]), static=True)
+                self._own_series.add(entity)
+            self.rec.send_columns(entity, indexes=tm, columns=rr.Scalars.columns(scalars=np.asarray(x, float)))
         if getattr(d, "n_features", None) is not None and self._has_features:  # the filter's SLAM states
             self.rec.send_columns(f"sensors/features_in_state/{name}", indexes=tm,
                                   columns=rr.Scalars.columns(scalars=np.asarray(d.n_features, float)))

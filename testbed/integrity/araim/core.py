@@ -163,7 +163,7 @@ def _check_rows(rows: AraimRows, settings: AraimSettings) -> tuple[tuple[int, ..
 
 
 def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: ModeSet,
-                 settings: AraimSettings) -> dict[str, NDArray]:
+                 settings: AraimSettings, budget_share: NDArray) -> dict[str, NDArray]:
     """Every output of the epochs of one row structure (E epochs), plus the per-mode arrays."""
     E = G.shape[0]
     st = subset_stats(G, c_int, c_acc, b_nom, b_cont, modes.removed, clock_of_row, settings.max_cond, residual)
@@ -179,7 +179,7 @@ def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: 
     alpha = np.minimum(1.0, modes.p_exp / (modes.p * n_es))
     alpha[0] = 1.0
     scale = 1.0 - p_nm / (settings.p_hmi_vert + settings.p_hmi_hor)  # budget left (eq. 16)
-    budget = np.stack([0.5 * settings.p_hmi_hor * scale] * 2 + [settings.p_hmi_vert * scale], -1)
+    budget = budget_share[:, None] * np.stack([0.5 * settings.p_hmi_hor * scale] * 2 + [settings.p_hmi_vert * scale], -1)
     protectable = st.observable[:, 0] & (scale > 0.0)
     weight = np.where(monitored, modes.p, 0.0)
     weight[:, 0] = 2.0
@@ -207,9 +207,10 @@ def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: 
                            separation=st.separation))
 
 
-def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False):
+def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False, budget_share: ArrayLike = 1.0):
     batch, N = _check_rows(rows, settings)
     P = int(np.prod(batch, dtype=np.int64))
+    share = np.broadcast_to(np.asarray(budget_share, float), batch).reshape(P)
     los = np.asarray(rows.los_enu, float).reshape(P, N, 3)
     system = np.broadcast_to(np.asarray(rows.system), batch + (N,)).reshape(P, N)
     used = np.asarray(rows.used, bool).reshape(P, N)
@@ -261,9 +262,9 @@ def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False):
         step = chunk_epochs(epochs.size, modes.removed.shape[0], n_rows, n_states)
         for a in range(0, epochs.size, step):
             sl = slice(a, a + step)
-            r = _solve_group(G[sl], *(x[sl] for x in parts), None if res is None else res[sl], clock_of_row,
-                             modes, settings)
             e = epochs[sl]
+            r = _solve_group(G[sl], *(x[sl] for x in parts), None if res is None else res[sl], clock_of_row,
+                             modes, settings, share[e])
             for name in ("pl", "iterations", "emt", "sigma_acc", "n_modes", "p_nm", "k_fa", "ratio", "dx"):
                 out[name][e] = r[name]
             out["reason"][e[r["singular"]]] = AraimReason.SINGULAR
@@ -276,20 +277,24 @@ def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False):
     return batch, out, table
 
 
-def araim(rows: AraimRows, settings: AraimSettings | None = None) -> AraimEpochs:
+def araim(rows: AraimRows, settings: AraimSettings | None = None, budget_share: ArrayLike = 1.0) -> AraimEpochs:
     """ARAIM protection levels, EMT, σ_acc, availability and the detection test of every epoch of ``rows``.
 
     Parameters
     ----------
     rows : the epochs' ranging rows (:class:`AraimRows`), batch axes (...) first.
     settings : risk allocation and ISM; default :class:`AraimSettings()` (the ADD v4.2-style allocation).
+    budget_share : scalar or (...): the fraction (0, 1] of the integrity budget these protection levels get
+        (eq. 16's right side times it): below 1 after an exclusion, whose candidates share the budget (§10).
 
     Returns
     -------
     :class:`AraimEpochs`, arrays of shape (...) (and (..., 3) / (..., K) as documented there).
     """
     settings = AraimSettings() if settings is None else settings
-    batch, out, _ = _run(rows, settings)
+    if not np.all((np.asarray(budget_share) > 0.0) & (np.asarray(budget_share) <= 1.0)):
+        raise ValueError(f"araim: budget_share expected in (0, 1], got {budget_share}")
+    batch, out, _ = _run(rows, settings, budget_share=budget_share)
     ok = out["reason"] == AraimReason.OK
     pl = np.where(ok[:, None], out["pl"], np.inf)
     hpl, vpl = np.hypot(pl[:, 0], pl[:, 1]), pl[:, 2]

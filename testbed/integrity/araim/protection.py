@@ -6,7 +6,8 @@ The protection level of axis q solves the integrity-risk equation (eq. 16)
 
 with Q̃(x) = 1 for x ≤ 0, else Q(x) = 1 − Φ(x), by the ADD's half-interval search: from a bracket that
 holds the root, halve until it is at most TOL_PL wide and return its upper end (within TOL_PL above the
-root, never below it). All arrays are batched: epochs first, modes next, axes last.
+root, never below it); the halving runs compiled (:mod:`testbed.integrity.araim.kernels`). All arrays are
+batched: epochs first, modes next, axes last.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr, ndtri
 
+from testbed.integrity.araim.kernels import halve_protection_levels
+from testbed.integrity.kernels import kernel_input
 from testbed.integrity.levels import service_level
 
 #: LPV-200 limits on EMT and σ_acc,v (m) beside the HAL/VAL of the service level (eq. 19)
@@ -83,17 +86,15 @@ def solve_protection_level(offset: NDArray, sigma: NDArray, weight: NDArray, cap
     lo = np.max(np.where(alone, lo_k, -np.inf), axis=-1)
     lo = np.where(np.isfinite(lo), lo, 0.0)
     hi = np.max(np.where(used, hi_k, -np.inf), axis=-1)
-    iterations = np.zeros(lo.shape, int)
-    open_ = hi - lo > tol
-    while np.any(open_):
-        idx = np.nonzero(open_)
-        mid = 0.5 * (lo[idx] + hi[idx])
-        above = integrity_risk(mid, offset[idx], sigma[idx], weight[idx], cap[idx]) > target[idx]
-        lo[idx] = np.where(above, mid, lo[idx])
-        hi[idx] = np.where(above, hi[idx], mid)
-        iterations[idx] += 1
-        open_[idx] = hi[idx] - lo[idx] > tol
-    return hi, iterations
+    batch, K = lo.shape, offset.shape[-1]
+    P = int(np.prod(batch, dtype=np.int64))
+    flat = lambda a: kernel_input(a, batch + (K,), (P, K))  # noqa: E731
+    hi = np.ascontiguousarray(hi, float).reshape(P).copy()
+    iterations = np.zeros(P, np.int64)
+    halve_protection_levels(flat(offset), flat(np.where(used, sigma, 1.0)), flat(weight), flat(cap),
+                            kernel_input(target, batch, (P,)), kernel_input(lo, batch, (P,)), hi, float(tol),
+                            iterations)
+    return hi.reshape(batch), iterations.reshape(batch)
 
 
 def effective_monitor_threshold(threshold_u: NDArray, p: NDArray, monitored: NDArray, p_emt: float) -> NDArray:

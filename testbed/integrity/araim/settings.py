@@ -146,3 +146,41 @@ class AraimSettings(StrictModel):
         if name not in self.ism:
             raise ValueError(f"ARAIM: a row of system {name!r} but the ISM has only {list(self.ism)}")
         return self.ism[name]
+
+
+class AraimMonitorSettings(AraimSettings):
+    """The options of the ``araim`` monitor (its table in the approach file): the allocation and ISM of
+    :class:`AraimSettings`, the ISM preset they start from, and fault exclusion.
+
+    The service levels are the run's (``[integrity] service_levels``), so every monitor of a run reports
+    availability for the same levels; LPV-200's availability adds the EMT and σ_acc,v criteria.
+    """
+
+    ism_preset: Literal["wgc_lpv200", "icao2024_draft"] = Field(
+        "wgc_lpv200", description="the integrity support data the monitor starts from (docs/design/araim.md §1); "
+                                  "entries of ``ism`` replace a system's whole ISM")
+    fde: bool = Field(False, description="exclusion after a failed solution-separation test: re-solve without each "
+                                         "used satellite (then pairs, with fde_max_excluded = 2) and keep the one "
+                                         "whose own tests pass; the protection levels after an exclusion are the "
+                                         "reduced geometry's with the integrity budget shared among the candidates")
+    fde_rule: Literal["best", "unique"] = Field(
+        "best", description="which passing exclusion is taken: 'best' = the smallest largest normalised separation; "
+                            "'unique' = only when exactly one passes")
+    fde_max_excluded: int = Field(1, ge=1, le=2, description="satellites one exclusion may remove")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset_then_overrides(cls, data):
+        if isinstance(data, dict):
+            if "service_levels" in data:
+                raise ValueError("service_levels: the araim monitor reports the run's [integrity] service_levels "
+                                 f"(got {data['service_levels']!r} here); set them there")
+            preset = data.get("ism_preset", "wgc_lpv200")
+            if preset in ("wgc_lpv200", "icao2024_draft"):  # else the field's own error names it
+                data = {**data, "ism": {**ism_preset(preset), **dict(data.get("ism") or {})}}
+        return data
+
+    def allocation(self, service_levels: tuple[str, ...]) -> AraimSettings:
+        """The :class:`AraimSettings` these options hold, reporting ``service_levels`` (the run's)."""
+        return AraimSettings(**{k: getattr(self, k) for k in AraimSettings.model_fields if k != "service_levels"},
+                             service_levels=service_levels)

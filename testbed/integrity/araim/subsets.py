@@ -10,8 +10,9 @@ other states' solution unchanged). Then per position axis q = E, N, U (eq. 10-13
     σ_q⁽ᵏ⁾² = Σ_i (S_qi⁽ᵏ⁾)² C_int,i          b_q⁽ᵏ⁾ = Σ_i |S_qi⁽ᵏ⁾| b_nom,i
     σ_ss,q⁽ᵏ⁾² = Σ_i (S_qi⁽ᵏ⁾ − S_qi⁽⁰⁾)² C_acc,i   b_ss,q⁽ᵏ⁾ = Σ_i |S_qi⁽ᵏ⁾ − S_qi⁽⁰⁾| b_cont,i
 
-Every subset is solved directly (no downdating) on batches of epochs that share one row structure:
-epochs first, then modes, rows last.
+Every subset is solved in a compiled kernel (:mod:`testbed.integrity.araim.kernels`): its normal matrix is
+the all-in-view one less the removed rows' outer products, inverted with the conditioning test of
+:func:`checked_inverse`, on batches of epochs that share one row structure.
 """
 
 from __future__ import annotations
@@ -21,7 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-#: elements of the largest temporary (epochs × modes × rows × states²) of one chunk
+from testbed.integrity.araim.kernels import subset_stats_epochs
+from testbed.integrity.kernels import kernel_input
+
+#: elements of the temporaries of one chunk of epochs
 CHUNK_ELEMENTS = 1 << 21
 
 
@@ -40,7 +44,7 @@ class SubsetStats:
     s0: NDArray
 
 
-def _inverse(A: NDArray, max_cond: float) -> tuple[NDArray, NDArray]:
+def checked_inverse(A: NDArray, max_cond: float) -> tuple[NDArray, NDArray]:
     """Inverses of symmetric (..., n, n) ``A`` and whether each is well conditioned (1-norm condition number of
     the Jacobi-scaled matrix ≤ ``max_cond``). An ill-conditioned or singular one gets NaN, never an exception."""
     d = np.sqrt(np.diagonal(A, axis1=-2, axis2=-1))
@@ -75,34 +79,22 @@ def subset_stats(G: NDArray, c_int: NDArray, c_acc: NDArray, b_nom: NDArray, b_c
     """
     E, N, n = G.shape
     M = removed.shape[0]
-    keep = (~removed).astype(float)
-    n_clock = n - 3
-    clock_rows = keep @ np.eye(n_clock)[clock_of_row]  # (M, C): kept rows per clock
+    keep = ~removed
+    clock_rows = keep.astype(float) @ np.eye(n - 3)[clock_of_row]  # (M, C): kept rows per clock
     empty_clock = clock_rows == 0
     structurally_ok = keep.sum(1) >= 3 + (~empty_clock).sum(1)  # rows ≥ states left
-    pin = np.zeros((M, n, n))
-    pin[:, np.arange(3, n), np.arange(3, n)] = empty_clock
-    pin[~structurally_ok] = np.eye(n)  # solved as identity, flagged unobservable
-    w = 1.0 / c_int
-    Gw = G * w[..., None]
-    outer = (G[:, :, :, None] * Gw[:, :, None, :]).reshape(E, N, n * n)
-    A = (keep @ outer).reshape(E, M, n, n) + pin  # Gᵀ W_k G (eq. 9)
-    inv, ok = _inverse(A, max_cond)
-    observable = ok & structurally_ok
-    S = (inv[:, :, :3, :] @ np.swapaxes(Gw, -1, -2)[:, None]) * keep[None, :, None, :]  # (E, M, 3, N)
-    S = np.where(observable[..., None, None], S, np.nan)
-    dS = S - S[:, :1]
-    sigma = np.sqrt((S * S) @ c_int[:, None, :, None])[..., 0]
-    bias = (np.abs(S) @ b_nom[:, None, :, None])[..., 0]
-    sigma_ss = np.sqrt((dS * dS) @ c_acc[:, None, :, None])[..., 0]
-    bias_ss = (np.abs(dS) @ b_cont[:, None, :, None])[..., 0]
-    if residual is None:
-        separation = np.full(sigma.shape, np.nan)
-    else:
-        separation = (dS @ residual[:, None, :, None])[..., 0]
-    return SubsetStats(observable, sigma, bias, sigma_ss, bias_ss, separation, S[:, 0])
+    observable = np.empty((E, M), bool)
+    sigma, bias, sigma_ss, bias_ss, separation = (np.empty((E, M, 3)) for _ in range(5))
+    s0 = np.empty((E, 3, N))
+    ro = lambda a, dt=np.float64: kernel_input(a, np.shape(a), dtype=dt)  # noqa: E731
+    res = np.zeros((E, N)) if residual is None else residual
+    subset_stats_epochs(ro(G), ro(c_int), ro(c_acc), ro(b_nom), ro(b_cont), ro(res), residual is not None,
+                        ro(removed, np.bool_), ro(empty_clock, np.bool_), ro(structurally_ok, np.bool_),
+                        float(max_cond), observable, sigma, bias, sigma_ss, bias_ss, separation, s0)
+    return SubsetStats(observable, sigma, bias, sigma_ss, bias_ss, separation, s0)
 
 
 def chunk_epochs(E: int, M: int, N: int, n: int) -> int:
-    """Epochs per chunk so a chunk's largest temporary stays about :data:`CHUNK_ELEMENTS`."""
-    return max(1, min(E, CHUNK_ELEMENTS // max(M * N * n * n, 1)))
+    """Epochs per chunk so a chunk's per-mode arrays (about eight of (epochs, M, 3) in the caller) and its
+    rows stay about :data:`CHUNK_ELEMENTS`."""
+    return max(1, min(E, CHUNK_ELEMENTS // max(24 * M + 4 * N * n, 1)))
