@@ -16,7 +16,7 @@ from scipy import stats
 
 from test_integrity_core_helpers import make_gnss, sat_pos_ecef
 from testbed.frames import LocalFrame
-from testbed.integrity import registry
+from testbed import monitors as registry
 from testbed.integrity.araim import AraimReason, AraimRows, AraimSettings, ConstellationIsm, araim
 from testbed.integrity.araim.error_model import row_variances
 from testbed.integrity.araim.monitor import REASONS, araim_gnss
