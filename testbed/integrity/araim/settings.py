@@ -149,7 +149,7 @@ class AraimSettings(StrictModel):
 
 
 class AraimMonitorSettings(AraimSettings):
-    """The options of the ``araim`` monitor (its table in the approach file): the allocation and ISM of
+    """The options of the ``araim`` monitor (``[monitor.araim]`` in an approach file): the allocation and ISM of
     :class:`AraimSettings`, the ISM preset they start from, and fault exclusion.
 
     The service levels are the run's (``[integrity] service_levels``), so every monitor of a run reports
