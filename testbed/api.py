@@ -314,7 +314,8 @@ def print_run_summary(result: RunResult) -> None:
     con = Console()
     con.print(t)
     loop = result.loop
-    for line in describe_faults(result.faults, loop.gnss.prn, loop.gnss_truth.faulty, loop.gnss.visible, loop.gnss.t):
+    for line in describe_faults(result.faults, loop.gnss.prn, loop.gnss_truth.faulty, loop.gnss.visible, loop.gnss.t,
+                                loop.gnss.system):
         con.print(line, highlight=False)
     for name in names:
         why = unavailable_reason(result.outputs[name])
