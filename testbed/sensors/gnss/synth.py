@@ -219,7 +219,7 @@ def _fault_bias(faults: Sequence, geom: GnssGeometry, rng: np.random.Generator,
     T, S = geom.visible.shape[-2:]
     if not gnss:
         return np.zeros(batch + (T, S))
-    if batch and (geom.stacked or any(f.prn == "random" for f in gnss)):
+    if batch and (geom.stacked or any(getattr(f, "targets", None) == "random" for f in gnss)):
         # per trial (drawn in trial order from rng): a fresh random satellite, visible in the trial's sky
         vis = geom.visible if geom.stacked else np.broadcast_to(geom.visible, batch + (T, S))
         return np.stack([gnss_fault_bias(gnss, geom.t, geom.prn, vis[i], rng, geom.system) for i in range(batch[0])])
