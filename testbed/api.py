@@ -279,6 +279,10 @@ def print_run_summary(result: RunResult) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    import numpy as np
+
+    from testbed.integrity.gps_only import GPS_ONLY_MONITORS
+    from testbed.sensors.gnss.orbits import SYSTEM_NAMES
     from testbed.sim.evaluate import describe_faults, unavailable_reason
 
     print_flight_summary(result.flight, speed=False)
@@ -296,6 +300,12 @@ def print_run_summary(result: RunResult) -> None:
     # vertical one alone, and says so
     v_only = [result.outputs[n].dimensions == ("V",) for n in names]
     rows = [("reference", [s.reference for s in S])]
+    systems = tuple(dict.fromkeys(np.asarray(result.loop.gnss.system).tolist()))
+    if len(systems) > 1:  # which satellites each monitor read: GPS RAIM all, the others GPS alone
+        every = "+".join(SYSTEM_NAMES[c] for c in systems)
+        rows.append(("satellites (median used)", [
+            f"{'GPS only' if n in GPS_ONLY_MONITORS else every} ({np.nanmedian(result.outputs[n].n_used):.0f})"
+            for n in names]))
     for lv in (S[0].availability if S else {}):
         rows.append((f"available {lv}", [f"{100 * s.availability[lv]:.0f} %" + (" (V only)" if v else "")
                                           for s, v in zip(S, v_only)]))

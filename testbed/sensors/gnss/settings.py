@@ -221,6 +221,9 @@ class GnssSettings(StrictModel):
             bad = [p for p in cs.excluded_prns if not lo <= p <= hi]
             if bad:
                 raise ValueError(f"{name}.excluded_prns: PRN(s) {bad} out of range: expected {lo}-{hi}")
+        if self.correlators.pseudorange_source == "correlator" and self.constellations != ["gps"]:
+            raise ValueError(f"correlators.pseudorange_source: 'correlator' synthesises GPS L1 C/A correlograms "
+                             f"only; expected constellations = ['gps'] with it, got {self.constellations}")
         return self
 
     @property
