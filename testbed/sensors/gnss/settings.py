@@ -10,6 +10,7 @@ dual-frequency iono-free model with per-constellation σ_URA / σ_URE / b_nom
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Literal
 
@@ -225,6 +226,16 @@ class GnssSettings(StrictModel):
             raise ValueError(f"correlators.pseudorange_source: 'correlator' synthesises GPS L1 C/A correlograms "
                              f"only; expected constellations = ['gps'] with it, got {self.constellations}")
         return self
+
+    def geometry_key(self) -> str:
+        """JSON of the settings the geometry reads (constellations, almanac, masks, health, caps, schedule,
+        rate): two settings with one key give one geometry (a campaign caches it on this)."""
+        geo = {"constellations", "almanac_source", "almanac_path", "almanac_week", "elevation_mask_deg",
+               "terrain_masking", "airframe_masking", "airframe_mask_deg", "schedule", "rate_hz"}
+        per = {"elevation_mask_deg", "excluded_prns", "max_satellites"}
+        d = self.model_dump(mode="json", include=geo)
+        d |= {n: getattr(self, n).model_dump(mode="json", include=per) for n in self.constellations}
+        return json.dumps(d, sort_keys=True)
 
     @property
     def systems(self) -> tuple[str, ...]:
