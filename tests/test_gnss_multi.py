@@ -392,3 +392,28 @@ def test_raim_with_three_constellations_fixes_and_excludes(sky3, frame):
     assert (out.excluded[:, late] == slot).all()
     assert np.abs(out.pos_enu - truth_enu).max() < 10.0
     assert np.nanmax(out.vpl) < 20.0
+
+
+# ---------------------------------------------------------------------------------------------- sky windows
+
+
+@pytest.mark.parametrize("cons, bound_deg", [
+    (["gps"], {"G": 0.05}),
+    (["gps", "galileo"], {"G": 0.6, "E": 0.01}),
+    (["gps", "beidou"], {"G": 0.5, "C": 0.2}),
+    (ALL, {"G": 4.0, "E": 0.01, "C": 2.1}),
+])
+def test_sky_repeat_period_of_each_constellation_set(truth, cons, bound_deg):
+    """The sky of a constellation set comes back after :func:`sky_repeat_s` (how far each system's elevations
+    are then from the start's, measured); one sidereal day would leave Galileo and BeiDou far off."""
+    from testbed.campaign.sorties import sky_repeat_s
+
+    P = sky_repeat_s(cons)
+    g = gnss_geometry(truth.decimate(0.1), Mount(np.zeros(3)), GnssSettings(terrain_masking=False, constellations=cons),
+                      start_utc="2026-03-01T04:00:00Z", offsets_s=[0.0, P, 86164.0905])
+    off = np.degrees(np.abs(g.elevation[1] - g.elevation[0]))
+    day = np.degrees(np.abs(g.elevation[2] - g.elevation[0]))
+    for c, bound in bound_deg.items():
+        assert off[:, g.system == c].max() < bound, c
+        if c != "G":
+            assert day[:, g.system == c].max() > 20.0, c  # not a daily repeat
