@@ -8,22 +8,30 @@ selected rows, and χ² distributions by Kolmogorov-Smirnov.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from pydantic import ValidationError
 from scipy import stats
 
+from testbed.api import run_approach
+from testbed.campaign.sorties import sky_repeat_s
 from testbed.cli import main
 from testbed.flight.kinematic import straight_truth
 from testbed.integrity import multi_clock
+from testbed.integrity.gps_only import gps_satellites
+from testbed.integrity.monitor import Observations
 from testbed.integrity.raim import gps_raim
 from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount, NotVisible
 from testbed.resources import approaches_dir
 from testbed.sensors.faults import ConstellationBias, GpsStep, gnss_fault_bias
-from testbed.sensors.gnss.errors import range_sigmas
+from testbed.sensors.gnss.errors import IONO_FREE_CARRIERS, iono_free_variance_factor, range_sigmas
 from testbed.sensors.gnss.settings import GnssSettings
 from testbed.sensors.gnss.synth import apply_gnss_errors, draw_gnss_errors, gnss_geometry
+from testbed.viz import readback
+from testbed.viz.rerun_sink import COLOURS
 from testbed.world.airport import runway_frame
 
 START = "2024-03-15T06:00:00Z"
@@ -164,8 +172,6 @@ def closed_form_sigmas(theta_deg, ura, ure, curve="wgc_m3"):
 
 
 def test_iono_free_factor_of_each_system():
-    from testbed.sensors.gnss.errors import IONO_FREE_CARRIERS, iono_free_variance_factor
-
     for c, (f1, f2) in IONO_FREE_CARRIERS.items():
         assert iono_free_variance_factor(f1, f2) == pytest.approx(6.699455, abs=5e-6), c
 
@@ -406,8 +412,6 @@ def test_raim_with_three_constellations_fixes_and_excludes(sky3, frame):
 def test_sky_repeat_period_of_each_constellation_set(truth, cons, bound_deg):
     """The sky of a constellation set comes back after :func:`sky_repeat_s` (how far each system's elevations
     are then from the start's, measured); one sidereal day would leave Galileo and BeiDou far off."""
-    from testbed.campaign.sorties import sky_repeat_s
-
     P = sky_repeat_s(cons)
     g = gnss_geometry(truth.decimate(0.1), Mount(np.zeros(3)), GnssSettings(terrain_masking=False, constellations=cons),
                       start_utc="2026-03-01T04:00:00Z", offsets_s=[0.0, P, 86164.0905])
@@ -417,3 +421,42 @@ def test_sky_repeat_period_of_each_constellation_set(truth, cons, bound_deg):
         assert off[:, g.system == c].max() < bound, c
         if c != "G":
             assert day[:, g.system == c].max() > 20.0, c  # not a daily repeat
+
+
+# ---------------------------------------------------------------------------------------------- the loop
+
+
+def test_gps_only_monitors_see_gps_satellites_alone(sky3):
+    s = GnssSettings(constellations=ALL)
+    ep, _ = apply_gnss_errors(sky3, draw_gnss_errors(sky3, s, rng=np.random.default_rng(0)))
+    obs = gps_satellites(Observations(ep))
+    g = obs.gnss
+    other = sky3.system != "G"
+    assert not g.visible[:, other].any() and np.isnan(g.pseudorange[:, other]).all()
+    assert (g.reason[:, other][sky3.visible[:, other]] == NotVisible.EXCLUDED).all()
+    assert (g.visible[:, ~other] == sky3.visible[:, ~other]).all()
+    np.testing.assert_array_equal(g.pseudorange[:, ~other], ep.pseudorange[:, ~other])
+    gps = Observations(replace_system(ep))
+    assert gps_satellites(gps) is gps  # GPS alone: the very same observations
+
+
+def replace_system(ep):
+    return replace(ep, system=np.full(ep.system.shape, "G"))
+
+
+def test_dfmc_flight_records_satellites_by_constellation(tmp_path):
+    """The shipped DFMC approach flies with GPS RAIM over every satellite; the recording colours visible rays
+    by constellation and labels a faulty Galileo satellite by its RINEX name."""
+    run = run_approach("zunz-rwy05-dfmc", seed=1, rrd_path=tmp_path / "run.rrd", monitors=["gps_raim"],
+                       faults=[{"kind": "gps_ramp", "sat": "E11", "rate_m_s": 2.0, "onset_s": 60.0}])
+    g = run.loop.gnss
+    assert set(g.system.tolist()) == {"G", "E", "C"}
+    gps_vis = (np.asarray(g.visible) & (g.system == "G")).sum(-1)
+    assert np.median(run.outputs["gps_raim"].n_used) > 2 * np.median(gps_vis)
+    _, colours = readback.component_rows(run.rrd_path, "world/gnss/los", "LineStrips3D:colors")
+    seen = {((int(c) >> 24) & 255, (int(c) >> 16) & 255, (int(c) >> 8) & 255) for row in colours for c in row}
+    assert {COLOURS["visible"], COLOURS["visible_galileo"], COLOURS["visible_beidou"]} <= seen
+    faulty = np.asarray(run.loop.gnss_truth.faulty) & np.asarray(g.visible)
+    assert faulty.any()  # E11 is in view after the onset on 2026-03-01
+    _, labels = readback.component_rows(run.rrd_path, "world/gnss/faulty", "LineStrips3D:labels")
+    assert {tuple(lb) for lb in labels if lb} == {("faulty E11",)}
