@@ -79,28 +79,30 @@ def test_bad_constellation_settings_are_refused(kw, where, what):
     assert what in text and where.split(".")[0] in text
 
 
-def test_unknown_constellation_on_the_command_line_exits_2_and_writes_nothing(tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
-    p = tmp_path / "bad.toml"
-    p.write_text((approaches_dir() / "va-raim-2015.toml").read_text() + '\n[gnss]\nconstellations = ["gps", "glonass"]\n')
-    code = main(["fly", str(p), "--no-record"])
-    out = capsys.readouterr()
-    assert code == 2
-    assert "gnss.constellations" in out.err + out.out and "glonass" in out.err + out.out
-    assert "Traceback" not in out.err
-    assert sorted(x.name for x in tmp_path.iterdir()) == ["bad.toml"]
+SEED_APPROACH = (approaches_dir() / "va-raim-2015.toml").read_text()
+TWO = '\n[gnss]\nconstellations = ["gps", "beidou"]\n'
 
 
-def test_excluded_prn_missing_from_the_constellation_exits_2(tmp_path, monkeypatch, capsys):
-    """C31 is in the BeiDou PRN range but not one of the nominal BeiDou-3 slots: preflight names it."""
+@pytest.mark.parametrize("tail, key, value", [
+    ('\n[gnss]\nconstellations = ["gps", "glonass"]\n', "gnss.constellations", "glonass"),
+    (TWO + "[gnss.beidou]\nexcluded_prns = [31]\n", "gnss.beidou.excluded_prns", "C31"),  # not a BDS-3 slot
+    (TWO + "[gnss.beidou]\nelevation_mask_deg = 90.0\n", "gnss.beidou.elevation_mask_deg", "90"),
+    (TWO + "[gnss.beidou]\nmax_satellites = 65\n", "gnss.beidou.max_satellites", "65"),
+    (TWO + '[[faults]]\nkind = "constellation_bias"\nsystem = "galileo"\nbias_m = 5.0\n', "faults.0.system",
+     "'galileo': not tracked"),
+    (TWO + '[[faults]]\nkind = "gps_step"\nsat = "E07"\nbias_m = 5.0\n', "faults.0.sat", "E07"),
+    (TWO + '[[faults]]\nkind = "gps_step"\nsat = "R07"\nbias_m = 5.0\n', "faults.0.sat", "R07"),
+])
+def test_bad_constellation_input_exits_2_naming_key_and_value(tmp_path, monkeypatch, capsys, tail, key, value):
     monkeypatch.chdir(tmp_path)
     p = tmp_path / "bad.toml"
-    p.write_text((approaches_dir() / "va-raim-2015.toml").read_text()
-                 + '\n[gnss]\nconstellations = ["gps", "beidou"]\n[gnss.beidou]\nexcluded_prns = [31]\n')
+    p.write_text(SEED_APPROACH + tail)
     code = main(["fly", str(p), "--no-record"])
     out = capsys.readouterr()
-    assert code == 2 and "gnss.beidou.excluded_prns" in out.err + out.out and "C31" in out.err + out.out
-    assert sorted(x.name for x in tmp_path.iterdir()) == ["bad.toml"]
+    text = out.err + out.out
+    assert code == 2 and key in text and value in text, text
+    assert "Traceback" not in text
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["bad.toml"]  # nothing written
 
 
 # ---------------------------------------------------------------------------------------------- geometry

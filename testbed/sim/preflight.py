@@ -93,9 +93,14 @@ def _gnss_fault_problems(approach: Approach, eph) -> list[str]:
         try:
             named_targets(f, eph.prn, eph.system)
         except ValueError as exc:
-            key = "system" if f.kind == "constellation_bias" else ("sat" if f.sat is not None else "prn")
+            tracked = approach.config.gnss.constellations
+            if f.kind == "constellation_bias":
+                out.append(f"faults.{k}.system = {f.system!r}: not tracked (expected one of constellations = "
+                           f"{tracked})")
+                continue
+            key = "sat" if f.sat is not None else "prn"
             out.append(f"faults.{k}.{key} = {getattr(f, key)!r}: {str(exc).split(': ', 1)[1]} "
-                       f"(tracked: constellations = {approach.config.gnss.constellations})")
+                       f"(tracked: constellations = {tracked})")
     return out
 
 
