@@ -462,3 +462,40 @@ def test_dfmc_flight_records_satellites_by_constellation(tmp_path):
     assert faulty.any()  # E11 is in view after the onset on 2026-03-01
     _, labels = readback.component_rows(run.rrd_path, "world/gnss/faulty", "LineStrips3D:labels")
     assert {tuple(lb) for lb in labels if lb} == {("faulty E11",)}
+
+
+def test_geometry_dops_against_brute_force(sky3, frame):
+    code, letters = multi_clock.system_codes(sky3.system)
+    d = sky3.sat_pos_ecef - sky3.ant_pos_ecef[:, None, :]
+    los = np.einsum("ij,tsj->tsi", frame.R, d / np.linalg.norm(d, axis=-1, keepdims=True))
+    mask = sky3.visible.copy()
+    mask[5, code == 2] = False  # an epoch without BeiDou: two clocks there
+    dop = multi_clock.geometry_dops(los, mask, code, 3)
+    for k in (0, 5, 30):
+        m = mask[k]
+        present = np.unique(code[m])
+        H = np.hstack([-los[k, m], (code[m][:, None] == present).astype(float)])
+        Q = np.linalg.inv(H.T @ H)
+        assert dop["vdop"][k] == pytest.approx(np.sqrt(Q[2, 2]), rel=1e-9)
+        assert dop["hdop"][k] == pytest.approx(np.sqrt(Q[0, 0] + Q[1, 1]), rel=1e-9)
+    few = np.zeros_like(mask[0])
+    few[np.flatnonzero(code == 0)[:3]] = True  # 3 rows, 4 unknowns: no fix
+    assert np.isnan(multi_clock.geometry_dops(los[0], few, code, 3)["vdop"])
+
+
+def test_sky_along_the_final_per_constellation_set():
+    """Four start times over a day on zunz-rwy05-final: more constellations, more satellites and a smaller
+    VDOP; the valley hides some of each; the study's table names every row."""
+    from testbed.studies.constellation_sky import sky_along_final, table
+
+    rows = sky_along_final(span_s=86400.0, step_s=21600.0, rate_hz=0.05)
+    by = {(r["set"], r["valley"]): r for r in rows}
+    for valley in (False, True):
+        n = [by[(s, valley)]["n"] for s in ("GPS", "GPS+Galileo", "GPS+Galileo+BeiDou")]
+        assert (n[0] < n[1]).all() and (n[1] < n[2]).all()
+        v = [by[(s, valley)]["vdop_median"] for s in ("GPS", "GPS+Galileo", "GPS+Galileo+BeiDou")]
+        assert v[0] > v[1] > v[2]
+    for s in ("GPS", "GPS+Galileo+BeiDou"):
+        assert (by[(s, True)]["n"] <= by[(s, False)]["n"]).all() and by[(s, True)]["n_median"] < by[(s, False)]["n_median"]
+    assert by[("GPS+Galileo+BeiDou", True)]["n_min"] >= 10
+    assert table(rows).count("\n") == len(rows) + 1

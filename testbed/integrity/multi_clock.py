@@ -143,3 +143,26 @@ def _fit_at(x, anchor, off, z, w, mask, code, K, bad_input, max_cond) -> WlsFit:
     return WlsFit(mask=mask, n_used=n_used.astype(np.int64), n_states=n_states.astype(np.int64), J=J, A=A,
                   ws_diag=ws, cond=cond, reason=reason, residual=residual, sse=sse, hslope=hs, vslope=vs,
                   hmax=hmax, vmax=vmax)
+
+
+def geometry_dops(los_enu: ArrayLike, mask: ArrayLike, code: ArrayLike, K: int) -> dict[str, NDArray]:
+    """Unweighted DOPs of the satellites ``mask`` (..., S) with one clock per constellation present.
+
+    los_enu : (..., S, 3) unit lines of sight (receiver to satellite, ENU); code : (S,) or (..., S) system
+    codes. Returns ``hdop``, ``vdop``, ``pdop`` (...), NaN where the rows do not fix position and clocks.
+    """
+    u = np.asarray(los_enu, float)
+    m = np.asarray(mask, bool)
+    onehot = (np.broadcast_to(np.asarray(code), m.shape)[..., None] == np.arange(K)).astype(float)
+    G = np.where(m[..., None], np.concatenate([-u, onehot], axis=-1), 0.0)
+    G = np.where(np.isfinite(G), G, 0.0)
+    M = np.einsum("...ni,...nj->...ij", G, G)
+    present = (G[..., 3:] != 0).any(axis=-2)
+    k = np.arange(K)
+    M[..., 3 + k, 3 + k] += np.where(present, 0.0, 1.0)  # an absent clock: no state
+    ok = m.sum(-1) >= 3 + present.sum(-1)
+    with np.errstate(all="ignore"):
+        d = np.full(M.shape[:-1], np.nan)
+        good = ok & (np.abs(np.linalg.det(np.where(ok[..., None, None], M, np.eye(3 + K)))) > 1e-12)
+        d[good] = np.diagonal(np.linalg.inv(M[good]), axis1=-2, axis2=-1)
+    return {"hdop": np.sqrt(d[..., 0] + d[..., 1]), "vdop": np.sqrt(d[..., 2]), "pdop": np.sqrt(d[..., :3].sum(-1))}
