@@ -499,3 +499,15 @@ def test_sky_along_the_final_per_constellation_set():
         assert (by[(s, True)]["n"] <= by[(s, False)]["n"]).all() and by[(s, True)]["n_median"] < by[(s, False)]["n_median"]
     assert by[("GPS+Galileo+BeiDou", True)]["n_min"] >= 10
     assert table(rows).count("\n") == len(rows) + 1
+
+
+def test_geometry_joins_by_epoch_keep_per_satellite_arrays(truth):
+    """Blocks whose epoch count equals the satellite count (24 and 24): ``system`` and ``prn`` stay (S,)."""
+    from testbed.sim.slicing import geometry_concat, geometry_prefix
+
+    g = geometry(truth.decimate(1.0).at_indices(np.arange(48)), terrain_masking=False)
+    a, b = geometry_prefix(g, 24), geometry(truth.decimate(1.0).at_indices(np.arange(24, 48)), terrain_masking=False)
+    assert a.t.size == 24 == a.system.size
+    joined = geometry_concat(a, b)
+    assert joined.system.shape == (24,) and joined.prn.shape == (24,)
+    np.testing.assert_array_equal(joined.visible, g.visible)

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from datetime import datetime
-from typing import Any, Sequence
+from typing import Any, ClassVar, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -93,6 +93,13 @@ class GnssGeometry:
     elevation_body: NDArray
     reason: NDArray
     visible: NDArray
+
+    #: the fields with the epoch axis first (not stacked): what epoch slicing cuts (``prn``, ``system`` are per
+    #: satellite, whatever their length)
+    PER_EPOCH: ClassVar[tuple[str, ...]] = ("t", "ant_pos_ecef", "ant_vel_ecef", "t_gps", "sat_pos_ecef",
+                                             "sat_vel_ecef", "sat_clock_s", "sat_clock_rate", "geometric_range",
+                                             "geometric_range_rate", "elevation", "azimuth", "elevation_body",
+                                             "reason", "visible")
 
     @property
     def stacked(self) -> bool:
