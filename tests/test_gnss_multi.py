@@ -511,3 +511,12 @@ def test_geometry_joins_by_epoch_keep_per_satellite_arrays(truth):
     joined = geometry_concat(a, b)
     assert joined.system.shape == (24,) and joined.prn.shape == (24,)
     np.testing.assert_array_equal(joined.visible, g.visible)
+
+
+def test_export_rinex_of_several_constellations_is_refused_before_flying(tmp_path, monkeypatch, capsys):
+    """The RINEX writers label every satellite G: a mixed constellation is refused, exit 2, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    code = main(["export-rinex", "zunz-rwy05-dfmc", str(tmp_path / "out")])
+    text = "".join(capsys.readouterr())
+    assert code == 2 and "gnss.constellations" in text and "GPS observation and navigation files only" in text
+    assert "Traceback" not in text and not (tmp_path / "out").exists()
