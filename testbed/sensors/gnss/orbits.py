@@ -205,8 +205,8 @@ def _kepler_E(M: NDArray, e: NDArray) -> NDArray:
     return E
 
 
-def sat_states(eph: Ephemeris, t_gps: ArrayLike, *, per_slot: bool = False
-               ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+def sat_states(eph: Ephemeris, t_gps: ArrayLike, *, per_slot: bool = False, position_only: bool = False
+               ) -> tuple[NDArray, NDArray | None, NDArray | None, NDArray | None]:
     """Satellite ECEF position, velocity and clock at GPS times (IS-GPS-200 Table 20-IV).
 
     Parameters
@@ -215,6 +215,8 @@ def sat_states(eph: Ephemeris, t_gps: ArrayLike, *, per_slot: bool = False
     t_gps : (...,) seconds since the GPS epoch (system time at which the state is
         wanted: the transmit time for ranging); with ``per_slot=True`` the last
         axis is the satellite slot, (..., S), one time per satellite.
+    position_only : the position alone (the others None), the same numbers: what an
+        iteration on the light time needs.
 
     Returns
     -------
@@ -250,6 +252,8 @@ def sat_states(eph: Ephemeris, t_gps: ArrayLike, *, per_slot: bool = False
     x = xp * cO - yp * ci * sO
     y = xp * sO + yp * ci * cO
     z = yp * si
+    if position_only:
+        return np.stack([x, y, z], -1), None, None, None
     # Time derivatives (chain rule through E, ν, the harmonic terms, i and Ω).
     E_dot = n / one_m_ecosE
     phi_dot = E_dot * sq / one_m_ecosE

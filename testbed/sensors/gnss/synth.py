@@ -144,7 +144,7 @@ def signal_geometry(eph: Ephemeris, t_gps: NDArray, ant_pos_ecef: NDArray, ant_v
     t_gps = np.asarray(t_gps, float)
     tau = np.full((t_gps.size, len(eph)), 0.075)  # ~ 20 000 km / c
     for _ in range(_LIGHT_TIME_ITERATIONS):
-        pos, vel, clk, clk_rate = sat_states(eph, t_gps[:, None] - tau, per_slot=True)
+        pos = sat_states(eph, t_gps[:, None] - tau, per_slot=True, position_only=True)[0]
         pos_r = rotate_z(pos, OMEGA_EARTH * tau)
         tau = np.linalg.norm(pos_r - ant_pos_ecef[:, None, :], axis=-1) / C_LIGHT
     pos, vel, clk, clk_rate = sat_states(eph, t_gps[:, None] - tau, per_slot=True)
