@@ -70,7 +70,10 @@ def sky3(truth):
     ({"constellations": ALL, "beidou": {"max_satellites": -1}}, "beidou.max_satellites", "0"),
     ({"constellations": ALL, "galileo": {"excluded_prns": [37]}}, "", "expected 1-36"),
     ({"constellations": ["gps"], "galileo": {"max_satellites": 4}}, "", "not in constellations"),
-    ({"constellations": ALL, "galileo": {"sigma_ura_m": 0.4, "sigma_ure_m": 0.5}}, "galileo", "sigma_ure_m"),
+    ({"constellations": ALL, "error_model": "dfmc", "galileo": {"sigma_ura_m": 0.4, "sigma_ure_m": 0.5}}, "galileo",
+     "sigma_ure_m"),
+    ({"constellations": ALL, "galileo": {"sigma_ura_m": 6.0}}, "", "galileo.sigma_ura_m: read by error_model = 'dfmc'"),
+    ({"user_error": "add_v31"}, "", "user_error: read by error_model = 'dfmc'"),
 ])
 def test_bad_constellation_settings_are_refused(kw, where, what):
     with pytest.raises(ValidationError) as err:
@@ -181,7 +184,7 @@ def test_iono_free_factor_of_each_system():
 @pytest.mark.parametrize("curve", ["wgc_m3", "maast2_dfmc"])
 def test_dfmc_sigma_against_the_closed_form(curve):
     s = GnssSettings(constellations=ALL, error_model="dfmc", user_error=curve,
-                     galileo={"sigma_ura_m": 6.0, "sigma_ure_m": 4.0, "b_nom_m": 0.0})
+                     galileo={"sigma_ura_m": 6.0, "sigma_ure_m": 4.0, "b_nom_m": 0.0})  # the others: defaults
     theta = np.array([5.0, 10.0, 15.0, 30.0, 45.0, 60.0, 90.0])
     system = np.array(["G", "E", "C"])
     told, drawn, b_nom = range_sigmas(np.radians(theta)[:, None] * np.ones(3), system, s)

@@ -222,6 +222,13 @@ class GnssSettings(StrictModel):
             bad = [p for p in cs.excluded_prns if not lo <= p <= hi]
             if bad:
                 raise ValueError(f"{name}.excluded_prns: PRN(s) {bad} out of range: expected {lo}-{hi}")
+        if self.error_model == "seed":  # keys only the DFMC model reads are refused, not ignored
+            unread = [f"{n}.{k}" for n in CONSTELLATION_SYSTEMS for k in ("sigma_ura_m", "sigma_ure_m", "b_nom_m")
+                      if k in getattr(self, n).model_fields_set]
+            unread += ["user_error"] if "user_error" in self.model_fields_set else []
+            if unread:
+                raise ValueError(f"{', '.join(unread)}: read by error_model = 'dfmc' only (the seed model uses "
+                                 f"sigma_ura_m for every system); set error_model = 'dfmc' or remove them")
         if self.correlators.pseudorange_source == "correlator" and self.constellations != ["gps"]:
             raise ValueError(f"correlators.pseudorange_source: 'correlator' synthesises GPS L1 C/A correlograms "
                              f"only; expected constellations = ['gps'] with it, got {self.constellations}")
