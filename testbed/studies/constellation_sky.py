@@ -21,6 +21,7 @@ from testbed.campaign.report import _figure, _save
 from testbed.config import load_approach
 from testbed.flight.fly import approach_geometry, fly
 from testbed.integrity.multi_clock import geometry_dops, system_codes
+from testbed.markdown import table as markdown_table
 from testbed.records import Mount
 from testbed.sensors.gnss.synth import gnss_geometry
 from testbed.sim.setup import load_terrain_for
@@ -60,12 +61,10 @@ def sky_along_final(approach_name: str = "zunz-rwy05-final", span_s: float = 864
 
 def table(rows: list[dict]) -> str:
     """The summary as a Markdown table."""
-    out = ["| constellations | sky | satellites in view (min / median / max) | median VDOP | RAIM can test |",
-           "|---|---|---|---|---|"]
-    for r in rows:
-        out.append(f"| {r['set']} | {'valley' if r['valley'] else 'open sky'} | {r['n_min']} / {r['n_median']:g} / "
-                   f"{r['n_max']} | {r['vdop_median']:.2f} | {100 * r['raim_fraction']:.1f} % |")
-    return "\n".join(out)
+    return "\n".join(markdown_table(
+        ["constellations", "sky", "satellites in view (min / median / max)", "median VDOP", "RAIM can test"],
+        [[r["set"], "valley" if r["valley"] else "open sky", f"{r['n_min']} / {r['n_median']:g} / {r['n_max']}",
+          f"{r['vdop_median']:.2f}", f"{100 * r['raim_fraction']:.1f} %"] for r in rows]))
 
 
 def draw(rows: list[dict], path: Path) -> None:
