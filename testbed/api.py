@@ -301,6 +301,10 @@ def print_run_summary(result: RunResult) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    import numpy as np
+
+    from testbed.integrity.gps_only import GPS_ONLY_MONITORS
+    from testbed.sensors.gnss.orbits import SYSTEM_NAMES
     from testbed.sim.evaluate import describe_faults, unavailable_reason
 
     print_flight_summary(result.flight, speed=False)
@@ -318,6 +322,12 @@ def print_run_summary(result: RunResult) -> None:
     # vertical one alone, and says so
     v_only = [result.outputs[n].dimensions == ("V",) for n in names]
     rows = [("reference", [s.reference for s in S])]
+    systems = tuple(dict.fromkeys(np.asarray(result.loop.gnss.system).tolist()))
+    if len(systems) > 1:  # which satellites each monitor read: GPS RAIM all, the others GPS alone
+        every = "+".join(SYSTEM_NAMES[c] for c in systems)
+        rows.append(("satellites (median used)", [
+            f"{'GPS only' if n in GPS_ONLY_MONITORS else every} ({np.nanmedian(result.outputs[n].n_used):.0f})"
+            for n in names]))
     for lv in (S[0].availability if S else {}):
         rows.append((f"available {lv}", [f"{100 * s.availability[lv]:.0f} %" + (" (V only)" if v else "")
                                           for s, v in zip(S, v_only)]))
@@ -339,7 +349,8 @@ def print_run_summary(result: RunResult) -> None:
     con = Console()
     con.print(t)
     loop = result.loop
-    for line in describe_faults(result.faults, loop.gnss.prn, loop.gnss_truth.faulty, loop.gnss.visible, loop.gnss.t):
+    for line in describe_faults(result.faults, loop.gnss.prn, loop.gnss_truth.faulty, loop.gnss.visible, loop.gnss.t,
+                                loop.gnss.system):
         con.print(line, highlight=False)
     for name in names:
         why = unavailable_reason(result.outputs[name])
@@ -380,6 +391,9 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
     check_run_arguments(seed=seed, gust_seed=gust_seed)
     check_output_folder(out_dir, "DIR")
     setup = preflight(ap)
+    if ap.config.gnss.constellations != ["gps"]:  # the writers label every satellite G: refuse before flying
+        raise ConfigError(ap.source, [f"gnss.constellations = {ap.config.gnss.constellations}: export-rinex writes "
+                                      f"GPS observation and navigation files only; expected ['gps']"])
     flight = fly(ap.flight_plan, setup.terrain, gust_seed=gust_seed)
     start = ap.config.start_time_utc
     plan = sensor_plan(setup)

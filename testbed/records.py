@@ -278,9 +278,10 @@ class GnssEpochs:
     pseudorange : (B..., T, S) m, after satellite clock / modelled atmosphere removed;
         NaN where ``visible`` is False.
     range_rate : (B..., T, S) m/s, NaN where not visible.
-    sigma : (B..., T, S) m, the 1-sigma the monitor is told (seed eq. 27).
+    sigma : (B..., T, S) m, the 1-sigma the monitor is told (seed eq. 27, or the DFMC C_int).
     visible : (B..., T, S) bool.  reason : (B..., T, S) int8 :class:`NotVisible` codes.
     antenna : the GNSS antenna mount (lever arm from the CG).
+    system : (S,) RINEX 3 system letter of each slot ('G', 'E', 'C'); omitted, every slot is GPS.
     """
 
     t: NDArray = epoch_array(batched=False)
@@ -294,6 +295,11 @@ class GnssEpochs:
     visible: NDArray = epoch_array(1)
     reason: NDArray = epoch_array(1)
     antenna: Mount = field()
+    system: NDArray | None = None
+
+    def __post_init__(self) -> None:
+        if self.system is None:  # a GPS-only record (every reader written before other systems existed)
+            object.__setattr__(self, "system", np.full(np.shape(self.prn), "G"))
 
 
 @dataclass(frozen=True)
@@ -305,6 +311,8 @@ class GnssTruth:
     nominal error.  fault_bias : (B..., T, S) m, injected fault.  faulty : (B..., T, S) bool.
     elevation, azimuth : (T, S) rad, true geometry ((B..., T, S) when the trials start at
     different times, as is geometric_range).
+    system_offset : (B..., S) m, the constant inter-system clock offset in each slot's pseudorange
+    (0 on the first constellation's); None with one constellation.
     """
 
     antenna_pos_ecef: NDArray = epoch_array(1)
@@ -315,6 +323,7 @@ class GnssTruth:
     faulty: NDArray = epoch_array(1)
     elevation: NDArray = epoch_array(1)
     azimuth: NDArray = epoch_array(1)
+    system_offset: NDArray | None = None
 
 
 @dataclass(frozen=True)

@@ -72,7 +72,7 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     faults = list(s.faults)
     trials = np.arange(i0, i0 + n)
     offsets = sortie_offsets(spec, trials)
-    windows = None if ctx.sky is None else sky_windows(offsets, spec.sorties.window_s)
+    windows = None if ctx.sky is None else sky_windows(offsets, spec.sorties.window_s, ctx.sky_repeat_s)
     sky_key = ("gnss_draw", ctx.gnss_draw_key, None if windows is None else memo.digest(windows))
     geom = functools.cache(lambda: ctx.gnss_geometry_of(windows))
     # the fault-free errors are shared by every GNSS fault of the sweep, the observations by its cells of one fault

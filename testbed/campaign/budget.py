@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.campaign.sorties import sky_windows, sortie_offsets
-from testbed.campaign.spec import LoadedSpec
+from testbed.campaign.sorties import sky_repeat_s, sky_windows, sortie_offsets
+from testbed.campaign.spec import SKY_REPEAT_S, LoadedSpec
 from testbed.integrity.batching import available_cores, physical_memory_bytes
 from testbed.memo import DEFAULT_LIMIT_BYTES
 from testbed.sim.budget import (BASE_BYTES, FLIGHT_SECONDS_PER_S, PARALLEL_EFFICIENCY, Estimate, Shape,
@@ -62,11 +62,13 @@ def stored_chunks(out_dir: str | Path | None) -> set[tuple[int, int]]:
     return out
 
 
-def sky_window_count(spec) -> int:
-    """Sky windows the sorties of a cell fly in (each a computed geometry; 1 with a fixed start)."""
+def sky_window_count(spec, repeat_s: float = SKY_REPEAT_S) -> int:
+    """Sky windows the sorties of a cell fly in (each a computed geometry; 1 with a fixed start), the sky
+    repeating after ``repeat_s`` (:func:`~testbed.campaign.sorties.sky_repeat_s` of its constellations)."""
     if spec.sorties.start == "fixed":
         return 1
-    return int(np.unique(sky_windows(sortie_offsets(spec, np.arange(spec.trials)), spec.sorties.window_s)).size)
+    offsets = sortie_offsets(spec, np.arange(spec.trials))
+    return int(np.unique(sky_windows(offsets, spec.sorties.window_s, repeat_s)).size)
 
 
 def _shapes(loaded: LoadedSpec, cells) -> list[Shape]:
@@ -103,11 +105,11 @@ def campaign_estimate(loaded: LoadedSpec, *, workers: int | str = "auto", schedu
     side_by_side = 1 if procs > 1 else min(cores, blocks_per_chunk)  # blocks on threads in this process
 
     n_block = min(spec.block_trials, spec.trials)
-    windows = sky_window_count(spec)
     block = max(n_block * s.epochs * sum(trial_epoch_bytes(s).values()) + correlator_trial_bytes(s) for s in shapes)
     geometry = {}
     for c, s in zip(cells, shapes):  # the cells of one geometry key share it (a fault sweep's)
         key = (str(c.approach.source), c.params["start_time_utc"], c.config.gnss.model_dump_json())
+        windows = sky_window_count(spec, sky_repeat_s(c.config.gnss.constellations))
         geometry[key] = windows * s.epochs * s.satellites * GEOMETRY_BYTES_PER_SAT
     contexts = sum(geometry.values()) + CELL_BYTES * len(cells) + max(feature_bytes(s) for s in shapes)
     memo = min(DEFAULT_LIMIT_BYTES, 2 * block) if spec.common_random_numbers else 0.0

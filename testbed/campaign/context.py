@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from testbed import memo
-from testbed.campaign.sorties import sky_windows, sortie_offsets, window_offsets
+from testbed.campaign.sorties import sky_repeat_s, sky_windows, sortie_offsets, window_offsets
 from testbed.campaign.spec import CampaignSpec, Cell
 from testbed.flight.fly import fly
 from testbed.inertial import body_to_world, local_to_world
@@ -108,6 +108,9 @@ class CellContext:
     feature_ids: np.ndarray | None = None
     #: the run's sensor plan (:func:`testbed.sim.pipeline.sensor_plan`)
     plan: object = None
+    #: the period the sky windows are reduced modulo (:func:`~testbed.campaign.sorties.sky_repeat_s` of the
+    #: constellations tracked)
+    sky_repeat_s: float = sky_repeat_s()
 
     def gnss_geometry_of(self, windows: np.ndarray | None):
         """The GNSS geometry of trials flying in sky ``windows`` (n,) (None: the fixed start)."""
@@ -133,8 +136,9 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
     plan = pipeline.sensor_plan(setup)
     fkey = _flight_key(cell)
     sky = None
+    repeat_s = sky_repeat_s(c.gnss.constellations)
     if spec is not None and spec.sorties.start != "fixed":
-        sky = np.unique(sky_windows(sortie_offsets(spec, np.arange(spec.trials)), spec.sorties.window_s))
+        sky = np.unique(sky_windows(sortie_offsets(spec, np.arange(spec.trials)), spec.sorties.window_s, repeat_s))
 
     def truth_g():
         tr = flown_truth(cell).decimate(setup.gnss.rate_hz)
@@ -146,9 +150,13 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
     if any("imu" in m.inputs for m in setup.monitors):
         ikey = ("imu_truth", tkey, json.dumps(setup.imu.model_dump(mode="json"), sort_keys=True))
         imu_inc, imu_start = cached(ikey, lambda: _imu_segment(flown_truth(cell), setup, duration_s, segment))
-    gkey = ("gnss_geom", tkey, c.start_time_utc.isoformat(), json.dumps(c.gnss.model_dump(mode="json"), sort_keys=True),
-            json.dumps(c.aircraft and cell.approach.aircraft.antenna_lever_arm_m),
-            None if sky is None else (spec.sorties.window_s, sky.tobytes()))
+    # the geometry is keyed on what it reads (the constellation set, almanac, masks, health, caps, schedule, rate,
+    # the sky windows and their period); the draws on every GNSS setting (a sweep of the error model shares a sky)
+    sky_id = None if sky is None else (spec.sorties.window_s, repeat_s, sky.tobytes())
+    lever = json.dumps(c.aircraft and cell.approach.aircraft.antenna_lever_arm_m)
+    geo_key = ("gnss_geom", tkey, c.start_time_utc.isoformat(), c.gnss.geometry_key(), lever, sky_id)
+    gkey = ("gnss_draw", tkey, c.start_time_utc.isoformat(), json.dumps(c.gnss.model_dump(mode="json"), sort_keys=True),
+            lever, sky_id)
 
     def ggeom():
         eph = plan.constellation
@@ -160,7 +168,7 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                                              terrain=terrain, constellation=eph, offsets_s=offsets[i:i + _WINDOWS_PER_PASS])
                                for i in range(0, offsets.size, _WINDOWS_PER_PASS)])
 
-    g_geom = cached(gkey, ggeom)
+    g_geom = cached(geo_key, ggeom)
     v_geom, lm = None, None
     if setup.uses_vision:
         lm = setup.landmarks
@@ -185,7 +193,7 @@ def cell_context(cell: Cell, spec: CampaignSpec | None = None) -> CellContext:
                        truth_ant_enu=setup.frame.ecef_to_enu(g_geom.ant_pos_ecef),
                        hal=hal, val=val, levels=levels, onset_s=float(onset),
                        truth_g=truth, sky=sky, imu_increments=imu_inc, imu_start=imu_start, feature_ids=f_ids,
-                       plan=plan, gnss_draw_key=gkey,
+                       plan=plan, gnss_draw_key=gkey, sky_repeat_s=repeat_s,
                        vision_draw_key=() if v_geom is None else (tkey, vision_json, landmarks_json))
 
 

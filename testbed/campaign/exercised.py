@@ -25,7 +25,7 @@ import numpy as np
 from testbed.campaign.context import cell_context
 from testbed.campaign.spec import Cell, LoadedSpec, expand_cells
 from testbed.schema import ConfigError
-from testbed.sensors.faults import GNSS_KINDS, LandmarkMoved, active
+from testbed.sensors.faults import GNSS_KINDS, LandmarkMoved, active, named_targets, satellite_ids
 
 
 def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) -> None:
@@ -44,7 +44,7 @@ def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) 
         faulty = [(c, why) for c, why in rows if c.params["fault_kind"] != "none"]
         if faulty and all(why for _, why in faulty):
             f = loaded.spec.faults[fam]
-            target = f"prn = {f.prn}" if f.kind in GNSS_KINDS else f"landmark = {f.landmark!r}"
+            target = f"prn = {f.prn}" if f.kind in GNSS_KINDS else f"landmark = {f.landmark!r}"  # a spec's table
             ids = [c.index for c, _ in faulty]
             expected = ("a PRN in view then, or prn = \"random\" (one in view at the onset, per sortie)"
                         if f.kind in GNSS_KINDS else "a landmark in the image then, or a smaller move")
@@ -57,8 +57,10 @@ def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) 
 
 def _decidable(fault) -> bool:
     """Faults whose target the geometry fixes (not drawn among those in view at the onset)."""
+    if fault.kind == "constellation_bias":
+        return True
     if fault.kind in GNSS_KINDS:
-        return fault.prn != "random"
+        return fault.targets != "random"
     return fault.landmark != "random" or isinstance(fault, LandmarkMoved)
 
 
@@ -79,15 +81,22 @@ def fault_never_happens(cell: Cell, spec) -> str:
 def _gnss_never(ctx, fault, on: np.ndarray, window: str) -> str:
     g = ctx.g_geom
     prn = np.asarray(g.prn)
-    wanted = [fault.prn] if isinstance(fault.prn, int) else list(fault.prn)
     vis = np.asarray(g.visible, bool)[..., on, :]  # ([W,] T_on, S)
     seen = vis.reshape(-1, vis.shape[-1]).any(0)  # (S,) in view at some epoch of the window, in some sky window
-    if seen[np.isin(prn, wanted)].any():
+    if seen[named_targets(fault, prn, g.system)].any():
         return ""
     windows = 1 if vis.ndim == 2 else vis.shape[0]
-    return (f"PRN {', '.join(map(str, wanted))} is never in view (above the elevation mask, clear of the terrain "
-            f"and the airframe, tracked) {window} in any of the {windows} sky window(s) of the sorties (in view "
-            f"then: PRN {', '.join(str(int(p)) for p in prn[seen]) or 'none'})")
+    where = (f"(above the elevation mask, clear of the terrain and the airframe, tracked) {window} in any of the "
+             f"{windows} sky window(s) of the sorties")
+    if fault.kind == "constellation_bias":
+        return f"no satellite of {fault.system} is ever in view {where}"
+    if fault.sat is None and np.all(np.asarray(g.system) == "G"):  # GPS alone: PRNs, as the file names them
+        wanted = [fault.prn] if isinstance(fault.prn, int) else list(fault.prn)
+        return (f"PRN {', '.join(map(str, wanted))} is never in view {where} (in view then: PRN "
+                f"{', '.join(str(int(p)) for p in prn[seen]) or 'none'})")
+    ids = satellite_ids(prn, g.system)
+    return (f"{', '.join(fault.targets)} never in view {where} (in view then: "
+            f"{', '.join(ids[seen].tolist()) or 'none'})")
 
 
 def _vision_never(ctx, fault, on: np.ndarray, window: str) -> str:

@@ -45,15 +45,39 @@ def sortie_offsets(spec: CampaignSpec, trials: ArrayLike) -> NDArray:
     return out
 
 
-def n_windows(window_s: float) -> int:
+#: Sky repeat periods (s) of the constellation sets other than GPS alone (:data:`SKY_REPEAT_S`): the nominal
+#: Galileo slots come back over the same ground after 17 revolutions in 10 sidereal days (best repeat
+#: 861 575 s, measured with :func:`~testbed.sensors.gnss.constellations.repeat_period`: 1.3 m), the BeiDou-3
+#: MEO after 13 in 7 (603 116 s: the two-body nominal orbit is 32 s short of 7 sidereal days; its IGSO and
+#: GEO repeat daily), the three together after 70 sidereal days (7 Galileo periods, 6 031 025 s).
+#: docs/design/gnss.md §6 gives how far each system's sky is then from its repeat.
+GALILEO_REPEAT_S = 861_575.0
+BEIDOU_REPEAT_S = 603_116.0
+ALL_REPEAT_S = 6_031_025.0
+
+
+def sky_repeat_s(constellations=("gps",)) -> float:
+    """The period after which the sky of ``constellations`` repeats (what a sky window is reduced modulo)."""
+    with_e, with_c = "galileo" in constellations, "beidou" in constellations
+    if with_e and with_c:
+        return ALL_REPEAT_S
+    if with_e:
+        return GALILEO_REPEAT_S
+    if with_c:
+        return BEIDOU_REPEAT_S
+    return SKY_REPEAT_S
+
+
+def n_windows(window_s: float, repeat_s: float = SKY_REPEAT_S) -> int:
     """Windows of one repeat period (the last may be up to ``window_s / 2`` shorter or longer)."""
-    return max(1, int(round(SKY_REPEAT_S / window_s)))
+    return max(1, int(round(repeat_s / window_s)))
 
 
-def sky_windows(offsets_s: ArrayLike, window_s: float) -> NDArray:
-    """The sky window (n,) int of start offsets: ``round((offset mod SKY_REPEAT_S) / window_s)``."""
-    phase = np.mod(np.asarray(offsets_s, float), SKY_REPEAT_S)
-    return np.mod(np.rint(phase / window_s).astype(np.int64), n_windows(window_s))
+def sky_windows(offsets_s: ArrayLike, window_s: float, repeat_s: float = SKY_REPEAT_S) -> NDArray:
+    """The sky window (n,) int of start offsets: ``round((offset mod repeat_s) / window_s)``; ``repeat_s``
+    the sky's repeat period (:func:`sky_repeat_s`; default GPS's)."""
+    phase = np.mod(np.asarray(offsets_s, float), repeat_s)
+    return np.mod(np.rint(phase / window_s).astype(np.int64), n_windows(window_s, repeat_s))
 
 
 def window_offsets(windows: ArrayLike, window_s: float) -> NDArray:

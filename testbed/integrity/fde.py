@@ -129,14 +129,17 @@ def flat_take(a: NDArray, batch_ndim: int, sel: NDArray) -> NDArray:
     return a.reshape((-1,) + a.shape[batch_ndim:])[sel]
 
 
-def measurement_label(index: int, prn, landmark_id=None) -> str:
-    """What an ``excluded`` index names: "PRN 12", "landmark RWY3", "the vision block" (or "" for -1)."""
+def measurement_label(index: int, prn, landmark_id=None, system=None) -> str:
+    """What an ``excluded`` index names: "PRN 12" (GPS alone) or "satellite E11" (``system`` (S,) letters with
+    another system), "landmark RWY3", "the vision block" (or "" for -1)."""
     S = len(prn)
     L = 0 if landmark_id is None else len(landmark_id)
     if index < 0:
         return ""
     if index < S:
-        return f"PRN {int(prn[index])}"
+        if system is None or all(c == "G" for c in system):
+            return f"PRN {int(prn[index])}"
+        return f"satellite {system[index]}{int(prn[index]):02d}"
     if index < S + L:
         return f"landmark {landmark_id[index - S]}"
     return "the vision block"

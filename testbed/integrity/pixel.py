@@ -67,6 +67,7 @@ from testbed.integrity import lsq
 from testbed.integrity.fde import Verdict, exclude
 from testbed.inertial import body_to_world
 from testbed.integrity.levels import availability, service_level
+from testbed.integrity.gps_only import gps_satellites
 from testbed.integrity.monitor import MonitorContext, MonitorCost, MonitorDefaults, Observations, REFERENCE_POINT
 from testbed.integrity.pixel_model import attitude_pixel_jacobians, bearing_fix, pixel_covariance, project_landmarks
 from testbed.integrity.raim import compact_rows, scatter_rows
@@ -561,6 +562,7 @@ class PixelMonitor(MonitorDefaults):
         return PixelState()
 
     def step(self, obs: Observations, state: PixelState) -> tuple[MonitorOutput, PixelState]:
+        obs = gps_satellites(obs)  # the pixel monitor stays GPS-only (docs/design/gnss.md §5)
         out = pixel_monitor(obs.gnss, obs.vision, self.context.frame, self.context.integrity, name=self.name,
                             x_carry=state.x_start, options=self.options)
         x = out.diagnostics.x_start

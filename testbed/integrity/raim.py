@@ -1,20 +1,22 @@
-"""GPS-only snapshot RAIM: WLS fix, chi-square detection, slope protection levels.
+"""Snapshot RAIM over the satellites given: WLS fix, chi-square detection, slope protection levels.
 
 The baseline every VA-RAIM figure is compared with (docs/design/integrity.md §2-§5
-with GPS rows only). Batched over any leading (trial) axes and the epoch axis; a
-bad epoch gets NaN and a reason code, never an exception.
+with satellite rows only). Batched over any leading (trial) axes and the epoch axis; a
+bad epoch gets NaN and a reason code, never an exception. With satellites of several
+constellations the state has one clock per constellation (:mod:`testbed.integrity.multi_clock`,
+docs/design/gnss.md §4); with one constellation it is today's 4-state solve, bit for bit.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import LocalFrame
-from testbed.integrity import kernels, lsq
+from testbed.integrity import kernels, lsq, multi_clock
 from testbed.integrity.fde import Verdict, exclude, flat_take
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.levels import availability, service_level
@@ -86,7 +88,8 @@ def scatter_rows(values: NDArray, idx: NDArray, mask_c: NDArray, S: int) -> NDAr
 def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | None = None,
              antenna_offset_enu: ArrayLike | None = None, x0: ArrayLike | None = None,
              name: str = "gps_raim", threads: int | None = None) -> MonitorOutput:
-    """Snapshot GPS-only RAIM for every epoch (and trial) of ``gnss``.
+    """Snapshot RAIM over every satellite of ``gnss`` for every epoch (and trial), one clock per
+    constellation present (``gnss.system``); the name says where it started: GPS alone.
 
     Parameters
     ----------
@@ -122,10 +125,13 @@ def gps_raim(gnss: GnssEpochs, frame: LocalFrame, settings: IntegritySettings | 
     off = None if antenna_offset_enu is None else np.broadcast_to(np.asarray(antenna_offset_enu, float), bt + (3,))
     x0b = None if x0 is None else np.broadcast_to(np.asarray(x0, float), bt + (4,))
     width = max(int(vis.sum(-1).max(initial=0)), 1)  # one row width for every chunk
+    code, letters = multi_clock.system_codes(gnss.system)
+    clocks = (code, len(letters)) if len(letters) > 1 else None
 
     def chunk(sl: slice) -> MonitorOutput:
         return _gps_raim_chunk(pr[sl], vis[sl], sat[sl], sigma[sl], None if off is None else off[sl],
-                               None if x0b is None else x0b[sl], np.asarray(gnss.t), frame, st, name, width)
+                               None if x0b is None else x0b[sl], np.asarray(gnss.t), frame, st, name, width,
+                               clocks)
 
     return map_trial_chunks(chunk, bt, threads)
 
@@ -201,15 +207,46 @@ class GpsFix:
 
 
 def gps_fix(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,
-            x0: NDArray | None, frame: LocalFrame, st: IntegritySettings, width: int) -> GpsFix:
-    """The iterated GPS-only WLS fix and its fit (arrays broadcast to one batch)."""
+            x0: NDArray | None, frame: LocalFrame, st: IntegritySettings, width: int,
+            clocks: tuple[NDArray, int] | None = None) -> GpsFix:
+    """The iterated WLS fix over the satellites given and its fit (arrays broadcast to one batch).
+
+    ``clocks``: (system code per slot (S,), K) when the slots hold K > 1 constellations (one clock
+    each, :mod:`testbed.integrity.multi_clock`); None: one clock (the compiled 4-state solve)."""
     idx, m, z, w, anchor = used_gps_rows(vis, pr, sigma, sat_ecef, frame, width)
     bt = pr.shape[:-1]
-    x0 = np.zeros(bt + (4,)) if x0 is None else x0
     off = np.zeros(bt + (3,)) if off is None else off
+    if clocks is not None:
+        x_it, conv, iters, ft = _multi_clock_solve(idx, m, z, w, anchor, off, x0, clocks, st)
+        ft, pls, reason, ok, x = solution_verdict(ft, x_it, conv, st)
+        return GpsFix(idx, m, z, w, anchor, x, ft, pls, reason, ok, conv, iters)
+    x0 = np.zeros(bt + (4,)) if x0 is None else x0
     x_it, conv, iters, h, G = lsq.gauss_newton_ranges(x0, st.max_iter, st.tol_m, (anchor, off, z, w, m))
     ft, pls, reason, ok, x = fix_at_solution(h, G, z, (w, None), m, x_it, conv, st)
     return GpsFix(idx, m, z, w, anchor, x, ft, pls, reason, ok, conv, iters)
+
+
+def _multi_clock_solve(idx: NDArray, m: NDArray, z: NDArray, w: NDArray, anchor: NDArray, off: NDArray,
+                       x0: NDArray | None, clocks: tuple[NDArray, int], st: IntegritySettings):
+    """:func:`multi_clock.fit_multi_clock` on compacted rows of any batch shape: (x, converged, n_iter, fit)."""
+    code, K = clocks
+    bt, N = m.shape[:-1], m.shape[-1]
+    P = int(np.prod(bt, dtype=np.int64))
+    start = None
+    if x0 is not None:  # the 4-state start: its clock for every constellation
+        x0f = np.broadcast_to(x0, bt + (4,)).reshape(P, 4)
+        start = np.concatenate([x0f, np.repeat(x0f[:, 3:], K - 1, axis=1)], axis=1)
+    x, conv, iters, ft = multi_clock.fit_multi_clock(
+        anchor.reshape(P, N, 3), np.broadcast_to(off, bt + (3,)).reshape(P, 3), z.reshape(P, N), w.reshape(P, N),
+        m.reshape(P, N), np.asarray(code)[idx].reshape(P, N), K, start, st.max_iter, st.tol_m, st.max_cond)
+    ft = _shaped_fit(ft, bt)
+    return x.reshape(bt + (3 + K,)), conv.reshape(bt), iters.reshape(bt), ft
+
+
+def _shaped_fit(ft: lsq.WlsFit, bt: tuple) -> lsq.WlsFit:
+    """A flat (P, ...) :class:`lsq.WlsFit` with the batch shape ``bt`` instead of P."""
+    return replace(ft, **{f.name: getattr(ft, f.name).reshape(bt + getattr(ft, f.name).shape[1:])
+                          for f in fields(ft)})
 
 
 def snapshot_output(name: str, t: NDArray, x: NDArray, ft, pls: dict, reason: NDArray, ok: NDArray,
@@ -253,11 +290,11 @@ def gps_output(fix: GpsFix, t: NDArray, S: int, st: IntegritySettings, name: str
 
 def _gps_raim_chunk(pr: NDArray, vis: NDArray, sat_ecef: NDArray, sigma: NDArray, off: NDArray | None,
                     x0: NDArray | None, t: NDArray, frame: LocalFrame, st: IntegritySettings, name: str,
-                    width: int) -> MonitorOutput:
+                    width: int, clocks: tuple[NDArray, int] | None = None) -> MonitorOutput:
     """:func:`gps_raim` on one chunk of trials (arrays broadcast to the chunk's batch)."""
-    fix = gps_fix(pr, vis, sat_ecef, sigma, off, x0, frame, st, width)
+    fix = gps_fix(pr, vis, sat_ecef, sigma, off, x0, frame, st, width, clocks)
     out = gps_output(fix, t, pr.shape[-1], st, name)
-    return gps_exclusion(fix, out, off, st) if st.fde else out
+    return gps_exclusion(fix, out, off, st, clocks) if st.fde else out
 
 
 def snapshot_verdict(ft: lsq.WlsFit, pls: dict, ok: NDArray, x: NDArray, st: IntegritySettings) -> Verdict:
@@ -267,7 +304,8 @@ def snapshot_verdict(ft: lsq.WlsFit, pls: dict, ok: NDArray, x: NDArray, st: Int
                    n_used=ft.n_used.astype(np.int16))
 
 
-def gps_exclusion(fix: GpsFix, out: MonitorOutput, off: NDArray | None, st: IntegritySettings) -> MonitorOutput:
+def gps_exclusion(fix: GpsFix, out: MonitorOutput, off: NDArray | None, st: IntegritySettings,
+                  clocks: tuple[NDArray, int] | None = None) -> MonitorOutput:
     """GPS RAIM's output after FDE (:func:`testbed.integrity.fde.exclude`): a unit is a satellite's row."""
     nb = fix.mask.ndim - 1
     x_start = np.where(np.isfinite(fix.x), fix.x, 0.0)  # the full-set fix: a few metres from the reduced one
@@ -277,6 +315,12 @@ def gps_exclusion(fix: GpsFix, out: MonitorOutput, off: NDArray | None, st: Inte
         m = take(fix.mask) & keep
         o = np.zeros((sel.size, 3)) if off is None else flat_take(np.broadcast_to(off, fix.x.shape[:-1] + (3,)), nb, sel)
         z, w, anchor = take(fix.z), take(fix.w), take(fix.anchor)
+        if clocks is not None:
+            x_it, conv, _, ft = multi_clock.fit_multi_clock(
+                anchor, o, z, w, m, np.asarray(clocks[0])[take(fix.idx)], clocks[1], take(x_start), st.max_iter,
+                st.tol_m, st.max_cond)
+            ft, pls, _, ok, x = solution_verdict(ft, x_it, conv, st)
+            return snapshot_verdict(ft, pls, ok, x, st)
         x_it, conv, _, h, G = lsq.gauss_newton_ranges(take(x_start), st.max_iter, st.tol_m, (anchor, o, z, w, m))
         ft, pls, _, ok, x = fix_at_solution(h, G, z, (w, None), m, x_it, conv, st)
         return snapshot_verdict(ft, pls, ok, x, st)

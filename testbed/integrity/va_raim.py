@@ -46,6 +46,7 @@ from testbed.integrity.calibration import (
     landmark_set_key,
 )
 from testbed.integrity.levels import SERVICE_LEVELS, service_level
+from testbed.integrity.gps_only import gps_satellites
 from testbed.integrity.monitor import MonitorContext, MonitorCost, MonitorDefaults, Observations, REFERENCE_POINT, compute
 from testbed.integrity.fde import Verdict, exclude, flat_take
 from testbed.integrity.raim import (
@@ -595,6 +596,7 @@ class VaRaimMonitor(MonitorDefaults):
         return VaRaimState()
 
     def step(self, obs: Observations, state: VaRaimState) -> tuple[MonitorOutput, VaRaimState]:
+        obs = gps_satellites(obs)  # VA-RAIM stays GPS-only (docs/design/gnss.md §5)
         ctx = state.context
         full_obs = obs if ctx is None else Observations(concat_epochs([ctx.gnss, obs.gnss]),
                                                          concat_epochs([ctx.vision, obs.vision]))

@@ -36,6 +36,7 @@ from pydantic import Field
 from scipy import stats
 
 from testbed.integrity.levels import availability, service_level
+from testbed.integrity.gps_only import gps_satellites
 from testbed.integrity.monitor import MonitorContext, MonitorCost, MonitorDefaults, Observations, REFERENCE_POINT
 from testbed.navigation.ekf import CameraNoise, ImuNoise, NavState, predict_compiled
 from testbed.navigation.run import ClockNoise, filter_epochs, state_from_init
@@ -146,6 +147,7 @@ class EkfMonitor(MonitorDefaults):
         return EkfState()
 
     def step(self, obs: Observations, state: EkfState) -> tuple[MonitorOutput, EkfState]:
+        obs = gps_satellites(obs)  # the filter stays GPS-only (docs/design/gnss.md §5)
         g = obs.gnss
         lead = np.shape(g.pseudorange)[:-2]
         T = len(g.t)

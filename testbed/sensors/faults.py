@@ -12,6 +12,7 @@ perturb, using :func:`active` for the time window.
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Literal, Union
 
 import numpy as np
@@ -28,6 +29,25 @@ def _some_satellite(v):
 
 SatSelector = Annotated[Union[int, list[int], Literal["random"]], AfterValidator(_some_satellite)]
 
+#: A satellite in the RINEX 3 spelling: system letter and two-digit PRN.
+SAT_ID = re.compile(r"^[GEC]\d{2}$")
+#: ``constellation_bias`` system names and their RINEX 3 letters (the names of ``[gnss] constellations``).
+SYSTEM_LETTERS = {"gps": "G", "galileo": "E", "beidou": "C"}
+
+
+def _sat_ids(v):
+    ids = [v] if isinstance(v, str) else list(v)
+    if not ids:
+        raise ValueError("expected a satellite such as 'E11' or a list of at least 1 (got an empty list)")
+    bad = [i for i in ids if not SAT_ID.match(i) or int(i[1:]) == 0]
+    if bad:
+        raise ValueError(f"expected satellites spelt as in RINEX 3, a system letter G, E or C and a two-digit PRN "
+                         f"(e.g. 'G05', 'E11', 'C59'), got {bad[0]!r}")
+    return v
+
+
+SatIds = Annotated[Union[str, list[str]], AfterValidator(_sat_ids)]
+
 
 class _Timed(StrictModel):
     onset_s: float = Field(0.0, ge=0.0, le=7200.0, description="fault starts at this time since approach start (s)")
@@ -40,30 +60,77 @@ class _Timed(StrictModel):
         return self
 
 
-class GpsStep(_Timed):
-    """A constant pseudorange bias on the selected satellite(s)."""
+class _OnSatellites(_Timed):
+    """A fault on chosen satellites: ``prn`` (GPS PRNs, or 'random': any visible satellite) or ``sat`` (RINEX 3
+    identifiers of any constellation, e.g. 'E11')."""
+
+    prn: SatSelector = Field("random", description="GPS PRN, list of GPS PRNs, or 'random' (a visible satellite "
+                                                   "of any tracked constellation at onset)")
+    sat: SatIds | None = Field(None, description="satellite(s) of any constellation in the RINEX 3 spelling "
+                                                 "('G05', 'E11', 'C59'), instead of prn")
+
+    @model_validator(mode="after")
+    def _one_selector(self):
+        if self.sat is not None and "prn" in self.model_fields_set:
+            raise ValueError(f"give prn or sat, not both (prn = {self.prn!r}, sat = {self.sat!r})")
+        return self
+
+    @property
+    def targets(self) -> list[str] | Literal["random"]:
+        """The satellites named, in the RINEX 3 spelling, or 'random'."""
+        if self.sat is not None:
+            return [self.sat] if isinstance(self.sat, str) else list(self.sat)
+        if self.prn == "random":
+            return "random"
+        return [f"G{p:02d}" for p in ([self.prn] if isinstance(self.prn, int) else self.prn)]
+
+    @property
+    def target_text(self) -> str:
+        """How the approach file names the target (for messages)."""
+        return f"sat = {self.sat!r}" if self.sat is not None else f"prn = {self.prn!r}"
+
+
+class GpsStep(_OnSatellites):
+    """A constant pseudorange bias on the selected satellite(s) (of any constellation)."""
 
     kind: Literal["gps_step"] = Field(..., description="fault kind")
-    prn: SatSelector = Field("random", description="PRN, list of PRNs, or 'random' (a visible one at onset)")
     bias_m: float = Field(..., ge=-1e6, le=1e6, description="pseudorange bias (beyond 1000 km a receiver rejects "
                                                                "the range)")
 
 
-class GpsRamp(_Timed):
-    """A pseudorange error growing linearly from the onset."""
+class GpsRamp(_OnSatellites):
+    """A pseudorange error growing linearly from the onset (on satellites of any constellation)."""
 
     kind: Literal["gps_ramp"] = Field(..., description="fault kind")
-    prn: SatSelector = Field("random", description="PRN, list of PRNs, or 'random' (a visible one at onset)")
     rate_m_s: float = Field(..., ge=-1e4, le=1e4, description="growth rate of the pseudorange error")
 
 
-class GpsClockRunoff(_Timed):
-    """A satellite clock run-off: error = drift·τ + ½·accel·τ², τ = t − onset."""
+class GpsClockRunoff(_OnSatellites):
+    """A satellite clock run-off: error = drift·τ + ½·accel·τ², τ = t − onset (any constellation)."""
 
     kind: Literal["gps_clock"] = Field(..., description="fault kind")
-    prn: SatSelector = Field("random", description="PRN, list of PRNs, or 'random' (a visible one at onset)")
     drift_m_s: float = Field(0.0, ge=-1e4, le=1e4, description="clock error rate at the onset")
     accel_m_s2: float = Field(0.05, ge=-1e3, le=1e3, description="clock error acceleration")
+
+
+class ConstellationBias(_Timed):
+    """A constellation-wide fault: the same error on every satellite of one system, bias + rate·τ, τ = t − onset
+    (a wrong broadcast system time offset or a ground-segment fault)."""
+
+    kind: Literal["constellation_bias"] = Field(..., description="fault kind")
+    system: Literal["gps", "galileo", "beidou"] = Field(..., description="the constellation hit")
+    bias_m: float = Field(0.0, ge=-1e6, le=1e6, description="error common to its satellites at the onset (m)")
+    rate_m_s: float = Field(0.0, ge=-1e4, le=1e4, description="growth rate of the common error (m/s)")
+
+    @model_validator(mode="after")
+    def _something(self):
+        if self.bias_m == 0.0 and self.rate_m_s == 0.0:
+            raise ValueError("expected a non-zero bias_m or rate_m_s (a fault that adds nothing)")
+        return self
+
+    @property
+    def target_text(self) -> str:
+        return f"system = {self.system!r}"
 
 
 class PixelBias(_Timed):
@@ -102,9 +169,9 @@ class Misassociation(_Timed):
         return self
 
 
-Fault = Annotated[Union[GpsStep, GpsRamp, GpsClockRunoff, PixelBias, LandmarkMoved, Misassociation],
-                  Field(discriminator="kind")]
-GNSS_KINDS = ("gps_step", "gps_ramp", "gps_clock")
+Fault = Annotated[Union[GpsStep, GpsRamp, GpsClockRunoff, ConstellationBias, PixelBias, LandmarkMoved,
+                        Misassociation], Field(discriminator="kind")]
+GNSS_KINDS = ("gps_step", "gps_ramp", "gps_clock", "constellation_bias")
 VISION_KINDS = ("pixel_bias", "landmark_moved", "misassociation")
 
 
@@ -117,28 +184,59 @@ def active(fault: _Timed, t: NDArray) -> NDArray:
     return on
 
 
-def fault_profile(fault: GpsStep | GpsRamp | GpsClockRunoff, t: NDArray) -> NDArray:
+def fault_profile(fault: GpsStep | GpsRamp | GpsClockRunoff | ConstellationBias, t: NDArray) -> NDArray:
     """Error added to the faulty pseudorange at times ``t`` ``(T,)``, m (0 when inactive)."""
     tau = np.asarray(t, float) - fault.onset_s
     if isinstance(fault, GpsStep):
         e = np.full_like(tau, fault.bias_m)
     elif isinstance(fault, GpsRamp):
         e = fault.rate_m_s * tau
+    elif isinstance(fault, ConstellationBias):
+        e = fault.bias_m + fault.rate_m_s * tau
     else:
         e = fault.drift_m_s * tau + 0.5 * fault.accel_m_s2 * tau**2
     return np.where(active(fault, t), e, 0.0)
 
 
+def satellite_ids(prn: NDArray, system: NDArray | None = None) -> NDArray:
+    """RINEX 3 identifiers ``(S,)`` of slots ``prn`` of systems ``system`` (None: all GPS)."""
+    prn = np.asarray(prn)
+    system = np.full(prn.shape, "G") if system is None else np.asarray(system)
+    return np.array([f"{c}{int(p):02d}" for c, p in zip(system, prn)], dtype="<U3")
+
+
+def named_targets(fault, prn: NDArray, system: NDArray | None = None) -> NDArray:
+    """Slot mask ``(S,)`` of the satellites a GNSS fault names (not 'random'); ValueError naming the missing
+    ones when a named satellite or system is not tracked."""
+    prn = np.asarray(prn)
+    system = np.full(prn.shape, "G") if system is None else np.asarray(system)
+    if isinstance(fault, ConstellationBias):
+        hit = system == SYSTEM_LETTERS[fault.system]
+        if not hit.any():
+            raise ValueError(f"fault {fault.kind}: system {fault.system!r} is not tracked (the constellation has "
+                             f"{sorted(set(system.tolist()))})")
+        return hit
+    ids = satellite_ids(prn, system)
+    wanted = fault.targets
+    missing = [w for w in wanted if w not in set(ids.tolist())]
+    if missing:
+        shown = missing if fault.sat is not None else [int(m[1:]) for m in missing]
+        raise ValueError(f"fault {fault.kind}: {'satellite' if fault.sat is not None else 'PRN'}(s) {shown} not in "
+                         f"the constellation {sorted(set(ids.tolist())) if fault.sat is not None else sorted(prn[system == 'G'].tolist())}")
+    return np.isin(ids, wanted)
+
+
 def select_satellites(fault, t: NDArray, prn: NDArray, visible: NDArray,
-                      rng: np.random.Generator) -> NDArray:
+                      rng: np.random.Generator, system: NDArray | None = None) -> NDArray:
     """Slot mask ``(S,)`` of the satellites a GNSS fault hits.
 
-    ``visible`` is ``(T, S)``. "random" draws one satellite visible at the
-    first active epoch (uniformly, from ``rng``); if none is visible, none is hit.
+    ``visible`` is ``(T, S)``; ``system`` (S,) the slots' system letters (None: all GPS).
+    "random" draws one satellite visible at the first active epoch (uniformly, from ``rng``,
+    whatever its constellation); if none is visible, none is hit. A constellation fault hits
+    every slot of its system.
     """
     prn = np.asarray(prn)
-    sel = fault.prn
-    if sel == "random":
+    if getattr(fault, "prn", None) == "random" and getattr(fault, "sat", None) is None:
         on = np.flatnonzero(active(fault, t))
         hit = np.zeros(prn.shape, bool)
         if on.size == 0:
@@ -147,27 +245,24 @@ def select_satellites(fault, t: NDArray, prn: NDArray, visible: NDArray,
         if cands.size:
             hit[rng.choice(cands)] = True
         return hit
-    wanted = [sel] if isinstance(sel, int) else list(sel)
-    missing = sorted(set(wanted) - set(prn.tolist()))
-    if missing:
-        raise ValueError(f"fault {fault.kind}: PRN(s) {missing} not in the constellation {sorted(prn.tolist())}")
-    return np.isin(prn, wanted)
+    return named_targets(fault, prn, system)
 
 
 def gnss_fault_bias(faults: list, t: NDArray, prn: NDArray, visible: NDArray,
-                    rng: np.random.Generator) -> NDArray:
+                    rng: np.random.Generator, system: NDArray | None = None) -> NDArray:
     """Total injected pseudorange error ``(T, S)`` from the GNSS faults of a schedule.
 
     Non-GNSS faults are ignored. ``rng`` is used only for "random" selections;
     each fault gets its own child generator (spawned in schedule order), so a
     fault's choice does not depend on whether another fault's onset is inside
     ``t`` yet: the result is stable when ``t`` grows (the closed loop relies on it).
+    ``system`` (S,): the slots' system letters (None: all GPS).
     """
     t = np.asarray(t, float)
     bias = np.zeros((t.size, len(prn)))
     for f, g in zip(faults, rng.spawn(len(faults))):
         if f.kind not in GNSS_KINDS:
             continue
-        hit = select_satellites(f, t, prn, np.asarray(visible, bool), g)
+        hit = select_satellites(f, t, prn, np.asarray(visible, bool), g, system)
         bias[:, hit] += fault_profile(f, t)[:, None]
     return bias

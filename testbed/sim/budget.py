@@ -28,7 +28,7 @@ from testbed.flight.fly import approach_geometry
 from testbed.integrity.monitor import MonitorCost
 from testbed.monitors import monitor_cost, reads
 from testbed.schema import ConfigError
-from testbed.sensors.gnss.almanac import load_constellation
+from testbed.sensors.gnss.constellations import tracked_constellations
 from testbed.sensors.gnss.correlators import _EXACT_BYTES, delay_grid
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.vision.features import corridor_size
@@ -226,7 +226,7 @@ def sortie_shape(approach, duration_s: float | None = None) -> Shape:
         flight_s = c.flight.max_duration_s
     sortie_s = flight_s if duration_s is None else min(duration_s, flight_s)
     g = c.gnss
-    eph = load_constellation(g.almanac_source, g.almanac_path, utc_to_gps_seconds(c.start_time_utc), g.almanac_week)
+    eph = tracked_constellations(g, utc_to_gps_seconds(c.start_time_utc))
     monitors = tuple(dict.fromkeys(c.monitors))
     vision = reads("vision", monitors)
     scene = c.vision.features
@@ -234,7 +234,7 @@ def sortie_shape(approach, duration_s: float | None = None) -> Shape:
     passes = int(reads("correlators", monitors)) + int(g.correlator_pseudoranges)
     cs = g.correlators
     return Shape(epochs=int(sortie_s * g.rate_hz) + 1, flight_s=flight_s, flight_steps=int(flight_s / c.flight.dt_s),
-                 satellites=int(len(set(eph.prn.tolist()))), landmarks=len(build_landmarks(c.landmarks)),
+                 satellites=int(len(set(eph.sat_id.tolist()))), landmarks=len(build_landmarks(c.landmarks)),
                  vision_epochs=int(sortie_s * c.vision.rate_hz) + 1 if vision else 0, features=features,
                  correlator_delays=delay_grid(cs).size if passes else 0, correlator_passes=passes,
                  exact_blocks=cs.n_noncoherent if cs.synthesis == "exact" else 0, monitors=monitors,

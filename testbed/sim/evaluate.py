@@ -144,11 +144,15 @@ def unavailable_reason(out: MonitorOutput) -> str | None:
     return f"{text} ({int((codes == top).sum())} of {np.asarray(out.reason).size} epochs)"
 
 
-def describe_faults(faults, prn: NDArray, faulty: NDArray, visible: NDArray, t: NDArray) -> list[str]:
+def describe_faults(faults, prn: NDArray, faulty: NDArray, visible: NDArray, t: NDArray,
+                    system: NDArray | None = None) -> list[str]:
     """One line per injected fault (kind, size, target, onset) and, for the GNSS faults, which satellites
     the observations carried it on and at how many epochs (``faulty``/``visible``: (T, S), ``prn``: (S,)).
-    A GNSS fault that no tracked satellite carried is said to be "not exercised"."""
-    from testbed.sensors.faults import GNSS_KINDS
+    A GNSS fault that no tracked satellite carried is said to be "not exercised". ``system`` (S,): the slots'
+    system letters (None: GPS alone, named by PRN)."""
+    from testbed.sensors.faults import GNSS_KINDS, satellite_ids
+
+    gps_alone = system is None or bool(np.all(np.asarray(system) == "G"))
 
     lines = []
     for f in faults:
@@ -156,7 +160,11 @@ def describe_faults(faults, prn: NDArray, faulty: NDArray, visible: NDArray, t: 
                                                           ("drift_m_s", "m/s"), ("magnitude_px", "px"))
                      if hasattr(f, k)), "")
         target = getattr(f, "prn", None) or getattr(f, "landmark", None) or getattr(f, "landmarks", None)
-        if target == "random":
+        if f.kind == "constellation_bias":
+            target = f"every {f.system} satellite"
+        elif getattr(f, "sat", None) is not None:
+            target = ", ".join(f.targets)
+        elif target == "random":
             target = "a random visible satellite" if f.kind in GNSS_KINDS else "a random detected landmark"
         elif f.kind in GNSS_KINDS:
             target = f"PRN {target}"
@@ -168,9 +176,11 @@ def describe_faults(faults, prn: NDArray, faulty: NDArray, visible: NDArray, t: 
         if not seen.any():
             lines.append("  in the observations: at no epoch (no tracked satellite carried it): not exercised")
         else:
-            sats = [int(p) for p in np.asarray(prn)[seen.any(axis=0)]]
+            hit = seen.any(axis=0)
+            sats = ("PRN " + ", ".join(str(int(p)) for p in np.asarray(prn)[hit]) if gps_alone
+                    else ", ".join(satellite_ids(prn, system)[hit].tolist()))
             epochs = seen.any(axis=1)
             tt = np.asarray(t, float)[epochs]
-            lines.append(f"  in the observations: PRN {', '.join(map(str, sats))} at {int(epochs.sum())} of "
+            lines.append(f"  in the observations: {sats} at {int(epochs.sum())} of "
                          f"{epochs.size} epochs ({tt[0]:g}-{tt[-1]:g} s)")
     return lines

@@ -46,7 +46,8 @@ class EventTracker:
                 self.prev_alert[name] = a
                 ex = int(out.excluded[i])
                 if ex >= 0 and ex != self.prev_excluded.get(name, -1):
-                    what = measurement_label(ex, block.gnss.prn, None if block.vision is None else block.vision.landmark_id)
+                    what = measurement_label(ex, block.gnss.prn, None if block.vision is None else block.vision.landmark_id,
+                                             block.gnss.system)
                     block.events.append((float(t), WARN, f"{name}: fault detected, {what} EXCLUDED (test "
                                                           f"{out.fde.test_stat_all[i]:.1f} > {out.fde.threshold_all[i]:.1f}; "
                                                           f"without it {out.test_stat[i]:.1f} ≤ {out.threshold[i]:.1f})"))

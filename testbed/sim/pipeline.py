@@ -24,7 +24,7 @@ import numpy as np
 
 from testbed.integrity.monitor import ANTENNA, Monitor, Observations, compute
 from testbed.records import ImuSamples, MonitorOutput
-from testbed.sensors.gnss.almanac import load_constellation
+from testbed.sensors.gnss.constellations import tracked_constellations
 from testbed.sensors.gnss.synth import GnssErrors, GnssGeometry, apply_gnss_errors, draw_gnss_errors
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.imu import ImuErrorStream, apply_errors
@@ -58,8 +58,7 @@ class SensorPlan:
 def sensor_plan(setup: RunSetup) -> SensorPlan:
     """The plan of ``setup``'s sensors: which ones its monitors read, and what they share."""
     g = setup.gnss
-    eph = load_constellation(g.almanac_source, g.almanac_path, utc_to_gps_seconds(setup.approach.config.start_time_utc),
-                             g.almanac_week)
+    eph = tracked_constellations(g, utc_to_gps_seconds(setup.approach.config.start_time_utc))
     inputs = {i for m in setup.monitors for i in m.inputs}
     looks = setup.uses_vision or setup.features is not None
     return SensorPlan(setup=setup, constellation=eph,

@@ -51,23 +51,31 @@ def preflight(approach: Approach, *, trim: bool = True):
 
 def _constellation(approach: Approach, problems: list[str]):
     from testbed.sensors.gnss.almanac import load_constellation
+    from testbed.sensors.gnss.constellations import tracked_constellations
     from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 
     g = approach.config.gnss
+    t0 = utc_to_gps_seconds(approach.config.start_time_utc)
+    if "gps" in g.constellations:
+        try:
+            gps = load_constellation(g.almanac_source, g.almanac_path, t0, g.almanac_week)
+        except Exception as exc:  # any reader failure on a user's file is a message, not a traceback
+            where = f"gnss.almanac_path = {str(g.almanac_path)!r}" if g.almanac_path else "gnss.almanac_source"
+            problems.append(f"{where}: could not be read as a {g.almanac_source} file ({type(exc).__name__}: {exc})")
+            return None
+        n_gps = len(np.unique(gps.prn[gps.system == "G"]))
+        if n_gps < 4 and g.constellations == ["gps"]:
+            problems.append(f"gnss.almanac_path: {n_gps} GPS satellite(s) in the file: expected at least 4")
     try:
-        eph = load_constellation(g.almanac_source, g.almanac_path, utc_to_gps_seconds(approach.config.start_time_utc),
-                                 g.almanac_week)
-    except Exception as exc:  # any reader failure on a user's file is a message, not a traceback
-        where = f"gnss.almanac_path = {str(g.almanac_path)!r}" if g.almanac_path else "gnss.almanac_source"
-        problems.append(f"{where}: could not be read as a {g.almanac_source} file ({type(exc).__name__}: {exc})")
+        eph = tracked_constellations(g, t0)
+    except ValueError as exc:  # an excluded PRN the constellation does not have
+        problems.append(str(exc))
         return None
-    if len(np.unique(eph.prn)) < 4:
-        problems.append(f"gnss.almanac_path: {len(np.unique(eph.prn))} satellite(s) in the file: expected at least 4")
     if g.almanac_source == "rinex_nav":  # broadcast records hold about their toe only (an almanac for weeks)
         from testbed.sensors.gnss.navfile import MAX_AGE_S
 
-        t0 = utc_to_gps_seconds(approach.config.start_time_utc)
-        age = float(np.min(np.abs(eph.toe_gps - t0))) if eph.prn.size else np.inf
+        gps_slots = eph.system == "G"
+        age = float(np.min(np.abs(eph.toe_gps[gps_slots] - t0))) if gps_slots.any() else np.inf
         if age > MAX_AGE_S:
             problems.append(f"gnss.almanac_path = {str(g.almanac_path)!r}: its nearest broadcast record is "
                             f"{age / 3600:.0f} h from start_time_utc = {approach.config.start_time_utc:%Y-%m-%dT%H:%M:%SZ}: "
@@ -76,18 +84,23 @@ def _constellation(approach: Approach, problems: list[str]):
 
 
 def _gnss_fault_problems(approach: Approach, eph) -> list[str]:
-    from testbed.sensors.faults import GNSS_KINDS
+    from testbed.sensors.faults import GNSS_KINDS, named_targets
 
-    known = set(int(p) for p in np.unique(eph.prn))
     out = []
     for k, f in enumerate(approach.config.faults):
-        if f.kind not in GNSS_KINDS or f.prn == "random":
+        if f.kind not in GNSS_KINDS or (f.kind != "constellation_bias" and f.targets == "random"):
             continue
-        prns = [f.prn] if isinstance(f.prn, int) else list(f.prn)
-        missing = [p for p in prns if p not in known]
-        if missing:
-            out.append(f"faults.{k}.prn = {f.prn!r}: PRN(s) {missing} not in the constellation "
-                       f"(expected some of {sorted(known)})")
+        try:
+            named_targets(f, eph.prn, eph.system)
+        except ValueError as exc:
+            tracked = approach.config.gnss.constellations
+            if f.kind == "constellation_bias":
+                out.append(f"faults.{k}.system = {f.system!r}: not tracked (expected one of constellations = "
+                           f"{tracked})")
+                continue
+            key = "sat" if f.sat is not None else "prn"
+            out.append(f"faults.{k}.{key} = {getattr(f, key)!r}: {str(exc).split(': ', 1)[1]} "
+                       f"(tracked: constellations = {tracked})")
     return out
 
 

@@ -12,25 +12,26 @@ from dataclasses import fields, replace
 import numpy as np
 
 
+def per_epoch_fields(geom) -> tuple[str, ...]:
+    """The fields of ``geom`` with an epoch axis first: those its class declares (``PER_EPOCH``), else every
+    array whose first axis has the epochs' length but ``prn`` (a per-satellite array of that length would be
+    mistaken: declare them)."""
+    declared = getattr(type(geom), "PER_EPOCH", None)
+    if declared is not None:
+        return tuple(declared)
+    T = len(geom.t)
+    return tuple(f.name for f in fields(geom) if f.name != "prn" and isinstance(getattr(geom, f.name), np.ndarray)
+                 and getattr(geom, f.name).ndim >= 1 and getattr(geom, f.name).shape[0] == T)
+
+
 def geometry_prefix(geom, T1: int):
     """A GNSS geometry restricted to its first ``T1`` epochs."""
-    T = len(geom.t)
-    kw = {}
-    for f in fields(geom):
-        v = getattr(geom, f.name)
-        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == T and f.name != "prn":
-            kw[f.name] = v[:T1]
-    return replace(geom, **kw)
+    return replace(geom, **{name: getattr(geom, name)[:T1] for name in per_epoch_fields(geom)})
 
 
 def geometry_concat(a, b):
     """Two consecutive GNSS geometries as one (per-epoch arrays concatenated)."""
     if a is None:
         return b
-    T = len(a.t)
-    kw = {}
-    for f in fields(a):
-        v = getattr(a, f.name)
-        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == T and f.name != "prn":
-            kw[f.name] = np.concatenate([v, getattr(b, f.name)], axis=0)
-    return replace(a, **kw)
+    return replace(a, **{name: np.concatenate([getattr(a, name), getattr(b, name)], axis=0)
+                         for name in per_epoch_fields(a)})

@@ -12,7 +12,8 @@ Entity tree (timeline ``sim_time``):
   ``marker``: a labelled disc of constant screen size for the fixed view), ``world/follow``
   (a level frame at the aircraft along its ground track: the follow view's origin) with
   ``world/follow/stalk`` (a line down to the terrain), ``world/gnss/los`` (rays coloured
-  visible / terrain-masked / airframe / faulty), ``world/gnss/faulty`` (the faulty
+  visible / terrain-masked / airframe / faulty; visible GPS green, Galileo blue, BeiDou yellow
+  when several constellations are tracked), ``world/gnss/faulty`` (the faulty
   satellite's ray, thick and labelled), ``world/camera`` (pinhole with the true pose),
   ``world/camera/detections`` (faulty ones red), ``world/camera/labels`` (the detections'
   names that do not overlap) and ``world/camera/scene/{frame, horizon, landmarks, runway}``
@@ -58,6 +59,8 @@ COLOURS = {
     "landmark": (255, 255, 255),
     "runway": (200, 200, 200),
     "feature": (255, 200, 60),
+    "visible_galileo": (70, 130, 255),
+    "visible_beidou": (250, 230, 70),
     "aircraft": (255, 69, 0),  # a marker that stands out on the terrain's greens and greys
     "horizon": (90, 170, 255),
     "frame": (150, 150, 150),
@@ -378,6 +381,10 @@ class RerunSink:
         end = start + LOS_LENGTH_M * los_enu
         colour = np.empty(reason.shape + (3,), np.uint8)
         colour[:] = COLOURS["visible"]
+        system = np.broadcast_to(np.asarray(g.system), reason.shape)
+        mixed = bool((system != "G").any())  # several constellations: a visible ray has its system's colour
+        colour[system == "E"] = COLOURS["visible_galileo"]
+        colour[system == "C"] = COLOURS["visible_beidou"]
         colour[reason == NotVisible.TERRAIN] = COLOURS["terrain"]
         colour[reason == NotVisible.AIRFRAME] = COLOURS["airframe"]
         colour[faulty & (reason == NotVisible.VISIBLE)] = COLOURS["faulty"]
@@ -395,7 +402,8 @@ class RerunSink:
             columns=rr.LineStrips3D.columns(strips=np.stack([start[bad], end[bad]], 1),
                                             colors=np.tile(COLOURS["faulty"], (int(bad.sum()), 1)),
                                             radii=np.full(int(bad.sum()), -4.0),
-                                            labels=[f"faulty PRN {p}" for p in prn[bad]]).partition(bad.sum(axis=1)))
+                                            labels=[f"faulty {c}{p:02d}" if mixed else f"faulty PRN {p}"
+                                                    for c, p in zip(system[bad], prn[bad])]).partition(bad.sum(axis=1)))
         self.rec.send_columns("sensors/satellites_visible", indexes=times,
                               columns=rr.Scalars.columns(scalars=np.asarray(g.visible).sum(axis=-1).astype(float)))
 

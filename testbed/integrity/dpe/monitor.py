@@ -32,6 +32,7 @@ from testbed.integrity.dpe.overbound import gaussian_overbound
 from testbed.integrity.dpe.seed_variant import SPREAD_STEPS, solve_epoch_seed
 from testbed.integrity.dpe.solve import GridPlan, Status, crb, solve_epoch
 from testbed.integrity.levels import service_level
+from testbed.integrity.gps_only import gps_satellites
 from testbed.integrity.monitor import ANTENNA, MonitorContext, MonitorCost, MonitorDefaults, Observations
 from testbed.integrity.raim import gps_raim
 from testbed.records import Diagnostics, MonitorOutput, epoch_array
@@ -145,6 +146,7 @@ class DpeMonitor(MonitorDefaults):
         return DpeState()
 
     def step(self, obs: Observations, state: DpeState) -> tuple[MonitorOutput, DpeState]:
+        obs = gps_satellites(obs)  # DPE stays GPS-only (docs/design/gnss.md §5)
         corr = obs.correlators
         if corr is None:
             raise ValueError("dpe: the observations carry no correlators (the run did not synthesise them)")

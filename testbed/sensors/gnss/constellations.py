@@ -51,7 +51,7 @@ nominal geometry.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from typing import Sequence
 
@@ -59,8 +59,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import OMEGA_EARTH
-from testbed.sensors.gnss.almanac import load_do229
+from testbed.sensors.gnss.almanac import load_constellation, load_do229
 from testbed.sensors.gnss.orbits import MU_GPS, Ephemeris, concat_ephemerides, from_keplerian, sat_states
+from testbed.sensors.gnss.settings import CONSTELLATION_SYSTEMS, GnssSettings
 from testbed.sensors.gnss.timebase import _as_utc, gps_seconds_to_week_sow, utc_to_gps_seconds
 
 #: Gravitational parameter of the Galileo (GTRF) and BeiDou (CGCS2000) ICDs, m³/s².
@@ -236,6 +237,35 @@ def nominal_constellations(names: Sequence[str], t_ref_gps: float) -> Ephemeris:
     return concat_ephemerides([nominal_constellation(n, t_ref_gps) for n in names])
 
 
+def tracked_constellations(settings: GnssSettings, t_ref_gps: float) -> Ephemeris:
+    """The satellites ``settings`` track near ``t_ref_gps``: its ``constellations`` in order, GPS from the
+    almanac settings (its GPS records only), Galileo and BeiDou from their nominal orbits, each
+    constellation's ``excluded_prns`` marked unhealthy. GPS alone is the almanac loader's record itself."""
+    parts = []
+    for name in settings.constellations:
+        if name == "gps":
+            eph = load_constellation(settings.almanac_source, settings.almanac_path, t_ref_gps, settings.almanac_week)
+            if np.any(eph.system != "G"):
+                eph = eph.take(np.flatnonzero(eph.system == "G"))
+        else:
+            eph = nominal_constellation(name, t_ref_gps)
+        parts.append(with_excluded(eph, getattr(settings, name).excluded_prns, name))
+    return parts[0] if len(parts) == 1 else concat_ephemerides(parts)
+
+
+def with_excluded(eph: Ephemeris, excluded_prns: Sequence[int], name: str) -> Ephemeris:
+    """``eph`` with the slots of ``excluded_prns`` unhealthy (health 1); unchanged when there are none."""
+    if not excluded_prns:
+        return eph
+    missing = sorted(set(excluded_prns) - set(np.asarray(eph.prn).tolist()))
+    if missing:
+        letter = CONSTELLATION_SYSTEMS[name]
+        raise ValueError(f"gnss.{name}.excluded_prns: {[f'{letter}{p:02d}' for p in missing]} not in the "
+                         f"constellation (it has {sorted(set(np.asarray(eph.prn).tolist()))})")
+    health = np.where(np.isin(eph.prn, list(excluded_prns)), 1, np.asarray(eph.health))
+    return replace(eph, health=health)
+
+
 def repeat_period(eph: Ephemeris, t_gps: float, near_s: float, *, search_s: float = 3600.0,
                   step_s: float = 10.0) -> tuple[NDArray, NDArray]:
     """Per slot, the delay τ near ``near_s`` after which the Earth-fixed position comes back closest.
@@ -273,4 +303,4 @@ def _wrap(angle_rad: NDArray) -> NDArray:
 
 __all__ = ["GALILEO_WALKER", "NOMINAL_NAMES", "Walker", "beidou3_nominal", "circular_orbits", "galileo_nominal",
            "geosynchronous_radius", "greenwich_mean_sidereal_angle", "nominal_constellation",
-           "nominal_constellations", "repeat_period", "walker_orbits"]
+           "nominal_constellations", "repeat_period", "tracked_constellations", "walker_orbits", "with_excluded"]

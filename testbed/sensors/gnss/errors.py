@@ -4,6 +4,10 @@
 (L1/L5 iono-free) user term. Time correlation, when asked for, uses
 first-order Gauss-Markov processes whose stationary variance is exactly the
 model's, so the marginal distribution of every error stays N(0, σᵢ²).
+
+The DFMC model (docs/design/gnss.md §3) splits the signal-in-space term per
+constellation: the monitors are told C_int = σ_URA² + σ_tropo² + σ_user², the
+error drawn has C_acc = σ_URE² + σ_tropo² + σ_user² (:func:`range_sigmas`).
 """
 
 from __future__ import annotations
@@ -18,6 +22,14 @@ F_L2 = 1227.60e6  # Hz
 #: σ-multiplier of the iono-free L1/L5 combination: sqrt(f1⁴ + f5⁴) / (f1² − f5²) ≈ 2.59.
 IONO_FREE_FACTOR = float(np.sqrt(F_L1**4 + F_L5**4) / (F_L1**2 - F_L5**2))
 SIGMA_URA_M = 0.75
+#: The two carriers of each system's iono-free pair (Hz): L1/L5, E1/E5a, B1C/B2a (the same frequencies).
+IONO_FREE_CARRIERS = {"G": (F_L1, F_L5), "E": (1575.42e6, 1176.45e6), "C": (1575.42e6, 1176.45e6)}
+
+
+def iono_free_variance_factor(f1: float, f2: float) -> float:
+    """γ: the variance multiplier of the iono-free combination (f1²ρ1 − f2²ρ2)/(f1² − f2²) for independent
+    equal-variance code errors on the two carriers, (f1⁴ + f2⁴)/(f1² − f2²)² (6.6995 for L1/L5)."""
+    return (f1**4 + f2**4) / (f1**2 - f2**2) ** 2
 
 
 def sigma_tropo(elevation: ArrayLike, zenith_m: float = 0.12) -> NDArray:
@@ -39,6 +51,48 @@ def sigma_noise(elevation: ArrayLike) -> NDArray:
 def sigma_user(elevation: ArrayLike) -> NDArray:
     """Iono-free user 1σ (m): sqrt(σ_MP² + σ_noise²) · IONO_FREE_FACTOR."""
     return np.hypot(sigma_multipath(elevation), sigma_noise(elevation)) * IONO_FREE_FACTOR
+
+
+def user_error_components(elevation: ArrayLike, model: str = "wgc_m3") -> tuple[NDArray, NDArray]:
+    """Iono-free airborne multipath and noise 1σ (m) of a named curve; σ_user = hypot of the two.
+
+    ``wgc_m3``: γ^½·(0.13 + 0.53e^(−θ/10°)) and γ^½·(0.15 + 0.43e^(−θ/6.9°)) (eq. 27's, :func:`sigma_user`);
+    ``add_v31``: the same multipath, noise γ^½·(0.11 + 0.13e^(−θ/6.9°)); ``maast2_dfmc``: multipath
+    0.34 + 0.40e^(−θ/14°) and noise √(0.4² + (40/(261 + θ²) + 0.018)²), θ in degrees, both already at
+    iono-free level (docs/design/gnss.md §3 gives the sources).
+    """
+    el = np.asarray(elevation, float)
+    deg = np.degrees(el)
+    if model == "wgc_m3":
+        return IONO_FREE_FACTOR * sigma_multipath(el), IONO_FREE_FACTOR * sigma_noise(el)
+    if model == "add_v31":
+        return IONO_FREE_FACTOR * sigma_multipath(el), IONO_FREE_FACTOR * (0.11 + 0.13 * np.exp(-deg / 6.9))
+    if model == "maast2_dfmc":
+        return 0.34 + 0.40 * np.exp(-deg / 14.0), np.hypot(0.4, 40.0 / (261.0 + deg * deg) + 0.018)
+    raise ValueError(f"user_error: expected one of 'wgc_m3', 'add_v31', 'maast2_dfmc', got {model!r}")
+
+
+def range_sigmas(elevation: ArrayLike, system: ArrayLike, settings) -> tuple[NDArray, NDArray, NDArray]:
+    """Per (epoch, slot): the 1σ the monitors are told, the 1σ of the error drawn, and b_nom (m).
+
+    ``elevation`` (..., S) rad, ``system`` (S,) letters, ``settings`` a GnssSettings. 'seed': eq. 27 with
+    ``settings.sigma_ura_m`` for every system, told = drawn, b_nom 0. 'dfmc': each constellation's σ_URA
+    (told), σ_URE (drawn) and b_nom with σ_tropo and the ``user_error`` curve.
+    """
+    el = np.asarray(elevation, float)
+    if settings.error_model == "seed":
+        sigma = sigma_pseudorange(el, settings.sigma_ura_m, settings.sigma_tropo_zenith_m)
+        return sigma, sigma, np.zeros(el.shape)
+    system = np.asarray(system)
+    ura, ure, b_nom = (np.array([getattr(settings.constellation(str(c)), f) for c in system], float)
+                       for f in ("sigma_ura_m", "sigma_ure_m", "b_nom_m"))
+    common = sigma_tropo(el, settings.sigma_tropo_zenith_m) ** 2 + sigma_air_user(el, settings.user_error) ** 2
+    return np.sqrt(ura**2 + common), np.sqrt(ure**2 + common), np.broadcast_to(b_nom, el.shape)
+
+
+def sigma_air_user(elevation: ArrayLike, model: str = "wgc_m3") -> NDArray:
+    """σ_user (m) of a named curve (:func:`user_error_components`)."""
+    return np.hypot(*user_error_components(elevation, model))
 
 
 def sigma_pseudorange(elevation: ArrayLike, sigma_ura_m: float = SIGMA_URA_M,

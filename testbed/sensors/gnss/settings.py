@@ -1,12 +1,16 @@
 """Settings of the GNSS sensor (the ``[gnss]`` table of an approach file).
 
 Defaults reproduce the VA-RAIM paper's error model (docs/design/integrity.md §1: its eq. 27,
-DO-229 24-satellite almanac, 5° mask). Every field is documented here; the
-config loader composes this model.
+DO-229 24-satellite almanac, 5° mask), GPS only. ``constellations`` adds the nominal
+Galileo and BeiDou-3 constellations, each with its own ``[gnss.<name>]`` table (mask,
+health, cap, integrity support data); ``error_model = "dfmc"`` selects the
+dual-frequency iono-free model with per-constellation σ_URA / σ_URE / b_nom
+(docs/design/gnss.md). Every field is documented here; the config loader composes this model.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Literal
 
@@ -83,8 +87,76 @@ class CorrelatorSettings(StrictModel):
         return self
 
 
+#: Constellation names of ``[gnss] constellations``, and the RINEX 3 system letter of each.
+CONSTELLATION_SYSTEMS = {"gps": "G", "galileo": "E", "beidou": "C"}
+#: The PRNs a system's satellites may carry (RINEX 3: G01-G32, E01-E36, C01-C63).
+PRN_RANGES = {"gps": (1, 32), "galileo": (1, 36), "beidou": (1, 63)}
+
+
+class ConstellationSettings(StrictModel):
+    """One constellation's receiver settings and integrity support data (``[gnss.gps]``, ``[gnss.galileo]``,
+    ``[gnss.beidou]``). The defaults are the same for every system (docs/design/gnss.md §3)."""
+
+    elevation_mask_deg: float | None = Field(
+        None, ge=0.0, lt=90.0, description="elevation mask of this constellation (deg); None = [gnss] "
+                                           "elevation_mask_deg")
+    excluded_prns: list[int] = Field(
+        default_factory=list, description="PRNs of this constellation treated as unhealthy (never tracked), "
+                                          "e.g. [11, 14]")
+    max_satellites: int | None = Field(
+        None, ge=0, le=64, description="satellites of this constellation tracked at most at any epoch (the "
+                                       "highest kept, the rest reported EXCLUDED); None = no cap")
+    sigma_ura_m: float = Field(
+        0.75, gt=0.0, le=100.0, description="'dfmc' error model: σ_URA, the clock/ephemeris error overbound the "
+                                            "monitors are told (m, 1σ); ARAIM ADD v3.1 App. D LPV-200 example")
+    sigma_ure_m: float = Field(
+        0.50, gt=0.0, le=100.0, description="'dfmc' error model: σ_URE, the clock/ephemeris error actually drawn "
+                                            "(m, 1σ); at most sigma_ura_m")
+    b_nom_m: float = Field(
+        0.50, ge=0.0, le=100.0, description="'dfmc' error model: b_nom, the nominal bias bound carried for integrity "
+                                            "(m); a bound, not drawn (docs/design/gnss.md §3)")
+
+    @field_validator("excluded_prns")
+    @classmethod
+    def _distinct(cls, v):
+        if len(set(v)) != len(v):
+            raise ValueError(f"expected distinct PRNs, got {v}")
+        return sorted(v)
+
+    @model_validator(mode="after")
+    def _ure_below_ura(self):
+        if self.sigma_ure_m > self.sigma_ura_m:
+            raise ValueError(f"sigma_ure_m = {self.sigma_ure_m} exceeds sigma_ura_m = {self.sigma_ura_m}: the drawn "
+                             "error's sigma is expected at most the integrity overbound")
+        return self
+
+
 class GnssSettings(StrictModel):
-    """GPS receiver, constellation and error-model settings."""
+    """GNSS receiver, constellation and error-model settings."""
+
+    constellations: list[str] = Field(
+        default_factory=lambda: ["gps"],
+        description="constellations tracked, some of 'gps' (the almanac below), 'galileo' (the nominal 24/3/1 "
+                    "slots) and 'beidou' (BeiDou-3: 24 MEO + 3 IGSO + 3 GEO nominal orbits), in this order "
+                    "in the satellite slots")
+    gps: ConstellationSettings = Field(default_factory=ConstellationSettings,
+                                       description="GPS: mask, health, cap, integrity support data")
+    galileo: ConstellationSettings = Field(default_factory=ConstellationSettings,
+                                           description="Galileo: mask, health, cap, integrity support data")
+    beidou: ConstellationSettings = Field(default_factory=ConstellationSettings,
+                                          description="BeiDou: mask, health, cap, integrity support data")
+    error_model: Literal["seed", "dfmc"] = Field(
+        "seed", description="'seed': the VA-RAIM paper's eq. 27 with one sigma_ura_m for every system, drawn with "
+                            "the σ the monitors are told (the reproductions' model); 'dfmc': dual-frequency "
+                            "iono-free (L1/L5, E1/E5a, B1C/B2a) with each constellation's σ_URA (told), σ_URE "
+                            "(drawn) and b_nom, and the airborne curve user_error")
+    user_error: Literal["wgc_m3", "add_v31", "maast2_dfmc"] = Field(
+        "wgc_m3", description="'dfmc' error model: airborne multipath + noise curve (docs/design/gnss.md §3); "
+                              "'wgc_m3' is eq. 27's")
+    inter_system_bias_sigma_m: float = Field(
+        10.0, ge=0.0, le=1e4, description="1σ of each non-GPS constellation's receiver clock offset from GPS "
+                                          "time (m), drawn once per trial and held (one oscillator; the "
+                                          "monitors estimate one clock per constellation)")
 
     rate_hz: float = Field(1.0, gt=0.0, le=100.0,
                            description="measurement rate (Hz); the truth is decimated to it inside synthesize_gnss")
@@ -129,6 +201,58 @@ class GnssSettings(StrictModel):
         if times != sorted(times) or len(set(times)) != len(times):
             raise ValueError(f"expected strictly increasing from_s, got {times}")
         return v
+
+    @field_validator("constellations")
+    @classmethod
+    def _known_constellations(cls, v):
+        unknown = [n for n in v if n not in CONSTELLATION_SYSTEMS]
+        if unknown:
+            raise ValueError(f"unknown constellation {unknown[0]!r}: expected some of {list(CONSTELLATION_SYSTEMS)}")
+        if not v or len(set(v)) != len(v):
+            raise ValueError(f"expected at least one constellation, each once, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _constellation_tables(self):
+        for name, (lo, hi) in PRN_RANGES.items():
+            cs = getattr(self, name)
+            if name not in self.constellations and name in self.model_fields_set:
+                raise ValueError(f"{name}: settings given for a constellation not in constellations = "
+                                 f"{self.constellations}")
+            bad = [p for p in cs.excluded_prns if not lo <= p <= hi]
+            if bad:
+                raise ValueError(f"{name}.excluded_prns: PRN(s) {bad} out of range: expected {lo}-{hi}")
+        if self.error_model == "seed":  # keys only the DFMC model reads are refused, not ignored
+            unread = [f"{n}.{k}" for n in CONSTELLATION_SYSTEMS for k in ("sigma_ura_m", "sigma_ure_m", "b_nom_m")
+                      if k in getattr(self, n).model_fields_set]
+            unread += ["user_error"] if "user_error" in self.model_fields_set else []
+            if unread:
+                raise ValueError(f"{', '.join(unread)}: read by error_model = 'dfmc' only (the seed model uses "
+                                 f"sigma_ura_m for every system); set error_model = 'dfmc' or remove them")
+        if self.correlators.pseudorange_source == "correlator" and self.constellations != ["gps"]:
+            raise ValueError(f"correlators.pseudorange_source: 'correlator' synthesises GPS L1 C/A correlograms "
+                             f"only; expected constellations = ['gps'] with it, got {self.constellations}")
+        return self
+
+    def geometry_key(self) -> str:
+        """JSON of the settings the geometry reads (constellations, almanac, masks, health, caps, schedule,
+        rate): two settings with one key give one geometry (a campaign caches it on this)."""
+        geo = {"constellations", "almanac_source", "almanac_path", "almanac_week", "elevation_mask_deg",
+               "terrain_masking", "airframe_masking", "airframe_mask_deg", "schedule", "rate_hz"}
+        per = {"elevation_mask_deg", "excluded_prns", "max_satellites"}
+        d = self.model_dump(mode="json", include=geo)
+        d |= {n: getattr(self, n).model_dump(mode="json", include=per) for n in self.constellations}
+        return json.dumps(d, sort_keys=True)
+
+    @property
+    def systems(self) -> tuple[str, ...]:
+        """The RINEX 3 system letters of ``constellations``, in order."""
+        return tuple(CONSTELLATION_SYSTEMS[n] for n in self.constellations)
+
+    def constellation(self, system: str) -> ConstellationSettings:
+        """The settings of the constellation whose system letter is ``system``."""
+        name = {v: k for k, v in CONSTELLATION_SYSTEMS.items()}[system]
+        return getattr(self, name)
 
     @property
     def correlator_pseudoranges(self) -> bool:

@@ -1,4 +1,4 @@
-"""GPS pseudorange and range-rate synthesis: fly once, sample many.
+"""GNSS pseudorange and range-rate synthesis: fly once, sample many.
 
 :func:`gnss_geometry` computes everything that depends only on the trajectory
 (orbits, light time, Earth rotation, visibility) once; :func:`sample_gnss`
@@ -16,7 +16,15 @@ effect is therefore inside the geometry), so
     range_rate  = u·(sat_vel_ecef − antenna_vel) + c·δṫ_rx + ε_ṙ,
 
 u the unit line of sight. The satellite clock and modelled atmosphere are
-taken as removed by the receiver (ε is the residual of the VA-RAIM paper's eq. 27).
+taken as removed by the receiver (ε is the residual of the VA-RAIM paper's eq. 27,
+or of the DFMC model, ``settings.error_model``).
+
+Several constellations (``settings.constellations``) share the satellite axis S in
+the order listed; ``system`` (S,) holds each slot's RINEX 3 letter beside ``prn``.
+One oscillator drives the receiver: the pseudoranges of every constellation but
+the first listed carry a constant offset (the inter-system bias, drawn once per
+trial, :attr:`GnssErrors.system_offset`), which a monitor estimates as one clock
+state per constellation (docs/design/gnss.md §4).
 
 Truth decimation: ``synthesize_gnss`` decimates the truth to
 ``settings.rate_hz`` itself (``Truth.decimate``: nearest flight epochs from
@@ -27,7 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from datetime import datetime
-from typing import Any, Sequence
+from typing import Any, ClassVar, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -35,13 +43,13 @@ from numpy.typing import ArrayLike, NDArray
 from testbed.frames import C_LIGHT, OMEGA_EARTH
 from testbed.records import GnssEpochs, GnssTruth, Mount, Truth
 from testbed.sensors.faults import GNSS_KINDS, gnss_fault_bias
-from testbed.sensors.gnss.almanac import load_constellation
-from testbed.sensors.gnss.errors import (IONO_FREE_FACTOR, receiver_clock, sigma_multipath, sigma_noise,
-                                         sigma_pseudorange, sigma_tropo, unit_gauss_markov)
+from testbed.sensors.gnss.constellations import tracked_constellations
+from testbed.sensors.gnss.errors import (IONO_FREE_FACTOR, range_sigmas, receiver_clock, sigma_multipath, sigma_noise,
+                                         sigma_tropo, unit_gauss_markov, user_error_components)
 from testbed.sensors.gnss.orbits import Ephemeris, sat_states
 from testbed.sensors.gnss.settings import GnssSettings
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
-from testbed.sensors.gnss.visibility import antenna_state, apply_schedule, classify
+from testbed.sensors.gnss.visibility import antenna_state, apply_schedule, apply_system_caps, classify
 
 _LIGHT_TIME_ITERATIONS = 3
 
@@ -53,7 +61,8 @@ class GnssGeometry:
     Shapes: T epochs, S satellite slots. Frames: ECEF of the receive time.
 
     t, t_gps : (T,) s since approach start / since the GPS epoch (receive time, true).
-    prn : (S,).  eph : the constellation used.  antenna : the antenna mount.
+    prn : (S,).  system : (S,) RINEX 3 system letter of each slot ('G', 'E', 'C').
+    eph : the constellation(s) used.  antenna : the antenna mount.
     ant_pos_ecef, ant_vel_ecef : (T, 3) true antenna position (m) / velocity (m/s).
     sat_pos_ecef, sat_vel_ecef : (T, S, 3) transmit-time satellite state in the receive-time frame.
     sat_clock_s, sat_clock_rate : (T, S) satellite clock offset (s) / rate at transmit time.
@@ -68,6 +77,7 @@ class GnssGeometry:
     t: NDArray
     t_gps: NDArray
     prn: NDArray
+    system: NDArray
     eph: Ephemeris
     antenna: Mount
     ant_pos_ecef: NDArray
@@ -83,6 +93,13 @@ class GnssGeometry:
     elevation_body: NDArray
     reason: NDArray
     visible: NDArray
+
+    #: the fields with the epoch axis first (not stacked): what epoch slicing cuts (``prn``, ``system`` are per
+    #: satellite, whatever their length)
+    PER_EPOCH: ClassVar[tuple[str, ...]] = ("t", "ant_pos_ecef", "ant_vel_ecef", "t_gps", "sat_pos_ecef",
+                                             "sat_vel_ecef", "sat_clock_s", "sat_clock_rate", "geometric_range",
+                                             "geometric_range_rate", "elevation", "azimuth", "elevation_body",
+                                             "reason", "visible")
 
     @property
     def stacked(self) -> bool:
@@ -127,7 +144,7 @@ def signal_geometry(eph: Ephemeris, t_gps: NDArray, ant_pos_ecef: NDArray, ant_v
     t_gps = np.asarray(t_gps, float)
     tau = np.full((t_gps.size, len(eph)), 0.075)  # ~ 20 000 km / c
     for _ in range(_LIGHT_TIME_ITERATIONS):
-        pos, vel, clk, clk_rate = sat_states(eph, t_gps[:, None] - tau, per_slot=True)
+        pos = sat_states(eph, t_gps[:, None] - tau, per_slot=True, position_only=True)[0]
         pos_r = rotate_z(pos, OMEGA_EARTH * tau)
         tau = np.linalg.norm(pos_r - ant_pos_ecef[:, None, :], axis=-1) / C_LIGHT
     pos, vel, clk, clk_rate = sat_states(eph, t_gps[:, None] - tau, per_slot=True)
@@ -159,8 +176,7 @@ def gnss_geometry(truth: Truth, antenna: Mount, settings: GnssSettings, *, start
     off = np.zeros(1) if offsets_s is None else np.asarray(offsets_s, float).reshape(-1)
     W, T = off.size, t.size
     t_gps = utc_to_gps_seconds(start_utc) + off[:, None] + t[None, :]  # (W, T)
-    eph = constellation if constellation is not None else load_constellation(
-        settings.almanac_source, settings.almanac_path, float(t_gps[0, T // 2]), settings.almanac_week)
+    eph = constellation if constellation is not None else tracked_constellations(settings, float(t_gps[0, T // 2]))
     ant_pos, ant_vel, R_b2e, R_e2n = antenna_state(truth, antenna)
 
     def tiled(a: NDArray) -> NDArray:  # (T, ...) -> (W·T, ...), window-major
@@ -170,7 +186,7 @@ def gnss_geometry(truth: Truth, antenna: Mount, settings: GnssSettings, *, start
                                                                    tiled(ant_vel))
     los = (sat_pos - tiled(ant_pos)[:, None, :]) / rng_m[..., None]
     el, az, el_body, reason = classify(
-        los, tiled(ant_pos), tiled(R_e2n), tiled(R_b2e), eph.health, elevation_mask_deg=settings.elevation_mask_deg,
+        los, tiled(ant_pos), tiled(R_e2n), tiled(R_b2e), eph.health, elevation_mask_deg=slot_masks(eph, settings),
         terrain=terrain if settings.terrain_masking else None, airframe_masking=settings.airframe_masking,
         airframe_mask_deg=settings.airframe_mask_deg)
     lead = (T,) if offsets_s is None else (W, T)
@@ -178,14 +194,30 @@ def gnss_geometry(truth: Truth, antenna: Mount, settings: GnssSettings, *, start
     def shaped(a: NDArray) -> NDArray:
         return a.reshape(lead + a.shape[1:])
 
-    reason = apply_schedule(shaped(reason), shaped(el), t, settings.schedule).reshape(reason.shape)
+    caps = {letter: settings.constellation(letter).max_satellites for letter in settings.systems}
+    capped = apply_system_caps(shaped(reason), shaped(el), eph.system, caps)
+    reason = apply_schedule(capped, shaped(el), t, settings.schedule).reshape(reason.shape)
 
-    return GnssGeometry(t=t, t_gps=t_gps.reshape(lead), prn=np.asarray(eph.prn), eph=eph, antenna=antenna,
+    return GnssGeometry(t=t, t_gps=t_gps.reshape(lead), prn=np.asarray(eph.prn), system=np.asarray(eph.system),
+                        eph=eph, antenna=antenna,
                         ant_pos_ecef=ant_pos, ant_vel_ecef=ant_vel, sat_pos_ecef=shaped(sat_pos),
                         sat_vel_ecef=shaped(sat_vel), sat_clock_s=shaped(clk), sat_clock_rate=shaped(clk_rate),
                         geometric_range=shaped(rng_m), geometric_range_rate=shaped(rate), elevation=shaped(el),
                         azimuth=shaped(az), elevation_body=shaped(el_body), reason=shaped(reason),
                         visible=shaped(reason == 0))
+
+
+def slot_masks(eph: Ephemeris, settings: GnssSettings) -> float | NDArray:
+    """The elevation mask (deg) of every slot: ``settings.elevation_mask_deg`` unless a constellation sets its
+    own (then one per slot, (S,))."""
+    own = {c: settings.constellation(c).elevation_mask_deg for c in settings.systems}
+    if all(m is None for m in own.values()):
+        return settings.elevation_mask_deg
+    unknown = sorted(set(np.asarray(eph.system).tolist()) - set(own))
+    if unknown:
+        raise ValueError(f"constellation: slots of system(s) {unknown} are not in constellations = "
+                         f"{settings.constellations}")
+    return np.array([settings.elevation_mask_deg if own[c] is None else own[c] for c in eph.system], float)
 
 
 def _fault_bias(faults: Sequence, geom: GnssGeometry, rng: np.random.Generator,
@@ -194,11 +226,11 @@ def _fault_bias(faults: Sequence, geom: GnssGeometry, rng: np.random.Generator,
     T, S = geom.visible.shape[-2:]
     if not gnss:
         return np.zeros(batch + (T, S))
-    if batch and (geom.stacked or any(f.prn == "random" for f in gnss)):
+    if batch and (geom.stacked or any(getattr(f, "targets", None) == "random" for f in gnss)):
         # per trial (drawn in trial order from rng): a fresh random satellite, visible in the trial's sky
         vis = geom.visible if geom.stacked else np.broadcast_to(geom.visible, batch + (T, S))
-        return np.stack([gnss_fault_bias(gnss, geom.t, geom.prn, vis[i], rng) for i in range(batch[0])])
-    return np.broadcast_to(gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng), batch + (T, S))
+        return np.stack([gnss_fault_bias(gnss, geom.t, geom.prn, vis[i], rng, geom.system) for i in range(batch[0])])
+    return np.broadcast_to(gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng, geom.system), batch + (T, S))
 
 
 @dataclass(frozen=True)
@@ -216,6 +248,7 @@ class GnssErrors:
     rr_noise: NDArray  # (batch, T, S)
     fault_seed: tuple
     fault_bit_generator: type  # the caller's kind of generator (PCG64 from default_rng)
+    system_offset: NDArray | None = None  # (batch, S) inter-system clock offset per slot (m); None: one system
 
 
 def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence = (), rng: np.random.Generator,
@@ -254,14 +287,20 @@ def draw_gnss_errors(geom: GnssGeometry, settings: GnssSettings, *, rng: np.rand
     # not depend on T (prefix-stable): the closed loop can synthesise block by
     # block and get exactly the whole-flight result.
     g_ut, g_mp, g_white, g_clock, g_rr, g_fault = rng.spawn(6)
-    sigma = sigma_pseudorange(el, settings.sigma_ura_m, settings.sigma_tropo_zenith_m)
+    sigma, drawn, _ = range_sigmas(el, geom.system, settings)  # told to the monitors / of the error drawn
     if settings.multipath_tau_s is None and settings.ura_tropo_tau_s is None:
-        noise = sigma * g_white.standard_normal(shape)
+        noise = drawn * g_white.standard_normal(shape)
     else:
-        s_ut = np.hypot(settings.sigma_ura_m, sigma_tropo(el, settings.sigma_tropo_zenith_m))
+        if settings.error_model == "seed":
+            sis = settings.sigma_ura_m
+            mp, white = IONO_FREE_FACTOR * sigma_multipath(el), IONO_FREE_FACTOR * sigma_noise(el)
+        else:
+            sis = np.array([settings.constellation(str(c)).sigma_ure_m for c in geom.system])
+            mp, white = user_error_components(el, settings.user_error)
+        s_ut = np.hypot(sis, sigma_tropo(el, settings.sigma_tropo_zenith_m))
         noise = (s_ut * unit_gauss_markov(g_ut, shape, dt, settings.ura_tropo_tau_s)
-                 + IONO_FREE_FACTOR * sigma_multipath(el) * unit_gauss_markov(g_mp, shape, dt, settings.multipath_tau_s)
-                 + IONO_FREE_FACTOR * sigma_noise(el) * g_white.standard_normal(shape))
+                 + mp * unit_gauss_markov(g_mp, shape, dt, settings.multipath_tau_s)
+                 + white * g_white.standard_normal(shape))
     if settings.clock_model:
         bias, drift = receiver_clock(g_clock, geom.t, batch, bias0_sigma_m=settings.clock_bias0_sigma_m,
                                      drift0_sigma_m_s=settings.clock_drift0_sigma_m_s,
@@ -272,7 +311,23 @@ def draw_gnss_errors(geom: GnssGeometry, settings: GnssSettings, *, rng: np.rand
     ss = g_fault.bit_generator.seed_seq
     return GnssErrors(batch=batch, sigma=sigma, noise=noise, clock_bias=bias, clock_drift=drift, rr_noise=rr_noise,
                       fault_seed=(ss.entropy, ss.spawn_key, ss.pool_size, ss.n_children_spawned),
-                      fault_bit_generator=type(g_fault.bit_generator))
+                      fault_bit_generator=type(g_fault.bit_generator),
+                      system_offset=inter_system_offsets(geom.system, settings, rng, batch))
+
+
+def inter_system_offsets(system: NDArray, settings: GnssSettings, rng: np.random.Generator,
+                         batch: tuple[int, ...]) -> NDArray | None:
+    """Per slot (*batch, S), the constant offset (m) of its constellation's time from the first slot's
+    (the receiver clock's reference): 0 on that system, σ = ``settings.inter_system_bias_sigma_m`` drawn once
+    per trial for each other one, from a generator spawned after the six of :func:`draw_gnss_errors` (so a
+    single constellation's draws are today's). None when every slot is of one system."""
+    system = np.asarray(system)
+    others = [c for c in dict.fromkeys(system.tolist()) if c != system[0]]
+    if not others:
+        return None
+    z = settings.inter_system_bias_sigma_m * rng.spawn(1)[0].standard_normal(batch + (len(others),))
+    per_system = np.concatenate([np.zeros(batch + (1,)), z], axis=-1)
+    return per_system[..., [0 if c == system[0] else 1 + others.index(c) for c in system]]
 
 
 def apply_gnss_errors(geom: GnssGeometry, errors: GnssErrors, faults: Sequence = ()) -> tuple[GnssEpochs, GnssTruth]:
@@ -283,7 +338,9 @@ def apply_gnss_errors(geom: GnssGeometry, errors: GnssErrors, faults: Sequence =
         entropy, spawn_key=spawn_key, pool_size=pool_size, n_children_spawned=spawned)))
     fault = _fault_bias(faults, geom, g_fault, batch)
     vis = geom.visible
-    pr = np.where(vis, geom.geometric_range + bias[..., None] + noise + fault, np.nan)
+    offset = errors.system_offset
+    clock = bias[..., None] if offset is None else bias[..., None] + offset[..., None, :]
+    pr = np.where(vis, geom.geometric_range + clock + noise + fault, np.nan)
     rr = np.where(vis, geom.geometric_range_rate + drift[..., None] + errors.rr_noise, np.nan)
 
     def b(x):  # geometry per trial: stacked already, or one geometry broadcast over the trials
@@ -292,10 +349,10 @@ def apply_gnss_errors(geom: GnssGeometry, errors: GnssErrors, faults: Sequence =
     epochs = GnssEpochs(t=geom.t, t_gps=geom.t_gps, prn=geom.prn, sat_pos_ecef=b(geom.sat_pos_ecef),
                         sat_vel_ecef=b(geom.sat_vel_ecef), pseudorange=pr, range_rate=rr,
                         sigma=b(np.where(vis, sigma, np.nan)), visible=b(vis), reason=b(geom.reason),
-                        antenna=geom.antenna)
+                        antenna=geom.antenna, system=geom.system)
     truth = GnssTruth(antenna_pos_ecef=geom.ant_pos_ecef, geometric_range=geom.geometric_range, clock_bias=bias,
                       noise=noise, fault_bias=fault, faulty=fault != 0, elevation=geom.elevation,
-                      azimuth=geom.azimuth)
+                      azimuth=geom.azimuth, system_offset=offset)
     return epochs, truth
 
 

@@ -53,6 +53,7 @@ def classify(los_ecef: NDArray, ant_pos_ecef: NDArray, R_e2n: NDArray, R_b2e: ND
     los_ecef : (T, S, 3) unit vectors antenna -> satellite (ECEF).
     ant_pos_ecef : (T, 3).  R_e2n : (T, 3, 3) ECEF -> local ENU.  R_b2e : (T, 3, 3) body -> ECEF.
     health : (S,) satellite health (0 = healthy).
+    elevation_mask_deg : a mask for every slot, or one per slot (S,) (a mask per constellation).
     terrain : object with ``sky_visible(origin_ecef (N,3), direction_ecef (N,3)) -> (N,) bool``, or None.
 
     Returns
@@ -95,6 +96,25 @@ def apply_schedule(reason: NDArray, elevation: NDArray, t: NDArray, schedule) ->
     caps = np.array([c.max_satellites for c in schedule])
     k = np.searchsorted(starts, t, side="right") - 1
     cap = np.where(k >= 0, caps[np.maximum(k, 0)], np.iinfo(np.int32).max)  # (T,)
+    return exclude_beyond(reason, elevation, cap)
+
+
+def apply_system_caps(reason: NDArray, elevation: NDArray, system: NDArray, caps: dict) -> NDArray:
+    """``reason`` (..., T, S) with each system's cap ``caps[letter]`` (None: none): at every epoch the visible
+    satellites of that system beyond its cap, lowest elevations first, become EXCLUDED."""
+    out = reason
+    for letter, cap in caps.items():
+        cols = np.flatnonzero(np.asarray(system) == letter)
+        if cap is None or cols.size == 0:
+            continue
+        out = out.copy() if out is reason else out
+        out[..., cols] = exclude_beyond(out[..., cols], elevation[..., cols], np.full(reason.shape[-2], cap))
+    return out
+
+
+def exclude_beyond(reason: NDArray, elevation: NDArray, cap: NDArray) -> NDArray:
+    """``reason`` (..., T, S) with the visible satellites beyond ``cap`` (T,) at each epoch, lowest elevations
+    first, EXCLUDED."""
     vis = reason == 0
     rank = np.argsort(np.argsort(np.where(vis, -elevation, np.inf), axis=-1, kind="stable"), axis=-1, kind="stable")
     out = reason.copy()
