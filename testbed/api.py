@@ -391,9 +391,6 @@ def export_rinex(approach: str | Path | Approach, out_dir: str | Path, *, seed: 
     check_run_arguments(seed=seed, gust_seed=gust_seed)
     check_output_folder(out_dir, "DIR")
     setup = preflight(ap)
-    if ap.config.gnss.constellations != ["gps"]:  # the writers label every satellite G: refuse before flying
-        raise ConfigError(ap.source, [f"gnss.constellations = {ap.config.gnss.constellations}: export-rinex writes "
-                                      f"GPS observation and navigation files only; expected ['gps']"])
     flight = fly(ap.flight_plan, setup.terrain, gust_seed=gust_seed)
     start = ap.config.start_time_utc
     plan = sensor_plan(setup)

@@ -389,7 +389,7 @@ def print_summary(run: RinexRun) -> None:
         used = ", ".join(f"{SYSTEM_NAMES[x]} ({rec['satellites'][x]} satellites, {rec['codes'][x]}"
                          f"{' + ' + rec['second_codes'][x] if x in rec['second_codes'] else ''})"
                          for x in rec["systems_used"])
-        t.add_row("systems used", used + (", one receiver clock" if len(rec["systems_used"]) > 1 else ""))
+        t.add_row("systems used", used + (", one receiver clock per system" if len(rec["systems_used"]) > 1 else ""))
         for x, why in rec["systems_skipped"].items():
             t.add_row(f"{SYSTEM_NAMES[x]} skipped", why)
     t.add_row("measurements", ", ".join(f"{k.lower().replace('_', ' ')} {v}" for k, v in rec["measurements"].items()))

@@ -96,13 +96,7 @@ def choose_systems(obs: RinexObs, nav: NavData, s: RinexSettings) -> tuple[tuple
     present, in_nav = obs.systems, set(nav.systems)
     skipped: dict[str, str] = {}
     if s.systems == "auto":
-        use = list(present)
-        if len(use) > 1 and obs.receiver_type != TESTBED_RECEIVER:  # the first of G, E, C present
-            for x in use[1:]:
-                skipped[x] = ("the monitors solve one receiver clock and this file is not a testbed export, so its "
-                              f"inter-system bias is not known to be zero; [rinex] systems = ['{use[0]}', "
-                              f"'{x}'] uses it with one clock")
-            use = use[:1]
+        use = list(present)  # every system observed: the monitors solve one receiver clock per system
         for x in list(use):
             if x not in in_nav:
                 skipped[x] = f"no {SYSTEM_NAMES[x]} records in {nav.path.name}"
@@ -181,6 +175,18 @@ def _resolve(obs: RinexObs, nav: NavData, s: RinexSettings
 def _span(t: NDArray) -> str:
     a, b = gps_seconds_to_calendar(float(np.min(t))), gps_seconds_to_calendar(float(np.max(t)))
     return f"{a:%Y-%m-%d %H:%M} .. {b:%Y-%m-%d %H:%M} GPST (GPS week {int(np.min(t) // SECONDS_PER_WEEK)})"
+
+
+def one_clock_rows(use: NDArray, system: NDArray) -> NDArray:
+    """The rows (E, S) a one-clock fix may use: the satellites of the system with the most usable ones, at the
+    epochs where it has four (the other systems' ranges hold their own receiver clock offsets, which a one-clock
+    fix would read as position); every usable row at the other epochs."""
+    letters, counts = np.unique(system, return_counts=True) if np.size(system) else ((), ())
+    if len(letters) < 2:
+        return use
+    main = max(letters, key=lambda x: use[:, system == x].sum())
+    own = use & (system == main)
+    return np.where((own.sum(1) >= 4)[:, None], own, use)
 
 
 def preliminary_fix(sat: NDArray, z: NDArray, use: NDArray, r0: NDArray) -> tuple[NDArray, NDArray]:
@@ -328,7 +334,7 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
         dual_factor = IONO_FREE_FACTOR if iono == "off" and obs.receiver_type == TESTBED_RECEIVER else 1.0
     z_geo = code + C_LIGHT * dts  # geometric range + receiver clock + atmosphere + errors
     sat0 = np.where(use[..., None], sat, 0.0)
-    r_fix, _ = preliminary_fix(sat0, z_geo, use, obs.approx_pos_ecef)
+    r_fix, _ = preliminary_fix(sat0, z_geo, one_clock_rows(use, obs.system), obs.approx_pos_ecef)
     if not np.isfinite(r_fix).any():
         if not np.any(obs.approx_pos_ecef):
             raise RinexError(obs.path, "no epoch has 4 satellites with ephemerides, and the header has no APPROX "
@@ -340,7 +346,8 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
         el, az, iono_m, iono_sig, tropo_m = _look_and_delays(sat0, r_ref, obs.t_tag, iono, tropo, nav, f1)
         sat_use = use & (el >= np.radians(s.elevation_mask_deg))
         z = z_geo - iono_m - tropo_m
-        r2, _ = preliminary_fix(np.where(sat_use[..., None], sat, 0.0), z, sat_use, r_ref)
+        r2, _ = preliminary_fix(np.where(sat_use[..., None], sat, 0.0), z, one_clock_rows(sat_use, obs.system),
+                                r_ref)
         r_ref = hold_last_fix(np.where(np.isfinite(r2), r2, r_ref))
     reason[use & ~sat_use] = NotVisible.BELOW_MASK
     use = sat_use
@@ -353,7 +360,7 @@ def form_epochs(obs: RinexObs, nav: NavData, settings: RinexSettings) -> tuple[G
     first = r2[np.isfinite(r2).all(1)][0] if np.isfinite(r2).any() else r_ref[0]  # noqa: F821 (set in the loop)
     origin = (tuple(float(x) for x in s.origin) if s.origin != "first_fix"
               else tuple(float(np.asarray(x)) for x in ecef_to_geodetic(first)))
-    epochs = GnssEpochs(t=obs.t_tag - obs.t_tag[0], t_gps=obs.t_tag.copy(), prn=obs.prn.copy(),
+    epochs = GnssEpochs(t=obs.t_tag - obs.t_tag[0], t_gps=obs.t_tag.copy(), prn=obs.prn.copy(), system=obs.system.copy(),
                         sat_pos_ecef=np.where(use[..., None], s_rx, np.nan),
                         sat_vel_ecef=np.where(use[..., None], v_rx, np.nan),
                         pseudorange=np.where(use, z, np.nan), range_rate=np.where(use, rr, np.nan),

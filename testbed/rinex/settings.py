@@ -53,13 +53,11 @@ class RinexSettings(StrictModel):
                                                                                   "observations for iono_free, in "
                                                                                   "order of preference.")
     systems: Literal["auto"] | tuple[Literal["G", "E", "C"], ...] = Field(
-        "auto", description="Satellite systems to use (RINEX 3 letters: G GPS, E Galileo, C BeiDou). The monitors "
-                            "solve one receiver clock, so several systems are used together only when their "
-                            "inter-system bias is zero: 'auto' uses every system of a testbed export (one clock by "
-                            "construction) or of a single-system file, and one system from other multi-system files (GPS, "
-                            "else Galileo) "
-                            "(the others skipped, the summary says why); a list uses those systems with one clock "
-                            "(inter-system biases taken as zero) and each must be in both files.")
+        "auto", description="Satellite systems to use (RINEX 3 letters: G GPS, E Galileo, C BeiDou). The snapshot "
+                            "monitors solve one receiver clock per system (the inter-system bias is estimated, not "
+                            "assumed): 'auto' uses every observed system with records in the navigation file (the "
+                            "others skipped, the summary says why); a list uses those systems, and each must be in "
+                            "both files.")
     galileo_codes: tuple[str, ...] = Field(GALILEO_CODES, min_length=1, description="Galileo E1 code observations, "
                                                                                      "in order of preference.")
     beidou_codes: tuple[str, ...] = Field(BEIDOU_CODES, min_length=1, description="BeiDou code observations (B1C "

@@ -272,7 +272,7 @@ def sat_states(eph: Ephemeris, t_gps: ArrayLike, *, per_slot: bool = False, posi
     x = xp * cO - yp * ci * sO
     y = xp * sO + yp * ci * cO
     z = yp * si
-    if position_only:
+    if position_only and not np.any(eph.bds_geo):  # the BeiDou GEO form below turns the positions too
         return np.stack([x, y, z], -1), None, None, None
     # Time derivatives (chain rule through E, ν, the harmonic terms, i and Ω).
     E_dot = n / one_m_ecosE
@@ -290,6 +290,8 @@ def sat_states(eph: Ephemeris, t_gps: ArrayLike, *, per_slot: bool = False, posi
         gpos, gvel = _bds_geo_states(eph, tk, xp, yp, xp_dot, yp_dot, si, ci, i_dot)
         pos = np.where(eph.bds_geo[:, None], gpos, pos)
         vel = np.where(eph.bds_geo[:, None], gvel, vel)
+    if position_only:
+        return pos, None, None, None
     tc = t - eph.toc_gps
     rel = F_REL * e * eph.sqrt_a * sE
     clock = eph.af0 + eph.af1 * tc + eph.af2 * tc**2 + rel

@@ -297,8 +297,9 @@ def write_obs(path: Path, t_tag: NDArray, system: NDArray, prn: NDArray, visible
         _hl("testbed: C1C is an iono-free-equivalent range (no iono,", "COMMENT") if not mixed else
         _hl("testbed: code ranges are iono-free-equivalent (no iono,", "COMMENT"),
         _hl("tropo delay in it): solve with atmosphere models off", "COMMENT"),
-        *([_hl("testbed: one receiver clock, GPS time (no inter-system", "COMMENT"),
-           _hl("bias): GST = GPST, BDT = GPST - 14 s exactly", "COMMENT")] if mixed else []),
+        *([_hl("testbed: GPS time tags; each system's ranges may hold", "COMMENT"),
+           _hl("an inter-system clock offset: solve one clock per", "COMMENT"),
+           _hl("system; GST = GPST, BDT = GPST - 14 s exactly", "COMMENT")] if mixed else []),
         _hl(f"{interval:10.3f}", "INTERVAL"),
         _hl(f"{c0.year:6d}{c0.month:6d}{c0.day:6d}{c0.hour:6d}{c0.minute:6d}"
             f"{c0.second + c0.microsecond * 1e-6:13.7f}     GPS", "TIME OF FIRST OBS"),
