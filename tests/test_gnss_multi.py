@@ -534,3 +534,23 @@ def test_export_rinex_of_the_dfmc_approach_reads_back_with_every_system(tmp_path
     raim = rec["monitors"]["gps_raim"]
     assert raim["reasons"] == {"ok": 150} and raim["mi_epochs"] == 0
     assert raim["hpe95_m"] < 3.0 and raim["vpe95_m"] < 5.0  # 0.90 m and 1.71 m measured
+
+
+def test_the_campaign_sweeps_constellations_and_terrain_masking(tmp_path):
+    """The constellation and open-sky axes set each cell's [gnss] (the tables of untracked constellations
+    dropped, so every cell validates) and name the cells; a spec without them hashes as before."""
+    from testbed.campaign.spec import expand_cells, load_spec
+
+    loaded = load_spec("araim-constellations")
+    cells = expand_cells(loaded)
+    got = {(c.params["constellations"], c.params["terrain_masking"]) for c in cells}
+    assert got == {(x, m) for x in ("gps", "gps+galileo", "gps+galileo+beidou") for m in (0, 1)}
+    for c in cells:
+        assert "+".join(c.config.gnss.constellations) == c.params["constellations"]
+        assert c.config.gnss.terrain_masking == bool(c.params["terrain_masking"])
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "s"\napproaches = ["zunz-rwy05-dfmc"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
+                    '[sweep]\nconstellations = []\nterrain_masking = []\n')
+    plain = tmp_path / "p.toml"
+    plain.write_text('name = "s"\napproaches = ["zunz-rwy05-dfmc"]\nmonitors = ["gps_raim"]\ntrials = 10\n')
+    assert load_spec(spec).hash == load_spec(plain).hash

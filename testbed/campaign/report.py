@@ -38,11 +38,13 @@ from testbed.schema import ConfigError
 from testbed.sim.evaluate import REGIONS
 
 AXES = ("approach", "start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "landmark_set", "calibration",
-        "va_raim_variant", "dpe_variant", "multipath_echo_db", "max_satellites", "ground_features")
+        "va_raim_variant", "dpe_variant", "multipath_echo_db", "max_satellites", "ground_features", "constellations",
+        "terrain_masking")
 AXIS_LABEL = {"approach": "approach", "start_time_utc": "start", "dpi": "dpi", "focal_px": "f px", "sigma_px": "DE px",
               "lpe_sigma_m": "LPE m", "landmark_set": "landmark set", "calibration": "cal",
               "va_raim_variant": "VA-RAIM variant", "dpe_variant": "DPE variant", "multipath_echo_db": "echo dB (nan: off)",
-              "max_satellites": "satellites (-1: the approach's)", "ground_features": "ground features"}
+              "max_satellites": "satellites (-1: the approach's)", "ground_features": "ground features",
+              "constellations": "constellations", "terrain_masking": "terrain masking"}
 
 
 #: the two definitions of detection: (tag, title, rate, lower, upper key of detection_table rows)

@@ -126,6 +126,12 @@ class Sweep(StrictModel):
     ground_features: list[bool] = Field(
         default_factory=list, description="the tracked unsurveyed ground features off / on ([vision.features] "
                                           "enabled; the ekf monitor reads them): the SLAM axis")
+    constellations: list[list[Literal["gps", "galileo", "beidou"]]] = Field(
+        default_factory=list, description="each entry: the constellations tracked ([gnss] constellations; the "
+                                          "approach's tables of the others are dropped): the constellation axis")
+    terrain_masking: list[bool] = Field(
+        default_factory=list, description="satellites masked by the terrain or not ([gnss] terrain_masking): "
+                                          "the valley against open sky")
 
     @field_validator("start_time_utc")
     @classmethod
@@ -377,11 +383,18 @@ def spec_hash(spec: CampaignSpec) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
+#: sweep axes added after specs were first stored: left out of the hash while empty
+LATER_AXES = ("constellations", "terrain_masking")
+
+
 def _plain_sampling_unset(d: dict) -> dict:
-    """A spec dump without its ``[sampling]`` table when that is the default (plain): a plain campaign hashes,
-    and compares on resume, as it did before the table existed."""
+    """A spec dump without what later versions added at its default: the ``[sampling]`` table when plain, and
+    the later sweep axes when empty. A spec that uses none of them hashes, and compares on resume, as before."""
     if d.get("sampling") == SamplingPlan().model_dump(mode="json"):
         d = {k: v for k, v in d.items() if k != "sampling"}
+    sweep = d.get("sweep")
+    if isinstance(sweep, dict) and any(k in sweep and not sweep[k] for k in LATER_AXES):
+        d = {**d, "sweep": {k: v for k, v in sweep.items() if not (k in LATER_AXES and not v)}}
     return d
 
 
@@ -511,6 +524,8 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
         ("multipath_echo_db", sw.multipath_echo_db or [None]),
         ("max_satellites", sw.max_satellites or [None]),
         ("ground_features", sw.ground_features or [None]),
+        ("constellations", [tuple(x) for x in sw.constellations] or [None]),
+        ("terrain_masking", sw.terrain_masking or [None]),
     ]
     names = [a for a, _ in axes]
     cells: list[Cell] = []
@@ -555,6 +570,14 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 d.setdefault("gnss", {})["schedule"] = [{"from_s": 0.0, "max_satellites": int(c["max_satellites"])}]
             if c["ground_features"] is not None:
                 _set(d, "vision.features.enabled", bool(c["ground_features"]))
+            if c["constellations"] is not None:
+                gnss = d.setdefault("gnss", {})
+                for name in ("gps", "galileo", "beidou"):  # a table of an untracked constellation is refused
+                    if name not in c["constellations"]:
+                        gnss.pop(name, None)
+                gnss["constellations"] = list(c["constellations"])
+            if c["terrain_masking"] is not None:
+                _set(d, "gnss.terrain_masking", bool(c["terrain_masking"]))
             if reads("vision", spec.monitors):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
@@ -582,6 +605,8 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                                       if cfg.gnss.correlators.multipath == "ground" else float("nan")),
                 "max_satellites": -1 if c["max_satellites"] is None else int(c["max_satellites"]),
                 "ground_features": int(cfg.vision.features.enabled),
+                "constellations": "+".join(cfg.gnss.constellations),
+                "terrain_masking": int(cfg.gnss.terrain_masking),
                 **dict(zip(("hal", "val"), strictest_limits(cfg.integrity.service_levels))),
             }
             cells.append(Cell(idx, replace(ap, config=cfg), params))
@@ -633,7 +658,8 @@ def _describe(name: str, c: dict) -> str:
     fk, fam, mag = c["fault"]
     parts.append(f"faults.{fk} {fam.kind} {mag:g}")
     for k in ("start_time_utc", "dpi", "focal_px", "sigma_px", "lpe_sigma_m", "calibration", "va_raim_variant",
-              "dpe_variant", "multipath_echo_db", "max_satellites", "ground_features"):
+              "dpe_variant", "multipath_echo_db", "max_satellites", "ground_features", "constellations",
+              "terrain_masking"):
         if c[k] is not None:
             parts.append(f"{k}={c[k]}")
     if c["landmark_set"] is not None:
