@@ -96,3 +96,16 @@ def sigma_interval(rms: float, n: int, confidence: float = CONFIDENCE) -> tuple[
     a = 1.0 - confidence
     ss = n * rms * rms
     return math.sqrt(ss / stats.chi2.ppf(1 - a / 2, n)), math.sqrt(ss / stats.chi2.ppf(a / 2, n))
+
+
+def paired_shrink(before, after) -> tuple[float, int]:
+    """One-sided Wilcoxon signed-rank test that |after| < |before| over paired units (surveys): (p-value,
+    pairs). NaN p with fewer than 6 pairs (the test cannot reach 5 % below that)."""
+    import numpy as np
+
+    b, a = np.abs(np.asarray(before, float)), np.abs(np.asarray(after, float))
+    ok = np.isfinite(b) & np.isfinite(a)
+    d = (b - a)[ok]
+    if d.size < 6 or not np.any(d):
+        return float("nan"), int(d.size)
+    return float(stats.wilcoxon(d, alternative="greater").pvalue), int(d.size)
