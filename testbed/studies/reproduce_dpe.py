@@ -10,10 +10,15 @@ Experiments (docs/design/dpe.md §4.3, §7.3):
 2. **The calibration record** the shipped approach uses (``approaches/calibration/dpe-k.json``):
    K, σ_z and the held-out check.
 3. **DPE beside GPS RAIM** (the ``dpe-vs-raim`` campaign at ``trials`` sorties per cell): HMI per
-   cell under a GPS step of 0–300 m.
+   cell under a GPS step of 0–300 m; and under a ground echo (the ``dpe-multipath`` campaign, echo off,
+   −20, −10, −6 dB, fault-free): the receiver-side claim is judged on these HMI rates, not on one epoch.
 
 ``reproduce.md`` ends with the claims table: each claim, our figure, a verdict and the assumption
-behind any difference.
+behind any difference. Each verdict is a rule on the measured figures (:func:`judge`): HMI rates with
+Clopper–Pearson bounds against the K record's P_HMI (a fault-free claim holds only when the upper bound
+reaches it, and otherwise says what it bounds and the event-free sample the requirement needs), rates of
+two monitors compared by their bands, the overbound against a chi-square interval of the error's σ. The
+K record is validated like an input before any work (:func:`read_k_record`).
 """
 
 from __future__ import annotations
@@ -104,6 +109,8 @@ def epoch_cases(epochs: int = 20, seed: int = 0) -> list[dict]:
 
 #: the campaigns of experiment 3, in the order they run: (shipped campaign, what it varies)
 CAMPAIGNS = {"dpe-vs-raim": "fault_size", "dpe-multipath": "multipath_echo_db"}
+#: sorties per cell of each campaign in the quick run (``--full``: 2000)
+QUICK_TRIALS = 20
 #: the echo claim 2 is judged at (the strongest swept; the reference epoch's case)
 ECHO_DB = -6.0
 
@@ -172,7 +179,7 @@ def read_k_record(path: Path) -> dict:
     return rec
 
 
-def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = 30, epochs: int = 20, progress: bool = True,
+def reproduce_dpe_vertical(out_dir: str | Path, *, trials: int = QUICK_TRIALS, epochs: int = 20, progress: bool = True,
                            restart: bool = False, outputs: OutputSet | None = None) -> Path:
     """Run the three experiments into ``out_dir`` and write ``reproduce.md`` (module doc).
 
