@@ -149,3 +149,20 @@ def test_the_rules_statistics_against_closed_forms():
     lo, hi = sigma_interval(2.0, 50)
     assert lo == pytest.approx(2.0 * np.sqrt(50 / stats.chi2.ppf(0.975, 50)))
     assert hi == pytest.approx(2.0 * np.sqrt(50 / stats.chi2.ppf(0.025, 50)))
+
+
+def test_a_bad_k_record_stops_the_command_before_any_work(tmp_path, monkeypatch, capsys):
+    """The reproduction reads the shipped K record like an input: edited so its K no longer follows from its
+    own σ_z, b_z and P_HMI, the command exits 2 naming the file and the field, and writes nothing."""
+    import testbed.resources
+    from testbed.campaign_cli import main
+
+    rec = json.loads((approaches_dir() / "calibration" / "dpe-k.json").read_text())
+    (tmp_path / "calibration").mkdir()
+    (tmp_path / "calibration" / "dpe-k.json").write_text(json.dumps(dict(rec, k=rec["k"] + 0.5)))
+    monkeypatch.setattr(testbed.resources, "approaches_dir", lambda: tmp_path)
+    out = tmp_path / "out"
+    assert main(["reproduce", "dpe-vertical", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "dpe-k.json" in err and "k = " in err and "gives" in err
+    assert not out.exists()
