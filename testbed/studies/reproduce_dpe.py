@@ -319,9 +319,10 @@ def judge(key: str, cases, k_rec, hmi) -> tuple[str, str, str]:
                f"{rate_text(off_d['hmi_epochs'], off_d['epochs'])}"
                + (f"; GPS RAIM {rate_text(echo_r['hmi_epochs'], echo_r['epochs'])}" if echo_r else "") + f"; {epoch}")
         if req.holds is False:
-            verdict = ("does not hold: the echo raises DPE's HMI rate above its requirement"
-                       + (" and above GPS RAIM's" if vs_raim > 0 else "")
-                       + (", above its echo-free rate" if vs_off > 0 else ""))
+            above = ["its requirement"] + (["GPS RAIM's"] if vs_raim > 0 else []) + (
+                ["its echo-free rate"] if vs_off > 0 else [])
+            verdict = ("does not hold: the echo raises DPE's HMI rate above "
+                       + (", ".join(above[:-1]) + " and " + above[-1] if len(above) > 1 else above[0]))
         elif req.holds is True:
             verdict = "holds: DPE's HMI rate under the echo meets the requirement"
         else:
