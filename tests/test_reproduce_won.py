@@ -34,3 +34,35 @@ def test_a_bad_correlation_time_is_refused_before_any_work(tmp_path):
     with pytest.raises(ConfigError, match="sis_tau_s"):
         reproduce_won_2013(tmp_path / "x", trials=1, sis_tau_s=-5.0)
     assert not (tmp_path / "x").exists()
+
+
+def _res(along=0.3, across=9.0, max3=(10.0, 20.0), one_sat=(7.0, 4.0), obs=(4, 3, 2, 1)):
+    from testbed.studies.reproduce_won import CASES
+
+    names = [c[0] for c in CASES]
+    summ = {n: {"h_final": 15.0, "sd_h_final": 14.0, "max3_median": 10.0, "max3_max": 20.0, "v_rms": 7.0,
+                "trials": 50} for n in names}
+    summ["INS only"]["h_final"] = 500.0
+    summ["3 sat, clock estimated"].update(max3_median=max3[0], max3_max=max3[1])
+    paired = {a: {b: (-100.0, 10.0) for b in names} for a in names}
+    paired["1 sat, clock estimated"]["vision/INS"] = one_sat
+    return {"cases": summ, "paired_ms3": paired, "vision_growth": (6.8, 4.4),
+            "two_sat_directions": {"along e1−e2": along, "across (e1×e2)": across},
+            "observability": {str(k): v for k, v in enumerate(obs)}}
+
+
+def test_the_won_verdict_rules_flip_with_their_figures():
+    from testbed.studies.reproduce_won import verdicts
+
+    def verdict(res, short):
+        return next(v for s, _, _, v, _ in verdicts(res) if s == short)
+
+    assert verdict(_res(along=2.2, across=9.5), "2 satellites: good along their directions") == "holds"
+    assert verdict(_res(along=5.0, across=9.5), "2 satellites: good along their directions") == "does not hold"
+    assert verdict(_res(max3=(10.0, 15.0)), "3 satellites: max error 16 m") == "holds"
+    assert verdict(_res(max3=(10.0, 25.0)), "3 satellites: max error 16 m") == "holds for the median run"
+    assert verdict(_res(max3=(17.0, 25.0)), "3 satellites: max error 16 m") == "does not hold"
+    assert verdict(_res(one_sat=(30.0, 4.0)), "1 satellite worse than none") == "holds"
+    assert verdict(_res(one_sat=(7.0, 4.0)), "1 satellite worse than none") == "does not hold"
+    assert verdict(_res(obs=(3, 2, 1, 0)), "three unobservable states") == "holds"
+    assert verdict(_res(obs=(4, 3, 2, 1)), "three unobservable states").startswith("holds in part")
