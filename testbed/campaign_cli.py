@@ -113,9 +113,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     with OutputSet() as outs:  # every report and summary into place together, at the end
         outs.folder(out, "--out", kept=kept)
         if args.paper == "dpe-vertical":
-            from testbed.studies.reproduce_dpe import reproduce_dpe_vertical
+            from testbed.studies.reproduce_dpe import QUICK_TRIALS, reproduce_dpe_vertical
 
-            idx = reproduce_dpe_vertical(out, trials=2000 if args.full else 30, progress=not args.quiet,
+            idx = reproduce_dpe_vertical(out, trials=2000 if args.full else QUICK_TRIALS, progress=not args.quiet,
                                          restart=args.restart, outputs=outs)
         elif args.paper == "won-2013":
             from testbed.studies.reproduce_won import reproduce_won_2013

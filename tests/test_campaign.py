@@ -411,7 +411,7 @@ def test_reproduction_specs_are_valid():
 
     exps = loaded_experiments(200)
     assert set(exps) == {"vision-calibration", "vision-calibration-precise", "resolution", "gps-faults",
-                         "vision-faults", "where-vision-pays"}
+                         "vision-faults", "where-vision-pays", "baseline-matched", "blur-floor"}
     assert len(expand_cells(exps["resolution"])) == 32  # 4 resolutions x 4 detection errors x 2 VA-RAIM variants
     pays = expand_cells(exps["where-vision-pays"])
     assert len(pays) == 6 * 5 * 3  # GPS steps (0 included) x focal lengths x baselines

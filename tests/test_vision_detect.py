@@ -207,11 +207,12 @@ def test_detection_noise_statistics():
 
 
 def test_motion_blur_model():
-    """Blur std = (1/sqrt 12) |omega| t_exp f; the reported sigma and the noise follow it."""
+    """Blur std = (1/sqrt 12) |omega| t_exp f; the reported sigma and the noise follow it (the per-landmark
+    model, blur_model = "independent")."""
     tr = seed_truth(rate_hz=10.0)
     tr = replace(tr, omega_body=np.tile([0.0, 0.1, 0.0], (len(tr.t), 1)))  # 0.1 rad/s pitch rate
     s = VisionSettings(camera={"preset": "va-raim-2015", "dpi": 720}, dithering={"enabled": False},
-                       detection={"sigma_px": 1.0, "exposure_s": 0.01})
+                       detection={"sigma_px": 1.0, "exposure_s": 0.01, "blur_model": "independent"})
     ep, vt = synthesize_vision(tr, s, landmarks=seed_triangle_settings(), rng=np.random.default_rng(3), n_trials=60)
     f = ep.K[0, 0]
     blur = 0.1 * 0.01 * f / math.sqrt(12.0)  # = 0.2864 px at f = 992.1 px
@@ -222,6 +223,83 @@ def test_motion_blur_model():
     assert stats.chi2.ppf(P_TAIL / 2, r.size) < chi < stats.chi2.ppf(1 - P_TAIL / 2, r.size)
     # and the chi-square would reject the model without blur (the test can fail)
     assert np.sum(r**2) > stats.chi2.ppf(1 - P_TAIL / 2, r.size)
+
+
+#: a long-focus camera (f = 1e4 px, 33° field of view): ranges in their linear regime, the blur (3 px) above the DE
+PRECISE = {"preset": "custom", "width_px": 6000, "height_px": 4000, "focal_px": 1e4}
+
+
+def _frame_residuals(blur_model, n_trials=3000, k=30, sigma_px=0.3, camera=None):
+    """Pixel errors (n, 6) of the seed triangle at epoch k, with the pinhole frame quantities to predict them:
+    camera-axes landmark vectors (3, 3), the camera rate (3,) rad/s in camera axes, focal length."""
+    tr = seed_truth(rate_hz=1.0)
+    tr = replace(tr, omega_body=np.tile([0.02, 0.1, -0.03], (len(tr.t), 1)))  # rad/s, body axes
+    s = VisionSettings(camera=camera or {"preset": "va-raim-2015", "dpi": 720}, dithering={"enabled": False},
+                       detection={"sigma_px": sigma_px, "exposure_s": 0.01, "blur_model": blur_model})
+    ep, vt = synthesize_vision(tr, s, landmarks=seed_triangle_settings(), rng=np.random.default_rng(5),
+                               n_trials=n_trials)
+    assert ep.detected[:, k].all()
+    r = (ep.pixel_uv - vt.pixel_true)[:, k].reshape(n_trials, 6)
+    from scipy.spatial.transform import Rotation
+
+    R_c2e = Rotation.from_quat(vt.q_cam_to_ecef[0, k]).as_matrix()  # dithering off: one attitude for every trial
+    p_cam = (vt.landmark_true_ecef - vt.cam_pos_ecef[k]) @ R_c2e  # (3, 3): rows R_c2eᵀ (m − c)
+    w_cam = ep.camera.R_sensor_to_body.T @ tr.omega_body[0]
+    return r, p_cam, w_cam, ep.K[0, 0], ep, vt, k
+
+
+def _rotation_frame_cov(p_cam, w_cam, f, sigma_ind, bf=1 / math.sqrt(12.0), t_exp=0.01):
+    """Pinhole closed form: a camera turned by ε (camera axes) sees p as p + p × ε, so
+    ∂uv/∂ε = (f/z) [[1, 0, −x/z], [0, 1, −y/z]] [p]×; ε = u·bf·t_exp·ω, u ~ N(0, 1)."""
+    G = []
+    for x, y, z in p_cam:
+        J = f / z * np.array([[1.0, 0.0, -x / z], [0.0, 1.0, -y / z]])
+        G.append(J @ np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]))
+    g = np.vstack(G) @ (bf * t_exp * w_cam)  # (6,) px per unit u
+    return sigma_ind**2 * np.eye(6) + np.outer(g, g)
+
+
+def test_rotation_blur_moves_a_frame_together_as_the_closed_form_says():
+    """blur_model = "rotation": the frame's pixel covariance against Monte Carlo of the sensor (whitened by the
+    closed form it must be the identity) and the told σ the per-landmark part; the per-landmark model fails the
+    same check (the test can fail)."""
+    r, p_cam, w, f, ep, vt, k = _frame_residuals("rotation", camera=PRECISE)
+    blur = (1 / math.sqrt(12.0)) * np.linalg.norm(w) * 0.01 * f
+    assert blur > 2.5  # the common part dominates the 0.3 px detection error
+    sigma_ind = math.hypot(0.3, 0.1 * blur)
+    np.testing.assert_allclose(ep.sigma_px[:, k], sigma_ind, rtol=1e-9)
+    C = _rotation_frame_cov(p_cam, w, f, sigma_ind)
+    Lc = np.linalg.cholesky(C)
+    z = np.linalg.solve(Lc, r.T).T
+    n = len(z)
+    assert np.abs(np.cov(z.T) - np.eye(6)).max() < 6.0 * math.sqrt(2.0 / n)  # ~6 σ of a sample covariance entry
+    # the same sensor drawing blur per landmark is not this covariance
+    r_i, *_ = _frame_residuals("independent", camera=PRECISE)
+    z_i = np.linalg.solve(Lc, r_i.T).T
+    assert np.abs(np.cov(z_i.T) - np.eye(6)).max() > 1.0
+
+
+def test_common_blur_cancels_in_the_cosine_rule_ranges():
+    """The vision-range σ on the seed triangle under each blur model against a brute-force Monte Carlo of the
+    ranges: with the rotation model the blur's common part drops out of the angles between lines of sight,
+    so the ranges' spread follows the per-landmark σ alone; drawn per landmark it follows the whole blur."""
+    from testbed.integrity.vision_ranges import vision_pseudoranges
+
+    out = {}
+    for model in ("rotation", "independent"):
+        r, p_cam, w, f, ep, vt, k = _frame_residuals(model, n_trials=2000, camera=PRECISE)
+        lm = vt.landmark_true_ecef
+        truth = np.linalg.norm(lm - vt.cam_pos_ecef[k], axis=-1)
+        vr = vision_pseudoranges(ep.pixel_uv[:, k], ep.detected[:, k], ep.K, ep.sigma_px[:, k], lm,
+                                 np.broadcast_to(truth, (len(r), 3)))
+        err = vr.m - truth
+        ok = np.isfinite(err).all(-1)
+        assert ok.mean() > 0.99
+        mc = err[ok].std(0)
+        predicted = np.sqrt(np.diagonal(vr.Sigma_V[ok], axis1=-2, axis2=-1)).mean(0)  # from the told σ
+        out[model] = mc
+        np.testing.assert_allclose(mc, predicted, rtol=0.1)  # the told σ predicts the ranges' spread
+    assert np.all(out["independent"] > 3.0 * out["rotation"])
 
 
 def test_sigma_told_override():

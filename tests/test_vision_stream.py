@@ -227,10 +227,15 @@ def test_components_draw_from_separate_streams():
     np.testing.assert_array_equal(a.landmark_survey_ecef, nd.landmark_survey_ecef)
     np.testing.assert_array_equal(a.attitude_ref_error, nd.attitude_ref_error)
     assert not nd.dither_cam.any()
-    # same standard normal draws, scaled by each run's own sigma
-    sig = lambda v: np.sqrt(1.5**2 + v.blur_sigma_px**2)[..., None, None]
-    np.testing.assert_allclose(a.noise_px / sig(a), ne.noise_px / sig(ne), rtol=1e-12)
+    # same standard normal draws, scaled by each run's own sigma (the per-landmark blur model; the rotation
+    # model draws the frame's blur from a stream of its own and leaves these draws as they are)
     np.testing.assert_array_equal(a.dither_cam, ne.dither_cam)
+    ind = s.model_copy(update={"detection": s.detection.model_copy(update={"blur_model": "independent"})})
+    a_i = sample_vision(g, ind, **{**base, "rng": np.random.default_rng(1)})[1]
+    sig = lambda v, share=1.0: np.sqrt(1.5**2 + (share * v.blur_sigma_px)**2)[..., None, None]  # noqa: E731
+    np.testing.assert_allclose(a_i.noise_px / sig(a_i), ne.noise_px / sig(ne), rtol=1e-12)
+    common = a.noise_px - (a_i.noise_px / sig(a_i)) * sig(a, 0.1)  # the rotation model's frame part alone
+    assert np.abs(common).max() > 0.1 and np.ptp(a.blur_sigma_px) > 0.1
 
 
 def test_slice_epochs():

@@ -65,6 +65,7 @@ from testbed.integrity.settings import IntegritySettings
 from testbed.integrity.vision_ranges import (
     VISION_REASONS,
     VisionRanges,
+    VisionReason,
     VisionRangeSettings,
     vision_pseudoranges,
 )
@@ -245,6 +246,12 @@ class VaRaimDiagnostics(Diagnostics):
             col[f"vre_{tag}_n"] = good.sum((-1, -2)).astype(np.int64)
             col[f"vre_{tag}_sum"] = e0.sum((-1, -2))
             col[f"vre_{tag}_sumsq"] = (e0**2).sum((-1, -2))
+        # what happens to vision at the epochs a vision fault reaches (the reproduction's "why"): how many,
+        # at how many the branch gate drops the vision ranges, at how many vision rows still enter the fit
+        hit = np.asarray(vision_truth.faulty, bool).any(-1)
+        col["vf_epochs"] = hit.sum(-1).astype(np.int64)
+        col["vf_gate_dropped"] = (hit & (np.asarray(self.vision_reason) == VisionReason.BRANCH_JUMP)).sum(-1).astype(np.int64)
+        col["vf_rows_used"] = (hit & np.asarray(self.vision_rows_used, bool)).sum(-1).astype(np.int64)
         return col
 
 

@@ -12,6 +12,7 @@ from testbed.config import load_approach
 from testbed.sim.budget import (BASE_BYTES, FLIGHT_SECONDS_PER_S, Estimate, correlator_seconds, correlator_trial_bytes,
                                 sortie_shape)
 from testbed.studies.reproduce import FULL_TRIALS, QUICK_TRIALS, loaded_experiments
+from testbed.studies.reproduce_dpe import CAMPAIGNS as DPE_CAMPAIGNS, QUICK_TRIALS as DPE_QUICK_TRIALS
 
 def reproduction_estimate(paper: str, full: bool, *, workers: int | str = "auto", out_dir=None,
                           resume: bool = False) -> Estimate | None:
@@ -25,10 +26,12 @@ def reproduction_estimate(paper: str, full: bool, *, workers: int | str = "auto"
                  for name, loaded in loaded_experiments(FULL_TRIALS if full else QUICK_TRIALS).items()]
         return sequence_estimate(f"reproduce va-raim-2015{' --full' if full else ''}", parts)
     if paper == "dpe-vertical":
-        est = campaign_estimate(load_spec("dpe-vs-raim", trials=2000 if full else 30), workers=1, resume=True,
-                                out_dir=None if out_dir is None else Path(out_dir) / "dpe-vs-raim")
-        return Estimate(f"reproduce dpe-vertical{' --full' if full else ''}", est.memory, est.time,
-                        ("without --full: 30 sorties per cell",), cores=est.cores)
+        trials = 2000 if full else DPE_QUICK_TRIALS
+        parts = [campaign_estimate(load_spec(name, trials=trials), workers=1, resume=True,
+                                   out_dir=None if out_dir is None else Path(out_dir) / name) for name in DPE_CAMPAIGNS]
+        est = sequence_estimate(f"reproduce dpe-vertical{' --full' if full else ''}", parts)
+        return Estimate(est.what, est.memory, est.time, (f"without --full: {DPE_QUICK_TRIALS} sorties per cell",),
+                        cores=est.cores)
     return None
 
 

@@ -19,10 +19,14 @@ The synthesis is split in two so the closed loop can run it block by block:
      behind the camera (AIRFRAME), outside the image less a margin (OUT_OF_IMAGE),
      beyond the maximum range (TOO_FAR), terrain between camera and landmark
      (TERRAIN), apparent size f·size/range below ``min_size_px`` (TOO_SMALL);
-  4. detected pixel = raw pixel + N(0, σ²) per axis with
-     σ² = σ_DE² + (blur_factor · |ω_cam| · t_exp · f)² (motion blur as extra
-     Gaussian noise, ω_cam the camera's angular rate: body rate + dithering rate),
-     + a pixel-bias fault; then undistorted back to the ideal pinhole image the
+  4. detected pixel = raw pixel + detection error + motion blur, b = blur_factor ·
+     |ω_cam| · t_exp · f the blur's spread (ω_cam the camera's angular rate: body
+     rate + dithering rate). ``blur_model = "rotation"`` (default): the blur of a
+     frame is one rotation of the camera during the exposure, ε = u · blur_factor ·
+     t_exp · ω_cam with u ~ N(0, 1) per frame, which moves every landmark of the
+     frame together (re-projected exactly), plus N(0, σ_DE² + (blur_independent·b)²)
+     per landmark and axis; ``"independent"``: N(0, σ_DE² + b²) per landmark and
+     axis (the blur drawn apart for each landmark). Then a pixel-bias fault; then undistorted back to the ideal pinhole image the
      monitors use (``VisionEpochs.K``); a misassociation swaps two slots last.
 
 * :func:`synthesize_vision` = decimate the truth to ``settings.rate_hz``, then
@@ -148,6 +152,16 @@ def _visibility(camera, det, p_cam, range_m, size_m, los):
                        [NotVisible.AIRFRAME, NotVisible.OUT_OF_IMAGE, NotVisible.TOO_FAR, NotVisible.TERRAIN,
                         NotVisible.TOO_SMALL], NotVisible.VISIBLE).astype(np.int8)
     return uv_ideal, uv_raw, reason == NotVisible.VISIBLE, reason
+
+
+def rotation_shift(camera, det: DetectionSettings, p_cam: NDArray, rotvec: NDArray, uv_raw: NDArray) -> NDArray:
+    """Raw-image shift (B..., T, L, 2) px of every landmark (camera-axes points ``p_cam`` (B..., T, L, 3)) when
+    the camera turns by the small rotation ``rotvec`` (B..., T, 3) rad in its own axes (attitude × exp([ε]×),
+    as the dithering turns it): the exact re-projection, lens distortion included; NaN where not projectable."""
+    R = Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_matrix().reshape(rotvec.shape[:-1] + (3, 3))
+    p = np.einsum("...ji,...lj->...li", R, p_cam)  # Rᵀ p: the points seen from the turned camera
+    uv, _ = camera.project(p, min_depth=det.min_depth_m)
+    return camera.distort(uv) - uv_raw
 
 
 def _line_of_sight(terrain, cam_pos: NDArray, lm_pos: NDArray, candidates: NDArray) -> NDArray:
@@ -451,6 +465,7 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     p_cam0 = np.einsum("...tji,tlj->...tli", R_c2e, g.diff_ecef)
     range_b = np.broadcast_to(g.range_m, batch + (T, L))
     uv_true, uv_raw, vis, reason = _visibility(cam, det, p_cam0, range_b, lm.size_m, g.los)
+    p_scene = p_cam0  # the landmarks where they stand (camera axes), moved ones included below
     moved = np.zeros(batch + (T, L), bool)
     moved_pos = np.broadcast_to(lm.pos_ecef, batch + (L, 3)).copy()
     range_m = range_b
@@ -478,15 +493,22 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
             actual = np.where(moved[..., None], moved_pos[..., None, :, :], lm.pos_ecef)  # (B..., T, L, 3)
             diff = actual - g.cam_pos_ecef[:, None, :]
             range_m = np.linalg.norm(diff, axis=-1)
-            p_cam = np.einsum("...tji,...tlj->...tli", R_c2e, diff)
-            uv_true, uv_raw, vis, reason = _visibility(cam, det, p_cam, range_m, lm.size_m, los)
+            p_scene = np.einsum("...tji,...tlj->...tli", R_c2e, diff)
+            uv_true, uv_raw, vis, reason = _visibility(cam, det, p_scene, range_m, lm.size_m, los)
     range_m = np.array(range_m)  # own copy (T, L) or (B..., T, L)
 
     # Detection noise with motion blur: camera rate = mount-rotated body rate + dithering rate.
     omega_cam = np.einsum("...tji,tj->...ti", R_d, g.omega_cam) + delta_rate
     blur = det.blur_factor * np.linalg.norm(omega_cam, axis=-1) * det.exposure_s * cam.fx  # (B..., T)
-    sigma = np.sqrt(det.sigma_px**2 + blur**2)  # (B..., T)
-    noise = noise_std * sigma[..., None, None]
+    if det.blur_model == "rotation":  # the frame's blur is one rotation: common to its landmarks (+ a small own part)
+        u = _spawn(g_noise, 1)[0].standard_normal(batch + (T,))  # its own stream: the DE draws stay as they were
+        blur_rot = (det.blur_factor * det.exposure_s * u)[..., None] * omega_cam  # (B..., T, 3) rad, camera axes
+        common = rotation_shift(cam, det, p_scene, blur_rot, uv_raw)
+        sigma = np.sqrt(det.sigma_px**2 + (det.blur_independent * blur)**2)  # (B..., T)
+        noise = noise_std * sigma[..., None, None] + np.where(np.isfinite(common), common, 0.0)
+    else:  # per landmark, independent (the VA-RAIM paper's white DE with the blur folded in)
+        sigma = np.sqrt(det.sigma_px**2 + blur**2)  # (B..., T)
+        noise = noise_std * sigma[..., None, None]
     uv_meas = uv_raw + noise
 
     # Pixel-bias faults (in the raw image, on detected slots).

@@ -158,10 +158,20 @@ class AttitudeRefSettings(StrictModel):
 class DetectionSettings(StrictModel):
     """The landmark detector: visibility rules and its error model.
 
-    Detected pixel = true + N(0, sigma_px²) per axis + motion-blur noise with
-    std blur_factor · |ω| · exposure_s · f (|ω| the camera's angular rate,
+    Detected pixel = true + N(0, sigma_px²) per axis + motion blur of spread
+    b = blur_factor · |ω| · exposure_s · f (|ω| the camera's angular rate,
     f the focal length in px): a point smeared uniformly over a streak of
     length L = |ω| t_exp f has a centroid spread of L/√12, the default factor.
+    The blur comes from the camera's rotation during the exposure, so with
+    ``blur_model = "rotation"`` (default) it is one rotation per frame that moves
+    every landmark of the frame together, plus an own part of spread
+    ``blur_independent`` · b per landmark; ``"independent"`` draws all of b apart
+    for each landmark (the earlier model). The σ reported to the monitors is the
+    per-landmark part. The blur's frame rotation is not published (it depends on
+    the flown rates, ``VisionEpochs.dither_sigma`` is a static figure): VA-RAIM's
+    cosines do not see it; the pixel monitor and the filter are told the
+    dithering's rotation only: at ~1000 px and the default 4 ms exposure the
+    blur's spread is 1.15 px per rad/s of camera rate, small beside a 1 px DE.
     """
 
     sigma_px: float = Field(1.0, ge=0, le=1000, description="detection error (DE) 1-sigma per axis, px (the VA-RAIM paper sweeps 1-4)")
@@ -171,8 +181,14 @@ class DetectionSettings(StrictModel):
     min_depth_m: float = Field(1.0, gt=0, description="closer than this along the optical axis counts as behind")
     exposure_s: float = Field(0.004, ge=0, description="exposure time, s (motion blur)")
     blur_factor: float = Field(0.2886751345948129, ge=0, description="blur std / streak length (1/sqrt(12))")
+    blur_model: Literal["rotation", "independent"] = Field(
+        "rotation", description="motion blur: 'rotation' (one camera rotation per frame, common to its landmarks, "
+                                "plus blur_independent of it per landmark) or 'independent' (drawn per landmark)")
+    blur_independent: float = Field(0.1, ge=0.0, le=1.0, description="blur_model 'rotation': the per-landmark part "
+                                                                      "of the blur spread, as a fraction of it")
     sigma_told_px: float | None = Field(None, gt=0, description="sigma reported to the monitor, px; "
-                                        "None = the model's own sqrt(sigma_px² + blur²)")
+                                        "None = the model's own per-landmark sqrt(sigma_px² + blur²) "
+                                        "(blur_model 'rotation': its per-landmark part)")
 
 
 class FeatureSceneSettings(StrictModel):
