@@ -11,7 +11,7 @@ Usage::
    and H3 (:mod:`testbed.studies.pixel_benefit`): per-epoch availability, median / p95
    PLs, 95 % accuracy. ``--figure`` draws the markers cell's table (docs/img/readme-pixel-benefit.png).
 2. On the markers cell (30 landmarks in view near the threshold), the pixel monitor with
-   ``pixel_max_landmarks`` = 6, 12 and 30: median epochs/s over alternating runs and APV-I
+   ``[monitor.pixel] max_landmarks`` = 6, 12 and 30: median epochs/s over alternating runs and APV-I
    availability (the cap's price in time and in availability).
 """
 
@@ -41,7 +41,7 @@ def cap_sweep(loaded, cell_index: int, caps=(6, 12, 30), repeats: int = 3) -> li
     ctx = cell_context(cell, loaded.spec)
     d = draw_block(ctx, loaded.spec, 0)
     n_ep = d.obs.gnss.pseudorange.shape[0] * d.obs.gnss.pseudorange.shape[1]
-    lines = ["| pixel_max_landmarks | landmarks used (mean) | epochs/s (median) | APV-I available | "
+    lines = ["| max_landmarks | landmarks used (mean) | epochs/s (median) | APV-I available | "
              "APV-I available, no H3 |", "|---|---|---|---|---|"]
     runs = {}
     for _ in range(repeats):
