@@ -294,6 +294,11 @@ def rinex_gsi(args: argparse.Namespace, work: Path, dst: Path) -> None:
     shutil.copy(out / "stanford-gps_raim.png", dst)
 
 
+def constellation_sky(args: argparse.Namespace, work: Path, dst: Path) -> None:
+    """Satellites in view, VDOP and RAIM redundancy along the final over a day, per constellation set."""
+    subprocess.run([sys.executable, "-m", "testbed.studies.constellation_sky", str(dst)], cwd=ROOT, check=True)
+
+
 def won_2013(args: argparse.Namespace, work: Path, dst: Path) -> None:
     """The won-2013 reproduction at 200 runs per case."""
     out = work / "won-2013-full"
@@ -330,6 +335,8 @@ PICTURES: dict[str, Picture] = {p.name: p for p in (
             "testbed monitor tests/references/rinex/07590920.05o tests/references/rinex/07590920.05n "
             "--reference marker --out DIR", "DIR/stanford-gps_raim.png", 0.5, rinex_gsi),
     Picture("readme-won2013.png", "figure", "testbed reproduce won-2013 --full", "won2013_errors.png", 19, won_2013),
+    Picture("constellation-sky.png", "figure", "python -m testbed.studies.constellation_sky PATH",
+            "PATH", 1, constellation_sky),
 )}
 
 
