@@ -63,8 +63,8 @@ class ApproachConfig(StrictModel):
     wind: Wind = Field(Wind(), description="steady wind")
     gusts: Gusts = Field(Gusts(), description="gust model")
     terrain: TerrainSettings = Field(TerrainSettings(), description="terrain model")
-    gnss: GnssSettings = Field(GnssSettings(), description="GPS sensor: constellation, masks, error model, "
-                                                         "correlators")
+    gnss: GnssSettings = Field(GnssSettings(), description="GNSS sensor: constellations (GPS, Galileo, BeiDou), "
+                                                         "masks, error model, correlators")
     vision: VisionSettings = Field(default_factory=VisionSettings,
                                    description="camera sensor; its mount defaults to the aircraft's camera")
     landmarks: LandmarkSettings = Field(LandmarkSettings(), description="the surveyed landmarks the camera "

@@ -195,10 +195,11 @@ class SortieStarts(StrictModel):
     * ``uniform``: offsets drawn uniformly over ``[0, span_s − sortie_s]`` (seeded by the
       spec's base seed and the draw block; the same in every cell).
 
-    The sky repeats after :data:`SKY_REPEAT_S` (about a sidereal day), so an offset is
-    reduced modulo that period and rounded to a grid of ``window_s``: every sortie in one
-    window flies under one computed sky, the first period's (at most
-    ``round(86154 / window_s)`` windows, 1436 for 60 s). Two approximations, both measured
+    The sky repeats after a period of the constellation set (GPS alone: :data:`SKY_REPEAT_S`, about a
+    sidereal day; with Galileo or BeiDou, 7 to 70 sidereal days:
+    :func:`testbed.campaign.sorties.sky_repeat_s`), so an offset is reduced modulo that period and
+    rounded to a grid of ``window_s``: every sortie in one window flies under one computed sky, the
+    first period's (GPS alone: at most ``round(86154 / window_s)`` windows, 1436 for 60 s). Two approximations, both measured
     (``tests/test_sorties.py``): the start phase is off by at most ``window_s / 2`` (30 s:
     ≤ 0.22° of satellite elevation over ZUNZ), and the constellation does not repeat exactly:
     a sortie d periods into the span flies a sky whose elevations differ from its true
