@@ -433,6 +433,43 @@ def test_error_model_reproduces_the_published_user_sigmas():
     assert np.sqrt(c_acc[0]) == pytest.approx(0.7280, abs=1e-4)
 
 
+@pytest.mark.parametrize("model", ["wgc_m3", "add_v31", "maast2_dfmc"])
+def test_araim_row_sigmas_are_what_the_dfmc_sensor_tells_and_draws(model):
+    """With the ISM equal to the receiver's settings (the defaults: σ_URA 0.75, σ_URE 0.50, b_nom 0.50 m, the
+    same troposphere and σ_user curve), every row's √C_int is the σ the DFMC sensor tells the monitors, √C_acc
+    the σ it draws the error with, and b_nom its b_nom, for each system and curve."""
+    from testbed.sensors.gnss.errors import range_sigmas
+    from testbed.sensors.gnss.settings import GnssSettings
+
+    gnss = GnssSettings(constellations=["gps", "galileo", "beidou"], error_model="dfmc", user_error=model)
+    settings = AraimSettings(user_error=model, tropo_zenith_m=gnss.sigma_tropo_zenith_m)
+    for letter, name in zip("GEC", ("GPS", "Galileo", "BeiDou")):  # the ISM matches the receiver's settings
+        sensor, ism = gnss.constellation(letter), settings.ism[name]
+        assert (sensor.sigma_ura_m, sensor.sigma_ure_m, sensor.b_nom_m) == (ism.sigma_ura_m, ism.sigma_ure_m,
+                                                                              ism.b_nom_m) == (0.75, 0.50, 0.50)
+    rng = np.random.default_rng(45)
+    letters = np.array(list("GGGGEEEECCCC"))
+    el = np.radians(rng.uniform(2.0, 90.0, (50, letters.size)))
+    told, drawn, b_nom = range_sigmas(el, letters, gnss)
+    codes = np.array([GPS if c == "G" else GAL if c == "E" else BDS for c in letters])
+    c_int, c_acc, b_nom_araim, _ = row_variances(el, np.broadcast_to(codes, el.shape), settings)
+    np.testing.assert_allclose(np.sqrt(c_int), told, rtol=1e-13)
+    np.testing.assert_allclose(np.sqrt(c_acc), drawn, rtol=1e-13)
+    np.testing.assert_array_equal(b_nom_araim, b_nom)
+
+
+def test_araim_user_sigma_is_the_sensor_curve(monkeypatch):
+    """The σ_user curves exist once: ARAIM reads the sensor layer's, whatever the curve (a change there moves
+    ARAIM's C_int with it)."""
+    from testbed.sensors.gnss import errors
+
+    el = np.radians([5.0, 30.0, 80.0])
+    monkeypatch.setattr(errors, "user_error_components", lambda e, model="wgc_m3": (np.full(np.shape(e), 3.0),
+                                                                                    np.full(np.shape(e), 4.0)))
+    for model in errors.USER_ERROR_MODELS:
+        np.testing.assert_allclose(sigma_user(el, model), 5.0)
+
+
 # ---------------------------------------------------------------------------------------------------------
 # degenerate epochs
 # ---------------------------------------------------------------------------------------------------------

@@ -242,6 +242,27 @@ def test_a_stepped_satellite_alerts_and_exclusion_removes_it():
     assert (clean.excluded == -1).all()
 
 
+def test_a_bias_common_to_a_constellation_is_its_clock_and_an_uneven_one_alerts():
+    """A constellation-wide fault that adds the same range error to every satellite of one system (the
+    ``constellation_bias`` fault) is that system's clock to ARAIM's one-clock-per-system solutions: the fix, the
+    separations, the PLs and the test do not move, only the clock does (so P(HMI | such a fault) is the
+    fault-free one). The same 30 m spread unevenly over the constellation's satellites is caught."""
+    T = 8
+    gnss, rx = two_constellations(T, rng=np.random.default_rng(8))
+    gal = gnss.system == "E"
+    common = np.where(gal, 30.0, 0.0)
+    base, hit = araim_gnss(gnss, FRAME), araim_gnss(dataclasses.replace(gnss, pseudorange=gnss.pseudorange + common),
+                                                    FRAME)
+    assert (base.reason == 0).all() and not base.alert.any() and not hit.alert.any()
+    np.testing.assert_allclose(hit.pos_enu, base.pos_enu, atol=1e-6)
+    np.testing.assert_allclose(hit.test_stat, base.test_stat, atol=1e-6)
+    np.testing.assert_allclose(hit.vpl, base.vpl, atol=1e-9)
+    np.testing.assert_allclose(hit.diagnostics.clock[:, 1] - base.diagnostics.clock[:, 1], 30.0, atol=1e-6)
+    uneven = np.where(gal, 30.0 * np.random.default_rng(9).uniform(-1.0, 1.0, gal.size), 0.0)
+    bad = araim_gnss(dataclasses.replace(gnss, pseudorange=gnss.pseudorange + uneven), FRAME)
+    assert bad.alert.all() and (bad.test_stat > 1.0).all()
+
+
 def test_fault_free_false_alerts_inside_the_binomial_interval_of_the_allocation():
     """At a loosened allocation (P_FA,V = 0.02, P_FA,H = 0.01) and a fixed two-constellation sky, residuals
     drawn from the accuracy model N(0, C_acc) the thresholds are set for: every epoch's alert equals the

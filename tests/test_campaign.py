@@ -91,6 +91,14 @@ def reference(tmp_path_factory) -> Path:
      '[sweep]\ncamera_focal_px = [992.0]\ncamera_dpi = [720.0]\n', "sweep", "at most one camera axis"),
     ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["va_raim"]\ntrials = 10\n'
      '[sweep]\nlandmark_sets = [[{kind = "triangle", radius_m = -100.0}]]\n', "sweep.landmark_sets.0.0", "radius_m"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
+     '[[faults]]\nkind = "constellation_bias"\nmagnitudes = [10.0]\n', "faults.0", "expected system = 'gps'"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
+     '[[faults]]\nkind = "gps_step"\nsystem = "gps"\nmagnitudes = [10.0]\n', "faults.0",
+     "read by kind 'constellation_bias' only"),
+    ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
+     '[[faults]]\nkind = "constellation_bias"\nsystem = "galileo"\nmagnitudes = [10.0]\n', "cell 0",
+     "not tracked"),
 ])
 def test_spec_errors_name_file_key_and_expectation(tmp_path, text, where, expected):
     p = write_spec(tmp_path, "bad.toml", text=text)
@@ -109,6 +117,25 @@ def test_bad_cell_combination_is_reported_before_any_work(tmp_path):
         run_campaign(p, tmp_path / "out", progress=False)
     assert "cell 0" in str(ei.value) and "dpi" in str(ei.value)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_constellation_bias_family_sweeps_the_bias_on_its_system(tmp_path):
+    """``constellation_bias`` is a sweepable family: each magnitude is the bias (m) on every satellite of the
+    family's system, the cells say so, and a spec without the family hashes as before it existed."""
+    from testbed.sensors.faults import ConstellationBias
+
+    text = ('name = "x"\napproaches = ["zunz-rwy05-dfmc"]\nmonitors = ["gps_raim", "araim"]\ntrials = 10\n'
+            '[[faults]]\nkind = "constellation_bias"\nsystem = "beidou"\nmagnitudes = [0.0, 7.5]\n'
+            'onset_s = 12.0\nend_s = 30.0\n')
+    cells = expand_cells(load_spec(write_spec(tmp_path, text=text)))
+    assert [c.params["fault_kind"] for c in cells] == ["none", "constellation_bias"]
+    assert cells[1].params["fault_unit"] == "m" and cells[1].params["fault_size"] == 7.5
+    (fault,) = cells[1].config.faults
+    assert isinstance(fault, ConstellationBias)
+    assert (fault.system, fault.bias_m, fault.rate_m_s, fault.onset_s, fault.end_s) == ("beidou", 7.5, 0.0, 12.0, 30.0)
+    assert cells[0].config.faults == []
+    # stored campaigns resume: the new key, unset, leaves the hash of a spec as it was (value before the key)
+    assert load_spec(ROOT / "approaches" / "campaigns" / "gps-step-sweep.toml").hash == "5270645a44aa341a"
 
 
 def test_cells_are_the_product_of_the_axes(tmp_path):

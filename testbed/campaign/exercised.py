@@ -44,7 +44,8 @@ def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) 
         faulty = [(c, why) for c, why in rows if c.params["fault_kind"] != "none"]
         if faulty and all(why for _, why in faulty):
             f = loaded.spec.faults[fam]
-            target = f"prn = {f.prn}" if f.kind in GNSS_KINDS else f"landmark = {f.landmark!r}"  # a spec's table
+            target = (f"system = {f.system!r}" if f.kind == "constellation_bias" else f"prn = {f.prn}"
+                      if f.kind in GNSS_KINDS else f"landmark = {f.landmark!r}")  # a spec's table
             ids = [c.index for c, _ in faulty]
             expected = ("a PRN in view then, or prn = \"random\" (one in view at the onset, per sortie)"
                         if f.kind in GNSS_KINDS else "a landmark in the image then, or a smaller move")

@@ -43,21 +43,25 @@ from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, FileName, StrictModel
 from testbed.sensors.vision.settings import LandmarkSet
 
-FaultKindName = Literal["none", "gps_step", "gps_ramp", "pixel_bias", "landmark_moved"]
+FaultKindName = Literal["none", "gps_step", "gps_ramp", "constellation_bias", "pixel_bias", "landmark_moved"]
 
 #: what the magnitude of each fault family means (units go into tables and figure labels)
-MAGNITUDE_UNITS = {"none": "", "gps_step": "m", "gps_ramp": "m/s", "pixel_bias": "px", "landmark_moved": "m"}
+MAGNITUDE_UNITS = {"none": "", "gps_step": "m", "gps_ramp": "m/s", "constellation_bias": "m", "pixel_bias": "px",
+                   "landmark_moved": "m"}
 
 
 class FaultSweep(StrictModel):
     """One fault family swept over magnitudes (``[[faults]]`` in a spec)."""
 
     kind: FaultKindName = Field(..., description="none | gps_step (bias_m) | gps_ramp (rate_m_s) | "
+                                                 "constellation_bias (bias_m on every satellite of `system`) | "
                                                  "pixel_bias (magnitude_px) | landmark_moved (metres along direction_enu)")
     magnitudes: list[float] = Field([0.0], min_length=1, description="fault sizes; 0 = a fault-free cell")
     onset_s: float = Field(20.0, ge=0, description="fault onset, s after the approach start")
     end_s: float | None = Field(None, description="fault end (exclusive), s; None = to the end")
     prn: int | Literal["random"] = Field("random", description="GPS faults: PRN or 'random' (a visible one per trial)")
+    system: Literal["gps", "galileo", "beidou"] | None = Field(
+        None, description="constellation_bias: the constellation hit (required there, refused with another kind)")
     landmark: str = Field("random", description="vision faults: landmark id or 'random' (per trial)")
     angle_deg: float = Field(0.0, description="pixel_bias: direction in the image, deg")
     direction_enu: tuple[float, float, float] = Field((1.0, 0.0, 0.0),
@@ -74,6 +78,12 @@ class FaultSweep(StrictModel):
         if self.kind == "landmark_moved":
             if math.hypot(*self.direction_enu) == 0:
                 raise ValueError("direction_enu: expected a non-zero vector")
+        if self.kind == "constellation_bias" and self.system is None:
+            raise ValueError("kind 'constellation_bias': expected system = 'gps', 'galileo' or 'beidou' (the "
+                             "constellation whose satellites all carry the bias)")
+        if self.kind != "constellation_bias" and self.system is not None:
+            raise ValueError(f"system = {self.system!r} is read by kind 'constellation_bias' only, not by kind "
+                             f"{self.kind!r}: remove it")
         return self
 
     def _move(self, magnitude: float) -> tuple[float, float, float]:
@@ -93,6 +103,8 @@ class FaultSweep(StrictModel):
             return {"kind": "gps_step", "prn": self.prn, "bias_m": magnitude, **win}
         if self.kind == "gps_ramp":
             return {"kind": "gps_ramp", "prn": self.prn, "rate_m_s": magnitude, **win}
+        if self.kind == "constellation_bias":
+            return {"kind": "constellation_bias", "system": self.system, "bias_m": magnitude, **win}
         if self.kind == "pixel_bias":
             return {"kind": "pixel_bias", "landmark": self.landmark, "magnitude_px": magnitude,
                     "angle_deg": self.angle_deg, **win}
@@ -388,11 +400,20 @@ def spec_hash(spec: CampaignSpec) -> str:
 LATER_AXES = ("constellations", "terrain_masking")
 
 
+#: fault-family keys added after specs were first stored: left out of the hash while unset (None)
+LATER_FAULT_KEYS = ("system",)
+
+
 def _plain_sampling_unset(d: dict) -> dict:
-    """A spec dump without what later versions added at its default: the ``[sampling]`` table when plain, and
-    the later sweep axes when empty. A spec that uses none of them hashes, and compares on resume, as before."""
+    """A spec dump without what later versions added at its default: the ``[sampling]`` table when plain, the
+    later sweep axes when empty and the later fault keys when unset. A spec that uses none of them hashes, and
+    compares on resume, as before."""
     if d.get("sampling") == SamplingPlan().model_dump(mode="json"):
         d = {k: v for k, v in d.items() if k != "sampling"}
+    faults = d.get("faults")
+    if isinstance(faults, list):
+        d = {**d, "faults": [{k: v for k, v in f.items() if not (k in LATER_FAULT_KEYS and v is None)}
+                             if isinstance(f, dict) else f for f in faults]}
     sweep = d.get("sweep")
     if isinstance(sweep, dict) and any(k in sweep and not sweep[k] for k in LATER_AXES):
         d = {**d, "sweep": {k: v for k, v in sweep.items() if not (k in LATER_AXES and not v)}}

@@ -3,8 +3,9 @@
     C_int,i = σ²_URA + σ²_tropo,i + σ²_user,i      (eq. 1, integrity: the weights)
     C_acc,i = σ²_URE + σ²_tropo,i + σ²_user,i      (accuracy and continuity: never weights)
 
-σ_tropo and the default σ_user are the GPS error model's (:mod:`testbed.sensors.gnss.errors`); the other
-σ_user curves are selectable by name. Every function takes elevations of any shape ``(...)`` in radians.
+σ_tropo and every σ_user curve are the GNSS sensor's (:mod:`testbed.sensors.gnss.errors`), so the variances
+ARAIM assumes are, term by term, those the DFMC error model tells the monitors (C_int) and draws (C_acc) when
+the ISM matches the receiver's settings. Every function takes elevations of any shape ``(...)`` in radians.
 """
 
 from __future__ import annotations
@@ -17,25 +18,9 @@ from testbed.sensors.gnss import errors
 
 
 def sigma_user(elevation: ArrayLike, model: str = "wgc_m3") -> NDArray:
-    """Airborne iono-free multipath + noise 1σ (m) at elevations (rad), shape ``(...)``.
-
-    ``wgc_m3``: √(σ²_MP + σ²_noise)·γ^½ with σ_noise = 0.15 + 0.43e^(−θ/6.9°) (eq. 2; the testbed's GPS model).
-    ``add_v31``: the same with σ_noise = 0.11 + 0.13e^(−θ/6.9°) (eq. 3), the curve that reproduces the C_int of
-    the ADD v3.1 Appendix D example. ``maast2_dfmc``: √(0.4² + (0.34 + 0.40e^(−θ/14°))² + (40/(261 + θ²) +
-    0.018)²), θ in degrees, already at iono-free level (eq. 4).
-    """
-    el = np.asarray(elevation, float)
-    if model == "wgc_m3":
-        return errors.sigma_user(el)
-    deg = np.degrees(el)
-    if model == "add_v31":
-        noise = 0.11 + 0.13 * np.exp(-deg / 6.9)
-        return np.hypot(errors.sigma_multipath(el), noise) * errors.IONO_FREE_FACTOR
-    if model == "maast2_dfmc":
-        mp = 0.34 + 0.40 * np.exp(-deg / 14.0)
-        tail = 40.0 / (261.0 + deg * deg) + 0.018
-        return np.sqrt(0.4**2 + mp * mp + tail * tail)
-    raise ValueError(f"sigma_user model: expected one of ('wgc_m3', 'add_v31', 'maast2_dfmc'), got {model!r}")
+    """Airborne iono-free multipath + noise 1σ (m) at elevations (rad), shape ``(...)``: the sensor's curve
+    ``model`` (:func:`testbed.sensors.gnss.errors.user_error_components`; eq. 2-4)."""
+    return errors.sigma_air_user(elevation, model)
 
 
 def row_variances(elevation: ArrayLike, constellation: ArrayLike, settings: AraimSettings

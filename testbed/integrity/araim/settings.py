@@ -14,12 +14,11 @@ from pydantic import Field, field_validator, model_validator
 
 from testbed.integrity.levels import SERVICE_LEVELS
 from testbed.schema import StrictModel
+from testbed.sensors.gnss.errors import UserErrorModel  # the σ_user curves: the GNSS sensor's
 
 #: the systems a row may belong to, by code (the row's ``constellation`` index)
 SYSTEMS: tuple[str, ...] = ("GPS", "Galileo", "BeiDou", "GLONASS")
 
-#: the σ_user (airborne multipath + noise) curves :mod:`testbed.integrity.araim.error_model` knows
-USER_ERROR_MODELS = ("wgc_m3", "add_v31", "maast2_dfmc")
 
 
 class ConstellationIsm(StrictModel):
@@ -74,7 +73,7 @@ class AraimSettings(StrictModel):
 
     ism: dict[str, ConstellationIsm] = Field(default_factory=lambda: ism_preset("wgc_lpv200"),
                                              description=f"integrity support data per system (some of {SYSTEMS})")
-    user_error: Literal["wgc_m3", "add_v31", "maast2_dfmc"] = Field(
+    user_error: UserErrorModel = Field(
         "wgc_m3", description="airborne multipath + noise curve σ_user (docs/design/araim.md eq. 2-4)")
     tropo_zenith_m: float = Field(0.12, gt=0.0, description="residual troposphere σ at zenith (m)")
     p_hmi_vert: float = Field(9.8e-8, gt=0.0, lt=1.0, description="integrity budget of the vertical (per approach)")

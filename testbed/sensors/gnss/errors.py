@@ -12,6 +12,8 @@ error drawn has C_acc = σ_URE² + σ_tropo² + σ_user² (:func:`range_sigmas`)
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import lfilter
@@ -22,6 +24,10 @@ F_L2 = 1227.60e6  # Hz
 #: σ-multiplier of the iono-free L1/L5 combination: sqrt(f1⁴ + f5⁴) / (f1² − f5²) ≈ 2.59.
 IONO_FREE_FACTOR = float(np.sqrt(F_L1**4 + F_L5**4) / (F_L1**2 - F_L5**2))
 SIGMA_URA_M = 0.75
+#: The airborne multipath + noise curves (:func:`user_error_components`): the one list the GNSS settings and
+#: the ARAIM monitor's settings both name.
+UserErrorModel = Literal["wgc_m3", "add_v31", "maast2_dfmc"]
+USER_ERROR_MODELS: tuple[str, ...] = get_args(UserErrorModel)
 #: The two carriers of each system's iono-free pair (Hz): L1/L5, E1/E5a, B1C/B2a (the same frequencies).
 IONO_FREE_CARRIERS = {"G": (F_L1, F_L5), "E": (1575.42e6, 1176.45e6), "C": (1575.42e6, 1176.45e6)}
 
@@ -69,7 +75,7 @@ def user_error_components(elevation: ArrayLike, model: str = "wgc_m3") -> tuple[
         return IONO_FREE_FACTOR * sigma_multipath(el), IONO_FREE_FACTOR * (0.11 + 0.13 * np.exp(-deg / 6.9))
     if model == "maast2_dfmc":
         return 0.34 + 0.40 * np.exp(-deg / 14.0), np.hypot(0.4, 40.0 / (261.0 + deg * deg) + 0.018)
-    raise ValueError(f"user_error: expected one of 'wgc_m3', 'add_v31', 'maast2_dfmc', got {model!r}")
+    raise ValueError(f"user_error: expected one of {', '.join(map(repr, USER_ERROR_MODELS))}, got {model!r}")
 
 
 def range_sigmas(elevation: ArrayLike, system: ArrayLike, settings) -> tuple[NDArray, NDArray, NDArray]:

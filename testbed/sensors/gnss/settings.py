@@ -17,6 +17,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 
 from testbed.schema import StrictModel
+from testbed.sensors.gnss.errors import UserErrorModel
 
 
 class SatelliteCap(StrictModel):
@@ -150,7 +151,7 @@ class GnssSettings(StrictModel):
                             "the σ the monitors are told (the reproductions' model); 'dfmc': dual-frequency "
                             "iono-free (L1/L5, E1/E5a, B1C/B2a) with each constellation's σ_URA (told), σ_URE "
                             "(drawn) and b_nom, and the airborne curve user_error")
-    user_error: Literal["wgc_m3", "add_v31", "maast2_dfmc"] = Field(
+    user_error: UserErrorModel = Field(
         "wgc_m3", description="'dfmc' error model: airborne multipath + noise curve (docs/design/gnss.md §3); "
                               "'wgc_m3' is eq. 27's")
     inter_system_bias_sigma_m: float = Field(
