@@ -406,7 +406,7 @@ def input_fingerprint(cells: list[Cell]) -> dict:
     files: dict[str, str] = {}
     for c in cells:
         cfg = c.config
-        for p in (c.approach.source, c.approach.aircraft_source, cfg.gnss.almanac_path, *cfg.terrain.dem_paths):
+        for p in (c.approach.source, c.approach.aircraft_source, *cfg.gnss.orbit_files, *cfg.terrain.dem_paths):
             if p is not None and str(p) not in files and Path(p).is_file():
                 files[str(p)] = hashlib.sha256(Path(p).read_bytes()).hexdigest()[:16]
     resolved = [[c.config.model_dump(mode="json"), c.approach.aircraft.model_dump(mode="json")] for c in cells]
