@@ -161,11 +161,11 @@ class GnssSettings(StrictModel):
                     "slots) and 'beidou' (BeiDou-3: 24 MEO + 3 IGSO + 3 GEO nominal orbits), in this order "
                     "in the satellite slots; each one's orbits from a file instead: [gnss.<name>] orbit_source")
     gps: ConstellationSettings = Field(default_factory=ConstellationSettings,
-                                       description="GPS: mask, health, cap, integrity support data")
+                                       description="GPS: orbits, mask, health, cap, integrity support data")
     galileo: ConstellationSettings = Field(default_factory=ConstellationSettings,
-                                           description="Galileo: mask, health, cap, integrity support data")
+                                           description="Galileo: orbits, mask, health, cap, integrity support data")
     beidou: ConstellationSettings = Field(default_factory=ConstellationSettings,
-                                          description="BeiDou: mask, health, cap, integrity support data")
+                                          description="BeiDou: orbits, mask, health, cap, integrity support data")
     error_model: Literal["seed", "dfmc"] = Field(
         "seed", description="'seed': the VA-RAIM paper's eq. 27 with one sigma_ura_m for every system, drawn with "
                             "the σ the monitors are told (the reproductions' model); 'dfmc': dual-frequency "
