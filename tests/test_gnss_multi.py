@@ -638,21 +638,23 @@ def _gps_only_nav(d):
      "nearest Galileo broadcast record is 70.0 h from 2026-03-01T04:00:00Z"),
     (lambda d: (d / "bin.nav").write_bytes(bytes(range(256)) * 8), "bin.nav", "could not be read"),
     (lambda d: None, "missing.nav", "could not be read"),
+    (lambda d: (d / "a.al3").write_text("31 CURRENT.ALM\n 703 344064\n"), "a.al3", "announces 31 record(s)"),
 ])
 def test_bad_orbit_file_exits_2_naming_file_key_and_value(tmp_path, monkeypatch, capsys, make, value, what):
-    """A navigation file without the system's records, with records of another day, unreadable or missing: one
-    line naming the key, the file and what was expected, exit 2, nothing written."""
+    """A navigation file without the system's records, with records of another day, unreadable or missing, a
+    truncated SEM almanac: one line naming the key, the file and what was expected, exit 2, nothing written."""
     inputs, work = tmp_path / "in", tmp_path / "work"
     inputs.mkdir()
     work.mkdir()
     make(inputs)
     p = inputs / "bad.toml"
+    name, source = ("gps", "sem") if value.endswith(".al3") else ("galileo", "rinex_nav")
     p.write_text(SEED_APPROACH + '\n[gnss]\nconstellations = ["gps", "galileo"]\n'
-                 + f'\n[gnss.galileo]\norbit_source = "rinex_nav"\norbit_path = "{value}"\n')
+                 + f'\n[gnss.{name}]\norbit_source = "{source}"\norbit_path = "{value}"\n')
     monkeypatch.chdir(work)
     code = main(["fly", str(p), "--no-record"])
     out = capsys.readouterr()
     text = out.err + out.out
-    assert code == 2 and "gnss.galileo.orbit_path" in text and value in text and what in text, text
+    assert code == 2 and f"gnss.{name}.orbit_path" in text and value in text and what in text, text
     assert "Traceback" not in text
     assert list(work.iterdir()) == []

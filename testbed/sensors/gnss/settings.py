@@ -127,15 +127,15 @@ class ConstellationSettings(StrictModel):
     b_nom_m: float = Field(
         0.50, ge=0.0, le=100.0, description="'dfmc' error model: b_nom, the nominal bias bound carried for integrity "
                                             "(m); a bound, not drawn (docs/design/gnss.md §3)")
-    orbit_source: Literal["nominal", "rinex_nav", "yuma"] = Field(
+    orbit_source: Literal["nominal", "rinex_nav", "yuma", "sem"] = Field(
         "nominal", description="where this constellation's orbits come from: 'nominal' (GPS: the [gnss] "
                                "almanac_source, the DO-229 almanac by default; Galileo, BeiDou: their nominal "
                                "slots), 'rinex_nav' (this system's broadcast records in the RINEX 2/3 navigation "
                                "file orbit_path, per satellite the one nearest the start; satellites without a "
-                               "record within 2 h of it are not tracked) or 'yuma' (GPS only: a YUMA almanac, "
-                               "its week placed by [gnss] almanac_week)")
+                               "record within 2 h of it are not tracked), 'yuma' or 'sem' (GPS only: a YUMA or SEM "
+                               "almanac, its week placed by [gnss] almanac_week)")
     orbit_path: Path | None = Field(
-        None, description="the file of orbit_source 'rinex_nav' / 'yuma', relative to the approach file")
+        None, description="the file of orbit_source 'rinex_nav' / 'yuma' / 'sem', relative to the approach file")
 
     @field_validator("excluded_prns")
     @classmethod
@@ -181,10 +181,10 @@ class GnssSettings(StrictModel):
 
     rate_hz: float = Field(1.0, gt=0.0, le=100.0,
                            description="measurement rate (Hz); the truth is decimated to it inside synthesize_gnss")
-    almanac_source: Literal["do229", "yuma", "rinex_nav"] = Field(
-        "do229", description="GPS's orbits: shipped DO-229 24-sat almanac, a YUMA file or a RINEX 3 nav file "
+    almanac_source: Literal["do229", "yuma", "sem", "rinex_nav"] = Field(
+        "do229", description="GPS's orbits: shipped DO-229 24-sat almanac, a YUMA or SEM file or a RINEX 3 nav file "
                              "(or [gnss.gps] orbit_source, not both)")
-    almanac_path: Path | None = Field(None, description="file for almanac_source 'yuma' / 'rinex_nav', relative to "
+    almanac_path: Path | None = Field(None, description="file for almanac_source 'yuma' / 'sem' / 'rinex_nav', relative to "
                                                         "the approach file")
     almanac_week: Literal["auto", "periodic", "nearest_rollover"] = Field(
         "auto", description="placing a 10-bit almanac week in time: 'periodic' (toa moved to the week "
@@ -260,20 +260,20 @@ class GnssSettings(StrictModel):
 
     def _check_orbit_source(self, name: str, cs: ConstellationSettings) -> None:
         if cs.orbit_source == "nominal" and cs.orbit_path is not None:
-            raise ValueError(f"{name}.orbit_path: read only with orbit_source 'rinex_nav' or 'yuma' (it is "
+            raise ValueError(f"{name}.orbit_path: read only with orbit_source 'rinex_nav', 'yuma' or 'sem' (it is "
                              f"'nominal'); set orbit_source or remove orbit_path")
         if cs.orbit_source != "nominal" and cs.orbit_path is None:
             raise ValueError(f"{name}.orbit_path: required when orbit_source is {cs.orbit_source!r}")
-        if cs.orbit_source == "yuma" and name != "gps":
-            raise ValueError(f"{name}.orbit_source: 'yuma' is a GPS almanac format; expected 'nominal' or "
-                             f"'rinex_nav' for {name}")
+        if cs.orbit_source in ("yuma", "sem") and name != "gps":
+            raise ValueError(f"{name}.orbit_source: {cs.orbit_source!r} is a GPS almanac format; expected "
+                             f"'nominal' or 'rinex_nav' for {name}")
         if name == "gps" and cs.orbit_source != "nominal" and self.almanac_source != "do229":
             raise ValueError(f"gps.orbit_source = {cs.orbit_source!r} and almanac_source = "
                              f"{self.almanac_source!r} both name GPS's orbits; expected one of them")
 
     def orbit_source_of(self, name: str) -> tuple[str, Path | None, str]:
         """Where constellation ``name``'s orbits come from: (source, file, the key naming the file), source one of
-        'nominal', 'rinex_nav', 'yuma' (GPS's 'nominal' is ``almanac_source``: 'do229' there is 'nominal')."""
+        'nominal', 'rinex_nav', 'yuma', 'sem' (GPS's 'nominal' is ``almanac_source``: 'do229' there is 'nominal')."""
         cs = getattr(self, name)
         if name == "gps" and cs.orbit_source == "nominal":
             source = "nominal" if self.almanac_source == "do229" else self.almanac_source
