@@ -263,7 +263,7 @@ def constellation_orbits(name: str, source: str, path, t_ref_gps: float, week_mo
     Raises ValueError naming the file when it has no record of the system, or none current."""
     letter = CONSTELLATION_SYSTEMS[name]
     if source == "nominal":
-        return nominal_constellation(name, t_ref_gps)
+        return load_do229(t_ref_gps, week_mode) if name == "gps" else nominal_constellation(name, t_ref_gps)
     if source == "rinex_nav":
         eph = load_rinex_nav(path, systems=letter).select(t_ref_gps)
         current = np.abs(eph.toe_gps - t_ref_gps) <= MAX_AGE_S
