@@ -19,6 +19,7 @@ from scipy import stats
 
 from testbed.api import run_approach
 from testbed.campaign.sorties import sky_repeat_s
+from testbed.campaign.spec import expand_cells, load_spec
 from testbed.cli import main
 from testbed.flight.kinematic import straight_truth
 from testbed.integrity import multi_clock
@@ -635,7 +636,7 @@ def _gps_only_nav(d):
 
 
 @pytest.mark.parametrize("make, value, what", [
-    (_gps_only_nav, "gps.nav", "no records of systems ['E']"),
+    (_gps_only_nav, "gps.nav", "no Galileo records (it has GPS ones): expected a navigation file with Galileo"),
     (lambda d: exported_nav(d / "old.nav", DFMC_START - 3 * 86400.0), "old.nav",
      "nearest Galileo broadcast record is 70.0 h from 2026-03-01T04:00:00Z"),
     (lambda d: (d / "bin.nav").write_bytes(bytes(range(256)) * 8), "bin.nav", "could not be read"),
@@ -660,3 +661,22 @@ def test_bad_orbit_file_exits_2_naming_file_key_and_value(tmp_path, monkeypatch,
     assert code == 2 and f"gnss.{name}.orbit_path" in text and value in text and what in text, text
     assert "Traceback" not in text
     assert list(work.iterdir()) == []
+
+
+def test_campaign_sorties_beyond_the_broadcast_records_are_refused(tmp_path, monkeypatch, capsys):
+    """Every sky window flies the records nearest the approach's start: sorties spread over a day on Galileo from a
+    navigation file are refused before any work (exit 2, naming the key and the file); within the hour they pass."""
+    exported_nav(tmp_path / "gec.nav")
+    ap = tmp_path / "from-file.toml"
+    ap.write_text(SEED_APPROACH + '\n[gnss]\nconstellations = ["gps", "galileo"]\n'
+                  + '\n[gnss.galileo]\norbit_source = "rinex_nav"\norbit_path = "gec.nav"\n')
+    spec = ('name = "s"\napproaches = ["from-file.toml"]\nmonitors = ["gps_raim"]\ntrials = 10\nblock_trials = 10\n'
+            'chunk_trials = 10\nduration_s = 10.0\n[sorties]\nstart = "uniform"\nspan_s = {span}\n')
+    (tmp_path / "day.toml").write_text(spec.format(span=86400.0))
+    (tmp_path / "hour.toml").write_text(spec.format(span=3600.0))
+    monkeypatch.chdir(tmp_path)
+    assert len(expand_cells(load_spec(tmp_path / "hour.toml"))) == 1
+    code = main(["campaign", str(tmp_path / "day.toml"), "--out", str(tmp_path / "out"), "--quiet"])
+    text = "".join(capsys.readouterr())
+    assert code == 2 and "gnss.galileo.orbit_path" in text and "gec.nav" in text and "24.0 h after the start" in text
+    assert not (tmp_path / "out").exists()

@@ -52,7 +52,8 @@ def preflight(approach: Approach, *, trim: bool = True):
 def _constellation(approach: Approach, problems: list[str]):
     """Every tracked constellation loaded from its orbit source, each file's records of that system present and
     current at the start and at the latest end of the flight; the tracked set (None after a problem)."""
-    from testbed.sensors.gnss.constellations import StaleOrbits, constellation_orbits, tracked_constellations
+    from testbed.sensors.gnss.almanac import OrbitFileProblem
+    from testbed.sensors.gnss.constellations import constellation_orbits, tracked_constellations
     from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 
     g = approach.config.gnss
@@ -65,7 +66,7 @@ def _constellation(approach: Approach, problems: list[str]):
         for t in (t0, t_end) if source == "rinex_nav" else (t0,):
             try:
                 eph = constellation_orbits(name, source, path, t, g.almanac_week)
-            except StaleOrbits as exc:
+            except OrbitFileProblem as exc:  # it reads, but holds no current record of the system
                 problems.append(f"{where}: {exc}")
                 ok = False
                 break

@@ -24,12 +24,17 @@ from typing import Literal
 
 import numpy as np
 
-from testbed.sensors.gnss.orbits import Ephemeris, from_keplerian
+from testbed.sensors.gnss.orbits import SYSTEM_NAMES, Ephemeris, from_keplerian
 from testbed.sensors.gnss.navfile import read_nav
 from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK
 
 WeekMode = Literal["auto", "periodic", "nearest_rollover"]
 _DO229_FILE = "do229_gps_almanac_24sat.tsv"
+
+
+class OrbitFileProblem(ValueError):
+    """An orbit file that reads but cannot serve the constellation asked of it (no records of its system, none
+    current): the message says what was expected."""
 
 
 def resolve_week(week_raw, toa_sow, t_ref_gps: float, mode: str) -> np.ndarray:
@@ -183,8 +188,10 @@ def load_rinex_nav(path: str | Path, systems: str = "G") -> Ephemeris:
     eph = read_nav(path).eph
     keep = np.flatnonzero(np.isin(eph.system, list(systems)))
     if keep.size == 0:
-        raise ValueError(f"RINEX nav {Path(path).name}: no records of systems {list(systems)} (it has "
-                         f"{sorted(set(eph.system.tolist()))})")
+        want = " or ".join(SYSTEM_NAMES[x] for x in systems)
+        have = ", ".join(SYSTEM_NAMES[x] for x in SYSTEM_NAMES if (eph.system == x).any())
+        raise OrbitFileProblem(f"RINEX nav {Path(path).name}: no {want} records (it has {have} ones): expected a "
+                               f"navigation file with {want} broadcast records")
     return eph if keep.size == len(eph) else eph.take(keep)
 
 

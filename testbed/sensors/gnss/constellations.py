@@ -59,7 +59,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import OMEGA_EARTH
-from testbed.sensors.gnss.almanac import load_constellation, load_do229, load_rinex_nav
+from testbed.sensors.gnss.almanac import OrbitFileProblem, load_constellation, load_do229, load_rinex_nav
 from testbed.sensors.gnss.navfile import MAX_AGE_S
 from testbed.sensors.gnss.orbits import MU_GPS, SYSTEM_NAMES, Ephemeris, concat_ephemerides, from_keplerian, sat_states
 from testbed.sensors.gnss.settings import CONSTELLATION_SYSTEMS, GnssSettings
@@ -251,7 +251,7 @@ def tracked_constellations(settings: GnssSettings, t_ref_gps: float) -> Ephemeri
     return parts[0] if len(parts) == 1 else concat_ephemerides(parts)
 
 
-class StaleOrbits(ValueError):
+class StaleOrbits(OrbitFileProblem):
     """A navigation file whose records of a system are all too far from the flight to be used."""
 
 
