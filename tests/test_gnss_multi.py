@@ -30,7 +30,8 @@ from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount, NotVisible
 from testbed.resources import approaches_dir
 from testbed.sensors.faults import ConstellationBias, GpsStep, gnss_fault_bias
-from testbed.sensors.gnss.constellations import nominal_constellations
+from testbed.sensors.gnss.constellations import (StaleOrbits, constellation_orbits, nominal_constellations,
+                                                 tracked_constellations)
 from testbed.sensors.gnss.errors import IONO_FREE_CARRIERS, iono_free_variance_factor, range_sigmas
 from testbed.sensors.gnss.settings import GnssSettings
 from testbed.sensors.gnss.rinex import write_nav
@@ -680,3 +681,26 @@ def test_campaign_sorties_beyond_the_broadcast_records_are_refused(tmp_path, mon
     text = "".join(capsys.readouterr())
     assert code == 2 and "gnss.galileo.orbit_path" in text and "gec.nav" in text and "24.0 h after the start" in text
     assert not (tmp_path / "out").exists()
+
+
+def _records(path):
+    """The header and the 8-line records of a RINEX 3 navigation file."""
+    lines = path.read_text().splitlines(keepends=True)
+    end = next(k for k, ln in enumerate(lines) if "END OF HEADER" in ln) + 1
+    return lines[:end], [lines[k:k + 8] for k in range(end, len(lines), 8)]
+
+
+def test_gps_from_its_table_or_almanac_source_and_stale_satellites_left_out(tmp_path):
+    """[gnss.gps] orbit_source and [gnss] almanac_source read a file alike; a satellite whose only record is 5 h
+    from the start is not tracked (the others are), and a file with no record within 2 h of the time is refused."""
+    gps = nominal_constellations(["gps"], DFMC_START)
+    head, now = _records(write_nav(gps, (DFMC_START, DFMC_START), tmp_path / "now.nav"))
+    _, old = _records(write_nav(gps.take([0]), (DFMC_START - 5 * 3600.0,) * 2, tmp_path / "old.nav"))
+    mixed = tmp_path / "mixed.nav"
+    mixed.write_text("".join(head + [ln for r in now if not r[0].startswith("G01") for ln in r] + old[0]))
+    a = tracked_constellations(GnssSettings(gps={"orbit_source": "rinex_nav", "orbit_path": mixed}), DFMC_START)
+    b = tracked_constellations(GnssSettings(almanac_source="rinex_nav", almanac_path=mixed), DFMC_START)
+    assert a.sat_id.tolist() == b.sat_id.tolist() == [f"G{p:02d}" for p in range(2, 25)]
+    np.testing.assert_array_equal(a.m0, b.m0)
+    with pytest.raises(StaleOrbits, match="nearest GPS broadcast record is 2.5 h from"):
+        constellation_orbits("gps", "rinex_nav", tmp_path / "now.nav", DFMC_START + 2.5 * 3600.0)
