@@ -629,7 +629,7 @@ def _broadcast_sortie_problems(cfg: ApproachConfig, spec: CampaignSpec) -> list[
     length = so.sortie_s if so.sortie_s is not None else spec.duration_s
     if so.start == "fixed" or length is None:
         return []
-    last_end = (spec.trials - 1) * length + length if so.start == "consecutive" else float(so.span_s)
+    last_end = spec.trials * length if so.start == "consecutive" else float(so.span_s)
     t0 = utc_to_gps_seconds(cfg.start_time_utc)
     out = []
     for name in cfg.gnss.constellations:

@@ -61,7 +61,8 @@ from numpy.typing import ArrayLike, NDArray
 from testbed.frames import OMEGA_EARTH
 from testbed.sensors.gnss.almanac import OrbitFileProblem, load_constellation, load_do229, load_rinex_nav
 from testbed.sensors.gnss.navfile import MAX_AGE_S
-from testbed.sensors.gnss.orbits import MU_GPS, SYSTEM_NAMES, Ephemeris, concat_ephemerides, from_keplerian, sat_states
+from testbed.sensors.gnss.orbits import (MU_GPS, SYSTEM_NAMES, Ephemeris, concat_ephemerides, from_keplerian,
+                                        sat_states)
 from testbed.sensors.gnss.settings import CONSTELLATION_SYSTEMS, GnssSettings
 from testbed.sensors.gnss.timebase import _as_utc, gps_seconds_to_utc, gps_seconds_to_week_sow, utc_to_gps_seconds
 
@@ -257,10 +258,11 @@ class StaleOrbits(OrbitFileProblem):
 
 def constellation_orbits(name: str, source: str, path, t_ref_gps: float, week_mode: str = "auto") -> Ephemeris:
     """Constellation ``name``'s satellites near ``t_ref_gps`` from ``source``: ``"nominal"`` (GPS: the DO-229
-    almanac), ``"yuma"`` (GPS), ``"rinex_nav"`` (the file's records of this system: per satellite the one whose
-    toe is nearest ``t_ref_gps``; a satellite whose nearest record is more than
+    almanac), ``"yuma"`` / ``"sem"`` (GPS almanac files), ``"rinex_nav"`` (the file's records of this system:
+    per satellite the one whose toe is nearest ``t_ref_gps``; a satellite whose nearest record is more than
     :data:`~testbed.sensors.gnss.navfile.MAX_AGE_S` away has no orbit a receiver would use and is left out).
-    Raises ValueError naming the file when it has no record of the system, or none current."""
+    Raises :class:`~testbed.sensors.gnss.almanac.OrbitFileProblem` when the file has no record of the system,
+    :class:`StaleOrbits` when none is current, ValueError when it cannot be read."""
     letter = CONSTELLATION_SYSTEMS[name]
     if source == "nominal":
         return load_do229(t_ref_gps, week_mode) if name == "gps" else nominal_constellation(name, t_ref_gps)
@@ -325,6 +327,7 @@ def _wrap(angle_rad: NDArray) -> NDArray:
     return np.mod(np.asarray(angle_rad) + np.pi, 2 * np.pi) - np.pi
 
 
-__all__ = ["GALILEO_WALKER", "NOMINAL_NAMES", "Walker", "beidou3_nominal", "circular_orbits", "galileo_nominal",
-           "geosynchronous_radius", "greenwich_mean_sidereal_angle", "nominal_constellation",
-           "nominal_constellations", "constellation_orbits", "repeat_period", "StaleOrbits", "tracked_constellations", "walker_orbits", "with_excluded"]
+__all__ = ["GALILEO_WALKER", "NOMINAL_NAMES", "StaleOrbits", "Walker", "beidou3_nominal", "circular_orbits",
+           "constellation_orbits", "galileo_nominal", "geosynchronous_radius", "greenwich_mean_sidereal_angle",
+           "nominal_constellation", "nominal_constellations", "repeat_period", "tracked_constellations",
+           "walker_orbits", "with_excluded"]

@@ -184,11 +184,11 @@ class GnssSettings(StrictModel):
     almanac_source: Literal["do229", "yuma", "sem", "rinex_nav"] = Field(
         "do229", description="GPS's orbits: shipped DO-229 24-sat almanac, a YUMA or SEM file or a RINEX 3 nav file "
                              "(or [gnss.gps] orbit_source, not both)")
-    almanac_path: Path | None = Field(None, description="file for almanac_source 'yuma' / 'sem' / 'rinex_nav', relative to "
-                                                        "the approach file")
+    almanac_path: Path | None = Field(None, description="file for almanac_source 'yuma' / 'sem' / 'rinex_nav', "
+                                                        "relative to the approach file")
     almanac_week: Literal["auto", "periodic", "nearest_rollover"] = Field(
         "auto", description="placing a 10-bit almanac week in time: 'periodic' (toa moved to the week "
-                            "nearest the flight; default for DO-229) or 'nearest_rollover' (default for YUMA)")
+                            "nearest the flight; default for DO-229) or 'nearest_rollover' (default for YUMA, SEM)")
     elevation_mask_deg: float = Field(5.0, ge=0.0, lt=90.0, description="elevation mask (deg above local horizon)")
     terrain_masking: bool = Field(True, description="mask satellites whose line of sight hits the terrain")
     airframe_masking: bool = Field(True, description="mask satellites below the antenna plane (body x-y plane)")
