@@ -32,7 +32,7 @@ from testbed.sensors.imu.settings import ImuSettings
 from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir, shipped_or_path
 from testbed.schema import ConfigError, FileName, StrictModel, format_validation_error
 from testbed.sensors.faults import Fault
-from testbed.sensors.gnss.settings import GnssSettings
+from testbed.sensors.gnss.settings import CONSTELLATION_SYSTEMS, GnssSettings
 from testbed.sensors.vision.settings import LandmarkSettings, VisionSettings
 from testbed.world.settings import TerrainSettings
 
@@ -193,8 +193,15 @@ def _relative_to(cfg: ApproachConfig, base: Path) -> ApproachConfig:
     base = base.resolve()
     g, t = cfg.gnss, cfg.terrain
     update = {}
+    gnss = {}
     if g.almanac_path is not None and not g.almanac_path.is_absolute():
-        update["gnss"] = g.model_copy(update={"almanac_path": base / g.almanac_path})
+        gnss["almanac_path"] = base / g.almanac_path
+    for name in CONSTELLATION_SYSTEMS:
+        cs = getattr(g, name)
+        if cs.orbit_path is not None and not cs.orbit_path.is_absolute():
+            gnss[name] = cs.model_copy(update={"orbit_path": base / cs.orbit_path})
+    if gnss:
+        update["gnss"] = g.model_copy(update=gnss)
     if any(not p.is_absolute() for p in t.dem_paths):
         update["terrain"] = t.model_copy(update={"dem_paths": [p if p.is_absolute() else base / p
                                                               for p in t.dem_paths]})

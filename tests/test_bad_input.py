@@ -96,6 +96,8 @@ FILE_CASES = [
      "gnss.almanac_path", "missing.alm"),
     ("empty-yuma", lambda d: ((d / "empty.alm").write_text(""), approach(d, tail='[gnss]\nalmanac_source = "yuma"\nalmanac_path = "empty.alm"'))[1],
      "gnss.almanac_path", "empty.alm"),
+    ("truncated-sem", lambda d: ((d / "a.al3").write_text("31 CURRENT.ALM\n 703 344064\n1\n"), approach(d, tail='[gnss]\nalmanac_source = "sem"\nalmanac_path = "a.al3"'))[1],
+     "gnss.almanac_path", "announces 31 record(s)"),
     ("binary-yuma", lambda d: ((d / "bin.alm").write_bytes(bytes(range(256)) * 8), approach(d, tail='[gnss]\nalmanac_source = "yuma"\nalmanac_path = "bin.alm"'))[1],
      "gnss.almanac_path", "bin.alm"),
     ("truncated-rinex-nav", lambda d: ((d / "nav.rnx").write_text("     3.04           N: GNSS NAV DATA    G: GPS              RINEX VERSION / TYPE\n"),

@@ -9,8 +9,8 @@ selected rows, and χ² distributions by Kolmogorov-Smirnov.
 from __future__ import annotations
 
 import json
-
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +19,7 @@ from scipy import stats
 
 from testbed.api import run_approach
 from testbed.campaign.sorties import sky_repeat_s
+from testbed.campaign.spec import expand_cells, load_spec
 from testbed.cli import main
 from testbed.flight.kinematic import straight_truth
 from testbed.integrity import multi_clock
@@ -29,9 +30,13 @@ from testbed.integrity.settings import IntegritySettings
 from testbed.records import Mount, NotVisible
 from testbed.resources import approaches_dir
 from testbed.sensors.faults import ConstellationBias, GpsStep, gnss_fault_bias
+from testbed.sensors.gnss.constellations import (StaleOrbits, constellation_orbits, nominal_constellations,
+                                                 tracked_constellations)
 from testbed.sensors.gnss.errors import IONO_FREE_CARRIERS, iono_free_variance_factor, range_sigmas
 from testbed.sensors.gnss.settings import GnssSettings
+from testbed.sensors.gnss.rinex import write_nav
 from testbed.sensors.gnss.synth import apply_gnss_errors, draw_gnss_errors, gnss_geometry
+from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.viz import readback
 from testbed.viz.rerun_sink import COLOURS
 from testbed.world.airport import runway_frame
@@ -39,6 +44,7 @@ from testbed.world.airport import runway_frame
 START = "2024-03-15T06:00:00Z"
 ALL = ["gps", "galileo", "beidou"]
 F1, F5 = 1575.42e6, 1176.45e6
+REFS = Path(__file__).parent / "references" / "rinex"
 
 
 @pytest.fixture(scope="module")
@@ -554,3 +560,147 @@ def test_the_campaign_sweeps_constellations_and_terrain_masking(tmp_path):
     plain = tmp_path / "p.toml"
     plain.write_text('name = "s"\napproaches = ["zunz-rwy05-dfmc"]\nmonitors = ["gps_raim"]\ntrials = 10\n')
     assert load_spec(spec).hash == load_spec(plain).hash
+
+
+# ---------------------------------------------------------------------------------------------- orbits from a file
+
+DFMC_START = utc_to_gps_seconds("2026-03-01T04:00:00Z")  # zunz-rwy05-dfmc's and va-raim-2015's start
+FROM_FILE = ('\n[gnss.galileo]\norbit_source = "rinex_nav"\norbit_path = "{nav}"\n'
+             '\n[gnss.beidou]\norbit_source = "rinex_nav"\norbit_path = "{nav}"\n')
+
+
+def exported_nav(path, t0=DFMC_START):
+    """The nominal Galileo + BeiDou slots written by the exporter's navigation writer (records every 2 h over the
+    hour after ``t0``; the BeiDou GEOs as GEO-form records)."""
+    return write_nav(nominal_constellations(["galileo", "beidou"], t0), (t0, t0 + 3600.0), path)
+
+
+def test_galileo_and_beidou_fly_from_the_exporters_nav_file(tmp_path):
+    """zunz-rwy05-dfmc with Galileo and BeiDou read from a RINEX 3.05 navigation file our exporter wrote (path
+    relative to the approach file): every satellite where the nominal slots put it (the exporter's round trip,
+    < 1 mm; 20 µm measured), the same satellites in view (22 median), and GPS RAIM and ARAIM run on it with the
+    nominal run's protection levels (without an exclusion they depend on the geometry and the σ only)."""
+    exported_nav(tmp_path / "gec.nav")
+    final = (approaches_dir() / "zunz-rwy05-dfmc.toml").read_text() + "\n[flight]\nstart_distance_m = 6000.0\n"
+    ap, nominal = tmp_path / "from-file.toml", tmp_path / "nominal.toml"
+    ap.write_text(final + FROM_FILE.format(nav="gec.nav"))
+    nominal.write_text(final)
+    kw = dict(seed=0, rrd_path=None, monitors=["gps_raim", "araim"])
+    run, ref = run_approach(ap, **kw), run_approach(nominal, **kw)
+    g, r = run.loop.gnss, ref.loop.gnss
+    ids, ref_ids = [np.char.add(x.system, np.char.zfill(x.prn.astype(str), 2)) for x in (g, r)]
+    assert sorted(ids.tolist()) == sorted(ref_ids.tolist()) and len(ids) == 24 + 24 + 30
+    at = np.array([np.flatnonzero(ids == i)[0] for i in ref_ids])  # the file's slot of each nominal satellite
+    assert np.abs(g.sat_pos_ecef[:, at] - r.sat_pos_ecef).max() < 1e-3
+    np.testing.assert_array_equal(g.visible[:, at], r.visible)
+    assert (g.visible & (g.system == "C")).sum(-1).min() >= 6  # BeiDou in view, GEOs from GEO-form records
+    for name in ("gps_raim", "araim"):
+        out, want = run.outputs[name], ref.outputs[name]
+        ok = (out.reason == 0) & (want.reason == 0)
+        assert ok.mean() > 0.9, name
+        same = ok & (out.n_used == want.n_used)
+        assert same.mean() > 0.9, name
+        np.testing.assert_allclose(out.vpl[same], want.vpl[same], rtol=0, atol=1e-4)  # 1 µm measured
+
+
+def test_orbit_files_key_the_cached_sky_by_content(tmp_path):
+    """The campaign's sky cache keys on the orbit file's content: an edited file is another sky, the same bytes
+    under another path the same one; the campaign's input fingerprint lists the file."""
+    a, b = exported_nav(tmp_path / "a.nav"), tmp_path / "b.nav"
+    b.write_bytes(a.read_bytes())
+
+    def key(p):
+        return GnssSettings(constellations=ALL, galileo={"orbit_source": "rinex_nav", "orbit_path": p}).geometry_key()
+
+    assert key(a) == key(b) != GnssSettings(constellations=ALL).geometry_key()
+    b.write_text(b.read_text().replace("E01 2026", "E02 2026", 1))
+    assert key(a) != key(b)
+    s = GnssSettings(constellations=ALL, galileo={"orbit_source": "rinex_nav", "orbit_path": a},
+                     beidou={"orbit_source": "rinex_nav", "orbit_path": a})
+    assert s.orbit_files == [a] and GnssSettings().orbit_files == []
+
+
+@pytest.mark.parametrize("kw, what", [
+    ({"galileo": {"orbit_source": "rinex_nav"}}, "galileo.orbit_path: required"),
+    ({"galileo": {"orbit_path": "x.nav"}}, "galileo.orbit_path: read only with orbit_source"),
+    ({"beidou": {"orbit_source": "yuma", "orbit_path": "x.alm"}}, "'yuma' is a GPS almanac format"),
+    ({"almanac_source": "yuma", "almanac_path": "a.alm", "gps": {"orbit_source": "rinex_nav", "orbit_path": "n"}},
+     "both name GPS's orbits"),
+])
+def test_bad_orbit_source_settings_are_refused(kw, what):
+    with pytest.raises(ValidationError, match=what):
+        GnssSettings(constellations=ALL, **kw)
+
+
+def _gps_only_nav(d):
+    return (d / "gps.nav").write_text((REFS / "do229_gps_3.04.nav").read_text())
+
+
+@pytest.mark.parametrize("make, value, what", [
+    (_gps_only_nav, "gps.nav", "no Galileo records (it has GPS ones): expected a navigation file with Galileo"),
+    (lambda d: exported_nav(d / "old.nav", DFMC_START - 3 * 86400.0), "old.nav",
+     "nearest Galileo broadcast record is 70.0 h from 2026-03-01T04:00:00Z"),
+    (lambda d: (d / "bin.nav").write_bytes(bytes(range(256)) * 8), "bin.nav", "could not be read"),
+    (lambda d: None, "missing.nav", "could not be read"),
+    (lambda d: (d / "a.al3").write_text("31 CURRENT.ALM\n 703 344064\n"), "a.al3", "announces 31 record(s)"),
+])
+def test_bad_orbit_file_exits_2_naming_file_key_and_value(tmp_path, monkeypatch, capsys, make, value, what):
+    """A navigation file without the system's records, with records of another day, unreadable or missing, a
+    truncated SEM almanac: one line naming the key, the file and what was expected, exit 2, nothing written."""
+    inputs, work = tmp_path / "in", tmp_path / "work"
+    inputs.mkdir()
+    work.mkdir()
+    make(inputs)
+    p = inputs / "bad.toml"
+    name, source = ("gps", "sem") if value.endswith(".al3") else ("galileo", "rinex_nav")
+    p.write_text(SEED_APPROACH + '\n[gnss]\nconstellations = ["gps", "galileo"]\n'
+                 + f'\n[gnss.{name}]\norbit_source = "{source}"\norbit_path = "{value}"\n')
+    monkeypatch.chdir(work)
+    code = main(["fly", str(p), "--no-record"])
+    out = capsys.readouterr()
+    text = out.err + out.out
+    assert code == 2 and f"gnss.{name}.orbit_path" in text and value in text and what in text, text
+    assert "Traceback" not in text
+    assert list(work.iterdir()) == []
+
+
+def test_campaign_sorties_beyond_the_broadcast_records_are_refused(tmp_path, monkeypatch, capsys):
+    """Every sky window flies the records nearest the approach's start: sorties spread over a day on Galileo from a
+    navigation file are refused before any work (exit 2, naming the key and the file); within the hour they pass."""
+    exported_nav(tmp_path / "gec.nav")
+    ap = tmp_path / "from-file.toml"
+    ap.write_text(SEED_APPROACH + '\n[gnss]\nconstellations = ["gps", "galileo"]\n'
+                  + '\n[gnss.galileo]\norbit_source = "rinex_nav"\norbit_path = "gec.nav"\n')
+    spec = ('name = "s"\napproaches = ["from-file.toml"]\nmonitors = ["gps_raim"]\ntrials = 10\nblock_trials = 10\n'
+            'chunk_trials = 10\nduration_s = 10.0\n[sorties]\nstart = "uniform"\nspan_s = {span}\n')
+    (tmp_path / "day.toml").write_text(spec.format(span=86400.0))
+    (tmp_path / "hour.toml").write_text(spec.format(span=3600.0))
+    monkeypatch.chdir(tmp_path)
+    assert len(expand_cells(load_spec(tmp_path / "hour.toml"))) == 1
+    code = main(["campaign", str(tmp_path / "day.toml"), "--out", str(tmp_path / "out"), "--quiet"])
+    text = "".join(capsys.readouterr())
+    assert code == 2 and "gnss.galileo.orbit_path" in text and "gec.nav" in text and "24.0 h after the start" in text
+    assert not (tmp_path / "out").exists()
+
+
+def _records(path):
+    """The header and the 8-line records of a RINEX 3 navigation file."""
+    lines = path.read_text().splitlines(keepends=True)
+    end = next(k for k, ln in enumerate(lines) if "END OF HEADER" in ln) + 1
+    return lines[:end], [lines[k:k + 8] for k in range(end, len(lines), 8)]
+
+
+def test_gps_from_its_table_or_almanac_source_and_stale_satellites_left_out(tmp_path):
+    """[gnss.gps] orbit_source and [gnss] almanac_source read a file alike; a satellite whose only record is 5 h
+    from the start is not tracked (the others are), and a file with no record within 2 h of the time is refused."""
+    gps = nominal_constellations(["gps"], DFMC_START)
+    head, now = _records(write_nav(gps, (DFMC_START, DFMC_START), tmp_path / "now.nav"))
+    _, old = _records(write_nav(gps.take([0]), (DFMC_START - 5 * 3600.0,) * 2, tmp_path / "old.nav"))
+    mixed = tmp_path / "mixed.nav"
+    mixed.write_text("".join(head + [ln for r in now if not r[0].startswith("G01") for ln in r] + old[0]))
+    a = tracked_constellations(GnssSettings(gps={"orbit_source": "rinex_nav", "orbit_path": mixed}), DFMC_START)
+    b = tracked_constellations(GnssSettings(almanac_source="rinex_nav", almanac_path=mixed), DFMC_START)
+    assert a.sat_id.tolist() == b.sat_id.tolist() == [f"G{p:02d}" for p in range(2, 25)]
+    np.testing.assert_array_equal(a.m0, b.m0)
+    with pytest.raises(StaleOrbits, match="nearest GPS broadcast record is 2.5 h from"):
+        constellation_orbits("gps", "rinex_nav", tmp_path / "now.nav", DFMC_START + 2.5 * 3600.0)

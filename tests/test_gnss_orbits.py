@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from testbed.frames import OMEGA_EARTH
-from testbed.sensors.gnss.almanac import load_do229, load_rinex_nav, load_yuma, resolve_week
+from testbed.sensors.gnss.almanac import load_do229, load_rinex_nav, load_sem, load_yuma, resolve_week
 from testbed.sensors.gnss.orbits import MU_GPS, sat_states
 from testbed.sensors.gnss.rinex import write_nav
 from testbed.sensors.gnss.timebase import (gps_seconds_to_calendar, gps_seconds_to_week_sow,
@@ -153,3 +153,30 @@ def test_yuma_loader_matches_do229(tmp_path):
     bad.write_text("******** Week 703 almanac for PRN-01 ********\nID: 01\nHealth: abc\n")
     with pytest.raises(ValueError, match="line 3"):
         load_yuma(bad, T_REF)
+
+
+def test_sem_loader_matches_do229(tmp_path):
+    """A SEM almanac (NAVCEN .al3 layout: angles in semicircles, the inclination as an offset from 0.30
+    semicircles, the node in [-1, 1) semicircles) of the DO-229 almanac flies its satellites to < 1 cm."""
+    eph = load_do229(T_REF)
+    semi = lambda x: (np.asarray(x) / math.pi + 1.0) % 2.0 - 1.0  # noqa: E731  rad -> semicircles in [-1, 1)
+    records = []
+    for s in range(len(eph))[::-1]:  # reversed order: the loader sorts by PRN
+        records.append(f"{eph.prn[s]}\n{eph.prn[s] + 30}\n0\n"
+                       f"{eph.e[s]: .14E} {eph.i0[s] / math.pi - 0.30: .14E} {eph.omega_dot[s] / math.pi: .14E}\n"
+                       f"{eph.sqrt_a[s]: .14E} {semi(eph.omega0[s]): .14E} {semi(eph.w[s]): .14E}\n"
+                       f"{semi(eph.m0[s]): .14E} {eph.af0[s]: .14E} {eph.af1[s]: .14E}\n0\n11\n")
+    path = tmp_path / "almanac.al3"
+    path.write_text(f"{len(eph)} CURRENT.ALM\n 703 {eph.toe_sow[0]:.0f}\n" + "\n".join(records))
+    sem = load_sem(path, T_REF, week_mode="periodic")
+    np.testing.assert_array_equal(sem.prn, eph.prn)
+    t = T_REF + np.array([0.0, 4000.0])
+    np.testing.assert_allclose(sat_states(sem, t)[0], sat_states(eph, t)[0], atol=ONE_CM)
+    bad = tmp_path / "bad.al3"
+    bad.write_text("1 BAD.ALM\n 703 344064\n1\n31\n0\n 1.0E-02 abc 0.0\n5153.6 0.1 0.0\n0.2 0.0 0.0\n0\n11\n")
+    with pytest.raises(ValueError, match="line 6"):
+        load_sem(bad, T_REF)
+    short = tmp_path / "short.al3"
+    short.write_text("2 SHORT.ALM\n 703 344064\n1\n")
+    with pytest.raises(ValueError, match="announces 2 record"):
+        load_sem(short, T_REF)

@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from testbed.config import Approach, ApproachConfig, load_approach, read_toml, validate
@@ -41,6 +42,9 @@ from testbed.integrity.levels import strictest_limits
 from testbed.monitors import MonitorName, monitor_options, reads
 from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, FileName, StrictModel
+from testbed.sensors.gnss.constellations import constellation_orbits
+from testbed.sensors.gnss.navfile import MAX_AGE_S
+from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.vision.settings import LandmarkSet
 
 FaultKindName = Literal["none", "gps_step", "gps_ramp", "constellation_bias", "pixel_bias", "landmark_moved"]
@@ -428,7 +432,7 @@ def input_fingerprint(cells: list[Cell]) -> dict:
     files: dict[str, str] = {}
     for c in cells:
         cfg = c.config
-        for p in (c.approach.source, c.approach.aircraft_source, cfg.gnss.almanac_path, *cfg.terrain.dem_paths):
+        for p in (c.approach.source, c.approach.aircraft_source, *cfg.gnss.orbit_files, *cfg.terrain.dem_paths):
             if p is not None and str(p) not in files and Path(p).is_file():
                 files[str(p)] = hashlib.sha256(Path(p).read_bytes()).hexdigest()[:16]
     resolved = [[c.config.model_dump(mode="json"), c.approach.aircraft.model_dump(mode="json")] for c in cells]
@@ -607,6 +611,9 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
             try:
                 cfg = validate(ApproachConfig, d, ap.source)
                 preflight(replace(ap, config=cfg), trim=False)  # what the run loads (the trim: once, when flying)
+                file_problems = _broadcast_sortie_problems(cfg, spec)
+                if file_problems:
+                    raise ConfigError(ap.source, file_problems)
             except ConfigError as exc:
                 problems.append(f"cell {idx} ({_describe(ap.name, c)}): " + "; ".join(exc.problems))
                 continue
@@ -635,6 +642,31 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
     if problems:
         raise ConfigError(loaded.source, problems)
     return cells
+
+
+def _broadcast_sortie_problems(cfg: ApproachConfig, spec: CampaignSpec) -> list[str]:
+    """Every sky window is computed from one broadcast record per satellite, the one nearest the approach's start:
+    a constellation flown from a navigation file needs every sortie within that record's validity (2 h)."""
+    so = spec.sorties
+    length = so.sortie_s if so.sortie_s is not None else spec.duration_s
+    if so.start == "fixed" or length is None:
+        return []
+    last_end = spec.trials * length if so.start == "consecutive" else float(so.span_s)
+    t0 = utc_to_gps_seconds(cfg.start_time_utc)
+    out = []
+    for name in cfg.gnss.constellations:
+        source, path, key = cfg.gnss.orbit_source_of(name)
+        if source != "rinex_nav":
+            continue
+        toe = constellation_orbits(name, source, path, t0).toe_gps
+        worst = float(np.max(np.maximum(np.abs(toe - t0), np.abs(toe - t0 - last_end))))
+        if worst > MAX_AGE_S:
+            out.append(f"{key} = {str(path)!r}: the sorties ([sorties] start = {so.start!r}) end "
+                       f"{last_end / 3600:.1f} h after the start and every one flies the broadcast records nearest "
+                       f"the start (up to {worst / 3600:.1f} h from their time of ephemeris): expected sorties "
+                       f"within {MAX_AGE_S / 3600:.0f} h of them (a shorter span or fewer trials), or "
+                       f"orbit_source = 'nominal'")
+    return out
 
 
 def _monitor_table(d: dict, name: str) -> dict:

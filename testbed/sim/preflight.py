@@ -50,37 +50,42 @@ def preflight(approach: Approach, *, trim: bool = True):
 
 
 def _constellation(approach: Approach, problems: list[str]):
-    from testbed.sensors.gnss.almanac import load_constellation
-    from testbed.sensors.gnss.constellations import tracked_constellations
+    """Every tracked constellation loaded from its orbit source, each file's records of that system present and
+    current at the start and at the latest end of the flight; the tracked set (None after a problem)."""
+    from testbed.sensors.gnss.almanac import OrbitFileProblem
+    from testbed.sensors.gnss.constellations import constellation_orbits, tracked_constellations
     from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 
     g = approach.config.gnss
     t0 = utc_to_gps_seconds(approach.config.start_time_utc)
-    if "gps" in g.constellations:
-        try:
-            gps = load_constellation(g.almanac_source, g.almanac_path, t0, g.almanac_week)
-        except Exception as exc:  # any reader failure on a user's file is a message, not a traceback
-            where = f"gnss.almanac_path = {str(g.almanac_path)!r}" if g.almanac_path else "gnss.almanac_source"
-            problems.append(f"{where}: could not be read as a {g.almanac_source} file ({type(exc).__name__}: {exc})")
-            return None
-        n_gps = len(np.unique(gps.prn[gps.system == "G"]))
-        if n_gps < 4 and g.constellations == ["gps"]:
-            problems.append(f"gnss.almanac_path: {n_gps} GPS satellite(s) in the file: expected at least 4")
+    t_end = t0 + flight_duration_bound(approach)
+    ok = True
+    for name in g.constellations:
+        source, path, key = g.orbit_source_of(name)
+        where = f"{key} = {str(path)!r}" if path is not None else f"gnss.{name}.orbit_source"
+        for t in (t0, t_end) if source == "rinex_nav" else (t0,):
+            try:
+                eph = constellation_orbits(name, source, path, t, g.almanac_week)
+            except OrbitFileProblem as exc:  # it reads, but holds no current record of the system
+                problems.append(f"{where}: {exc}")
+                ok = False
+                break
+            except Exception as exc:  # any reader failure on a user's file is a message, not a traceback
+                problems.append(f"{where}: could not be read as a {source} file ({type(exc).__name__}: {exc})")
+                ok = False
+                break
+            n = len(np.unique(eph.prn))
+            if n < 4 and len(g.constellations) == 1:
+                problems.append(f"{where}: {n} {name} satellite(s) in the file: expected at least 4")
+                ok = False
+                break
+    if not ok:
+        return None
     try:
-        eph = tracked_constellations(g, t0)
+        return tracked_constellations(g, t0)
     except ValueError as exc:  # an excluded PRN the constellation does not have
         problems.append(str(exc))
         return None
-    if g.almanac_source == "rinex_nav":  # broadcast records hold about their toe only (an almanac for weeks)
-        from testbed.sensors.gnss.navfile import MAX_AGE_S
-
-        gps_slots = eph.system == "G"
-        age = float(np.min(np.abs(eph.toe_gps[gps_slots] - t0))) if gps_slots.any() else np.inf
-        if age > MAX_AGE_S:
-            problems.append(f"gnss.almanac_path = {str(g.almanac_path)!r}: its nearest broadcast record is "
-                            f"{age / 3600:.0f} h from start_time_utc = {approach.config.start_time_utc:%Y-%m-%dT%H:%M:%SZ}: "
-                            f"expected a navigation file with records within {MAX_AGE_S / 3600:.0f} h of the flight")
-    return eph
 
 
 def _gnss_fault_problems(approach: Approach, eph) -> list[str]:

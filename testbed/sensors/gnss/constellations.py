@@ -59,10 +59,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import OMEGA_EARTH
-from testbed.sensors.gnss.almanac import load_constellation, load_do229
-from testbed.sensors.gnss.orbits import MU_GPS, Ephemeris, concat_ephemerides, from_keplerian, sat_states
+from testbed.sensors.gnss.almanac import OrbitFileProblem, load_constellation, load_do229, load_rinex_nav
+from testbed.sensors.gnss.navfile import MAX_AGE_S
+from testbed.sensors.gnss.orbits import (MU_GPS, SYSTEM_NAMES, Ephemeris, concat_ephemerides, from_keplerian,
+                                        sat_states)
 from testbed.sensors.gnss.settings import CONSTELLATION_SYSTEMS, GnssSettings
-from testbed.sensors.gnss.timebase import _as_utc, gps_seconds_to_week_sow, utc_to_gps_seconds
+from testbed.sensors.gnss.timebase import _as_utc, gps_seconds_to_utc, gps_seconds_to_week_sow, utc_to_gps_seconds
 
 #: Gravitational parameter of the Galileo (GTRF) and BeiDou (CGCS2000) ICDs, m³/s².
 MU_GALILEO_BEIDOU = 3.986004418e14
@@ -238,19 +240,43 @@ def nominal_constellations(names: Sequence[str], t_ref_gps: float) -> Ephemeris:
 
 
 def tracked_constellations(settings: GnssSettings, t_ref_gps: float) -> Ephemeris:
-    """The satellites ``settings`` track near ``t_ref_gps``: its ``constellations`` in order, GPS from the
-    almanac settings (its GPS records only), Galileo and BeiDou from their nominal orbits, each
-    constellation's ``excluded_prns`` marked unhealthy. GPS alone is the almanac loader's record itself."""
+    """The satellites ``settings`` track near ``t_ref_gps``: its ``constellations`` in order, each from its orbit
+    source (:meth:`GnssSettings.orbit_source_of`: nominal slots, the GPS almanac, or a file's records of that
+    system alone), each constellation's ``excluded_prns`` marked unhealthy. GPS alone is the almanac loader's
+    record itself."""
     parts = []
     for name in settings.constellations:
-        if name == "gps":
-            eph = load_constellation(settings.almanac_source, settings.almanac_path, t_ref_gps, settings.almanac_week)
-            if np.any(eph.system != "G"):
-                eph = eph.take(np.flatnonzero(eph.system == "G"))
-        else:
-            eph = nominal_constellation(name, t_ref_gps)
+        source, path, _ = settings.orbit_source_of(name)
+        eph = constellation_orbits(name, source, path, t_ref_gps, settings.almanac_week)
         parts.append(with_excluded(eph, getattr(settings, name).excluded_prns, name))
     return parts[0] if len(parts) == 1 else concat_ephemerides(parts)
+
+
+class StaleOrbits(OrbitFileProblem):
+    """A navigation file whose records of a system are all too far from the flight to be used."""
+
+
+def constellation_orbits(name: str, source: str, path, t_ref_gps: float, week_mode: str = "auto") -> Ephemeris:
+    """Constellation ``name``'s satellites near ``t_ref_gps`` from ``source``: ``"nominal"`` (GPS: the DO-229
+    almanac), ``"yuma"`` / ``"sem"`` (GPS almanac files), ``"rinex_nav"`` (the file's records of this system:
+    per satellite the one whose toe is nearest ``t_ref_gps``; a satellite whose nearest record is more than
+    :data:`~testbed.sensors.gnss.navfile.MAX_AGE_S` away has no orbit a receiver would use and is left out).
+    Raises :class:`~testbed.sensors.gnss.almanac.OrbitFileProblem` when the file has no record of the system,
+    :class:`StaleOrbits` when none is current, ValueError when it cannot be read."""
+    letter = CONSTELLATION_SYSTEMS[name]
+    if source == "nominal":
+        return load_do229(t_ref_gps, week_mode) if name == "gps" else nominal_constellation(name, t_ref_gps)
+    if source == "rinex_nav":
+        eph = load_rinex_nav(path, systems=letter).select(t_ref_gps)
+        current = np.abs(eph.toe_gps - t_ref_gps) <= MAX_AGE_S
+        if not current.any():
+            age = float(np.min(np.abs(eph.toe_gps - t_ref_gps)))
+            raise StaleOrbits(f"its nearest {SYSTEM_NAMES[letter]} broadcast record is {age / 3600:.1f} h from "
+                              f"{gps_seconds_to_utc(t_ref_gps):%Y-%m-%dT%H:%M:%SZ}: expected a "
+                              f"navigation file with records within {MAX_AGE_S / 3600:.0f} h of the flight")
+        return eph if current.all() else eph.take(np.flatnonzero(current))
+    eph = load_constellation(source, path, t_ref_gps, week_mode)  # a GPS almanac file
+    return eph if np.all(eph.system == letter) else eph.take(np.flatnonzero(eph.system == letter))
 
 
 def with_excluded(eph: Ephemeris, excluded_prns: Sequence[int], name: str) -> Ephemeris:
@@ -301,6 +327,7 @@ def _wrap(angle_rad: NDArray) -> NDArray:
     return np.mod(np.asarray(angle_rad) + np.pi, 2 * np.pi) - np.pi
 
 
-__all__ = ["GALILEO_WALKER", "NOMINAL_NAMES", "Walker", "beidou3_nominal", "circular_orbits", "galileo_nominal",
-           "geosynchronous_radius", "greenwich_mean_sidereal_angle", "nominal_constellation",
-           "nominal_constellations", "repeat_period", "tracked_constellations", "walker_orbits", "with_excluded"]
+__all__ = ["GALILEO_WALKER", "NOMINAL_NAMES", "StaleOrbits", "Walker", "beidou3_nominal", "circular_orbits",
+           "constellation_orbits", "galileo_nominal", "geosynchronous_radius", "greenwich_mean_sidereal_angle",
+           "nominal_constellation", "nominal_constellations", "repeat_period", "tracked_constellations",
+           "walker_orbits", "with_excluded"]

@@ -10,6 +10,7 @@ dual-frequency iono-free model with per-constellation σ_URA / σ_URE / b_nom
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 from typing import Literal
@@ -18,6 +19,17 @@ from pydantic import Field, field_validator, model_validator
 
 from testbed.schema import StrictModel
 from testbed.sensors.gnss.errors import UserErrorModel
+
+
+def file_digest(path: Path | None) -> str:
+    """SHA-256 of a file's content (hex), or a note saying why there is none (a missing file is refused by the
+    preflight before any geometry is computed)."""
+    if path is None:
+        return "no file"
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError as exc:
+        return f"unreadable {path}: {exc.strerror or exc}"
 
 
 class SatelliteCap(StrictModel):
@@ -116,6 +128,15 @@ class ConstellationSettings(StrictModel):
     b_nom_m: float = Field(
         0.50, ge=0.0, le=100.0, description="'dfmc' error model: b_nom, the nominal bias bound carried for integrity "
                                             "(m); a bound, not drawn (docs/design/gnss.md §3)")
+    orbit_source: Literal["nominal", "rinex_nav", "yuma", "sem"] = Field(
+        "nominal", description="where this constellation's orbits come from: 'nominal' (GPS: the [gnss] "
+                               "almanac_source, the DO-229 almanac by default; Galileo, BeiDou: their nominal "
+                               "slots), 'rinex_nav' (this system's broadcast records in the RINEX 2/3 navigation "
+                               "file orbit_path, per satellite the one nearest the start; satellites without a "
+                               "record within 2 h of it are not tracked), 'yuma' or 'sem' (GPS only: a YUMA or SEM "
+                               "almanac, its week placed by [gnss] almanac_week)")
+    orbit_path: Path | None = Field(
+        None, description="the file of orbit_source 'rinex_nav' / 'yuma' / 'sem', relative to the approach file")
 
     @field_validator("excluded_prns")
     @classmethod
@@ -139,13 +160,13 @@ class GnssSettings(StrictModel):
         default_factory=lambda: ["gps"],
         description="constellations tracked, some of 'gps' (the almanac below), 'galileo' (the nominal 24/3/1 "
                     "slots) and 'beidou' (BeiDou-3: 24 MEO + 3 IGSO + 3 GEO nominal orbits), in this order "
-                    "in the satellite slots")
+                    "in the satellite slots; each one's orbits from a file instead: [gnss.<name>] orbit_source")
     gps: ConstellationSettings = Field(default_factory=ConstellationSettings,
-                                       description="GPS: mask, health, cap, integrity support data")
+                                       description="GPS: orbits, mask, health, cap, integrity support data")
     galileo: ConstellationSettings = Field(default_factory=ConstellationSettings,
-                                           description="Galileo: mask, health, cap, integrity support data")
+                                           description="Galileo: orbits, mask, health, cap, integrity support data")
     beidou: ConstellationSettings = Field(default_factory=ConstellationSettings,
-                                          description="BeiDou: mask, health, cap, integrity support data")
+                                          description="BeiDou: orbits, mask, health, cap, integrity support data")
     error_model: Literal["seed", "dfmc"] = Field(
         "seed", description="'seed': the VA-RAIM paper's eq. 27 with one sigma_ura_m for every system, drawn with "
                             "the σ the monitors are told (the reproductions' model); 'dfmc': dual-frequency "
@@ -161,12 +182,14 @@ class GnssSettings(StrictModel):
 
     rate_hz: float = Field(1.0, gt=0.0, le=100.0,
                            description="measurement rate (Hz); the truth is decimated to it inside synthesize_gnss")
-    almanac_source: Literal["do229", "yuma", "rinex_nav"] = Field(
-        "do229", description="constellation: shipped DO-229 24-sat almanac, a YUMA file or a RINEX 3 nav file")
-    almanac_path: Path | None = Field(None, description="file for almanac_source 'yuma' / 'rinex_nav'")
+    almanac_source: Literal["do229", "yuma", "sem", "rinex_nav"] = Field(
+        "do229", description="GPS's orbits: shipped DO-229 24-sat almanac, a YUMA or SEM file or a RINEX 3 nav file "
+                             "(or [gnss.gps] orbit_source, not both)")
+    almanac_path: Path | None = Field(None, description="file for almanac_source 'yuma' / 'sem' / 'rinex_nav', "
+                                                        "relative to the approach file")
     almanac_week: Literal["auto", "periodic", "nearest_rollover"] = Field(
         "auto", description="placing a 10-bit almanac week in time: 'periodic' (toa moved to the week "
-                            "nearest the flight; default for DO-229) or 'nearest_rollover' (default for YUMA)")
+                            "nearest the flight; default for DO-229) or 'nearest_rollover' (default for YUMA, SEM)")
     elevation_mask_deg: float = Field(5.0, ge=0.0, lt=90.0, description="elevation mask (deg above local horizon)")
     terrain_masking: bool = Field(True, description="mask satellites whose line of sight hits the terrain")
     airframe_masking: bool = Field(True, description="mask satellites below the antenna plane (body x-y plane)")
@@ -223,6 +246,7 @@ class GnssSettings(StrictModel):
             bad = [p for p in cs.excluded_prns if not lo <= p <= hi]
             if bad:
                 raise ValueError(f"{name}.excluded_prns: PRN(s) {bad} out of range: expected {lo}-{hi}")
+            self._check_orbit_source(name, cs)
         if self.error_model == "seed":  # keys only the DFMC model reads are refused, not ignored
             unread = [f"{n}.{k}" for n in CONSTELLATION_SYSTEMS for k in ("sigma_ura_m", "sigma_ure_m", "b_nom_m")
                       if k in getattr(self, n).model_fields_set]
@@ -235,14 +259,50 @@ class GnssSettings(StrictModel):
                              f"only; expected constellations = ['gps'] with it, got {self.constellations}")
         return self
 
+    def _check_orbit_source(self, name: str, cs: ConstellationSettings) -> None:
+        if cs.orbit_source == "nominal" and cs.orbit_path is not None:
+            raise ValueError(f"{name}.orbit_path: read only with orbit_source 'rinex_nav', 'yuma' or 'sem' (it is "
+                             f"'nominal'); set orbit_source or remove orbit_path")
+        if cs.orbit_source != "nominal" and cs.orbit_path is None:
+            raise ValueError(f"{name}.orbit_path: required when orbit_source is {cs.orbit_source!r}")
+        if cs.orbit_source in ("yuma", "sem") and name != "gps":
+            raise ValueError(f"{name}.orbit_source: {cs.orbit_source!r} is a GPS almanac format; expected "
+                             f"'nominal' or 'rinex_nav' for {name}")
+        if name == "gps" and cs.orbit_source != "nominal" and self.almanac_source != "do229":
+            raise ValueError(f"gps.orbit_source = {cs.orbit_source!r} and almanac_source = "
+                             f"{self.almanac_source!r} both name GPS's orbits; expected one of them")
+
+    def orbit_source_of(self, name: str) -> tuple[str, Path | None, str]:
+        """Where constellation ``name``'s orbits come from: (source, file, the key naming the file), source one of
+        'nominal', 'rinex_nav', 'yuma', 'sem' (GPS's 'nominal' is ``almanac_source``: 'do229' there is 'nominal')."""
+        cs = getattr(self, name)
+        if name == "gps" and cs.orbit_source == "nominal":
+            source = "nominal" if self.almanac_source == "do229" else self.almanac_source
+            return source, self.almanac_path, "gnss.almanac_path"
+        return cs.orbit_source, cs.orbit_path, f"gnss.{name}.orbit_path"
+
+    @property
+    def orbit_files(self) -> list[Path]:
+        """The orbit files the tracked constellations read (each once, in constellation order)."""
+        out = []
+        for name in self.constellations:
+            source, path, _ = self.orbit_source_of(name)
+            if source != "nominal" and path is not None and path not in out:
+                out.append(path)
+        return out
+
     def geometry_key(self) -> str:
-        """JSON of the settings the geometry reads (constellations, almanac, masks, health, caps, schedule,
-        rate): two settings with one key give one geometry (a campaign caches it on this)."""
+        """JSON of the settings the geometry reads (constellations, orbit sources and the content of their files,
+        masks, health, caps, schedule, rate): two settings with one key give one geometry (a campaign caches
+        it on this). A file is keyed on its content (SHA-256): a file edited between two cells is another sky,
+        one file under two paths is one."""
         geo = {"constellations", "almanac_source", "almanac_path", "almanac_week", "elevation_mask_deg",
                "terrain_masking", "airframe_masking", "airframe_mask_deg", "schedule", "rate_hz"}
-        per = {"elevation_mask_deg", "excluded_prns", "max_satellites"}
-        d = self.model_dump(mode="json", include=geo)
+        per = {"elevation_mask_deg", "excluded_prns", "max_satellites", "orbit_source"}
+        d = self.model_dump(mode="json", include=geo - {"almanac_path"})
         d |= {n: getattr(self, n).model_dump(mode="json", include=per) for n in self.constellations}
+        d["orbit_files"] = {n: file_digest(self.orbit_source_of(n)[1]) for n in self.constellations
+                            if self.orbit_source_of(n)[0] != "nominal"}
         return json.dumps(d, sort_keys=True)
 
     @property
