@@ -30,8 +30,10 @@ def gaussian_model(T: int, S: int, limit_sigmas: np.ndarray, seed: int = 3) -> L
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(T, 3, S)) * rng.uniform(0.5, 2.0, size=(T, 1, 1))
     sigma_v = np.linalg.norm(A[:, 2], axis=-1)
-    return LinearModel(e0=np.zeros((T, 3)), A=A, clock=rng.normal(size=(T, S)), used=np.ones((T, S), bool),
-                       hpl=np.full(T, np.nan), vpl=limit_sigmas * sigma_v, dimensions=("V",))
+    clock = rng.normal(size=(T, S))
+    return LinearModel(e0=np.zeros((T, 3)), A=A, design=np.concatenate([np.moveaxis(A, 1, 2), clock[..., None]], -1),
+                       used=np.ones((T, S), bool), hpl=np.full(T, np.nan), vpl=limit_sigmas * sigma_v,
+                       dimensions=("V",))
 
 
 def weighted_draws(model: LinearModel, plan, n: int, seed: int, comps: Components | None = None):
@@ -89,7 +91,7 @@ def test_chi_square_tail_against_the_closed_form(p):
     model = gaussian_model(1, 12, np.array([5.0]))
     comps = components(model, SamplingPlan(method="importance", proposal="scale", scale=3.0), np.inf, np.inf)
     P, dof = comps.parity[0], int(comps.dof[0])
-    assert dof == 8 and np.allclose(P @ P, P) and np.allclose(P @ model.A[0].T, 0) and np.allclose(P @ model.clock[0], 0)
+    assert dof == 8 and np.allclose(P @ P, P) and np.allclose(P @ model.A[0].T, 0) and np.allclose(P @ model.design[0], 0)
     T2 = stats.chi2.isf(p, dof)
     zt, lw = weighted_draws(model, SamplingPlan(method="importance", proposal="scale", scale=3.0), 4000, seed=9)
     sse = np.einsum("ns,st,nt->n", zt[:, 0], P, zt[:, 0])

@@ -106,14 +106,16 @@ class LinearModel:
     """A monitor's position error as a linear function of the standard-normal pseudorange draws, per epoch.
 
     e0 : (T, 3) ENU error on the error-free observations.  A : (T, 3, S) the error per unit draw of each slot
-    (σ times the error per metre).  clock : (T, S) the receiver clock's, likewise.  used : (T, S) the slots the
-    fix uses.  hpl, vpl : (T,) the protection levels on the error-free observations (NaN: no solution).
-    dimensions : the dimensions the monitor bounds.
+    (the drawn σ times the error per metre).  design : (T, S, k) the directions of the draws the fit absorbs
+    whole: the columns of the design matrix (three lines of sight, one clock per constellation) over the drawn
+    σ; a draw along them moves the fix and leaves every residual at zero.  used : (T, S) the slots the fix uses.
+    hpl, vpl : (T,) the protection levels on the error-free observations (NaN: no solution).  dimensions : the
+    dimensions the monitor bounds.
     """
 
     e0: np.ndarray
     A: np.ndarray
-    clock: np.ndarray
+    design: np.ndarray
     used: np.ndarray
     hpl: np.ndarray
     vpl: np.ndarray
@@ -156,8 +158,8 @@ def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None
     out, _ = mon.step(Observations(gnss), mon.initial_state())
     ref = pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
     pos = np.asarray(out.pos_enu, float).reshape(W, P, T, 3)
-    clk = np.asarray(out.clock, float).reshape(W, P, T)
-    sigma = np.broadcast_to(np.asarray(base.sigma, float), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
+    sigma = np.broadcast_to(np.asarray(base.drawn_sigma, float), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
+    design = design_columns(ctx.gnss_geometry_of(None if windows is None else windows), (W, T, S))
     visible = np.broadcast_to(np.asarray(gnss.visible, bool), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
     ok = np.asarray(out.reason).reshape(W, P, T)[:, 0] == 0
     hpl = np.asarray(out.hpl, float).reshape(W, P, T)[:, 0]
@@ -168,11 +170,26 @@ def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None
         per_m = np.where(np.isfinite(per_m), per_m, 0.0)
         used = visible[w] & ok[w][:, None] & (np.abs(per_m).sum(1) > 0)
         A = per_m * np.where(used, sigma[w], 0.0)[:, None, :]
-        clock = np.nan_to_num(np.moveaxis(clk[w, 1:] - clk[w, :1], 0, -1) / PROBE_M) * np.where(used, sigma[w], 0.0)
-        models.append(LinearModel(e0=pos[w, 0] - ref, A=A, clock=clock, used=used,
+        with np.errstate(divide="ignore", invalid="ignore"):
+            per_draw = np.where(used[..., None], design[w] / sigma[w][..., None], 0.0)
+        models.append(LinearModel(e0=pos[w, 0] - ref, A=A, design=per_draw, used=used,
                                   hpl=np.where(ok[w], hpl[w], np.nan),
                                   vpl=np.where(ok[w], vpl[w], np.nan), dimensions=tuple(out.dimensions)))
     return models
+
+
+def design_columns(geom, shape: tuple[int, int, int]) -> np.ndarray:
+    """(W, T, S, 3 + C) the design matrix of a fix with one clock per constellation on ``geom`` (windows W,
+    epochs T, slots S; C constellations), in metres: the unit lines of sight (ECEF: the span is what matters)
+    and one indicator per constellation. Built from the geometry, not the monitor: a pseudorange error in
+    their span is absorbed whole by the position and the clocks (the inter-system offsets are such an error)."""
+    W, T, S = shape
+    los = np.broadcast_to(np.asarray(geom.sat_pos_ecef, float), (W, T, S, 3)) \
+        - np.broadcast_to(np.asarray(geom.ant_pos_ecef, float), (W, T, 3))[:, :, None, :]
+    los = los / np.linalg.norm(los, axis=-1, keepdims=True)
+    system = np.asarray(geom.system)
+    clocks = np.stack([system == c for c in dict.fromkeys(system.tolist())], -1).astype(float)  # (S, C)
+    return np.concatenate([los, np.broadcast_to(clocks, (W, T) + clocks.shape)], -1)
 
 
 def components(model: LinearModel, plan, hal: float, val: float) -> Components:
@@ -209,17 +226,20 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
 
 def _parity_components(model: LinearModel) -> Components:
     """One component per epoch with a solution and redundancy: the projector onto the residual (parity) space
-    of the fit, the orthogonal complement, among the used slots, of the span of the solution's rows (position
-    and clock: the whitened fit's column space). The test statistic is the draws' squared norm there."""
+    of the fit, the orthogonal complement, among the used slots, of the directions it absorbs (the design's
+    columns over the drawn σ, one clock per constellation). Every test statistic (the residuals' χ², a solution
+    separation) is a function of the draws' part there; with the σ told equal to the σ drawn, the χ² is its
+    squared norm."""
     T, _, S = model.A.shape
     epochs, proj, dof = [], [], []
     for t in range(T):
         u = np.flatnonzero(model.used[t])
-        if u.size <= 4 or not np.isfinite(model.vpl[t]):
+        cols = model.design[t][u]
+        cols = cols[:, np.abs(cols).sum(0) > 0]  # a constellation with no used slot has no clock
+        if u.size <= cols.shape[1] or not np.isfinite(model.vpl[t]):
             continue
-        rows = np.vstack([model.A[t][:, u], model.clock[t][u][None]])  # (4, n_used)
-        q, r = np.linalg.qr(rows.T)
-        rank = int((np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()).sum())
+        q, sv, _ = np.linalg.svd(cols, full_matrices=False)
+        rank = int((sv > 1e-9 * sv.max()).sum())
         P = np.zeros((S, S))
         P[np.ix_(u, u)] = np.eye(u.size) - q[:, :rank] @ q[:, :rank].T
         epochs.append(t), proj.append(P), dof.append(u.size - rank)
