@@ -504,3 +504,44 @@ def test_araim_importance_agrees_with_brute_force(tmp_path):
         assert x.settled and y.settled, (x, y)
         assert x.events >= 50
         assert abs(x.estimate - y.estimate) <= 2.576 * np.hypot(x.se, y.se), (per, x, y)
+
+
+# ----------------------------------------------------------------------------- which rates the proposal reaches
+
+def test_coverage_names_what_the_proposal_does_not_reach():
+    """The pseudorange proposal reaches a monitor that reads the pseudoranges alone, at the rates it aims at;
+    not the pixel monitor or VA-RAIM, which read vision errors drawn from the error model, nor a rate it does
+    not aim at."""
+    from testbed.campaign.sampling import coverage
+
+    assert coverage("gps_raim", "P_HMI", "gps_raim", "shift")[0] == "aimed"
+    assert coverage("araim", "P_MI", "gps_raim", "shift")[0] == "moved"
+    assert coverage("gps_raim", "P_FA", "gps_raim", "shift")[0] == "not aimed"
+    assert coverage("araim", "P_FA", "araim", "scale")[0] == "aimed"
+    for m in ("pixel", "va_raim"):
+        status, why = coverage(m, "P_HMI", "gps_raim", "shift")
+        assert status == "not reached" and "vision" in why
+
+
+def test_report_says_which_monitors_the_proposal_does_not_reach(tmp_path):
+    """GPS RAIM and VA-RAIM on the same importance-sampled sorties, the proposal aimed from GPS RAIM: the report
+    has a row per monitor saying which of its rates are aimed at and which are not reached (VA-RAIM reads
+    vision), and a rate of VA-RAIM with no event says "not reached by the proposal" rather than a number; the
+    console headlines likewise."""
+    from testbed.campaign.report import headlines
+
+    spec = loose_spec(tmp_path, "cov", 100, 100, '[sampling]\nmethod = "importance"', duration=2.0)
+    spec.write_text(spec.read_text().replace('monitors = ["gps_raim"]', 'monitors = ["gps_raim", "va_raim"]'))
+    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
+    text = write_report(out).read_text()
+    rows = {line.split("|")[1].strip(): line for line in text.splitlines()
+            if line.startswith("| gps_raim |") or line.startswith("| va_raim |")}
+    assert "P_MI, P_HMI: aimed" in rows["gps_raim"] and "P_FA: not aimed" in rows["gps_raim"]
+    assert "not reached" in rows["va_raim"] and "vision" in rows["va_raim"]
+    table = [line for line in text.splitlines() if line.startswith("| 0 | va_raim |")]
+    assert table and all("| not reached |" in line for line in table)
+    unsettled = [line for line in table if "| settled |" not in line]
+    assert unsettled and all("not reached by the proposal" in line and
+                             [c.strip() for c in line.split("|")[6:9]] == ["-", "-", "-"] for line in unsettled)
+    va = [h for h in headlines(out) if h.startswith("va_raim")]
+    assert va and all("not reached by the proposal" in h or "interval" in h for h in va)

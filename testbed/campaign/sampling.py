@@ -59,6 +59,38 @@ MAX_LARGEST_SHARE = 0.25
 MAX_VOV = 0.1
 
 
+#: the inputs a proposal moves: the pseudorange draws; every other sensor's errors (vision, IMU, correlators,
+#: features) are drawn from the error model itself
+MOVED_INPUTS = frozenset({"gnss"})
+
+#: the rates each proposal aims at: the shift at the errors beyond a limit with no alert, the scale at the tests'
+#: tails
+AIMED_RATES = {"shift": ("P_MI", "P_HMI"), "scale": ("P_FA",)}
+
+
+def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str) -> tuple[str, str]:
+    """Whether the proposal aims at ``rate`` of ``monitor``: ``(status, why)``, status one of "aimed" (the
+    monitor it is aimed from, a rate it aims at), "moved" (another monitor reading the pseudoranges alone: every
+    input moved, efficient where its failure region is near the aimed one's), "not aimed" (a rate the proposal
+    does not aim at) and "not reached" (the monitor reads inputs the proposal leaves as drawn: events they drive
+    come at their plain rate). Every weighted estimate is unbiased; only an aimed one is efficient."""
+    try:
+        unmoved = sorted(monitor_inputs(monitor) - MOVED_INPUTS)
+    except (KeyError, ValueError):
+        return "not reached", f"{monitor} is not a registered monitor here: what it reads is unknown"
+    if unmoved:
+        return "not reached", (f"the proposal moves the pseudoranges only; {monitor} also reads "
+                               f"{', '.join(unmoved)}, drawn from the error model, so the events those errors drive "
+                               "come at their plain rate")
+    aims = AIMED_RATES.get(proposal, ())
+    if rate not in aims:
+        return "not aimed", f"proposal '{proposal}' aims at {' and '.join(aims)}, not {rate}"
+    if monitor != aimed_monitor:
+        return "moved", (f"aimed from {aimed_monitor}'s linear model; efficient for {monitor} where its failure "
+                         "region is near that one's")
+    return "aimed", f"aimed from {monitor}'s linear model"
+
+
 # ----------------------------------------------------------------------------- checks before any work
 
 def sampling_monitor(spec) -> str | None:
