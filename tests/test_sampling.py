@@ -72,6 +72,28 @@ def test_gaussian_tail_against_the_closed_form(p, T):
     assert r.se / r.estimate < 0.1
 
 
+def test_tail_mixture_on_epochs_whose_rates_span_orders_of_magnitude():
+    """Twenty epochs whose limits run from 5 to 9 σ (rates 6e-7 down to 2e-19, the mean carried by the first
+    few): the uniform mixture spends most trials where the rate is negligible, the tail mixture (components in
+    proportion to Q(|z*|)) where it is; both hold the closed form in their 99 % intervals, the tail one with at
+    least five times the effective events."""
+    k = np.linspace(5.0, 9.0, 20)
+    exact = float(np.mean(2 * stats.norm.sf(k)))
+    model = gaussian_model(20, 8, k)
+    uniform = estimate(model, IMPORTANCE, 2000, seed=4)
+    tail = estimate(model, SamplingPlan(method="importance", mixture="tail"), 2000, seed=4)
+    assert tail.settled and tail.lo <= exact <= tail.hi, (tail, exact)
+    assert uniform.lo <= exact <= uniform.hi or not uniform.settled, (uniform, exact)
+    assert tail.ess_events > 5 * uniform.ess_events, (tail, uniform)
+
+
+def test_tail_mixture_is_refused_with_the_scale_proposal():
+    with pytest.raises(ValueError, match="mixture"):
+        SamplingPlan(method="importance", proposal="scale", mixture="tail")
+    with pytest.raises(ValueError, match="mixture"):
+        SamplingPlan(method="plain", mixture="tail")
+
+
 @pytest.mark.parametrize("p, goal", [(1e-6, 100), (1e-7, 1000)])
 def test_efficiency_against_plain_sampling(p, goal):
     """At equal standard error, plain sampling needs ``p(1-p)/se²`` trials; importance sampling ``n``: the

@@ -20,7 +20,10 @@ A sortie has many epochs, and a shift at every one would multiply their likeliho
 weight. The proposal is a mixture instead: each trial shifts one epoch's errors, a component ``k`` (epoch,
 dimension, sign) chosen uniformly, and a share ``α`` of the trials (``defensive``) is drawn from ``p`` itself
 (Hesterberg 1995), so the weight ``w = 1 / (α + (1−α)/K · Σ_k q_k/p)`` is at most ``1/α`` and the mixture
-covers every epoch's event (Owen & Zhou 2000). ``proposal = "scale"`` instead scales by ``c`` one epoch's
+covers every epoch's event (Owen & Zhou 2000). With ``mixture = "tail"`` component ``k`` is drawn with
+probability ``π_k ∝ Q(|z*_k|)``, its own tail, and ``1/K`` becomes ``π_k``: the trials go where the rate is
+(a flight whose epochs' rates span orders of magnitude is otherwise carried by the few trials at its worst
+epochs). ``proposal = "scale"`` instead scales by ``c`` one epoch's
 errors in the fit's residual (parity) space, where the test statistic lives: its tail is the false alarm. The component choice comes from the block's own stream
 (``sampling``), so a trial is a pure function of (spec, cell, trial) as before.
 
@@ -158,12 +161,18 @@ class LinearModel:
 class Components:
     """The mixture's components: component k acts on epoch ``epoch[k]``, with mean ``shift[k]`` (S,) (standard
     units), or scaling the draws' part in the fit's residual space, the projector ``parity[k]`` (S, S) of rank
-    ``dof[k]``, by the plan's factor."""
+    ``dof[k]``, by the plan's factor; drawn with probability ``share[k]`` (None: uniformly)."""
 
     epoch: np.ndarray  # (K,)
     shift: np.ndarray  # (K, S)
     parity: np.ndarray  # (K, S, S)
     dof: np.ndarray  # (K,)
+    share: np.ndarray | None = None  # (K,) summing to 1
+
+    @property
+    def log_share(self) -> np.ndarray:
+        """(K,) log of each component's probability."""
+        return np.full(self.size, -np.log(self.size)) if self.share is None else np.log(self.share)
 
     @property
     def size(self) -> int:
@@ -252,8 +261,12 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
     if plan.proposal == "scale":
         return _parity_components(model)
     ep = np.array(epochs, np.int64)
-    return Components(ep, np.array(shifts, float).reshape(ep.size, S), np.zeros((ep.size, S, S)),
-                      np.zeros(ep.size, np.int64))
+    shifts = np.array(shifts, float).reshape(ep.size, S)
+    share = None
+    if plan.mixture == "tail" and ep.size:  # each component in proportion to its own tail Q(|z*|)
+        log_tail = stats.norm.logsf(np.linalg.norm(shifts, axis=1))
+        share = np.exp(log_tail - special.logsumexp(log_tail))
+    return Components(ep, shifts, np.zeros((ep.size, S, S)), np.zeros(ep.size, np.int64), share)
 
 
 def _parity_components(model: LinearModel) -> Components:
@@ -322,6 +335,10 @@ def draw_proposal(comps: list[Components], which: np.ndarray, plan, z: np.ndarra
     pick = rng.random(n)  # one uniform per trial whatever K: the stream does not depend on the geometry
     K = np.array([c.size for c in comps])[which]
     comp = np.where((u < plan.defensive) | (K == 0), -1, np.minimum((pick * K).astype(np.int64), K - 1))
+    for j, c in enumerate(comps):  # components drawn by their shares: the same uniform, inverted
+        sel = np.flatnonzero((which == j) & (comp >= 0))
+        if c.share is not None and sel.size:
+            comp[sel] = np.minimum(np.searchsorted(np.cumsum(c.share), pick[sel], side="right"), c.size - 1)
     shift = np.zeros(z.shape)
     for i in np.flatnonzero(comp >= 0):
         c, k = comps[which[i]], comp[i]
@@ -346,7 +363,8 @@ def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray)
             s = float(plan.scale)
             pz = np.einsum("kst,mkt->mks", c.parity, zk)  # the draws' part in each parity space
             ell = -c.dof * np.log(s) + 0.5 * (1.0 - 1.0 / s**2) * np.einsum("mks,mks->mk", pz, pz)
-        mix = special.logsumexp(ell, axis=1) - np.log(c.size)
+        mix = (special.logsumexp(ell, axis=1) - np.log(c.size) if c.share is None
+               else special.logsumexp(ell + c.log_share, axis=1))
         log_q = np.logaddexp(np.log(alpha), np.log1p(-alpha) + mix) if alpha > 0 else mix
         out[sel] = -log_q
     return out

@@ -242,7 +242,7 @@ class ReportSettings(StrictModel):
 
 
 #: the [sampling] keys read only with method = "importance" (refused, not ignored, with "plain")
-IMPORTANCE_KEYS = ("monitor", "event", "proposal", "scale", "defensive")
+IMPORTANCE_KEYS = ("monitor", "event", "proposal", "scale", "defensive", "mixture")
 
 
 class SamplingPlan(StrictModel):
@@ -269,6 +269,11 @@ class SamplingPlan(StrictModel):
                                                             "residual-space errors' standard deviation")
     defensive: float = Field(0.1, ge=0.0, lt=1.0, description="importance: share of the trials drawn from the error "
                                                               "model itself (bounds every weight by 1/defensive)")
+    mixture: Literal["uniform", "tail"] = Field(
+        "uniform", description="importance, proposal = 'shift': how often each component (epoch, dimension, sign) "
+                               "is drawn: uniformly, or in proportion to its own Gaussian tail Q(|z*|), so that the "
+                               "epochs whose event is likeliest get the trials (a flight whose epochs' rates span "
+                               "orders of magnitude)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -281,6 +286,9 @@ class SamplingPlan(StrictModel):
         if self.proposal == "shift" and self.scale != type(self).model_fields["scale"].default:
             raise ValueError(f"[scale] read only with proposal = 'scale', not with proposal = 'shift' "
                              f"(got {self.scale!r})")
+        if self.proposal == "scale" and self.mixture != "uniform":
+            raise ValueError(f"[mixture] read only with proposal = 'shift' (a scaled epoch has no tail of its own to "
+                             f"draw it by), got {self.mixture!r}")
         if self.proposal == "scale" and self.event != type(self).model_fields["event"].default:
             raise ValueError(f"[event] read only with proposal = 'shift' (proposal = 'scale' aims at the test "
                              f"statistic's tail), got {self.event!r}")
@@ -388,10 +396,12 @@ LATER_AXES = ("constellations", "terrain_masking")
 
 
 def _plain_sampling_unset(d: dict) -> dict:
-    """A spec dump without what later versions added at its default: the ``[sampling]`` table when plain, and
-    the later sweep axes when empty. A spec that uses none of them hashes, and compares on resume, as before."""
+    """A spec dump without what later versions added at its default: the ``[sampling]`` table when plain (its
+    ``mixture`` when uniform), and the later sweep axes when empty. A spec that uses none of them hashes, and compares on resume, as before."""
     if d.get("sampling") == SamplingPlan().model_dump(mode="json"):
         d = {k: v for k, v in d.items() if k != "sampling"}
+    elif isinstance(d.get("sampling"), dict) and d["sampling"].get("mixture") == "uniform":  # added later
+        d = {**d, "sampling": {k: v for k, v in d["sampling"].items() if k != "mixture"}}
     sweep = d.get("sweep")
     if isinstance(sweep, dict) and any(k in sweep and not sweep[k] for k in LATER_AXES):
         d = {**d, "sweep": {k: v for k, v in sweep.items() if not (k in LATER_AXES and not v)}}
