@@ -536,7 +536,8 @@ def test_coverage_names_what_the_proposal_does_not_reach():
     not aim at."""
     from testbed.campaign.sampling import coverage
 
-    assert coverage("gps_raim", "P_HMI", "gps_raim", "shift")[0] == "aimed"
+    assert coverage("gps_raim", "P_HMI", "gps_raim", "shift", "hazardous")[0] == "aimed"
+    assert coverage("gps_raim", "P_HMI", "gps_raim", "shift", "misleading")[0] == "not aimed"
     assert coverage("araim", "P_MI", "gps_raim", "shift")[0] == "moved"
     assert coverage("gps_raim", "P_FA", "gps_raim", "shift")[0] == "not aimed"
     assert coverage("araim", "P_FA", "araim", "scale")[0] == "aimed"
@@ -558,7 +559,7 @@ def test_report_says_which_monitors_the_proposal_does_not_reach(tmp_path):
     text = write_report(out).read_text()
     rows = {line.split("|")[1].strip(): line for line in text.splitlines()
             if line.startswith("| gps_raim |") or line.startswith("| va_raim |")}
-    assert "P_MI, P_HMI: aimed" in rows["gps_raim"] and "P_FA: not aimed" in rows["gps_raim"]
+    assert "P_MI: aimed" in rows["gps_raim"] and "P_FA, P_HMI: not aimed" in rows["gps_raim"]
     assert "not reached" in rows["va_raim"] and "vision" in rows["va_raim"]
     table = [line for line in text.splitlines() if line.startswith("| 0 | va_raim |")]
     assert table and all("| not reached |" in line for line in table)

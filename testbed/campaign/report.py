@@ -284,7 +284,7 @@ def weighted_rates(inp: ReportInputs) -> list[dict]:
                 if (which == "free" and not free) or (which == "faulty" and free):
                     continue
                 num, den = _rate_terms(tc, sel, rate, per)
-                status, why = coverage(m, rate, aimed, samp.get("proposal", "shift"))
+                status, why = coverage(m, rate, aimed, samp.get("proposal", "shift"), samp.get("event", "misleading"))
                 out.append({"cell": int(c["cell"]), "monitor": m, "fault": "fault-free" if free else
                             f"{c['fault_sweep_kind']} {c['fault_size']:g} {c['fault_unit']}", "rate": rate,
                             "per": per, "est": weighted_rate(num, den, lw[sel], inp.conf), "coverage": status,

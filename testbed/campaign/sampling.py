@@ -66,12 +66,14 @@ MAX_VOV = 0.1
 #: features) are drawn from the error model itself
 MOVED_INPUTS = frozenset({"gnss"})
 
-#: the rates each proposal aims at: the shift at the errors beyond a limit with no alert, the scale at the tests'
-#: tails
-AIMED_RATES = {"shift": ("P_MI", "P_HMI"), "scale": ("P_FA",)}
+#: the rates each proposal aims at: the shift at the errors beyond the PL (misleading) or the alert limit
+#: (hazardous) with no alert, the scale at the tests' tails (whatever the event)
+AIMED_RATES = {("shift", "misleading"): ("P_MI",), ("shift", "hazardous"): ("P_HMI",),
+               ("scale", "misleading"): ("P_FA",), ("scale", "hazardous"): ("P_FA",)}
 
 
-def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str) -> tuple[str, str]:
+def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str, event: str = "misleading"
+             ) -> tuple[str, str]:
     """Whether the proposal aims at ``rate`` of ``monitor``: ``(status, why)``, status one of "aimed" (the
     monitor it is aimed from, a rate it aims at), "moved" (another monitor reading the pseudoranges alone: every
     input moved, efficient where its failure region is near the aimed one's), "not aimed" (a rate the proposal
@@ -85,9 +87,10 @@ def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str) -> tupl
         return "not reached", (f"the proposal moves the pseudoranges only; {monitor} also reads "
                                f"{', '.join(unmoved)}, drawn from the error model, so the events those errors drive "
                                "come at their plain rate")
-    aims = AIMED_RATES.get(proposal, ())
+    aims = AIMED_RATES.get((proposal, event), ())
     if rate not in aims:
-        return "not aimed", f"proposal '{proposal}' aims at {' and '.join(aims)}, not {rate}"
+        what = f"proposal '{proposal}'" + (f", event '{event}'" if proposal == "shift" else "")
+        return "not aimed", f"{what} aims at {' and '.join(aims)}, not {rate}"
     if monitor != aimed_monitor:
         return "moved", (f"aimed from {aimed_monitor}'s linear model; efficient for {monitor} where its failure "
                          "region is near that one's")
