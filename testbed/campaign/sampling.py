@@ -164,18 +164,14 @@ class LinearModel:
 class Components:
     """The mixture's components: component k acts on epoch ``epoch[k]``, with mean ``shift[k]`` (S,) (standard
     units), or scaling the draws' part in the fit's residual space, the projector ``parity[k]`` (S, S) of rank
-    ``dof[k]``, by the plan's factor; drawn with probability ``share[k]`` (None: uniformly)."""
+    ``dof[k]``, by the plan's factor; drawn with probability ``exp(log_share[k])`` (None: uniformly; a share
+    below the float range is -inf: never drawn, and no part of the weight)."""
 
     epoch: np.ndarray  # (K,)
     shift: np.ndarray  # (K, S)
     parity: np.ndarray  # (K, S, S)
     dof: np.ndarray  # (K,)
-    share: np.ndarray | None = None  # (K,) summing to 1
-
-    @property
-    def log_share(self) -> np.ndarray:
-        """(K,) log of each component's probability."""
-        return np.full(self.size, -np.log(self.size)) if self.share is None else np.log(self.share)
+    log_share: np.ndarray | None = None  # (K,) log-probabilities summing to 1
 
     @property
     def size(self) -> int:
@@ -265,11 +261,11 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
         return _parity_components(model)
     ep = np.array(epochs, np.int64)
     shifts = np.array(shifts, float).reshape(ep.size, S)
-    share = None
+    log_share = None
     if plan.mixture == "tail" and ep.size:  # each component in proportion to its own tail Q(|z*|)
         log_tail = stats.norm.logsf(np.linalg.norm(shifts, axis=1))
-        share = np.exp(log_tail - special.logsumexp(log_tail))
-    return Components(ep, shifts, np.zeros((ep.size, S, S)), np.zeros(ep.size, np.int64), share)
+        log_share = log_tail - special.logsumexp(log_tail)
+    return Components(ep, shifts, np.zeros((ep.size, S, S)), np.zeros(ep.size, np.int64), log_share)
 
 
 def _parity_components(model: LinearModel) -> Components:
@@ -340,8 +336,9 @@ def draw_proposal(comps: list[Components], which: np.ndarray, plan, z: np.ndarra
     comp = np.where((u < plan.defensive) | (K == 0), -1, np.minimum((pick * K).astype(np.int64), K - 1))
     for j, c in enumerate(comps):  # components drawn by their shares: the same uniform, inverted
         sel = np.flatnonzero((which == j) & (comp >= 0))
-        if c.share is not None and sel.size:
-            comp[sel] = np.minimum(np.searchsorted(np.cumsum(c.share), pick[sel], side="right"), c.size - 1)
+        if c.log_share is not None and sel.size:
+            comp[sel] = np.minimum(np.searchsorted(np.cumsum(np.exp(c.log_share)), pick[sel], side="right"),
+                                   c.size - 1)
     shift = np.zeros(z.shape)
     for i in np.flatnonzero(comp >= 0):
         c, k = comps[which[i]], comp[i]
@@ -366,7 +363,7 @@ def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray)
             s = float(plan.scale)
             pz = np.einsum("kst,mkt->mks", c.parity, zk)  # the draws' part in each parity space
             ell = -c.dof * np.log(s) + 0.5 * (1.0 - 1.0 / s**2) * np.einsum("mks,mks->mk", pz, pz)
-        mix = (special.logsumexp(ell, axis=1) - np.log(c.size) if c.share is None
+        mix = (special.logsumexp(ell, axis=1) - np.log(c.size) if c.log_share is None
                else special.logsumexp(ell + c.log_share, axis=1))
         log_q = np.logaddexp(np.log(alpha), np.log1p(-alpha) + mix) if alpha > 0 else mix
         out[sel] = -log_q
