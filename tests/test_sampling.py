@@ -568,3 +568,28 @@ def test_report_says_which_monitors_the_proposal_does_not_reach(tmp_path):
                              [c.strip() for c in line.split("|")[6:9]] == ["-", "-", "-"] for line in unsettled)
     va = [h for h in headlines(out) if h.startswith("va_raim")]
     assert va and all("not reached by the proposal" in h or "interval" in h for h in va)
+
+
+#: araim-hmi-fault-free's measured P_HMI per epoch, 95 % intervals per start time (docs/guide/campaigns.md)
+ARAIM_HMI_MEASURED = {"2026-03-01T04:00:00Z": (1.29e-91, 1.99e-91), "2026-03-01T16:00:00Z": (3.28e-90, 5.26e-90)}
+
+
+def test_araim_hmi_spec_figures_against_the_closed_form():
+    """The shipped araim-hmi-fault-free spec's measured P_HMI per epoch (docs) against the closed form of the
+    vertical tail over its epochs: the mean over the epochs whose VPL is within the VAL of 2 Q(VAL/σ_U), σ_U
+    from the geometry (:func:`araim_vertical_sigmas`). Each start time's measured 95 % interval holds it."""
+    from scipy import special
+
+    from testbed.campaign.context import cell_context
+    from testbed.campaign.sampling import linear_model
+
+    loaded = load_spec("araim-hmi-fault-free")
+    for cell in expand_cells(loaded):
+        ctx = cell_context(cell, loaded.spec)
+        vpl = linear_model(ctx, "araim", None)[0].vpl
+        log_tail = np.where(vpl <= ctx.val, np.log(2) + stats.norm.logsf(ctx.val / araim_vertical_sigmas(ctx)),
+                            -np.inf)
+        exact = float(np.exp(special.logsumexp(log_tail) - np.log(log_tail.size)))
+        when = cell.config.start_time_utc.strftime("%Y-%m-%dT%H:%M:%SZ")
+        lo, hi = ARAIM_HMI_MEASURED[when]
+        assert lo <= exact <= hi, (when, exact)
