@@ -132,6 +132,20 @@ def test_plain_method_reduces_to_the_binomial_mean():
     assert r.settled
 
 
+def test_a_rate_below_the_float_range_is_not_printed_as_zero():
+    """Events whose weights are e^-900 (a hazardous error 40 σ out): the rate, ~10^-391, underflows a float;
+    the estimate says its size and that it is out of range, rather than a settled 0."""
+    lw = np.full(1000, np.log(10.0))
+    hits = np.zeros(1000)
+    hits[:400] = 1
+    lw[:400] = -900.0 + np.linspace(0, 1, 400)
+    r = weighted_rate(hits, 1.0, lw)
+    assert not r.settled and "below the floating-point range" in r.text()
+    top = lw[:400].max()
+    expected = (np.log(np.sum(np.exp(lw[:400] - top)) / 1000) + top) / np.log(10)
+    assert f"10^{expected:.1f}" in r.text()
+
+
 def test_weight_degeneracy_is_detected_on_bad_proposals():
     """A proposal aimed beside the event (orthogonal to the error's direction) or far past it gives a few
     trials with enormous weights: the diagnostics say so and no rate is printed. The dominating point's

@@ -435,11 +435,11 @@ def weighted_rate(num: np.ndarray, den: np.ndarray | float, log_weight: np.ndarr
     z = stats.norm.ppf(0.5 + confidence / 2)
     if np.all(den == den.flat[0]):  # an exact denominator: the weights scaled by the largest event's
         c = float(lw[hit].max())  # (they reach 1e-300 and below; the event's terms keep their digits)
-        f = np.exp(lw - c) * num / float(den.flat[0])
+        f = np.exp(np.where(hit, lw - c, -np.inf)) * num / float(den.flat[0])  # a non-event's e^(lw-c) may overflow
         est = f.mean() * np.exp(c)
         se = (f.std(ddof=1) / np.sqrt(n) if n > 1 else np.inf) * np.exp(c)
     else:  # a ratio of two weighted means (free of the common factor)
-        w = w_all
+        c, w = 0.0, w_all
         f, g = w * num, w * den
         est = f.sum() / g.sum()
         se = np.std(f - est * g, ddof=1) / np.sqrt(n) / g.mean() if n > 1 else np.inf
@@ -449,6 +449,9 @@ def weighted_rate(num: np.ndarray, den: np.ndarray | float, log_weight: np.ndarr
     m2 = np.sum(dev**2)
     vov = float(np.sum(dev**4) / m2**2 - 1.0 / n) if m2 > 0 else 0.0
     problems = []
+    if not est > 0 and f.sum() > 0:  # the scaled terms kept their digits, the scale did not: say its size
+        log10 = (np.log(f.mean()) + c) / np.log(10.0)
+        problems.append(f"the estimate, 10^{log10:.1f}, is below the floating-point range")
     if ess_e < MIN_EFFECTIVE_EVENTS:
         problems.append(f"{ess_e:.1f} effective events (< {MIN_EFFECTIVE_EVENTS:g})")
     if share > MAX_LARGEST_SHARE:
