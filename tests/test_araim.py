@@ -569,3 +569,19 @@ def test_a_mode_below_its_threshold_counts_in_full():
     pl = np.array([12.0])
     expected = 2.0 * stats.norm.sf(12.0) + 1e-4 * min(stats.norm.sf(1.0), 0.4)
     assert integrity_risk(pl, offset, sigma, weight, cap)[0] == pytest.approx(expected, rel=1e-12)
+
+
+def test_protection_level_at_a_large_allocation_is_the_root():
+    """A budget so large that a term of small prior gets a share target/(K·w) above 1 (P_HMI 10⁻² against priors
+    of 10⁻⁵: the loosened operating points of a brute-force check): the search's upper end was Q⁻¹ of that
+    share, NaN, and the PL with it. It is the root of eq. 16, found by scipy's brentq."""
+    from testbed.integrity.araim.protection import solve_protection_level
+
+    offset = np.array([0.0, 3.0, 4.0, 2.5])
+    sigma = np.array([1.0, 1.4, 1.6, 1.2])
+    weight = np.array([2.0, 1e-5, 1e-5, 1e-6])
+    cap = np.ones(4)
+    target = np.array(1e-2)
+    pl, _ = solve_protection_level(offset, sigma, weight, cap, target, 1e-6)
+    root = optimize.brentq(lambda x: integrity_risk(np.array(x), offset, sigma, weight, cap) - 1e-2, 0.0, 20.0)
+    assert np.isfinite(pl) and pl == pytest.approx(root, abs=2e-6)

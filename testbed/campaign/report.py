@@ -28,7 +28,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from testbed.campaign.detection import MDB, binomial_interval, detection_table, minimal_detectable_bias
-from testbed.campaign.sampling import MAX_LARGEST_SHARE, MAX_VOV, MIN_EFFECTIVE_EVENTS, weighted_rate
+from testbed.campaign.sampling import MAX_LARGEST_SHARE, MAX_VOV, MIN_EFFECTIVE_EVENTS, coverage, weighted_rate
 from testbed.campaign.store import read_columns
 from testbed.monitors import monitor_inputs
 from testbed.markdown import table as md_table
@@ -274,6 +274,7 @@ def weighted_rates(inp: ReportInputs) -> list[dict]:
     from the trials' log-weights (rows: cell, monitor, fault, rate, per, and the :class:`~.sampling.Rate`)."""
     tc = inp.tc
     lw = np.asarray(tc["log_weight"], float)
+    samp, aimed = inp.man["spec"].get("sampling", {}), _aimed_monitor(inp.man["spec"])
     out = []
     for c in inp.cells:
         free = c["fault_kind"] == "none"
@@ -283,10 +284,23 @@ def weighted_rates(inp: ReportInputs) -> list[dict]:
                 if (which == "free" and not free) or (which == "faulty" and free):
                     continue
                 num, den = _rate_terms(tc, sel, rate, per)
+                status, why = coverage(m, rate, aimed, samp.get("proposal", "shift"), samp.get("event", "misleading"))
                 out.append({"cell": int(c["cell"]), "monitor": m, "fault": "fault-free" if free else
                             f"{c['fault_sweep_kind']} {c['fault_size']:g} {c['fault_unit']}", "rate": rate,
-                            "per": per, "est": weighted_rate(num, den, lw[sel], inp.conf)})
+                            "per": per, "est": weighted_rate(num, den, lw[sel], inp.conf), "coverage": status,
+                            "why": why})
     return out
+
+
+def verdict(row: dict) -> str:
+    """A weighted rate's verdict: settled, or why no rate is printed; a rate the proposal does not reach says
+    so first (its "no event" is no bound: the proposal never went where its events are)."""
+    e = row["est"]
+    if e.settled:
+        return "settled"
+    if row["coverage"] in ("not reached", "not aimed"):
+        return f"{row['coverage']} by the proposal ({row['why']}): " + "; ".join(e.problems)
+    return "; ".join(e.problems)
 
 
 def weighted_headlines(inp: ReportInputs, limit: int = 8) -> list[str]:
@@ -296,7 +310,7 @@ def weighted_headlines(inp: ReportInputs, limit: int = 8) -> list[str]:
     lines = [f"{r['monitor']}, cell {r['cell']} ({r['fault']}): {r['rate']} per epoch "
              + (f"{r['est'].estimate:.3g}, {100 * inp.conf:g} % interval [{r['est'].lo:.3g}, {r['est'].hi:.3g}] "
                 f"({r['est'].ess_events:.0f} effective events in {r['est'].trials} sorties)" if r["est"].settled
-                else r["est"].text()) for r in rows[:limit]]
+                else "no rate: " + verdict(r)) for r in rows[:limit]]
     if len(rows) > limit:
         lines.append(f"... and {len(rows) - limit} more rows in report.md")
     return lines
@@ -325,21 +339,52 @@ def _weighted_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str
           "trial reached is not printed: the reason is. Per epoch: false alarms among the epochs with a solution, "
           "missed detections among the faulty epochs with one, MI and HMI among all epochs; per sortie: a sortie "
           "with at least one.", ""]
+    rates = weighted_rates(inp)
+    md += _coverage_lines(inp, rates)
     rows = []
-    for r in weighted_rates(inp):
+    for r in rates:
         e = r["est"]
         rows.append([r["cell"], r["monitor"], r["fault"], r["rate"], r["per"],
                      f"{e.estimate:.3e}" if e.settled else "-", f"{e.se:.2e}" if e.settled else "-",
                      f"[{e.lo:.3e}, {e.hi:.3e}]" if e.settled else "-", e.trials, e.events,
                      _f(e.ess_events, "{:.1f}"), _f(e.largest_share, "{:.3f}"), _f(e.vov, "{:.3f}"),
-                     "settled" if e.settled else "; ".join(e.problems)])
+                     r["coverage"], verdict(r)])
     md += md_table(["cell", "monitor", "fault", "rate", "per", "estimate", "standard error",
                     f"{100 * inp.conf:g} % interval", "trials", "trials with the event", "effective events",
-                    "largest share", "VOV", "verdict"], rows)
+                    "largest share", "VOV", "proposal", "verdict"], rows)
     md += ["", "The sections below count the trials as drawn, unweighted: the proposal moves one epoch of a sortie, so "
            "their protection levels and availability are the error model's to within that epoch, their accuracy "
            "and figures are the proposal's.", ""]
     return md, []
+
+
+def _coverage_lines(inp: ReportInputs, rates: list[dict]) -> list[str]:
+    """Which monitor's rates the proposal aims at, and which it does not reach (:func:`~.sampling.coverage`), one
+    row per monitor: the "proposal" column of the rates table, explained."""
+    per_monitor: dict[str, dict[str, list[str]]] = {}
+    whys: dict[tuple[str, str], str] = {}
+    for r in rates:
+        names = per_monitor.setdefault(r["monitor"], {})
+        if r["rate"] not in names.setdefault(r["coverage"], []):
+            names[r["coverage"]].append(r["rate"])
+        whys[r["monitor"], r["coverage"]] = r["why"]
+    rows = [[m, sorted(monitor_inputs_or_unknown(m)), "; ".join(f"{', '.join(rs)}: {status} ({whys[m, status]})"
+                                                                for status, rs in by.items())]
+            for m, by in per_monitor.items()]
+    return (["Where the proposal goes: a rate is **aimed** at (efficient), **moved** (every input of another "
+             "monitor moved: efficient where its failure region is near the aimed one's), **not aimed** at (a rate "
+             "the proposal does not seek) or **not reached** (the monitor reads errors the proposal leaves as "
+             "drawn). Every weighted estimate is unbiased, but one the proposal does not aim at or reach gets the "
+             "precision of plain sampling at best; with no event it is no bound, and none is printed.", ""]
+            + md_table(["monitor", "reads", "its rates"], rows) + [""])
+
+
+def monitor_inputs_or_unknown(name: str) -> frozenset[str]:
+    """What a stored run's monitor reads, or "unknown" when it is not registered in this process."""
+    try:
+        return monitor_inputs(name)
+    except KeyError:
+        return frozenset({"unknown"})
 
 
 def _exercise_lines(inp: ReportInputs) -> list[str]:

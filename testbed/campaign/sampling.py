@@ -20,7 +20,10 @@ A sortie has many epochs, and a shift at every one would multiply their likeliho
 weight. The proposal is a mixture instead: each trial shifts one epoch's errors, a component ``k`` (epoch,
 dimension, sign) chosen uniformly, and a share ``α`` of the trials (``defensive``) is drawn from ``p`` itself
 (Hesterberg 1995), so the weight ``w = 1 / (α + (1−α)/K · Σ_k q_k/p)`` is at most ``1/α`` and the mixture
-covers every epoch's event (Owen & Zhou 2000). ``proposal = "scale"`` instead scales by ``c`` one epoch's
+covers every epoch's event (Owen & Zhou 2000). With ``mixture = "tail"`` component ``k`` is drawn with
+probability ``π_k ∝ Q(|z*_k|)``, its own tail, and ``1/K`` becomes ``π_k``: the trials go where the rate is
+(a flight whose epochs' rates span orders of magnitude is otherwise carried by the few trials at its worst
+epochs). ``proposal = "scale"`` instead scales by ``c`` one epoch's
 errors in the fit's residual (parity) space, where the test statistic lives: its tail is the false alarm. The component choice comes from the block's own stream
 (``sampling``), so a trial is a pure function of (spec, cell, trial) as before.
 
@@ -57,6 +60,41 @@ PROBE_M = 0.1
 MIN_EFFECTIVE_EVENTS = 10.0
 MAX_LARGEST_SHARE = 0.25
 MAX_VOV = 0.1
+
+
+#: the inputs a proposal moves: the pseudorange draws; every other sensor's errors (vision, IMU, correlators,
+#: features) are drawn from the error model itself
+MOVED_INPUTS = frozenset({"gnss"})
+
+#: the rates each proposal aims at: the shift at the errors beyond the PL (misleading) or the alert limit
+#: (hazardous) with no alert, the scale at the tests' tails (whatever the event)
+AIMED_RATES = {("shift", "misleading"): ("P_MI",), ("shift", "hazardous"): ("P_HMI",),
+               ("scale", "misleading"): ("P_FA",), ("scale", "hazardous"): ("P_FA",)}
+
+
+def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str, event: str = "misleading"
+             ) -> tuple[str, str]:
+    """Whether the proposal aims at ``rate`` of ``monitor``: ``(status, why)``, status one of "aimed" (the
+    monitor it is aimed from, a rate it aims at), "moved" (another monitor reading the pseudoranges alone: every
+    input moved, efficient where its failure region is near the aimed one's), "not aimed" (a rate the proposal
+    does not aim at) and "not reached" (the monitor reads inputs the proposal leaves as drawn: events they drive
+    come at their plain rate). Every weighted estimate is unbiased; only an aimed one is efficient."""
+    try:
+        unmoved = sorted(monitor_inputs(monitor) - MOVED_INPUTS)
+    except (KeyError, ValueError):
+        return "not reached", f"{monitor} is not a registered monitor here: what it reads is unknown"
+    if unmoved:
+        return "not reached", (f"the proposal moves the pseudoranges only; {monitor} also reads "
+                               f"{', '.join(unmoved)}, drawn from the error model, so the events those errors drive "
+                               "come at their plain rate")
+    aims = AIMED_RATES.get((proposal, event), ())
+    if rate not in aims:
+        what = f"proposal '{proposal}'" + (f", event '{event}'" if proposal == "shift" else "")
+        return "not aimed", f"{what} aims at {' and '.join(aims)}, not {rate}"
+    if monitor != aimed_monitor:
+        return "moved", (f"aimed from {aimed_monitor}'s linear model; efficient for {monitor} where its failure "
+                         "region is near that one's")
+    return "aimed", f"aimed from {monitor}'s linear model"
 
 
 # ----------------------------------------------------------------------------- checks before any work
@@ -106,14 +144,16 @@ class LinearModel:
     """A monitor's position error as a linear function of the standard-normal pseudorange draws, per epoch.
 
     e0 : (T, 3) ENU error on the error-free observations.  A : (T, 3, S) the error per unit draw of each slot
-    (σ times the error per metre).  clock : (T, S) the receiver clock's, likewise.  used : (T, S) the slots the
-    fix uses.  hpl, vpl : (T,) the protection levels on the error-free observations (NaN: no solution).
-    dimensions : the dimensions the monitor bounds.
+    (the drawn σ times the error per metre).  design : (T, S, k) the directions of the draws the fit absorbs
+    whole: the columns of the design matrix (three lines of sight, one clock per constellation) over the drawn
+    σ; a draw along them moves the fix and leaves every residual at zero.  used : (T, S) the slots the fix uses.
+    hpl, vpl : (T,) the protection levels on the error-free observations (NaN: no solution).  dimensions : the
+    dimensions the monitor bounds.
     """
 
     e0: np.ndarray
     A: np.ndarray
-    clock: np.ndarray
+    design: np.ndarray
     used: np.ndarray
     hpl: np.ndarray
     vpl: np.ndarray
@@ -124,12 +164,14 @@ class LinearModel:
 class Components:
     """The mixture's components: component k acts on epoch ``epoch[k]``, with mean ``shift[k]`` (S,) (standard
     units), or scaling the draws' part in the fit's residual space, the projector ``parity[k]`` (S, S) of rank
-    ``dof[k]``, by the plan's factor."""
+    ``dof[k]``, by the plan's factor; drawn with probability ``exp(log_share[k])`` (None: uniformly; a share
+    below the float range is -inf: never drawn, and no part of the weight)."""
 
     epoch: np.ndarray  # (K,)
     shift: np.ndarray  # (K, S)
     parity: np.ndarray  # (K, S, S)
     dof: np.ndarray  # (K,)
+    log_share: np.ndarray | None = None  # (K,) log-probabilities summing to 1
 
     @property
     def size(self) -> int:
@@ -156,8 +198,8 @@ def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None
     out, _ = mon.step(Observations(gnss), mon.initial_state())
     ref = pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
     pos = np.asarray(out.pos_enu, float).reshape(W, P, T, 3)
-    clk = np.asarray(out.clock, float).reshape(W, P, T)
-    sigma = np.broadcast_to(np.asarray(base.sigma, float), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
+    sigma = np.broadcast_to(np.asarray(base.drawn_sigma, float), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
+    design = design_columns(ctx.gnss_geometry_of(None if windows is None else windows), (W, T, S))
     visible = np.broadcast_to(np.asarray(gnss.visible, bool), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
     ok = np.asarray(out.reason).reshape(W, P, T)[:, 0] == 0
     hpl = np.asarray(out.hpl, float).reshape(W, P, T)[:, 0]
@@ -168,11 +210,26 @@ def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None
         per_m = np.where(np.isfinite(per_m), per_m, 0.0)
         used = visible[w] & ok[w][:, None] & (np.abs(per_m).sum(1) > 0)
         A = per_m * np.where(used, sigma[w], 0.0)[:, None, :]
-        clock = np.nan_to_num(np.moveaxis(clk[w, 1:] - clk[w, :1], 0, -1) / PROBE_M) * np.where(used, sigma[w], 0.0)
-        models.append(LinearModel(e0=pos[w, 0] - ref, A=A, clock=clock, used=used,
+        with np.errstate(divide="ignore", invalid="ignore"):
+            per_draw = np.where(used[..., None], design[w] / sigma[w][..., None], 0.0)
+        models.append(LinearModel(e0=pos[w, 0] - ref, A=A, design=per_draw, used=used,
                                   hpl=np.where(ok[w], hpl[w], np.nan),
                                   vpl=np.where(ok[w], vpl[w], np.nan), dimensions=tuple(out.dimensions)))
     return models
+
+
+def design_columns(geom, shape: tuple[int, int, int]) -> np.ndarray:
+    """(W, T, S, 3 + C) the design matrix of a fix with one clock per constellation on ``geom`` (windows W,
+    epochs T, slots S; C constellations), in metres: the unit lines of sight (ECEF: the span is what matters)
+    and one indicator per constellation. Built from the geometry, not the monitor: a pseudorange error in
+    their span is absorbed whole by the position and the clocks (the inter-system offsets are such an error)."""
+    W, T, S = shape
+    los = np.broadcast_to(np.asarray(geom.sat_pos_ecef, float), (W, T, S, 3)) \
+        - np.broadcast_to(np.asarray(geom.ant_pos_ecef, float), (W, T, 3))[:, :, None, :]
+    los = los / np.linalg.norm(los, axis=-1, keepdims=True)
+    system = np.asarray(geom.system)
+    clocks = np.stack([system == c for c in dict.fromkeys(system.tolist())], -1).astype(float)  # (S, C)
+    return np.concatenate([los, np.broadcast_to(clocks, (W, T) + clocks.shape)], -1)
 
 
 def components(model: LinearModel, plan, hal: float, val: float) -> Components:
@@ -203,23 +260,30 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
     if plan.proposal == "scale":
         return _parity_components(model)
     ep = np.array(epochs, np.int64)
-    return Components(ep, np.array(shifts, float).reshape(ep.size, S), np.zeros((ep.size, S, S)),
-                      np.zeros(ep.size, np.int64))
+    shifts = np.array(shifts, float).reshape(ep.size, S)
+    log_share = None
+    if plan.mixture == "tail" and ep.size:  # each component in proportion to its own tail Q(|z*|)
+        log_tail = stats.norm.logsf(np.linalg.norm(shifts, axis=1))
+        log_share = log_tail - special.logsumexp(log_tail)
+    return Components(ep, shifts, np.zeros((ep.size, S, S)), np.zeros(ep.size, np.int64), log_share)
 
 
 def _parity_components(model: LinearModel) -> Components:
     """One component per epoch with a solution and redundancy: the projector onto the residual (parity) space
-    of the fit, the orthogonal complement, among the used slots, of the span of the solution's rows (position
-    and clock: the whitened fit's column space). The test statistic is the draws' squared norm there."""
+    of the fit, the orthogonal complement, among the used slots, of the directions it absorbs (the design's
+    columns over the drawn σ, one clock per constellation). Every test statistic (the residuals' χ², a solution
+    separation) is a function of the draws' part there; with the σ told equal to the σ drawn, the χ² is its
+    squared norm."""
     T, _, S = model.A.shape
     epochs, proj, dof = [], [], []
     for t in range(T):
         u = np.flatnonzero(model.used[t])
-        if u.size <= 4 or not np.isfinite(model.vpl[t]):
+        cols = model.design[t][u]
+        cols = cols[:, np.abs(cols).sum(0) > 0]  # a constellation with no used slot has no clock
+        if u.size <= cols.shape[1] or not np.isfinite(model.vpl[t]):
             continue
-        rows = np.vstack([model.A[t][:, u], model.clock[t][u][None]])  # (4, n_used)
-        q, r = np.linalg.qr(rows.T)
-        rank = int((np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()).sum())
+        q, sv, _ = np.linalg.svd(cols, full_matrices=False)
+        rank = int((sv > 1e-9 * sv.max()).sum())
         P = np.zeros((S, S))
         P[np.ix_(u, u)] = np.eye(u.size) - q[:, :rank] @ q[:, :rank].T
         epochs.append(t), proj.append(P), dof.append(u.size - rank)
@@ -270,6 +334,11 @@ def draw_proposal(comps: list[Components], which: np.ndarray, plan, z: np.ndarra
     pick = rng.random(n)  # one uniform per trial whatever K: the stream does not depend on the geometry
     K = np.array([c.size for c in comps])[which]
     comp = np.where((u < plan.defensive) | (K == 0), -1, np.minimum((pick * K).astype(np.int64), K - 1))
+    for j, c in enumerate(comps):  # components drawn by their shares: the same uniform, inverted
+        sel = np.flatnonzero((which == j) & (comp >= 0))
+        if c.log_share is not None and sel.size:
+            comp[sel] = np.minimum(np.searchsorted(np.cumsum(np.exp(c.log_share)), pick[sel], side="right"),
+                                   c.size - 1)
     shift = np.zeros(z.shape)
     for i in np.flatnonzero(comp >= 0):
         c, k = comps[which[i]], comp[i]
@@ -294,7 +363,8 @@ def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray)
             s = float(plan.scale)
             pz = np.einsum("kst,mkt->mks", c.parity, zk)  # the draws' part in each parity space
             ell = -c.dof * np.log(s) + 0.5 * (1.0 - 1.0 / s**2) * np.einsum("mks,mks->mk", pz, pz)
-        mix = special.logsumexp(ell, axis=1) - np.log(c.size)
+        mix = (special.logsumexp(ell, axis=1) - np.log(c.size) if c.log_share is None
+               else special.logsumexp(ell + c.log_share, axis=1))
         log_q = np.logaddexp(np.log(alpha), np.log1p(-alpha) + mix) if alpha > 0 else mix
         out[sel] = -log_q
     return out
@@ -365,11 +435,11 @@ def weighted_rate(num: np.ndarray, den: np.ndarray | float, log_weight: np.ndarr
     z = stats.norm.ppf(0.5 + confidence / 2)
     if np.all(den == den.flat[0]):  # an exact denominator: the weights scaled by the largest event's
         c = float(lw[hit].max())  # (they reach 1e-300 and below; the event's terms keep their digits)
-        f = np.exp(lw - c) * num / float(den.flat[0])
+        f = np.exp(np.where(hit, lw - c, -np.inf)) * num / float(den.flat[0])  # a non-event's e^(lw-c) may overflow
         est = f.mean() * np.exp(c)
         se = (f.std(ddof=1) / np.sqrt(n) if n > 1 else np.inf) * np.exp(c)
     else:  # a ratio of two weighted means (free of the common factor)
-        w = w_all
+        c, w = 0.0, w_all
         f, g = w * num, w * den
         est = f.sum() / g.sum()
         se = np.std(f - est * g, ddof=1) / np.sqrt(n) / g.mean() if n > 1 else np.inf
@@ -379,6 +449,9 @@ def weighted_rate(num: np.ndarray, den: np.ndarray | float, log_weight: np.ndarr
     m2 = np.sum(dev**2)
     vov = float(np.sum(dev**4) / m2**2 - 1.0 / n) if m2 > 0 else 0.0
     problems = []
+    if not est > 0 and f.sum() > 0:  # the scaled terms kept their digits, the scale did not: say its size
+        log10 = (np.log(f.mean()) + c) / np.log(10.0)
+        problems.append(f"the estimate, 10^{log10:.1f}, is below the floating-point range")
     if ess_e < MIN_EFFECTIVE_EVENTS:
         problems.append(f"{ess_e:.1f} effective events (< {MIN_EFFECTIVE_EVENTS:g})")
     if share > MAX_LARGEST_SHARE:

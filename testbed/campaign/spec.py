@@ -259,7 +259,7 @@ class ReportSettings(StrictModel):
 
 
 #: the [sampling] keys read only with method = "importance" (refused, not ignored, with "plain")
-IMPORTANCE_KEYS = ("monitor", "event", "proposal", "scale", "defensive")
+IMPORTANCE_KEYS = ("monitor", "event", "proposal", "scale", "defensive", "mixture")
 
 
 class SamplingPlan(StrictModel):
@@ -286,6 +286,11 @@ class SamplingPlan(StrictModel):
                                                             "residual-space errors' standard deviation")
     defensive: float = Field(0.1, ge=0.0, lt=1.0, description="importance: share of the trials drawn from the error "
                                                               "model itself (bounds every weight by 1/defensive)")
+    mixture: Literal["uniform", "tail"] = Field(
+        "uniform", description="importance, proposal = 'shift': how often each component (epoch, dimension, sign) "
+                               "is drawn: uniformly, or in proportion to its own Gaussian tail Q(|z*|), so that the "
+                               "epochs whose event is likeliest get the trials (a flight whose epochs' rates span "
+                               "orders of magnitude)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -298,6 +303,9 @@ class SamplingPlan(StrictModel):
         if self.proposal == "shift" and self.scale != type(self).model_fields["scale"].default:
             raise ValueError(f"[scale] read only with proposal = 'scale', not with proposal = 'shift' "
                              f"(got {self.scale!r})")
+        if self.proposal == "scale" and self.mixture != "uniform":
+            raise ValueError(f"[mixture] read only with proposal = 'shift' (a scaled epoch has no tail of its own to "
+                             f"draw it by), got {self.mixture!r}")
         if self.proposal == "scale" and self.event != type(self).model_fields["event"].default:
             raise ValueError(f"[event] read only with proposal = 'shift' (proposal = 'scale' aims at the test "
                              f"statistic's tail), got {self.event!r}")
@@ -396,7 +404,7 @@ NOT_HASHED = ("report", "description")
 
 def spec_hash(spec: CampaignSpec) -> str:
     """A short hash of everything that changes results (the report settings excluded)."""
-    d = _plain_sampling_unset(spec.model_dump(mode="json", exclude=set(NOT_HASHED)))
+    d = _later_defaults_unset(spec.model_dump(mode="json", exclude=set(NOT_HASHED)))
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -408,12 +416,14 @@ LATER_AXES = ("constellations", "terrain_masking")
 LATER_FAULT_KEYS = ("system",)
 
 
-def _plain_sampling_unset(d: dict) -> dict:
-    """A spec dump without what later versions added at its default: the ``[sampling]`` table when plain, the
-    later sweep axes when empty and the later fault keys when unset. A spec that uses none of them hashes, and
-    compares on resume, as before."""
+def _later_defaults_unset(d: dict) -> dict:
+    """A spec dump without what later versions added at its default: the ``[sampling]`` table when plain (its
+    ``mixture`` when uniform), the later sweep axes when empty and the later fault keys when unset. A spec that
+    uses none of them hashes, and compares on resume, as before."""
     if d.get("sampling") == SamplingPlan().model_dump(mode="json"):
         d = {k: v for k, v in d.items() if k != "sampling"}
+    elif isinstance(d.get("sampling"), dict) and d["sampling"].get("mixture") == "uniform":  # added later
+        d = {**d, "sampling": {k: v for k, v in d["sampling"].items() if k != "mixture"}}
     faults = d.get("faults")
     if isinstance(faults, list):
         d = {**d, "faults": [{k: v for k, v in f.items() if not (k in LATER_FAULT_KEYS and v is None)}
@@ -461,7 +471,7 @@ def fingerprint_changes(old: dict, new: dict) -> list[str]:
 def spec_changes(stored: dict, now: dict) -> list[str]:
     """What differs between a stored spec and this one (both as ``model_dump(mode="json")`` gives them),
     one ``key.path: stored → now`` line per value, the keys of :data:`NOT_HASHED` left out."""
-    old, new = _flat(_plain_sampling_unset(stored)), _flat(_plain_sampling_unset(now))
+    old, new = _flat(_later_defaults_unset(stored)), _flat(_later_defaults_unset(now))
     show = lambda d, k: json.dumps(d[k], ensure_ascii=False) if k in d else "(not set)"  # noqa: E731
     keys = [k for k in {**old, **new} if k.split(".")[0] not in NOT_HASHED]
     return [f"{k}: {show(old, k)} → {show(new, k)}" for k in keys if old.get(k, ...) != new.get(k, ...)]

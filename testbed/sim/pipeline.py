@@ -94,10 +94,12 @@ def tilt_gnss_errors(errors: GnssErrors, shift: np.ndarray | None = None) -> tup
     """``errors`` with their standard-normal pseudorange draws ``z`` moved to ``z + shift`` (``shift`` (n, T, S)
     or broadcast to the noise; None: none): an importance-sampling proposal (:mod:`testbed.campaign.sampling`,
     whose shift may itself be a function of ``z``: a scaling). Only for white errors, ``noise = σ·z`` (no
-    Gauss-Markov component: the caller checks). Returns the tilted errors and their draws ``z' = noise'/σ`` (0
-    where σ is 0), where the caller evaluates its likelihood ratio; the clock, range-rate and fault streams are
-    left as drawn."""
-    sigma = np.broadcast_to(np.asarray(errors.sigma, float), np.shape(errors.noise))
+    Gauss-Markov component: the caller checks). ``σ`` is the 1σ of the error *drawn* (``errors.drawn_sigma``:
+    the 'dfmc' model draws σ_URE and tells the monitors σ_URA), so that ``z`` is standard normal under the error
+    model. Returns the tilted errors and their draws ``z' = noise'/σ`` (0 where σ is 0), where the caller
+    evaluates its likelihood ratio; the clock, inter-system offset, range-rate and fault streams are left as
+    drawn (the offsets are constant per constellation and trial: the monitors' per-system clocks absorb them)."""
+    sigma = np.broadcast_to(np.asarray(errors.drawn_sigma, float), np.shape(errors.noise))
     noise = np.asarray(errors.noise, float)
     if shift is not None:
         noise = noise + sigma * shift

@@ -81,8 +81,9 @@ def solve_protection_level(offset: NDArray, sigma: NDArray, weight: NDArray, cap
         lo_k = offset + q_inverse(np.minimum(target[..., None] / weight, 1.0)) * sigma
         n_terms = used.sum(-1, keepdims=True)
         # high end: every term at most target/K makes the sum at most the target (a term whose share
-        # exceeds Q(0) is met just above its offset, where Q̃ < 1/2)
-        hi_k = offset + np.maximum(q_inverse(target[..., None] / (n_terms * weight)), 1e-6) * sigma
+        # exceeds Q(0) is met just above its offset, where Q̃ < 1/2; a share above 1 likewise, not Q⁻¹'s NaN)
+        share = np.minimum(target[..., None] / (n_terms * weight), 1.0)
+        hi_k = offset + np.maximum(q_inverse(share), 1e-6) * sigma
     lo = np.max(np.where(alone, lo_k, -np.inf), axis=-1)
     lo = np.where(np.isfinite(lo), lo, 0.0)
     hi = np.max(np.where(used, hi_k, -np.inf), axis=-1)

@@ -249,6 +249,14 @@ class GnssErrors:
     fault_seed: tuple
     fault_bit_generator: type  # the caller's kind of generator (PCG64 from default_rng)
     system_offset: NDArray | None = None  # (batch, S) inter-system clock offset per slot (m); None: one system
+    #: the 1σ of the white error drawn, where it is not the 1σ the monitors are told (the 'dfmc' model draws
+    #: σ_URE and tells σ_URA); None: ``sigma``
+    sigma_drawn: NDArray | None = None
+
+    @property
+    def drawn_sigma(self) -> NDArray:
+        """The 1σ of the white error drawn (``sigma_drawn``, else the ``sigma`` told)."""
+        return self.sigma if self.sigma_drawn is None else self.sigma_drawn
 
 
 def sample_gnss(geom: GnssGeometry, settings: GnssSettings, *, faults: Sequence = (), rng: np.random.Generator,
@@ -312,7 +320,8 @@ def draw_gnss_errors(geom: GnssGeometry, settings: GnssSettings, *, rng: np.rand
     return GnssErrors(batch=batch, sigma=sigma, noise=noise, clock_bias=bias, clock_drift=drift, rr_noise=rr_noise,
                       fault_seed=(ss.entropy, ss.spawn_key, ss.pool_size, ss.n_children_spawned),
                       fault_bit_generator=type(g_fault.bit_generator),
-                      system_offset=inter_system_offsets(geom.system, settings, rng, batch))
+                      system_offset=inter_system_offsets(geom.system, settings, rng, batch),
+                      sigma_drawn=None if drawn is sigma else drawn)
 
 
 def inter_system_offsets(system: NDArray, settings: GnssSettings, rng: np.random.Generator,
