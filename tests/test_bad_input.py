@@ -528,6 +528,7 @@ def test_resume_after_the_spec_changed_names_every_key_that_changed(work, capsys
     assert run(capsys, "campaign", spec, "--out", out, "--resume", "--quiet", "--no-report")[0] == 0
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_reproduce_takes_the_restart_its_refusal_advises(work, capsys, monkeypatch):
     """`reproduce va-raim-2015` over a stored run of another size is refused naming what changed and advising
     --restart, which `reproduce` takes (it used to lack it) and which then starts over. The reproduction is cut

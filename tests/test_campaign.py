@@ -310,7 +310,7 @@ def test_kill_and_resume_equals_an_uninterrupted_run(reference, tmp_path):
     assert same(table(reference, "stanford_hist.parquet"), table(out, "stanford_hist.parquet"))
 
 
-@pytest.mark.parametrize("to", ["group", "driver"])
+@pytest.mark.parametrize("to", [pytest.param("group", marks=pytest.mark.slow), "driver"])
 def test_ctrl_c_on_worker_processes_stops_them_keeps_the_stored_chunks_and_resumes(reference, tmp_path, to):
     """SIGINT as a terminal's Ctrl-C sends it (to the whole foreground group: driver and workers) and as
     ``kill -INT`` does (to the driver alone, whose workers must still stop at once)."""

@@ -176,6 +176,7 @@ def test_strata_cover_the_set_and_name_what_they_hold():
     assert len(strata(c, ("a.toml",))) == 12  # one trajectory: no trajectory strata
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_a_chunked_killed_and_resumed_calibration_equals_one_run(tmp_path):
     """6 + 6 sorties of the DPE's settings on the VA-RAIM paper's sortie (61 epochs each): chunks of 2 stopped after
     3 chunks and resumed from the work folder give the sets one chunk of 6 gives, bit for bit."""

@@ -77,6 +77,7 @@ def test_separations_and_tests_are_distributed_as_their_covariance_says():
     assert alerts <= hi, (alerts, hi)
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_the_innovation_test_detects_a_step_as_the_noncentral_chi2_predicts():
     """T-INT-2: a step b on one satellite's pseudorange at epoch k shifts that epoch's innovation by b eⱼ,
     so its NIS is non-central χ²(m, λ = b² (S⁻¹)ⱼⱼ) with S = HP⁻Hᵀ + R from the filter just before. Over

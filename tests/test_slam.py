@@ -144,6 +144,7 @@ def scene():
     return won_scene(duration_s=40.0)
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_vision_ins_on_the_racetrack_is_consistent_and_bounds_the_ins_drift(scene):
     """60 runs, 40 s, 1 px: the position NEES averaged over runs inside its 99 % χ²(3·60)/60 band at ≥ 90 % of
     the 1 Hz epochs (EKF-SLAM without first-estimate Jacobians is known to turn slightly optimistic; measured:
@@ -205,6 +206,7 @@ def test_no_features_in_view_leaves_the_filter_on_its_ins_and_nan_pixels_are_ign
     np.testing.assert_allclose(blind["err"], ins["err"], atol=1e-6)
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_the_reproduction_writes_its_claims_and_is_deterministic(tmp_path):
     from record_checks import markdown_table_problems
     from testbed.studies.reproduce_won import CLAIMS, reproduce_won_2013
@@ -246,6 +248,7 @@ def test_the_racetrack_truth_is_the_seeds_route():
     assert np.all(tr.pos_enu[:, 2] == 10.0)
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_solution_separation_sub_filters_with_features(scene):
     """The feature filter's sub-filters (one without each satellite, one without every feature row) take every
     linear map the main's static block takes. Against an own run without PRN 5 (3 → 2 satellites, clock known,
