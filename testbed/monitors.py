@@ -9,6 +9,7 @@ table is checked like a shipped one's.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Annotated, Any, Callable, Mapping
 
@@ -113,7 +114,13 @@ def reads(kind: str, names) -> bool:
 def options_tables() -> type[StrictModel]:
     """The model of an approach file's ``[monitor]`` table: one optional sub-table per registered monitor,
     each validated by that monitor's options model (an unknown name is an error naming the known ones)."""
-    fields = {n: (entry(n).options | None, None) for n in monitor_names()}
+    return _tables_model(tuple((n, entry(n).options) for n in monitor_names()))
+
+
+@functools.lru_cache(maxsize=16)
+def _tables_model(options: tuple[tuple[str, type[StrictModel]], ...]) -> type[StrictModel]:
+    """Built once per registry state (a campaign validates every cell's approach with it)."""
+    fields = {n: (model | None, None) for n, model in options}
     return create_model("MonitorTables", __config__=ConfigDict(extra="forbid"), **fields)
 
 
