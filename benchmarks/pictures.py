@@ -337,6 +337,9 @@ PICTURES: dict[str, Picture] = {p.name: p for p in (
     Picture("readme-won2013.png", "figure", "testbed reproduce won-2013 --full", "won2013_errors.png", 19, won_2013),
     Picture("constellation-sky.png", "figure", "python -m testbed.studies.constellation_sky PATH",
             "PATH", 1, constellation_sky),
+    Picture("araim-availability-day.png", "figure", "testbed campaign araim-constellations",
+            "figures/availability_over_day.png", 5,
+            campaign_figure("araim-constellations", 96, "availability_over_day.png")),
 )}
 
 

@@ -16,7 +16,7 @@ from enum import IntEnum
 from typing import ClassVar
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 
 def epoch_array(tail: int = 0, *, ragged: bool = False, batched: bool = True):
@@ -262,6 +262,12 @@ class Mount:
     R_sensor_to_body: NDArray = field(default_factory=lambda: np.eye(3))
 
 
+def satellite_ids(system: ArrayLike, prn: ArrayLike) -> NDArray:
+    """RINEX 3 satellite identifiers, e.g. ``"G05"``, ``"E12"``, ``"C59"``, of system letters and numbers."""
+    return np.array([f"{x}{int(p):02d}" for x, p in zip(np.ravel(system), np.ravel(prn))], dtype="<U3").reshape(
+        np.shape(prn))
+
+
 @dataclass(frozen=True)
 class GnssEpochs:
     """GPS observations as the receiver reports them (no truth inside).
@@ -300,6 +306,11 @@ class GnssEpochs:
     def __post_init__(self) -> None:
         if self.system is None:  # a GPS-only record (every reader written before other systems existed)
             object.__setattr__(self, "system", np.full(np.shape(self.prn), "G"))
+
+    @property
+    def sat_id(self) -> NDArray:
+        """RINEX 3 satellite identifiers ``(S,)`` of the slots, e.g. ``"G05"``, ``"E12"``."""
+        return satellite_ids(self.system, self.prn)
 
 
 @dataclass(frozen=True)

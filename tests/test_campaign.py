@@ -236,6 +236,8 @@ def test_faults_are_detected_and_fault_free_trials_carry_no_fault(reference):
     faulty = [r for r in t if size[r["cell"]] > 0]
     assert all(r["fault_target"] == -1 for r in free)
     assert all(r["fault_target"] > 0 for r in faulty)  # a PRN
+    assert all(r["fault_satellite"] == "" for r in free)
+    assert all(r["fault_satellite"] == f"G{r['fault_target']:02d}" for r in faulty)  # its RINEX name
     # a 60 m step on one of 7 satellites: GPS RAIM sees most of them
     det = np.mean([r["detected"] for r in faulty if r["monitor"] == "gps_raim"])
     assert det > 0.5

@@ -116,6 +116,21 @@ def test_bad_constellation_input_exits_2_naming_key_and_value(tmp_path, monkeypa
     assert sorted(x.name for x in tmp_path.iterdir()) == ["bad.toml"]  # nothing written
 
 
+@pytest.mark.parametrize("axis, value", [("[[]]", "[]"), ('[["gps", "gps"]]', "['gps', 'gps']")])
+def test_a_bad_constellation_axis_is_refused_at_the_spec(tmp_path, capsys, axis, value):
+    """An empty or repeated constellation set on the campaign axis is refused by the spec's own check, naming the
+    axis and the value, before any cell is built (the approach's own rule, applied once)."""
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "s"\napproaches = ["zunz-rwy05-dfmc"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
+                    f'[sweep]\nconstellations = {axis}\n')
+    assert main(["check", str(spec)]) == 1
+    code = main(["campaign", str(spec), "--out", str(tmp_path / "o"), "--quiet"])
+    text = capsys.readouterr()
+    text = text.out + text.err
+    assert code == 2 and "sweep.constellations" in text and value in text and "cell" not in text, text
+    assert not (tmp_path / "o").exists()
+
+
 # ---------------------------------------------------------------------------------------------- geometry
 
 
@@ -560,6 +575,23 @@ def test_the_campaign_sweeps_constellations_and_terrain_masking(tmp_path):
     plain = tmp_path / "p.toml"
     plain.write_text('name = "s"\napproaches = ["zunz-rwy05-dfmc"]\nmonitors = ["gps_raim"]\ntrials = 10\n')
     assert load_spec(spec).hash == load_spec(plain).hash
+
+
+def test_campaign_tables_name_the_faulty_satellite_with_its_system(tmp_path):
+    """A random satellite fault over three constellations lands on Galileo and BeiDou satellites too; the trials
+    table names each with its RINEX name, the PRN alone (``fault_target``) being ambiguous across systems."""
+    import pyarrow.parquet as pq
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "s"\napproaches = ["zunz-rwy05-dfmc"]\nmonitors = ["gps_raim"]\ntrials = 24\n'
+                    'duration_s = 2.0\nbase_seed = 5\n[[faults]]\nkind = "gps_step"\nmagnitudes = [30.0]\nonset_s = 0.0\n')
+    assert main(["campaign", str(spec), "--out", str(tmp_path / "o"), "--workers", "1", "--no-report",
+                 "--quiet"]) == 0
+    rows = pq.read_table(tmp_path / "o" / "trials.parquet", columns=["fault_target", "fault_satellite"]).to_pylist()
+    assert len(rows) == 24
+    for r in rows:
+        assert r["fault_satellite"][0] in "GEC" and int(r["fault_satellite"][1:]) == r["fault_target"], r
+    assert {r["fault_satellite"][0] for r in rows} >= {"G", "E"}, rows  # 24 draws over 23 satellites of 3 systems
 
 
 # ---------------------------------------------------------------------------------------------- orbits from a file

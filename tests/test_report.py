@@ -171,3 +171,32 @@ def test_a_trial_whose_fault_reached_no_observation_is_not_exercised_whatever_it
               "fault_target": np.array([5, -1, -1])}
     (r,) = detection_table(cells, trials)
     assert (r["n_ex"], r["not_exercised"], r["k"], r["n_ep"], r["k_ep"]) == (1, 2, 1, 26, 10)
+
+
+def test_availability_over_the_day_from_sorties_spread_over_a_day(tmp_path):
+    """Sorties spread over a day get the availability-over-the-day section: each sortie's start hour is its cell's
+    UTC start plus its offset, and the table's day-long figure is the mean of the trials' availability column."""
+    import datetime as dt
+
+    import pyarrow.parquet as pq
+
+    from testbed.campaign.report import hour_of_day, write_report
+    from testbed.campaign.runner import run_campaign
+
+    spec = tmp_path / "day.toml"
+    spec.write_text('name = "day"\napproaches = ["zunz-rwy05-final"]\nmonitors = ["gps_raim"]\ntrials = 12\n'
+                    'base_seed = 3\nduration_s = 2.0\n[sorties]\nstart = "uniform"\nspan_s = 86400.0\n'
+                    'window_s = 900.0\nsortie_s = 5.0\n')
+    out = run_campaign(spec, tmp_path / "o", progress=False).out_dir
+    cells = pq.read_table(out / "cells.parquet").to_pylist()
+    tr = pq.read_table(out / "trials.parquet").to_pydict()
+    t0 = dt.datetime.fromisoformat(cells[0]["start_time_utc"])
+    midnight = t0.replace(hour=0, minute=0, second=0, microsecond=0)
+    expected = [(t0 + dt.timedelta(seconds=s) - midnight).total_seconds() / 3600.0 for s in tr["start_offset_s"]]
+    got = hour_of_day(cells, np.asarray(tr["cell"]), np.asarray(tr["start_offset_s"]))
+    assert np.allclose(got, np.mod(expected, 24.0), atol=1e-6)
+    text = write_report(out).read_text()
+    assert "## Availability over the day" in text and (out / "figures" / "availability_over_day.png").is_file()
+    day = text[text.index("## Availability over the day"):]
+    row = next(line for line in day.splitlines() if line.startswith("| all cells | gps_raim |"))
+    assert f"{100 * np.mean(tr['avail_LPV-200']):.1f} %" == row.split("|")[4].strip()

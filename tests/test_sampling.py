@@ -171,13 +171,13 @@ def test_weight_degeneracy_is_detected_on_bad_proposals():
 
 # ----------------------------------------------------------------------------- on the campaign path
 
-LOOSE = """
+SPEC = """
 name = "{name}"
-approaches = ["loose.toml"]
-monitors = ["gps_raim"]
+approaches = ["{approach}"]
+monitors = ["{monitor}"]
 trials = {trials}
 base_seed = 7
-block_trials = 100
+block_trials = {block}
 chunk_trials = {chunk}
 per_epoch_trials = {per_epoch}
 duration_s = {duration}
@@ -185,19 +185,32 @@ duration_s = {duration}
 """
 
 
+def variant_approach(tmp_path: Path, shipped: str, name: str, tables: str) -> str:
+    """A shipped approach renamed ``name`` with ``tables`` appended, written beside the spec; its file name."""
+    from testbed.resources import approaches_dir
+
+    text = (approaches_dir() / f"{shipped}.toml").read_text().replace(f'name = "{shipped}"', f'name = "{name}"')
+    (tmp_path / f"{name}.toml").write_text(text + tables)
+    return f"{name}.toml"
+
+
+def campaign_spec(tmp_path: Path, name: str, approach: str, monitor: str, trials: int, sampling: str, *,
+                  chunk: int, per_epoch: int, duration: float, block: int = 100) -> Path:
+    """One monitor's campaign over ``approach`` (seed 7), its ``[sampling]`` table as given."""
+    spec = tmp_path / f"{name}.toml"
+    spec.write_text(SPEC.format(name=name, approach=approach, monitor=monitor, trials=trials, block=block,
+                                chunk=chunk, per_epoch=per_epoch, duration=duration, sampling=sampling))
+    return spec
+
+
 def loose_spec(tmp_path: Path, name: str, trials: int, chunk: int, sampling: str = "", p_fa: float = 0.1,
                p_md: float = 0.3, per_epoch: int = 0, duration: float = 30.0) -> Path:
     """The runway-05 final with GPS RAIM's PLs loosened by its risk allocation (``p_fa``, ``p_md``), so that
     fault-free misleading information is frequent enough for brute force (~1e-3 per epoch at the defaults)."""
-    from testbed.resources import approaches_dir
-
-    ap = (approaches_dir() / "zunz-rwy05-final.toml").read_text().replace('name = "zunz-rwy05-final"',
-                                                                           'name = "loose"')
-    (tmp_path / "loose.toml").write_text(ap + f"\n[integrity]\np_fa = {p_fa}\np_md = {p_md}\n")
-    spec = tmp_path / f"{name}.toml"
-    spec.write_text(LOOSE.format(name=name, trials=trials, chunk=chunk, per_epoch=per_epoch, duration=duration,
-                                 sampling=sampling))
-    return spec
+    loosened = f"\n[integrity]\np_fa = {p_fa}\np_md = {p_md}\n"
+    approach = variant_approach(tmp_path, "zunz-rwy05-final", "loose", loosened)
+    return campaign_spec(tmp_path, name, approach, "gps_raim", trials, sampling, chunk=chunk, per_epoch=per_epoch,
+                         duration=duration)
 
 
 def rates(out: Path) -> dict:
@@ -431,18 +444,6 @@ def test_horizontal_misleading_rate_against_the_quadrature(tmp_path):
 
 # ----------------------------------------------------------------------------- ARAIM on three constellations
 
-DFMC = """
-name = "{name}"
-approaches = ["{approach}"]
-monitors = ["araim"]
-trials = {trials}
-base_seed = 7
-chunk_trials = 1000
-per_epoch_trials = {per_epoch}
-duration_s = {duration}
-{sampling}
-"""
-
 #: ARAIM's budget loosened until fault-free misleading epochs are ~1e-3 (P_HMI 1e-2 per dimension, no exposure,
 #: one effective sample, no nominal bias): reachable by brute force
 LOOSE_ARAIM = """
@@ -464,18 +465,11 @@ def dfmc_spec(tmp_path: Path, name: str, trials: int, sampling: str, per_epoch: 
               loose: bool = False) -> Path:
     """ARAIM on zunz-rwy05-dfmc (GPS + Galileo + BeiDou, the dfmc error model: σ_URE drawn, σ_URA told, an
     inter-system clock offset per constellation and trial), at its defaults or :data:`LOOSE_ARAIM`."""
-    from testbed.resources import approaches_dir
-
     approach = "zunz-rwy05-dfmc"
     if loose:
-        ap = (approaches_dir() / "zunz-rwy05-dfmc.toml").read_text().replace('name = "zunz-rwy05-dfmc"',
-                                                                            'name = "loose-araim"')
-        (tmp_path / "loose-araim.toml").write_text(ap + LOOSE_ARAIM)
-        approach = "loose-araim.toml"
-    spec = tmp_path / f"{name}.toml"
-    spec.write_text(DFMC.format(name=name, approach=approach, trials=trials, per_epoch=per_epoch,
-                                duration=duration, sampling=sampling))
-    return spec
+        approach = variant_approach(tmp_path, approach, "loose-araim", LOOSE_ARAIM)
+    return campaign_spec(tmp_path, name, approach, "araim", trials, sampling, chunk=1000, per_epoch=per_epoch,
+                         duration=duration)
 
 
 def araim_vertical_sigmas(ctx) -> np.ndarray:

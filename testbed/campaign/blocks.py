@@ -60,6 +60,8 @@ class BlockDraw:
     #: from (-1: the error model itself); None with plain sampling
     log_weight: np.ndarray | None = None
     component: np.ndarray | None = None
+    #: (n,) RINEX name of the faulty satellite ("E11": PRNs alone repeat across systems), "" where none
+    fault_satellite: np.ndarray | None = None
 
 
 def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
@@ -91,9 +93,11 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
         vis, vtruth = _shared_draw(("vision_draw", ctx.vision_draw_key), faults, VISION_KINDS, tree.seed("vision"), n,
                                    lambda: pipeline.draw_vision(plan, ctx.v_geom, tree, n, faults, share=memo.shared))
     target = np.full(n, -1, np.int64)
+    target_sat = np.full(n, "", "<U3")
     if gtruth.faulty.any():
         hit = gtruth.faulty.any(axis=-2)  # (n, S)
         target = np.where(hit.any(-1), np.asarray(gnss.prn)[hit.argmax(-1)], -1)
+        target_sat = np.where(hit.any(-1), gnss.sat_id[hit.argmax(-1)], "")
     elif vtruth is not None and np.asarray(vtruth.faulty).any():
         hit = np.asarray(vtruth.faulty).any(axis=-2)
         target = np.where(hit.any(-1), hit.argmax(-1), -1)
@@ -107,7 +111,7 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     present = _fault_present(gnss, gtruth, vis, vtruth, faulted=bool(faults))
     return BlockDraw(trials, Observations(gnss, vis, imu, init, features=tracks), gtruth, vtruth, target, offsets,
                      np.full(n, -1, np.int64) if windows is None else windows, present, tree, model_gnss,
-                     log_weight, component)
+                     log_weight, component, target_sat)
 
 
 def _shared_draw(key: tuple, faults: list, kinds: tuple, seed: np.random.SeedSequence, n: int, draw: Callable):

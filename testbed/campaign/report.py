@@ -20,6 +20,7 @@ Statistics (:mod:`testbed.campaign.detection`):
 
 from __future__ import annotations
 
+import datetime as dt
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -230,7 +231,7 @@ def _write_report(inp: ReportInputs, outs: OutputSet) -> Path:
     md += _exercise_lines(inp)
     figures: list[tuple[str, str]] = []
     sections = (_detection_section, _stanford_section, _misleading_section, _pl_and_availability_section,
-                _paired_section, _pl_time_section, _vision_range_section)
+                _availability_over_day_section, _paired_section, _pl_time_section, _vision_range_section)
     if inp.weighted:  # counts under the proposal are no rates of the error model: the weighted estimates instead
         sections = (_weighted_section, _pl_and_availability_section, _pl_time_section)
     for section in sections:
@@ -661,6 +662,83 @@ def _pl_and_availability_section(inp: ReportInputs) -> tuple[list[str], list[tup
                     "max VPL: median / p95 / max (m)", "H / V accuracy 95 % (m)", *levels], rows)
     md.append("")
     return md, []
+
+
+#: sorties whose start times span at least this long get the availability-over-the-day section
+DAY_SECTION_MIN_SPAN_H = 6.0
+
+
+def hour_of_day(cells: list[dict], cell: np.ndarray, start_offset_s: np.ndarray) -> np.ndarray:
+    """UTC hour of day [0, 24) at which each sortie starts: its cell's approach start time plus its offset."""
+    start_h = {int(c["cell"]): (lambda t: t.hour + t.minute / 60.0 + t.second / 3600.0)(
+        dt.datetime.fromisoformat(c["start_time_utc"])) for c in cells}
+    return np.mod(np.array([start_h[int(k)] for k in cell]) + np.asarray(start_offset_s, float) / 3600.0, 24.0)
+
+
+def _availability_over_day_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
+    """Section (sorties spread over at least :data:`DAY_SECTION_MIN_SPAN_H` hours): the first service level's
+    availability (fraction of epochs) against the UTC hour the sortie started, one panel a setting and a line a
+    monitor (fault-free cells), and a compact table: the day's availability and its worst hour."""
+    cells, varying, tc = inp.cells, inp.varying, inp.tc
+    levels = [c[len("avail_"):] for c in tc if c.startswith("avail_")]
+    offsets = np.asarray(tc.get("start_offset_s", np.zeros(0)), float)
+    if not levels or offsets.size == 0 or np.ptp(offsets) < DAY_SECTION_MIN_SPAN_H * 3600.0:
+        return [], []
+    level = "LPV-200" if "LPV-200" in levels else levels[0]
+    nofault = {int(c["cell"]) for c in cells if c["fault_kind"] == "none"}
+    use = np.isin(tc["cell"], list(nofault)) if nofault else np.ones(offsets.size, bool)
+    hour = hour_of_day(cells, tc["cell"], offsets)
+    setting = np.array([_setting_label(cells[i], varying) for i in tc["cell"]])
+    groups = list(dict.fromkeys(setting[use][np.argsort(tc["cell"][use], kind="stable")].tolist()))  # cell order
+    monitors = sorted(set(tc["monitor"][use].tolist()), key=lambda m: (m != "gps_raim", m))
+    edges = np.arange(0.0, 24.0 + 1e-9, 1.0)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    rows, figures = [], []
+    ncols = min(len(groups), 3)
+    nrows = -(-len(groups) // ncols)
+    fig, axs = _figure(nrows, ncols, figsize=(3.6 * ncols + 1.0, 2.8 * nrows + 0.8), sharex=True, sharey=True,
+                       squeeze=False)
+    for j, g in enumerate(groups):
+        ax = axs[j // ncols][j % ncols]
+        for k, m in enumerate(monitors):
+            sel = use & (setting == g) & (tc["monitor"] == m)
+            if not sel.any():
+                continue
+            a = np.asarray(tc[f"avail_{level}"], float)[sel]
+            b = np.clip(np.digitize(hour[sel], edges) - 1, 0, edges.size - 2)
+            n_bin = np.bincount(b, minlength=mid.size)
+            per_hour = np.bincount(b, weights=a, minlength=mid.size) / np.maximum(n_bin, 1)
+            per_hour = np.where(n_bin > 0, per_hour, np.nan)
+            ax.step(mid, 100.0 * per_hour, where="mid", color=f"C{k}", lw=1.3, ls="--" if k == 0 else "-", label=m)
+            worst = int(np.nanargmin(per_hour))
+            when = ("every hour" if np.nanmax(per_hour) == per_hour[worst]
+                    else f"{edges[worst]:02.0f}–{edges[worst + 1]:02.0f} h")
+            rows.append([g, m, int(sel.sum()), f"{100.0 * float(a.mean()):.1f} %",
+                         f"{100.0 * per_hour[worst]:.1f} % ({when})"])
+        ax.set_title(g, fontsize=8)
+        ax.set_ylim(-3, 103)
+        ax.set_xlim(0, 24)
+        ax.set_xticks(np.arange(0, 25, 6))
+        ax.grid(alpha=0.3)
+        if j % ncols == 0:
+            ax.set_ylabel(f"{level} available (% of epochs)")
+        if j // ncols == nrows - 1:
+            ax.set_xlabel("sortie start, UTC hour of day")
+    for j in range(len(groups), nrows * ncols):
+        axs[j // ncols][j % ncols].set_visible(False)
+    axs[0][0].legend(fontsize=7, loc="lower left")
+    fig.suptitle(f"{level} availability over the day, mean per 1-h bin of sortie starts"
+                 + (" (fault-free cells)" if nofault else ""), fontsize=10)
+    name = "availability_over_day.png"
+    _save(fig, inp.figdir / name)
+    figures.append((f"{level} availability over the day", name))
+    md = ["## Availability over the day", "",
+          f"Per setting and monitor, the fraction of epochs {level}-available over every sortie"
+          + (" of the fault-free cells" if nofault else "") + ", and the worst 1-hour bin of sortie start "
+          f"times (UTC): figure `figures/{name}`.", ""]
+    md += md_table(["setting", "monitor", "sorties", f"{level} over the day", "worst hour"], rows)
+    md.append("")
+    return md, figures
 
 
 def _misleading_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:

@@ -44,6 +44,7 @@ from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, FileName, StrictModel
 from testbed.sensors.gnss.constellations import constellation_orbits
 from testbed.sensors.gnss.navfile import MAX_AGE_S
+from testbed.sensors.gnss.settings import checked_constellation_set
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.vision.settings import LandmarkSet
 
@@ -156,6 +157,11 @@ class Sweep(StrictModel):
             if t.tzinfo is None:
                 raise ValueError("expected UTC times with an offset, e.g. 2026-03-01T04:00:00Z")
         return [t.astimezone(dt.timezone.utc) for t in v]
+
+    @field_validator("constellations")
+    @classmethod
+    def _constellation_sets(cls, v):
+        return [checked_constellation_set(x) for x in v]
 
     @field_validator("multipath_echo_db")
     @classmethod

@@ -40,7 +40,7 @@ def monitor_tables(ctx: CellContext, d: BlockDraw, out: MonitorOutput, ref: np.n
     if not memo.active() or not all(memo.is_shared(v) for v in own if isinstance(v, np.ndarray)):
         return make()
     read = (ctx.t, ref, ctx.onset_s, ctx.hal, ctx.val, ctx.levels, keep_ep, d.trials, d.start_offset_s, d.sky_window,
-            d.fault_target, d.fault_present)
+            d.fault_target, d.fault_satellite, d.fault_present)
     guard = own + ((d.vision_truth,) if out.diagnostics is not None and out.diagnostics.reads_vision_truth else ())
     return memo.shared(("monitor_tables", out.name, tuple(id(v) for v in guard), memo.digest(*read)), make, guard=guard)
 
@@ -69,7 +69,8 @@ def _trial_columns(ctx: CellContext, d: BlockDraw, out: MonitorOutput, he: np.nd
             "trial": d.trials.astype(np.int64),
             "monitor": out.name, "epochs": np.full(n, t.size, np.int32),
             "start_offset_s": d.start_offset_s, "sky_window": d.sky_window,
-            "fault_target": d.fault_target, "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
+            "fault_target": d.fault_target, "fault_satellite": d.fault_satellite,
+            "detected": detected, "alert_epochs": alert.sum(-1).astype(np.int32),
             "excluded_epochs": (np.asarray(out.excluded) >= 0).sum(-1).astype(np.int32),
             "onset_epochs": solved.sum(-1).astype(np.int32), "onset_alerts": (det & solved).sum(-1).astype(np.int32),
             "first_alert_s": first_any, "time_to_alert_s": tta,

@@ -57,7 +57,7 @@ from scipy import stats
 
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.settings import IntegritySettings
-from testbed.records import Diagnostics, MonitorOutput, epoch_array
+from testbed.records import Diagnostics, MonitorOutput, epoch_array, satellite_ids
 
 #: FDE outcome texts, indexed by :attr:`FdeRecord.outcome`
 FDE_OUTCOMES: tuple[str, ...] = (
@@ -139,7 +139,7 @@ def measurement_label(index: int, prn, landmark_id=None, system=None) -> str:
     if index < S:
         if system is None or all(c == "G" for c in system):
             return f"PRN {int(prn[index])}"
-        return f"satellite {system[index]}{int(prn[index]):02d}"
+        return f"satellite {satellite_ids(system[index:index + 1], prn[index:index + 1])[0]}"
     if index < S + L:
         return f"landmark {landmark_id[index - S]}"
     return "the vision block"

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from testbed.records import satellite_ids
 from testbed.sensors.gnss.orbits import SYSTEM_NAMES
 from testbed.sensors.gnss.rinex_text import RinexText, read_lines, rinex_float
 from testbed.sensors.gnss.signals import RINEX_SYSTEMS, USED_SYSTEMS, code_problem
@@ -84,7 +85,7 @@ class RinexObs:
     @property
     def sat_id(self) -> NDArray:
         """RINEX 3 satellite identifiers (S,), e.g. ``"G05"``, ``"E12"``."""
-        return np.array([f"{x}{int(p):02d}" for x, p in zip(self.system, self.prn)], dtype="<U3")
+        return satellite_ids(self.system, self.prn)
 
 
 @dataclass

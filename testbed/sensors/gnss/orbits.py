@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from testbed.frames import OMEGA_EARTH
+from testbed.records import satellite_ids
 from testbed.sensors.gnss.timebase import SECONDS_PER_WEEK
 
 #: WGS84 gravitational parameter used by GPS (IS-GPS-200), m³/s².
@@ -103,7 +104,7 @@ class Ephemeris:
     @property
     def sat_id(self) -> NDArray:
         """RINEX 3 satellite identifiers ``(S,)``, e.g. ``"G05"``, ``"E12"``, ``"C59"``."""
-        return np.array([f"{s}{int(p):02d}" for s, p in zip(self.system, self.prn)], dtype="<U3")
+        return satellite_ids(self.system, self.prn)
 
     @property
     def toe_gps(self) -> NDArray:

@@ -153,6 +153,17 @@ class ConstellationSettings(StrictModel):
         return self
 
 
+def checked_constellation_set(names: list[str]) -> list[str]:
+    """``names`` if it is a valid ``[gnss] constellations`` list (known names, at least one, each once), else a
+    ValueError saying what was expected (an approach's value and a campaign's constellation axis alike)."""
+    unknown = [n for n in names if n not in CONSTELLATION_SYSTEMS]
+    if unknown:
+        raise ValueError(f"unknown constellation {unknown[0]!r}: expected some of {list(CONSTELLATION_SYSTEMS)}")
+    if not names or len(set(names)) != len(names):
+        raise ValueError(f"expected at least one constellation, each once, got {names}")
+    return names
+
+
 class GnssSettings(StrictModel):
     """GNSS receiver, constellation and error-model settings."""
 
@@ -229,12 +240,7 @@ class GnssSettings(StrictModel):
     @field_validator("constellations")
     @classmethod
     def _known_constellations(cls, v):
-        unknown = [n for n in v if n not in CONSTELLATION_SYSTEMS]
-        if unknown:
-            raise ValueError(f"unknown constellation {unknown[0]!r}: expected some of {list(CONSTELLATION_SYSTEMS)}")
-        if not v or len(set(v)) != len(v):
-            raise ValueError(f"expected at least one constellation, each once, got {v}")
-        return v
+        return checked_constellation_set(v)
 
     @model_validator(mode="after")
     def _constellation_tables(self):
