@@ -147,3 +147,13 @@ def test_the_campaign_fault_family(tmp_path):
         FaultSweep(kind="gps_step", direction_ecef=(1.0, 0.0, 0.0), magnitudes=[1.0])
     with pytest.raises(ValidationError, match="expected system"):
         FaultSweep(kind="constellation_orbit", direction_ecef=(1.0, 0.0, 0.0), magnitudes=[1.0])
+
+
+def test_the_run_summary_names_the_displacement():
+    from testbed.sim.evaluate import describe_faults
+
+    f = ConstellationOrbit(kind="constellation_orbit", system="galileo", translation_m=(0.0, 60.5, 35.0),
+                           rotation_mas=(0.0, 0.0, 20.0), onset_s=3.0)
+    line = describe_faults([f], np.array([11]), np.ones((2, 1), bool), np.ones((2, 1), bool), np.arange(2.0),
+                           np.array(["E"]))[0]
+    assert "translation [0, 60.5, 35] m, rotation [0, 0, 20] mas (ECEF X, Y, Z) on every galileo satellite" in line

@@ -161,8 +161,8 @@ def describe_faults(faults, prn: NDArray, faulty: NDArray, visible: NDArray, t: 
                      if hasattr(f, k)), "")
         target = getattr(f, "prn", None) or getattr(f, "landmark", None) or getattr(f, "landmarks", None)
         if f.kind == "constellation_orbit":
-            size = (f"translation {list(f.translation_m)} m, rotation {list(f.rotation_mas)} mas (ECEF X, Y, Z)"
-                    .replace(".0,", ",").replace(".0]", "]"))
+            xyz = lambda v: ", ".join(f"{c:g}" for c in v)  # noqa: E731
+            size = f"translation [{xyz(f.translation_m)}] m, rotation [{xyz(f.rotation_mas)}] mas (ECEF X, Y, Z)"
         if f.kind in SYSTEM_KINDS:
             target = f"every {f.system} satellite"
         elif getattr(f, "sat", None) is not None:
