@@ -28,7 +28,7 @@ def dfmc(tmp_path_factory):
     cfg.write_text(f"[rinex]\norigin = [{fr.lat_deg}, {fr.lon_deg}, {fr.h}]\n")
     out = tmp / "out"
     rc = main(["monitor", str(obs), str(nav), "--config", str(cfg), "--out", str(out), "--format", "csv",
-               "--monitors", "gps_raim", "araim"])
+               "--monitors", "gps_raim", "araim", "--rrd", str(out / "r.rrd")])
     assert rc == 0
     return loop.outputs["araim"], out, (obs, nav)
 
@@ -72,13 +72,26 @@ def test_the_summary_carries_each_monitors_own_rows_and_reason_codes(dfmc):
     assert "emt_m" not in gps.dtype.names  # nor columns
 
 
+def test_the_recording_has_araims_own_curves(dfmc):
+    from testbed.viz.readback import entity_paths, scalar_series
+
+    own, out, _ = dfmc
+    assert {"/integrity/araim/vertical/emt", "/integrity/araim/vertical/sigma_acc_v",
+            "/integrity/gps_raim/vertical/vpl"} <= entity_paths(out / "r.rrd")
+    _, emt = scalar_series(out / "r.rrd", "/integrity/araim/vertical/emt")
+    np.testing.assert_allclose(emt, own.diagnostics.emt, rtol=1e-6)
+
+
 @pytest.mark.parametrize("names, fragment", [
     (["va_raim"], "reads ['gnss', 'vision']"),
     (["araim", "araim"], "named more than once"),
     (["nope"], "unknown monitor 'nope'"),
 ])
-def test_monitors_that_cannot_run_on_rinex_exit_2(dfmc, tmp_path, capsys, names, fragment):
-    _, _, (obs, nav) = dfmc
+def test_monitors_that_cannot_run_on_rinex_exit_2(tmp_path, capsys, names, fragment):
+    """Refused before the files are read (so these need not even be RINEX)."""
+    obs, nav = tmp_path / "f.obs", tmp_path / "f.nav"
+    obs.write_text("not read\n")
+    nav.write_text("not read\n")
     out = tmp_path / "out"
     assert main(["monitor", str(obs), str(nav), "--out", str(out), "--monitors", *names]) == 2
     err = capsys.readouterr().err
