@@ -294,6 +294,23 @@ def rinex_gsi(args: argparse.Namespace, work: Path, dst: Path) -> None:
     shutil.copy(out / "stanford-gps_raim.png", dst)
 
 
+def stanford_pair(spec: str, trials: int, monitors: tuple[str, ...], cells: tuple[int, ...]):
+    """A maker: run campaign ``spec`` at ``trials`` sorties per cell into the work folder (a complete stored run
+    of it is reused) and draw the Stanford diagrams of ``monitors`` side by side over ``cells``."""
+
+    def make(args: argparse.Namespace, work: Path, dst: Path) -> None:
+        from testbed.campaign.spec import load_spec
+
+        out = work / spec
+        if not _stored(out, load_spec(spec, trials=trials).hash):
+            again = ["--resume"] if (out / "manifest.json").exists() else []
+            _testbed("campaign", spec, "--trials", str(trials), "--out", str(out), "--quiet", "--no-report", *again)
+        subprocess.run([sys.executable, "-m", "testbed.studies.stanford_pair", str(out), str(dst), "--monitors",
+                        *monitors, "--cells", *map(str, cells)], cwd=ROOT, check=True)
+
+    return make
+
+
 def constellation_sky(args: argparse.Namespace, work: Path, dst: Path) -> None:
     """Satellites in view, VDOP and RAIM redundancy along the final over a day, per constellation set."""
     subprocess.run([sys.executable, "-m", "testbed.studies.constellation_sky", str(dst)], cwd=ROOT, check=True)
@@ -340,6 +357,10 @@ PICTURES: dict[str, Picture] = {p.name: p for p in (
     Picture("araim-availability-day.png", "figure", "testbed campaign araim-constellations",
             "figures/availability_over_day.png", 5,
             campaign_figure("araim-constellations", 96, "availability_over_day.png")),
+    Picture("araim-stanford.png", "figure",
+            "testbed campaign araim-constellation-fault --out DIR; python -m testbed.studies.stanford_pair DIR PATH "
+            "--monitors gps_raim araim --cells 1 2 3 4 5", "PATH", 5,
+            stanford_pair("araim-constellation-fault", 200, ("gps_raim", "araim"), (1, 2, 3, 4, 5))),
 )}
 
 

@@ -128,7 +128,8 @@ def _cmd_monitor(args: argparse.Namespace) -> int:
 
     with OutputSet() as outs:  # --out's files and --rrd: all or none
         run = monitor_rinex(args.obs, args.nav, config=args.config, out_dir=args.out, rrd_path=args.rrd,
-                            reference=args.reference, table_format=args.format, outputs=outs)
+                            reference=args.reference, table_format=args.format, monitors=tuple(args.monitors),
+                            outputs=outs)
         outs.commit()
         print_summary(run)
     return 0
@@ -259,6 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "as a static one (a surveyed station); gives errors, MI/HMI and "
                                                   "Stanford diagrams")
     m.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="per-epoch table format")
+    m.add_argument("--monitors", nargs="+", default=["gps_raim"], metavar="MONITOR",
+                   help="the monitors to run, each reading GNSS alone (default gps_raim; e.g. gps_raim araim); "
+                        "each gets its own per-epoch table with its own columns")
     m.set_defaults(func=_cmd_monitor)
 
     from testbed.campaign_cli import add_campaign_parsers

@@ -53,6 +53,11 @@ class Diagnostics:
         default."""
         return {}
 
+    def epoch_columns(self) -> dict[str, NDArray]:
+        """The monitor's own columns of a per-epoch table (``testbed monitor``'s ``epochs-<monitor>`` file, beside
+        the contract's): column name (its unit in the name) -> values (T,), one per epoch. None by default."""
+        return {}
+
     def plot_series(self) -> dict[str, tuple[NDArray, str]]:
         """The monitor's own curves in its recording tab: entity suffix under ``integrity/<monitor>/`` (a
         panel's path, e.g. ``"vertical/emt"``) -> (values (T,), legend name). None by default."""

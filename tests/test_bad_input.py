@@ -121,6 +121,14 @@ FILE_CASES = [
      "faults.0.rate_m_s", "inf"),
     ("absurd-pixel-bias", lambda d: approach(d, tail=FAULT.format(kind="pixel_bias", body="magnitude_px = 1e9")),
      "faults.0.magnitude_px", "1000000000"),
+    ("orbit-fault-that-moves-nothing", lambda d: approach(d, tail=FAULT.format(kind="constellation_orbit", body='system = "gps"')),
+     "faults.0", "non-zero translation_m or rotation_mas"),
+    ("orbit-fault-of-10000-km", lambda d: approach(d, tail=FAULT.format(
+        kind="constellation_orbit", body='system = "gps"\ntranslation_m = [1e7, 0.0, 0.0]')), "faults.0.translation_m.0", "10000000"),
+    ("orbit-fault-nan-rotation", lambda d: approach(d, tail=FAULT.format(
+        kind="constellation_orbit", body='system = "gps"\nrotation_mas = [0.0, nan, 0.0]')), "faults.0.rotation_mas.1", "nan"),
+    ("orbit-fault-on-an-untracked-system", lambda d: approach(d, tail=FAULT.format(
+        kind="constellation_orbit", body='system = "galileo"\ntranslation_m = [5.0, 0.0, 0.0]')), "faults.0.system", "galileo"),
     ("onset-after-the-flight", lambda d: approach(d, tail=FAULT.format(kind="gps_step", body="bias_m = 50.0\nonset_s = 5000.0")),
      "faults.0.onset_s", "5000"),
     ("misassociated-with-itself", lambda d: approach(d, tail=FAULT.format(kind="misassociation", body='landmarks = ["T1", "T1"]')),

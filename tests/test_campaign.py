@@ -95,7 +95,7 @@ def reference(tmp_path_factory) -> Path:
      '[[faults]]\nkind = "constellation_bias"\nmagnitudes = [10.0]\n', "faults.0", "expected system = 'gps'"),
     ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
      '[[faults]]\nkind = "gps_step"\nsystem = "gps"\nmagnitudes = [10.0]\n', "faults.0",
-     "read by kind 'constellation_bias' only"),
+     "read by kinds 'constellation_bias', 'constellation_orbit' only"),
     ('name = "x"\napproaches = ["va-raim-2015"]\nmonitors = ["gps_raim"]\ntrials = 10\n'
      '[[faults]]\nkind = "constellation_bias"\nsystem = "galileo"\nmagnitudes = [10.0]\n', "cell 0",
      "not tracked"),

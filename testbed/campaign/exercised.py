@@ -25,7 +25,7 @@ import numpy as np
 from testbed.campaign.context import cell_context
 from testbed.campaign.spec import Cell, LoadedSpec, expand_cells
 from testbed.schema import ConfigError
-from testbed.sensors.faults import GNSS_KINDS, LandmarkMoved, active, named_targets, satellite_ids
+from testbed.sensors.faults import GNSS_KINDS, SYSTEM_KINDS, LandmarkMoved, active, named_targets, satellite_ids
 
 
 def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) -> None:
@@ -44,7 +44,7 @@ def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) 
         faulty = [(c, why) for c, why in rows if c.params["fault_kind"] != "none"]
         if faulty and all(why for _, why in faulty):
             f = loaded.spec.faults[fam]
-            target = (f"system = {f.system!r}" if f.kind == "constellation_bias" else f"prn = {f.prn}"
+            target = (f"system = {f.system!r}" if f.kind in SYSTEM_KINDS else f"prn = {f.prn}"
                       if f.kind in GNSS_KINDS else f"landmark = {f.landmark!r}")  # a spec's table
             ids = [c.index for c, _ in faulty]
             expected = ("a PRN in view then, or prn = \"random\" (one in view at the onset, per sortie)"
@@ -58,7 +58,7 @@ def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) 
 
 def _decidable(fault) -> bool:
     """Faults whose target the geometry fixes (not drawn among those in view at the onset)."""
-    if fault.kind == "constellation_bias":
+    if fault.kind in SYSTEM_KINDS:
         return True
     if fault.kind in GNSS_KINDS:
         return fault.targets != "random"
@@ -89,7 +89,7 @@ def _gnss_never(ctx, fault, on: np.ndarray, window: str) -> str:
     windows = 1 if vis.ndim == 2 else vis.shape[0]
     where = (f"(above the elevation mask, clear of the terrain and the airframe, tracked) {window} in any of the "
              f"{windows} sky window(s) of the sorties")
-    if fault.kind == "constellation_bias":
+    if fault.kind in SYSTEM_KINDS:
         return f"no satellite of {fault.system} is ever in view {where}"
     if fault.sat is None and np.all(np.asarray(g.system) == "G"):  # GPS alone: PRNs, as the file names them
         wanted = [fault.prn] if isinstance(fault.prn, int) else list(fault.prn)

@@ -42,16 +42,19 @@ from testbed.integrity.levels import strictest_limits
 from testbed.monitors import MonitorName, monitor_options, reads
 from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, FileName, StrictModel
+from testbed.sensors.faults import SYSTEM_KINDS
 from testbed.sensors.gnss.constellations import constellation_orbits
 from testbed.sensors.gnss.navfile import MAX_AGE_S
 from testbed.sensors.gnss.settings import checked_constellation_set
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.vision.settings import LandmarkSet
 
-FaultKindName = Literal["none", "gps_step", "gps_ramp", "constellation_bias", "pixel_bias", "landmark_moved"]
+FaultKindName = Literal["none", "gps_step", "gps_ramp", "constellation_bias", "constellation_orbit", "pixel_bias",
+                        "landmark_moved"]
 
 #: what the magnitude of each fault family means (units go into tables and figure labels)
-MAGNITUDE_UNITS = {"none": "", "gps_step": "m", "gps_ramp": "m/s", "constellation_bias": "m", "pixel_bias": "px",
+MAGNITUDE_UNITS = {"none": "", "gps_step": "m", "gps_ramp": "m/s", "constellation_bias": "m",
+                   "constellation_orbit": "m", "pixel_bias": "px",
                    "landmark_moved": "m"}
 
 
@@ -60,13 +63,19 @@ class FaultSweep(StrictModel):
 
     kind: FaultKindName = Field(..., description="none | gps_step (bias_m) | gps_ramp (rate_m_s) | "
                                                  "constellation_bias (bias_m on every satellite of `system`) | "
+                                                 "constellation_orbit (every satellite of `system` moved this far "
+                                                 "along `direction_ecef`) | "
                                                  "pixel_bias (magnitude_px) | landmark_moved (metres along direction_enu)")
     magnitudes: list[float] = Field([0.0], min_length=1, description="fault sizes; 0 = a fault-free cell")
     onset_s: float = Field(20.0, ge=0, description="fault onset, s after the approach start")
     end_s: float | None = Field(None, description="fault end (exclusive), s; None = to the end")
     prn: int | Literal["random"] = Field("random", description="GPS faults: PRN or 'random' (a visible one per trial)")
     system: Literal["gps", "galileo", "beidou"] | None = Field(
-        None, description="constellation_bias: the constellation hit (required there, refused with another kind)")
+        None, description="constellation_bias, constellation_orbit: the constellation hit (required there, refused "
+                          "with another kind)")
+    direction_ecef: tuple[float, float, float] | None = Field(
+        None, description="constellation_orbit: direction (ECEF X, Y, Z; normalised) of the common displacement of "
+                          "the system's satellites (required there, refused with another kind)")
     landmark: str = Field("random", description="vision faults: landmark id or 'random' (per trial)")
     angle_deg: float = Field(0.0, description="pixel_bias: direction in the image, deg")
     direction_enu: tuple[float, float, float] = Field((1.0, 0.0, 0.0),
@@ -83,12 +92,21 @@ class FaultSweep(StrictModel):
         if self.kind == "landmark_moved":
             if math.hypot(*self.direction_enu) == 0:
                 raise ValueError("direction_enu: expected a non-zero vector")
-        if self.kind == "constellation_bias" and self.system is None:
-            raise ValueError("kind 'constellation_bias': expected system = 'gps', 'galileo' or 'beidou' (the "
-                             "constellation whose satellites all carry the bias)")
-        if self.kind != "constellation_bias" and self.system is not None:
-            raise ValueError(f"system = {self.system!r} is read by kind 'constellation_bias' only, not by kind "
-                             f"{self.kind!r}: remove it")
+        if self.kind in SYSTEM_KINDS and self.system is None:
+            raise ValueError(f"kind {self.kind!r}: expected system = 'gps', 'galileo' or 'beidou' (the "
+                             "constellation whose satellites all carry the fault)")
+        if self.kind not in SYSTEM_KINDS and self.system is not None:
+            raise ValueError(f"system = {self.system!r} is read by kinds {', '.join(map(repr, SYSTEM_KINDS))} only, "
+                             f"not by kind {self.kind!r}: remove it")
+        if self.kind == "constellation_orbit":
+            if self.direction_ecef is None:
+                raise ValueError("kind 'constellation_orbit': expected direction_ecef = [x, y, z] (the ECEF direction "
+                                 "the system's satellites are moved along)")
+            if not all(math.isfinite(c) for c in self.direction_ecef) or math.hypot(*self.direction_ecef) == 0:
+                raise ValueError(f"direction_ecef = {list(self.direction_ecef)}: expected a finite non-zero vector")
+        elif self.direction_ecef is not None:
+            raise ValueError(f"direction_ecef = {list(self.direction_ecef)} is read by kind 'constellation_orbit' "
+                             f"only, not by kind {self.kind!r}: remove it")
         return self
 
     def _move(self, magnitude: float) -> tuple[float, float, float]:
@@ -110,6 +128,10 @@ class FaultSweep(StrictModel):
             return {"kind": "gps_ramp", "prn": self.prn, "rate_m_s": magnitude, **win}
         if self.kind == "constellation_bias":
             return {"kind": "constellation_bias", "system": self.system, "bias_m": magnitude, **win}
+        if self.kind == "constellation_orbit":
+            n = math.hypot(*self.direction_ecef)
+            return {"kind": "constellation_orbit", "system": self.system,
+                    "translation_m": tuple(magnitude * (c / n) for c in self.direction_ecef), **win}
         if self.kind == "pixel_bias":
             return {"kind": "pixel_bias", "landmark": self.landmark, "magnitude_px": magnitude,
                     "angle_deg": self.angle_deg, **win}
@@ -419,7 +441,7 @@ LATER_AXES = ("constellations", "terrain_masking")
 
 
 #: fault-family keys added after specs were first stored: left out of the hash while unset (None)
-LATER_FAULT_KEYS = ("system",)
+LATER_FAULT_KEYS = ("system", "direction_ecef")
 
 
 def _later_defaults_unset(d: dict) -> dict:

@@ -23,7 +23,7 @@ import numpy as np
 from testbed.config import read_toml, validate
 from testbed.frames import C_LIGHT, LocalFrame, ecef_to_geodetic
 from testbed.integrity.monitor import MonitorContext, Observations
-from testbed.monitors import build_monitor, options_tables
+from testbed.monitors import build_monitor, monitor_inputs, monitor_names, options_tables
 from testbed.outputs import OutputSet
 from testbed.records import GnssEpochs, MonitorOutput, NotVisible, concat_epochs, take_epochs
 from testbed.rinex.obs import RinexObs, read_obs
@@ -186,9 +186,29 @@ def out_entries(monitors: tuple[str, ...], table_format: str, reference: bool) -
             *((f"stanford-{m}.png" for m in monitors) if reference else ()))
 
 
+def check_monitors(monitors: tuple[str, ...]) -> None:
+    """``--monitors``: registered monitors, each named once, each reading nothing but GNSS observations (a RINEX
+    file has no images, IMU or correlators); ConfigError naming the option otherwise."""
+    problems = []
+    if not monitors:
+        problems.append("no monitor named; expected at least one")
+    for name in monitors:
+        if name not in monitor_names():
+            problems.append(f"unknown monitor {name!r}; expected one of {list(monitor_names())}")
+        elif monitor_inputs(name) != frozenset({"gnss"}):
+            problems.append(f"{name!r} reads {sorted(monitor_inputs(name))}; a RINEX file has GNSS observations "
+                            f"only (expected a monitor reading 'gnss' alone, e.g. gps_raim, araim)")
+    twice = sorted({m for m in monitors if monitors.count(m) > 1})
+    if twice:
+        problems.append(f"{twice} named more than once; expected each monitor once")
+    if problems:
+        raise ConfigError("--monitors", problems)
+
+
 def _declare_outputs(outs: OutputSet, out_dir, rrd_path, table_format: str, monitors: tuple[str, ...],
                      reference: bool) -> None:
     """Every output tried and compared before any work (ConfigError naming the option)."""
+    check_monitors(monitors)
     if table_format not in ("parquet", "csv"):
         raise ConfigError("--format", [f"--format {table_format!r}: expected 'parquet' or 'csv'"])
     if out_dir is not None:
@@ -277,10 +297,21 @@ def epoch_table(run: RinexRun, name: str) -> dict[str, np.ndarray]:
         cols["excluded_system"] = np.where(ex >= 0, system[np.clip(ex, 0, None)], "")
     for k, lv in enumerate(out.service_levels):
         cols[f"available_{lv}"] = out.available[:, k]
+    cols.update(own_columns(out, cols))
     if run.reference_enu is not None:
         d = out.pos_enu - run.reference_enu
         cols.update({"err_e_m": d[:, 0], "err_n_m": d[:, 1], "err_u_m": d[:, 2]})
     return cols
+
+
+def own_columns(out: MonitorOutput, taken: dict) -> dict[str, np.ndarray]:
+    """A monitor's own per-epoch columns (its diagnostics' :meth:`~testbed.records.Diagnostics.epoch_columns`:
+    ARAIM's EMT, σ_acc and fault modes), after the contract's ``taken`` ones, which they may not rename."""
+    own = {} if out.diagnostics is None else out.diagnostics.epoch_columns()
+    clash = sorted(set(own) & set(taken))
+    if clash:
+        raise ValueError(f"monitor {out.name}: its own epoch columns {clash} clash with the table's")
+    return {k: np.asarray(v) for k, v in own.items()}
 
 
 def _write_table(cols: dict[str, np.ndarray], path: Path) -> Path:
@@ -320,7 +351,11 @@ def summary_record(run: RinexRun) -> dict:
         m = {"availability": {lv: float(np.mean(out.available[:, k])) for k, lv in enumerate(out.service_levels)},
              "alert_epochs": int(np.sum(out.alert)), "excluded_epochs": int(np.sum(np.asarray(out.excluded) >= 0)),
              "no_solution_epochs": int(np.sum(~np.isfinite(out.hpl))),
-             "reasons": {out.reasons[k]: int(np.sum(out.reason == k)) for k in np.unique(out.reason)}}
+             "reasons": {out.reasons[k]: int(np.sum(out.reason == k)) for k in np.unique(out.reason)},
+             "reason_codes": list(out.reasons)}  # the epochs table's reason column: an index into these
+        own = out.diagnostics.summary_rows() if out.diagnostics is not None else {}
+        if own:  # a monitor's own rows (ARAIM's EMT, σ_acc,v and fault modes over the file)
+            m["own"] = own
         for pl in ("hpl", "vpl"):
             x = np.asarray(getattr(out, pl), float)
             x = x[np.isfinite(x)]
@@ -407,6 +442,8 @@ def print_summary(run: RinexRun) -> None:
         t.add_row(f"{name} PLs", pls or "none (no epoch had a solution)")
         t.add_row(f"{name} detection", f"{m['alert_epochs']} alert epochs, {m['excluded_epochs']} with an exclusion, "
                                        f"{m['no_solution_epochs']} without PLs")
+        for label, text in m.get("own", {}).items():
+            t.add_row(f"{name} {label}", text)
         if "hpe95_m" in m:
             t.add_row(f"{name} vs reference", f"HPE95 {m['hpe95_m']:.2f} m, VPE95 {m['vpe95_m']:.2f} m, MI "
                                               f"{m['mi_epochs']}, HMI {m['hmi_epochs']}")

@@ -113,12 +113,21 @@ class GpsClockRunoff(_OnSatellites):
     accel_m_s2: float = Field(0.05, ge=-1e3, le=1e3, description="clock error acceleration")
 
 
-class ConstellationBias(_Timed):
+class _OnSystem(_Timed):
+    """A fault on every satellite of one constellation."""
+
+    system: Literal["gps", "galileo", "beidou"] = Field(..., description="the constellation hit")
+
+    @property
+    def target_text(self) -> str:
+        return f"system = {self.system!r}"
+
+
+class ConstellationBias(_OnSystem):
     """A constellation-wide fault: the same error on every satellite of one system, bias + rate·τ, τ = t − onset
     (a wrong broadcast system time offset or a ground-segment fault)."""
 
     kind: Literal["constellation_bias"] = Field(..., description="fault kind")
-    system: Literal["gps", "galileo", "beidou"] = Field(..., description="the constellation hit")
     bias_m: float = Field(0.0, ge=-1e6, le=1e6, description="error common to its satellites at the onset (m)")
     rate_m_s: float = Field(0.0, ge=-1e4, le=1e4, description="growth rate of the common error (m/s)")
 
@@ -128,9 +137,55 @@ class ConstellationBias(_Timed):
             raise ValueError("expected a non-zero bias_m or rate_m_s (a fault that adds nothing)")
         return self
 
-    @property
-    def target_text(self) -> str:
-        return f"system = {self.system!r}"
+
+#: one milliarcsecond in radians (a frame rotation's unit: 1 mas turns a GPS orbit's 26 560 km by 0.13 m)
+MAS_RAD = np.pi / (180.0 * 3600.0 * 1000.0)
+_Translation = Annotated[float, Field(ge=-1e5, le=1e5)]
+_RotationMas = Annotated[float, Field(ge=-1e6, le=1e6)]
+
+
+class ConstellationOrbit(_OnSystem):
+    """A constellation-wide orbit (frame) error: every satellite of one system stands at R·s + d, not at the
+    broadcast position s — a common ECEF translation d (``translation_m``) and a small rotation R of the
+    constellation's frame about the Earth's centre (``rotation_mas``, the rotation vector). Its range error,
+    |R·s + d − x| − |s − x| at the antenna x (≈ u·(d + θ × s) along each line of sight u), differs from satellite
+    to satellite: the system's clock absorbs only its common part. For a user, a rotation θ looks like the
+    translation θ × x (u·(θ × (s − x)) = 0)."""
+
+    kind: Literal["constellation_orbit"] = Field(..., description="fault kind")
+    translation_m: tuple[_Translation, _Translation, _Translation] = Field(
+        (0.0, 0.0, 0.0), description="common displacement of the system's satellites, ECEF X, Y, Z (m)")
+    rotation_mas: tuple[_RotationMas, _RotationMas, _RotationMas] = Field(
+        (0.0, 0.0, 0.0), description="rotation of the system's frame about ECEF X, Y, Z (milliarcseconds; 1 mas "
+                                     "moves a satellite 26 560 km from the Earth's centre by 0.13 m)")
+
+    @model_validator(mode="after")
+    def _something(self):
+        if not any(self.translation_m) and not any(self.rotation_mas):
+            raise ValueError("expected a non-zero translation_m or rotation_mas (a fault that moves nothing)")
+        return self
+
+
+def rotation_matrix(rotation_vector: NDArray) -> NDArray:
+    """(3, 3) rotation by |v| radians about v/|v| (Rodrigues), the identity for v = 0."""
+    v = np.asarray(rotation_vector, float)
+    a = float(np.linalg.norm(v))
+    if a == 0.0:
+        return np.eye(3)
+    k = v / a
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
+
+
+def orbit_range_error(fault: ConstellationOrbit, sat_pos_ecef: NDArray, ant_pos_ecef: NDArray) -> NDArray:
+    """Range error (m, (..., T, S)) of satellites at ``sat_pos_ecef`` (..., T, S, 3) seen from ``ant_pos_ecef``
+    (T, 3) when they really stand at R·s + d: the exact difference of the two distances (0 where a position is
+    not finite)."""
+    s = np.asarray(sat_pos_ecef, float)
+    x = np.asarray(ant_pos_ecef, float)[..., None, :]
+    moved = s @ rotation_matrix(np.asarray(fault.rotation_mas) * MAS_RAD).T + np.asarray(fault.translation_m)
+    err = np.linalg.norm(moved - x, axis=-1) - np.linalg.norm(s - x, axis=-1)
+    return np.where(np.isfinite(err), err, 0.0)
 
 
 class PixelBias(_Timed):
@@ -169,9 +224,11 @@ class Misassociation(_Timed):
         return self
 
 
-Fault = Annotated[Union[GpsStep, GpsRamp, GpsClockRunoff, ConstellationBias, PixelBias, LandmarkMoved,
-                        Misassociation], Field(discriminator="kind")]
-GNSS_KINDS = ("gps_step", "gps_ramp", "gps_clock", "constellation_bias")
+Fault = Annotated[Union[GpsStep, GpsRamp, GpsClockRunoff, ConstellationBias, ConstellationOrbit, PixelBias,
+                        LandmarkMoved, Misassociation], Field(discriminator="kind")]
+GNSS_KINDS = ("gps_step", "gps_ramp", "gps_clock", "constellation_bias", "constellation_orbit")
+#: the GNSS kinds that hit every satellite of one system (``system``), not chosen satellites
+SYSTEM_KINDS = ("constellation_bias", "constellation_orbit")
 VISION_KINDS = ("pixel_bias", "landmark_moved", "misassociation")
 
 
@@ -210,7 +267,7 @@ def named_targets(fault, prn: NDArray, system: NDArray | None = None) -> NDArray
     ones when a named satellite or system is not tracked."""
     prn = np.asarray(prn)
     system = np.full(prn.shape, "G") if system is None else np.asarray(system)
-    if isinstance(fault, ConstellationBias):
+    if isinstance(fault, _OnSystem):
         hit = system == SYSTEM_LETTERS[fault.system]
         if not hit.any():
             raise ValueError(f"fault {fault.kind}: system {fault.system!r} is not tracked (the constellation has "
@@ -249,14 +306,16 @@ def select_satellites(fault, t: NDArray, prn: NDArray, visible: NDArray,
 
 
 def gnss_fault_bias(faults: list, t: NDArray, prn: NDArray, visible: NDArray,
-                    rng: np.random.Generator, system: NDArray | None = None) -> NDArray:
+                    rng: np.random.Generator, system: NDArray | None = None, sat_pos_ecef: NDArray | None = None,
+                    ant_pos_ecef: NDArray | None = None) -> NDArray:
     """Total injected pseudorange error ``(T, S)`` from the GNSS faults of a schedule.
 
     Non-GNSS faults are ignored. ``rng`` is used only for "random" selections;
     each fault gets its own child generator (spawned in schedule order), so a
     fault's choice does not depend on whether another fault's onset is inside
     ``t`` yet: the result is stable when ``t`` grows (the closed loop relies on it).
-    ``system`` (S,): the slots' system letters (None: all GPS).
+    ``system`` (S,): the slots' system letters (None: all GPS). ``sat_pos_ecef`` (T, S, 3) and
+    ``ant_pos_ecef`` (T, 3): the geometry an orbit fault (:class:`ConstellationOrbit`) projects on.
     """
     t = np.asarray(t, float)
     bias = np.zeros((t.size, len(prn)))
@@ -264,5 +323,11 @@ def gnss_fault_bias(faults: list, t: NDArray, prn: NDArray, visible: NDArray,
         if f.kind not in GNSS_KINDS:
             continue
         hit = select_satellites(f, t, prn, np.asarray(visible, bool), g, system)
-        bias[:, hit] += fault_profile(f, t)[:, None]
+        if isinstance(f, ConstellationOrbit):
+            if sat_pos_ecef is None or ant_pos_ecef is None:
+                raise ValueError(f"fault {f.kind}: needs the satellites' and the antenna's positions")
+            err = orbit_range_error(f, np.asarray(sat_pos_ecef)[:, hit], ant_pos_ecef)
+            bias[:, hit] += np.where(active(f, t)[:, None], err, 0.0)
+        else:
+            bias[:, hit] += fault_profile(f, t)[:, None]
     return bias

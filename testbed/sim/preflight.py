@@ -89,17 +89,17 @@ def _constellation(approach: Approach, problems: list[str]):
 
 
 def _gnss_fault_problems(approach: Approach, eph) -> list[str]:
-    from testbed.sensors.faults import GNSS_KINDS, named_targets
+    from testbed.sensors.faults import GNSS_KINDS, SYSTEM_KINDS, named_targets
 
     out = []
     for k, f in enumerate(approach.config.faults):
-        if f.kind not in GNSS_KINDS or (f.kind != "constellation_bias" and f.targets == "random"):
+        if f.kind not in GNSS_KINDS or (f.kind not in SYSTEM_KINDS and f.targets == "random"):
             continue
         try:
             named_targets(f, eph.prn, eph.system)
         except ValueError as exc:
             tracked = approach.config.gnss.constellations
-            if f.kind == "constellation_bias":
+            if f.kind in SYSTEM_KINDS:
                 out.append(f"faults.{k}.system = {f.system!r}: not tracked (expected one of constellations = "
                            f"{tracked})")
                 continue

@@ -76,6 +76,17 @@ class AraimDiagnostics(Diagnostics):
         return {"EMT max / p95": spread(self.emt), "σ_acc,v max / p95": spread(self.sigma_acc_v),
                 "fault modes (min-max)": f"{modes.min()}-{modes.max()}" if modes.size else "-"}
 
+    def epoch_columns(self) -> dict[str, NDArray]:
+        """EMT, σ_acc,v and σ_acc,h (m; NaN where unprotected), the fault modes monitored, N_fault,max, the
+        unmonitored prior, the vertical threshold multiplier and each used system's receiver clock (m)."""
+        cols = {"emt_m": self.emt, "sigma_acc_v_m": self.sigma_acc_v, "sigma_acc_h_m": self.sigma_acc_h,
+                "fault_modes": self.n_modes, "fault_order": self.fault_order, "p_unmonitored": self.p_unmonitored,
+                "k_fa_v": self.k_fa_v}
+        clock = np.asarray(self.clock, float)
+        for k, system in enumerate(SYSTEMS):
+            if np.isfinite(clock[..., k]).any():  # a system some epoch used
+                cols[f"clock_{system.lower()}_m"] = clock[..., k]
+        return cols
 
     def plot_series(self) -> dict[str, tuple[NDArray, str]]:
         """EMT and σ_acc,v on the vertical panel, each with its LPV-200 limit."""

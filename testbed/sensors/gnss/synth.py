@@ -229,8 +229,11 @@ def _fault_bias(faults: Sequence, geom: GnssGeometry, rng: np.random.Generator,
     if batch and (geom.stacked or any(getattr(f, "targets", None) == "random" for f in gnss)):
         # per trial (drawn in trial order from rng): a fresh random satellite, visible in the trial's sky
         vis = geom.visible if geom.stacked else np.broadcast_to(geom.visible, batch + (T, S))
-        return np.stack([gnss_fault_bias(gnss, geom.t, geom.prn, vis[i], rng, geom.system) for i in range(batch[0])])
-    return np.broadcast_to(gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng, geom.system), batch + (T, S))
+        sat = geom.sat_pos_ecef if geom.stacked else np.broadcast_to(geom.sat_pos_ecef, batch + (T, S, 3))
+        return np.stack([gnss_fault_bias(gnss, geom.t, geom.prn, vis[i], rng, geom.system, sat[i], geom.ant_pos_ecef)
+                         for i in range(batch[0])])
+    return np.broadcast_to(gnss_fault_bias(gnss, geom.t, geom.prn, geom.visible, rng, geom.system, geom.sat_pos_ecef,
+                                           geom.ant_pos_ecef), batch + (T, S))
 
 
 @dataclass(frozen=True)
