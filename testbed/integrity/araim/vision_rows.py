@@ -112,6 +112,7 @@ def camera_rows(cam: CameraEpochs, p_ant: NDArray, max_landmarks: int) -> dict[s
     g_prior = np.broadcast_to(np.concatenate([np.zeros((K, 3)), np.eye(K)], -1), (P, K, 3 + K))
     pix_used = np.repeat(tracked, 2, -1)
     g = np.concatenate([g_pix, g_prior], 1)
+    sig = np.where(np.isfinite(uv).all(-1), sig, np.nan)  # a detection without a pixel: a NaN row, never dropped
     c = np.concatenate([np.repeat(sig, 2, -1) ** 2, np.broadcast_to(cam.rotation_sigma[states] ** 2, (P, K))], -1)
     residual = np.concatenate([(uv - uv_hat).reshape(P, 2 * Lc), np.zeros((P, K))], -1)
     used = np.concatenate([pix_used, np.broadcast_to(pix_used.any(-1, keepdims=True), (P, K))], -1)
@@ -119,6 +120,6 @@ def camera_rows(cam: CameraEpochs, p_ant: NDArray, max_landmarks: int) -> dict[s
     label = np.array([(AID_LANDMARK, j) for j in range(Lc) for _ in range(2)] + [(AID_CAMERA, k) for k in range(K)],
                      int).reshape(-1, 2)
     g = np.where(used[..., None], g, 0.0)  # unused rows: finite, never read
-    c = np.where(used, c, 1.0)
+    c = np.where(used, c, 1.0)  # a used NaN row stays NaN: the epoch is unavailable (NAN_INPUT)
     residual = np.where(used, residual, 0.0)
     return dict(aid_g=g, aid_state=state, aid_label=label, aid_used=used, aid_c=c, aid_residual=residual)
