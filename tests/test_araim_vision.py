@@ -20,6 +20,7 @@ from testbed.inertial import body_to_world
 from testbed.integrity.araim import AraimRows, AraimSettings, araim
 from testbed.integrity.araim.core import AraimReason, araim_modes
 from testbed.integrity.araim.fault_modes import AID_CAMERA, AID_LANDMARK
+from testbed.integrity.araim.inertia_rows import with_inertial_prediction
 from testbed.integrity.araim.vision_rows import camera_epochs, camera_rows
 from testbed.integrity.pixel_model import attitude_pixel_jacobians, pixel_covariance, project_landmarks
 from testbed.schema import ConfigError
@@ -79,11 +80,14 @@ def _pixel_model(geo):
     return H.reshape(-1, 3), Sig
 
 
-def _brute(gnss: AraimRows, H, Sig, removed_sats, removed_landmarks, camera_out):
-    """Position rows S (3, N + 2L) of the GLS on the kept pseudoranges and pixels, full pixel covariance."""
+def _brute(gnss: AraimRows, H, Sig, removed_sats, removed_landmarks, camera_out, n_pixel=None, keep_extra=True):
+    """Position rows S (3, N + len(H)) of the GLS on the kept pseudoranges and pixels, full pixel covariance.
+    Rows of H past the first ``n_pixel`` (a position prediction) are kept iff ``keep_extra``."""
     N, L2 = gnss.los_enu.shape[0], H.shape[0]
+    n_pixel = L2 if n_pixel is None else n_pixel
     keep_g = np.setdiff1d(np.arange(N), list(removed_sats))
-    keep_p = [] if camera_out else [i for i in range(L2) if i // 2 not in removed_landmarks]
+    keep_p = ([] if camera_out else [i for i in range(n_pixel) if i // 2 not in removed_landmarks]) + (
+        list(range(n_pixel, L2)) if keep_extra else [])
     systems = sorted(set(gnss.system[keep_g]))
     X = np.concatenate([np.concatenate([-gnss.los_enu[keep_g],
                                         (gnss.system[keep_g, None] == np.array(systems)).astype(float)], 1),
@@ -112,7 +116,7 @@ def test_gnss_only_rows_are_unchanged_by_an_unused_camera_block():
     a, b = araim(gnss), araim(with_cam)
     for name in ("hpl", "vpl", "emt", "sigma_acc_enu", "test_ratio", "n_modes", "p_unmonitored"):
         np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=0, atol=1e-9, err_msg=name)
-    assert b.n_modes_aid == 0 and np.all(b.risk_aid_enu == 0.0)
+    assert np.all(b.n_modes_aid == 0) and np.all(b.risk_aid_enu == 0.0)
 
 
 def test_rotation_states_with_prior_rows_give_the_pixel_models_full_covariance():
@@ -169,7 +173,7 @@ def test_vpl_solves_the_protection_level_equation():
     _, rows, geo = _case(n_sat=8, systems=(0, 1), n_landmarks=L)
     H, Sig = _pixel_model(geo)
     ep, table = araim(rows, st), araim_modes(rows, st)
-    assert ep.reason == AraimReason.OK and ep.n_modes_aid > 0
+    assert ep.reason == AraimReason.OK and ep.n_modes_aid[0] > 0
     N = rows.los_enu.shape[0]
     C = np.zeros((N + 2 * L,) * 2)
     C[:N, :N] = np.diag(rows.c_int)
@@ -198,8 +202,8 @@ def test_vpl_solves_the_protection_level_equation():
     # the risk the vision modes take at the VPL, over the exposure (× N_ES)
     at = float(ep.vpl)
     vision = sum(p * min(stats.norm.sf((at - off) / s), a) for (p, off, s, a), v in zip(terms, aid_modes) if v)
-    assert sum(aid_modes) == int(ep.n_modes_aid) > 0
-    np.testing.assert_allclose(ep.risk_aid_enu[2], vision * st.n_es_int, rtol=1e-6)
+    assert sum(aid_modes) == int(ep.n_modes_aid[0]) > 0
+    np.testing.assert_allclose(ep.risk_aid_enu[0, 2], vision * st.n_es_int, rtol=1e-6)
 
 
 def test_a_biased_landmark_leaves_its_own_subset_unmoved():
@@ -220,7 +224,7 @@ def test_a_biased_landmark_leaves_its_own_subset_unmoved():
 
 def test_degenerate_cameras_give_reasons_not_exceptions():
     one = araim(_case(n_landmarks=1)[1])
-    assert one.reason == AraimReason.OK and one.n_modes_aid >= 2  # the landmark and the camera
+    assert one.reason == AraimReason.OK and one.n_modes_aid[0] >= 2  # the landmark and the camera
     nan = araim(_case(n_landmarks=3, nan_pixel=True)[1])
     assert nan.reason == AraimReason.NAN_INPUT and np.isinf(nan.vpl)
 
@@ -232,7 +236,7 @@ def test_vision_makes_the_constellation_mode_of_a_gps_only_sky_observable():
     assert araim(gnss).reason == AraimReason.UNMONITORED
     ep = araim(rows)
     assert ep.reason == AraimReason.OK and np.isfinite(ep.vpl)
-    assert 0.0 <= ep.risk_aid_enu[2] < AraimSettings().p_hmi_vert
+    assert 0.0 <= ep.risk_aid_enu[0, 2] < AraimSettings().p_hmi_vert
 
 
 def test_vision_modes_need_a_monitor_that_reads_vision():
@@ -240,3 +244,75 @@ def test_vision_modes_need_a_monitor_that_reads_vision():
     assert ap.config.monitor["araim"].vision
     with pytest.raises(ConfigError, match="vision = true"):
         with_overrides(ap, monitors=["gps_raim", "araim"])
+
+
+# ----------------------------------------------------------------------------- an inertial prediction
+
+P_PRED = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, -0.4], [0.5, -0.4, 9.0]])  # m², correlated axes
+
+
+def _with_prediction(rows, offset=np.zeros(3)):
+    """``rows`` plus a prediction at the linearisation point + ``offset`` (the rows' residuals are taken there)."""
+    return with_inertial_prediction(rows, np.zeros(3) + offset, P_PRED, p_lin=np.zeros(3))
+
+
+def test_an_inertial_prediction_is_a_fault_event_whose_subsets_match_a_gls():
+    """Vision and an inertial prediction in one budget: every mode's σ, σ_ss and separation against the GLS on the
+    kept pseudoranges, pixels (full covariance) and the prediction (its full P⁻)."""
+    L = 3
+    _, rows, geo = _case(n_sat=8, systems=(0, 1), n_landmarks=L, residual_seed=11)
+    rows = _with_prediction(rows, np.array([0.7, -1.2, 2.0]))
+    H, Sig = _pixel_model(geo)
+    table = araim_modes(rows)
+    N = rows.los_enu.shape[0]
+    n_aid = rows.aid_g.shape[0]
+    inertia_rows = set(range(N + n_aid - 3, N + n_aid))
+
+    def gls(removed):
+        sats, lms, cam = _mode_parts([i for i in removed if i not in inertia_rows], N, L)
+        return _brute(rows, np.concatenate([H, np.eye(3)]), _blockdiag(Sig, P_PRED), sats, lms, cam, n_pixel=2 * L,
+                      keep_extra=not inertia_rows & set(removed))
+
+    C = _blockdiag(np.diag(rows.c_acc), _blockdiag(Sig, P_PRED))
+    C_int = _blockdiag(np.diag(rows.c_int), _blockdiag(Sig, P_PRED))
+    y = np.concatenate([rows.residual, rows.aid_residual[:2 * L], np.array([0.7, -1.2, 2.0])])
+    S0 = gls(())
+    seen = 0
+    for k, removed in enumerate(table.removed):
+        if not table.observable[k] or k == 0:
+            continue
+        S = gls(removed)
+        D = S - S0
+        np.testing.assert_allclose(table.sigma[k], np.sqrt(np.diag(S @ C_int @ S.T)), rtol=1e-7)
+        np.testing.assert_allclose(table.sigma_ss[k], np.sqrt(np.diag(D @ C @ D.T)), rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(table.separation[k], D @ y, rtol=1e-6, atol=1e-7)
+        seen += bool(inertia_rows & set(removed))
+    assert seen >= 1
+    ep = araim(rows)
+    assert ep.reason == AraimReason.OK and ep.n_modes_aid[1] >= 1 and ep.risk_aid_enu[1, 2] >= 0.0
+
+
+def test_a_biased_prediction_leaves_the_inertia_subset_unmoved():
+    _, rows, _ = _case(n_landmarks=3, residual_seed=13)
+    clean, biased = _with_prediction(rows), _with_prediction(rows, np.array([30.0, -20.0, 40.0]))
+    t_c, t_b = araim_modes(clean), araim_modes(biased)
+    N, n_aid = rows.los_enu.shape[0], clean.aid_g.shape[0]
+    k = t_c.removed.index(tuple(range(N + n_aid - 3, N + n_aid)))
+    np.testing.assert_allclose(araim(biased).dx_enu + t_b.separation[k], araim(clean).dx_enu + t_c.separation[k],
+                               atol=1e-9)
+    assert araim(biased).test_ratio > 1.0
+
+
+def test_a_prediction_without_a_positive_covariance_is_a_nan_row():
+    _, rows, _ = _case(n_landmarks=2)
+    bad = with_inertial_prediction(rows, np.zeros(3), -np.eye(3))
+    assert araim(bad).reason == AraimReason.NAN_INPUT
+    none = with_inertial_prediction(rows, np.full(3, np.nan), np.eye(3))
+    np.testing.assert_allclose(araim(none).vpl, araim(rows).vpl, atol=1e-9)  # no prediction: no rows
+
+
+def _blockdiag(A, B):
+    out = np.zeros((A.shape[0] + B.shape[0],) * 2)
+    out[:A.shape[0], :A.shape[0]] = A
+    out[A.shape[0]:, A.shape[0]:] = B
+    return out

@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import special
 
 from testbed.integrity.araim.error_model import row_variances
-from testbed.integrity.araim.fault_modes import ModeSet, fault_modes
+from testbed.integrity.araim.fault_modes import AID_GROUPS, ModeSet, fault_modes
 from testbed.integrity.araim.protection import (araim_availability, effective_monitor_threshold, fa_multipliers,
                                                 solve_protection_level)
 from testbed.integrity.araim.settings import SYSTEMS, AraimSettings
@@ -110,9 +110,10 @@ class AraimEpochs:
     dx_enu : (..., 3) m all-in-view position correction S⁽⁰⁾Δy (NaN without residuals).
     test_ratio : max over modes and axes of |x̂⁽ᵏ⁾ − x̂⁽⁰⁾| / T_k,q (NaN without residuals).
     alert : test_ratio > 1.  iterations : (..., 3) halvings of the PL search.
-    n_modes_aid : the monitored modes that remove aid (vision) rows.  risk_aid_enu : (..., 3) the integrity
-    risk those modes take in eq. 16 at the protection levels, per axis, over the exposure (× N_ES,INT; the
-    horizontal budget is shared by E and N); 0 without aid rows, NaN where unavailable.
+    n_modes_aid : (..., G) per aid group of :data:`~.fault_modes.AID_GROUPS` (vision, inertia), the monitored
+    modes that remove rows of that group.  risk_aid_enu : (..., G, 3) the integrity risk those modes take in
+    eq. 16 at the protection levels, per axis, over the exposure (× N_ES,INT; the horizontal budget is shared by
+    E and N); 0 without such rows, NaN where unavailable.
     """
 
     hpl: NDArray
@@ -272,7 +273,8 @@ def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False, bud
                sigma_acc=np.full((P, 3), np.nan), n_modes=np.zeros(P, int), p_nm=np.full(P, np.nan),
                k_fa=np.full((P, 3), np.nan), ratio=np.full(P, np.nan), dx=np.full((P, 3), np.nan),
                fault_order=np.zeros(P, int), reason=np.where(bad, AraimReason.NAN_INPUT, AraimReason.OK),
-               n_modes_aid=np.zeros(P, int), risk_aid=np.where(bad[:, None], np.nan, 0.0) + np.zeros((P, 3)))
+               n_modes_aid=np.zeros((P, len(AID_GROUPS)), int),
+               risk_aid=np.zeros((P, len(AID_GROUPS), 3)))
     # used rows first, ordered by system (stable): epochs with the same key share their fault modes
     order = np.lexsort((system, ~used), axis=-1)
     sys_sorted = np.take_along_axis(system, order, -1)
@@ -323,7 +325,9 @@ def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False, bud
             zero = np.zeros_like(c_aid)
             parts = [np.concatenate([x, y], -1) for x, y in zip(parts, (c_aid, c_aid, zero, zero))]
             res = None if res is None else np.concatenate([res, aid["residual"][epochs][:, aid_idx]], -1)
-        aid_mode = modes.removed[:, n_gnss:].any(-1)
+        kinds = np.array([a for a, _ in labels], int)
+        aid_mode = np.stack([modes.removed[:, n_gnss:][:, np.isin(kinds, group)].any(-1)
+                             for group in AID_GROUPS.values()], -1)  # (M, G)
         step = chunk_epochs(epochs.size, modes.removed.shape[0], n_rows, n_states)
         for a in range(0, epochs.size, step):
             sl = slice(a, a + step)
@@ -332,8 +336,8 @@ def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False, bud
                              modes, settings, share[e])
             for name in ("pl", "iterations", "emt", "sigma_acc", "n_modes", "p_nm", "k_fa", "ratio", "dx"):
                 out[name][e] = r[name]
-            out["n_modes_aid"][e] = (r["monitored"] & aid_mode).sum(-1)
-            out["risk_aid"][e] = np.where(aid_mode[None, :, None], r["terms"], 0.0).sum(1)
+            out["n_modes_aid"][e] = (r["monitored"][..., None] & aid_mode).sum(1)
+            out["risk_aid"][e] = np.einsum("mg,emq->egq", aid_mode.astype(float), np.nan_to_num(r["terms"]))
             out["reason"][e[r["singular"]]] = AraimReason.SINGULAR
             out["reason"][e[r["unmonitored"]]] = AraimReason.UNMONITORED
             if keep_table:
@@ -393,7 +397,7 @@ def araim(rows: AraimRows, settings: AraimSettings | None = None, budget_share: 
                        k_fa=shape(out["k_fa"]), dx_enu=shape(out["dx"]), test_ratio=shape(ratio),
                        alert=shape(ratio > 1.0), iterations=shape(out["iterations"]),
                        n_modes_aid=shape(out["n_modes_aid"]),
-                       risk_aid_enu=shape(np.where(ok[:, None], out["risk_aid"], np.nan)))
+                       risk_aid_enu=shape(np.where(ok[:, None, None], out["risk_aid"], np.nan)))
 
 
 def araim_modes(rows: AraimRows, settings: AraimSettings | None = None) -> ModeTable | None:

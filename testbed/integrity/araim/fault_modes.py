@@ -23,8 +23,11 @@ from testbed.integrity.araim.settings import SYSTEMS, AraimSettings, AidFaultPri
 
 #: modes with an exposure prior above this are always monitored (MAAST-2's must-monitor floor)
 P_MUST_MONITOR = 1e-7
-#: kinds of a non-GNSS (aid) row: one landmark's pixel row, a prior row of the camera's rotation states
-AID_LANDMARK, AID_CAMERA = 0, 1
+#: kinds of a non-GNSS (aid) row: one landmark's pixel row, a prior row of the camera's rotation states, a row of
+#: an inertial (coasted) position prediction
+AID_LANDMARK, AID_CAMERA, AID_INERTIA = 0, 1, 2
+#: the aid groups whose modes are reported apart, and the row kinds of each
+AID_GROUPS: dict[str, tuple[int, ...]] = {"vision": (AID_LANDMARK, AID_CAMERA), "inertia": (AID_INERTIA,)}
 #: the group code of the camera event (after the GNSS systems' codes): consolidated like a constellation
 CAMERA_GROUP = len(SYSTEMS)
 
@@ -100,6 +103,9 @@ def fault_events(system: NDArray, settings: AraimSettings, aid: tuple[tuple[int,
     camera = [N + a for a, (kind, _) in enumerate(aid) if kind in (AID_LANDMARK, AID_CAMERA)]
     if camera:
         add(camera, settings.camera, CAMERA_GROUP)
+    inertia = [N + a for a, (kind, _) in enumerate(aid) if kind == AID_INERTIA]
+    if inertia:
+        add(inertia, settings.inertia, -1)
     p = np.array(p, float)
     return FaultEvents(tuple(rows), p, p * (1.0 + np.array(tau)), np.array(sys, int))
 

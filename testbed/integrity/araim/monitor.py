@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
-from testbed.integrity.araim.fault_modes import AID_LANDMARK
+from testbed.integrity.araim.fault_modes import AID_GROUPS, AID_LANDMARK
 from testbed.integrity.araim.core import ARAIM_REASONS, AraimEpochs, AraimReason, AraimRows, araim
 from testbed.integrity.araim.protection import EMT_LIMITS, SIGMA_ACC_V_LIMITS
 from testbed.integrity.araim.settings import SYSTEMS, AraimMonitorSettings, AraimSettings
@@ -35,6 +35,7 @@ SYSTEM_CODES = {"G": 0, "E": 1, "C": 2, "R": 3}
 #: the monitor's reasons: ARAIM's, then the position solve's own
 REASONS: tuple[str, ...] = ARAIM_REASONS + ("unavailable: the all-in-view position did not converge",)
 NOT_CONVERGED = len(ARAIM_REASONS)
+VISION = list(AID_GROUPS).index("vision")
 
 
 @dataclass(frozen=True)
@@ -265,8 +266,8 @@ def _output(name: str, t: NDArray, bt: tuple, S: int, idx: NDArray, used: NDArra
         residual=shape(residual),
         converged=shape(sv.fix.converged), n_iter=shape(sv.fix.iterations.astype(np.int16)),
         n_landmarks=shape(_landmarks_used(sv.fix.rows)),
-        n_modes_vision=shape(ep.n_modes_aid.astype(np.int16)),
-        risk_vision_v=shape(ep.risk_aid_enu[:, 2]), risk_vision_h=shape(ep.risk_aid_enu[:, :2].sum(-1)),
+        n_modes_vision=shape(ep.n_modes_aid[:, VISION].astype(np.int16)),
+        risk_vision_v=shape(ep.risk_aid_enu[:, VISION, 2]), risk_vision_h=shape(ep.risk_aid_enu[:, VISION, :2].sum(-1)),
         vision=vision)
     return MonitorOutput(
         name=name, t=t, pos_enu=shape(sv.pos_enu), clock=shape(sv.clock), hpl=shape(nan_where_not(ep.hpl)),

@@ -123,6 +123,9 @@ class AraimSettings(StrictModel):
                                                                      "an attitude error beyond their sigmas, a "
                                                                      "mis-registered map, a calibration fault); "
                                                                      "read with vision rows only")
+    inertia: AidFaultPrior = Field(AidFaultPrior(p=1e-5), description="fault prior of an inertial position "
+                                                                      "prediction given as rows (an IMU fault, a "
+                                                                      "wrong alignment): docs/design/araim.md §11")
 
     @field_validator("ism")
     @classmethod
