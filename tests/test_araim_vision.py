@@ -316,3 +316,52 @@ def _blockdiag(A, B):
     out[:A.shape[0], :A.shape[0]] = A
     out[A.shape[0]:, A.shape[0]:] = B
     return out
+
+
+def test_a_rinex_replay_refuses_vision_modes(tmp_path):
+    """testbed monitor reads RINEX, which has no camera: the config is refused before any work."""
+    from testbed.replay.run import load_config
+
+    cfg = tmp_path / "m.toml"
+    cfg.write_text("[monitor.araim]\nvision = true\n")
+    with pytest.raises(ConfigError, match="vision = true"):
+        load_config(cfg)
+    cfg.write_text("[monitor.araim]\nvision = false\n")
+    assert load_config(cfg).monitor["araim"]["vision"] is False
+
+
+def test_the_araim_monitor_without_vision_observations_is_a_clear_error():
+    from testbed.integrity.araim.monitor import araim_gnss
+    from testbed.integrity.araim.settings import AraimMonitorSettings
+    from test_integrity_core_helpers import make_gnss
+
+    gnss, _, _ = make_gnss(FRAME, np.array([[0.0, -3000.0, 160.0]]), np.array([344063.0]), None)
+    with pytest.raises(ValueError, match="no vision observations"):
+        araim_gnss(gnss, FRAME, AraimMonitorSettings(vision=True))
+
+
+def test_the_monitor_reads_the_camera_per_trial_and_reports_the_vision_modes():
+    """araim_gnss with vision on trials × epochs: each trial's output equals that trial run alone (the camera's
+    epochs follow the trial chunks), the landmarks and vision modes are reported, and the summary shows them."""
+    from testbed.integrity.araim.monitor import araim_gnss
+    from testbed.integrity.araim.settings import AraimMonitorSettings
+
+    rng = np.random.default_rng(21)
+    gnss, vision, _, _ = scene(T=3, batch=(4,), rng=rng)
+    ms = AraimMonitorSettings(vision=True, ism={"GPS": {"p_const": 1e-8}})
+    out = araim_gnss(gnss, FRAME, ms, vision=vision, threads=2)
+    d = out.diagnostics
+    assert (out.reason == 0).all() and (d.n_landmarks >= 2).all() and (d.n_modes_vision >= 3).all()
+    assert np.isfinite(d.risk_vision_v).all()
+    rows = d.summary_rows()
+    assert "vision fault modes (min-max)" in rows and "landmarks in ARAIM (min-max)" in rows
+    one = lambda a, b: replace(a, **{f: getattr(a, f)[b] for f in ("pseudorange", "sat_pos_ecef", "visible")})  # noqa: E731
+    for b in (0, 3):
+        alone = araim_gnss(one(gnss, b), FRAME, ms, threads=1,
+                           vision=replace(vision, pixel_uv=vision.pixel_uv[b], detected=vision.detected[b],
+                                          reason=vision.reason[b], sigma_px=vision.sigma_px[b],
+                                          q_body_to_enu_ref=vision.q_body_to_enu_ref[b]))
+        np.testing.assert_allclose(out.vpl[b], alone.vpl, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(d.n_modes_vision[b], alone.diagnostics.n_modes_vision)
+    plain = araim_gnss(gnss, FRAME, ms.model_copy(update={"vision": False}), threads=2)
+    assert not plain.diagnostics.vision and "vision fault modes (min-max)" not in plain.diagnostics.summary_rows()
