@@ -44,7 +44,8 @@ def with_inertial_prediction(rows: AraimRows, p_pred: ArrayLike, P_pred: ArrayLi
     c_new = np.ones(batch + (3,))
     res_new = None
     if rows.residual is not None:
-        res_new = np.einsum("...ij,...j->...i", Linv, np.where(given[..., None], p_pred - np.asarray(p_lin, float), 0.0))
+        innovation = np.where(given[..., None], p_pred - np.asarray(p_lin, float), 0.0)
+        res_new = np.einsum("...ij,...j->...i", Linv, innovation)
     label_new = np.array([(AID_INERTIA, q) for q in range(3)], int)
     if rows.aid_g is None:
         return replace(rows, aid_g=g_new, aid_state=np.zeros((3, 0), bool), aid_label=label_new,
