@@ -27,7 +27,7 @@ from testbed.flight.settings import (
     Wind,
 )
 from testbed.integrity.settings import IntegritySettings
-from testbed.monitors import MonitorName, monitor_names, options_tables
+from testbed.monitors import MonitorName, monitor_names, options_tables, reads
 from testbed.sensors.imu.settings import ImuSettings
 from testbed.resources import aircraft_dir, approaches_dir, campaigns_dir, shipped_or_path
 from testbed.schema import ConfigError, FileName, StrictModel, format_validation_error
@@ -100,6 +100,16 @@ class ApproachConfig(StrictModel):
             return v  # the dict type reports it
         tables = options_tables().model_validate(v)
         return {name: table for name, table in tables if table is not None}
+
+    @model_validator(mode="after")
+    def _araim_vision_reads_vision(self):
+        """ARAIM's vision rows read the observations a vision monitor makes the run synthesise."""
+        araim = self.monitor.get("araim")
+        if "araim" in self.monitors and getattr(araim, "vision", False) and not reads("vision", self.monitors):
+            raise ValueError("[monitor.araim] vision = true reads the camera's detections, but no monitor of "
+                             f"{self.monitors} reads vision: add one that does (va_raim, pixel or ekf) or set "
+                             "vision = false")
+        return self
 
     @field_validator("start_time_utc")
     @classmethod

@@ -17,9 +17,10 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import special
 
 from testbed.integrity.araim.error_model import row_variances
-from testbed.integrity.araim.fault_modes import ModeSet, fault_modes
+from testbed.integrity.araim.fault_modes import AID_GROUPS, ModeSet, fault_modes
 from testbed.integrity.araim.protection import (araim_availability, effective_monitor_threshold, fa_multipliers,
                                                 solve_protection_level)
 from testbed.integrity.araim.settings import SYSTEMS, AraimSettings
@@ -56,6 +57,14 @@ class AraimRows:
     used : (..., N) bool rows in the solution.  c_int, c_acc : (..., N) m² integrity and accuracy variances.
     b_nom, b_cont : (..., N) m nominal biases.  residual : (..., N) m prefit residuals Δy at the linearisation
     point, or None (then no detection test and no position correction).
+
+    Non-GNSS (aid) rows, all None without them (docs/design/araim.md §11): A rows in fixed slots, each a linear
+    measurement of the position and of K nuisance states (the camera's rotations) with its own variance.
+    aid_g : (..., A, 3 + K) ∂row/∂[E, N, U, nuisance states].  aid_state : (A, K) bool, the nuisance states a
+    row observes (a state no kept row observes is pinned, like the clock of a removed constellation).
+    aid_label : (A, 2) int (kind, unit) of :mod:`.fault_modes` (a landmark's pixel row, a camera prior row).
+    aid_used : (..., A) bool.  aid_c : (..., A) variances (row units²; integrity and accuracy alike, no bias).
+    aid_residual : (..., A) prefit residuals (None exactly when ``residual`` is).
     """
 
     los_enu: NDArray
@@ -66,6 +75,16 @@ class AraimRows:
     b_nom: NDArray
     b_cont: NDArray
     residual: NDArray | None = None
+    aid_g: NDArray | None = None
+    aid_state: NDArray | None = None
+    aid_label: NDArray | None = None
+    aid_used: NDArray | None = None
+    aid_c: NDArray | None = None
+    aid_residual: NDArray | None = None
+
+    @property
+    def n_aid(self) -> int:
+        return 0 if self.aid_g is None else int(np.shape(self.aid_g)[-2])
 
     @classmethod
     def from_elevation(cls, los_enu: ArrayLike, system: ArrayLike, used: ArrayLike, settings: AraimSettings,
@@ -91,6 +110,10 @@ class AraimEpochs:
     dx_enu : (..., 3) m all-in-view position correction S⁽⁰⁾Δy (NaN without residuals).
     test_ratio : max over modes and axes of |x̂⁽ᵏ⁾ − x̂⁽⁰⁾| / T_k,q (NaN without residuals).
     alert : test_ratio > 1.  iterations : (..., 3) halvings of the PL search.
+    n_modes_aid : (..., G) per aid group of :data:`~.fault_modes.AID_GROUPS` (vision, inertia), the monitored
+    modes that remove rows of that group.  risk_aid_enu : (..., G, 3) the integrity risk those modes take in
+    eq. 16 at the protection levels, per axis, over the exposure (× N_ES,INT; the horizontal budget is shared by
+    E and N); 0 without such rows, NaN where unavailable.
     """
 
     hpl: NDArray
@@ -109,6 +132,8 @@ class AraimEpochs:
     test_ratio: NDArray
     alert: NDArray
     iterations: NDArray
+    n_modes_aid: NDArray
+    risk_aid_enu: NDArray
     reasons: tuple[str, ...] = ARAIM_REASONS
 
     @property
@@ -136,8 +161,8 @@ class ModeTable:
 
 
 @lru_cache(maxsize=256)
-def _modes(systems: tuple[int, ...], settings_json: str) -> ModeSet:
-    return fault_modes(np.array(systems, int), AraimSettings.model_validate_json(settings_json))
+def _modes(systems: tuple[int, ...], settings_json: str, aid: tuple[tuple[int, int], ...] = ()) -> ModeSet:
+    return fault_modes(np.array(systems, int), AraimSettings.model_validate_json(settings_json), aid)
 
 
 def _check_rows(rows: AraimRows, settings: AraimSettings) -> tuple[tuple[int, ...], int]:
@@ -155,6 +180,20 @@ def _check_rows(rows: AraimRows, settings: AraimSettings) -> tuple[tuple[int, ..
     if system.shape not in ((N,), batch + (N,)) or system.dtype.kind not in "iu":
         raise ValueError(f"ARAIM rows: system expected integer codes of shape {(N,)} or {batch + (N,)}, got "
                          f"{system.dtype} {system.shape}")
+    if rows.aid_g is not None:
+        g = np.asarray(rows.aid_g)
+        if g.ndim < 2 or g.shape[:-2] != batch or g.shape[-1] < 3:
+            raise ValueError(f"ARAIM rows: aid_g expected {batch + ('A', '3 + K')}, got {g.shape}")
+        A, K = g.shape[-2], g.shape[-1] - 3
+        for name, shape in (("aid_used", batch + (A,)), ("aid_c", batch + (A,)), ("aid_state", (A, K)),
+                            ("aid_label", (A, 2))):
+            if np.shape(getattr(rows, name)) != shape:
+                raise ValueError(f"ARAIM rows: {name} expected {shape} (from aid_g {g.shape}), got "
+                                 f"{np.shape(getattr(rows, name))}")
+        if (rows.aid_residual is None) != (rows.residual is None) or (
+                rows.aid_residual is not None and np.shape(rows.aid_residual) != batch + (A,)):
+            raise ValueError(f"ARAIM rows: aid_residual expected {batch + (A,)} exactly when residual is given, got "
+                             f"{None if rows.aid_residual is None else np.shape(rows.aid_residual)}")
     for code in np.unique(system[np.broadcast_to(rows.used, batch + (N,))] if system.ndim > 1 else system):
         if not 0 <= code < len(SYSTEMS) or SYSTEMS[code] not in settings.ism:
             raise ValueError(f"ARAIM rows: system code {int(code)} has no ISM (expected a code of "
@@ -193,6 +232,10 @@ def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: 
     pl, iterations = solve_protection_level(move(offset), move(sigma), move(weight), move(cap), target,
                                             settings.tol_pl)
     pl = np.where(protectable[:, None], pl, np.inf)
+    with np.errstate(invalid="ignore", over="ignore"):
+        z = (pl[:, None, :] - offset) / sigma
+        terms = weight * np.minimum(0.5 * special.erfc(z / np.sqrt(2.0)), cap)  # (E, M, 3), eq. 16 at the PL
+    terms = np.where(protectable[:, None, None], terms, np.nan) * settings.n_es_int
     emt = effective_monitor_threshold(threshold[..., 2], modes.p, monitored, settings.p_emt)
     sigma_acc = np.sqrt(np.einsum("eqi,ei->eq", st.s0 ** 2, c_acc))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -200,6 +243,7 @@ def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: 
     ratio = np.where(monitored[..., None], ratio, -np.inf).reshape(E, -1).max(-1, initial=-np.inf)
     dx = (np.full((E, 3), np.nan) if residual is None else np.einsum("eqi,ei->eq", st.s0, residual))
     return dict(pl=pl, iterations=iterations, emt=emt, sigma_acc=sigma_acc, n_modes=n_modes, p_nm=p_nm, k_fa=k_fa,
+                monitored=monitored, terms=terms,
                 ratio=np.where(residual is None, np.nan, np.maximum(ratio, 0.0)), dx=dx,
                 singular=~st.observable[:, 0], unmonitored=st.observable[:, 0] & (scale <= 0.0),
                 table=dict(p=modes.p, p_exp=modes.p_exp, alpha=alpha, observable=st.observable, sigma=st.sigma,
@@ -221,60 +265,103 @@ def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False, bud
     if residual is not None:
         finite &= np.isfinite(residual)
     bad = (used & ~finite).any(-1)
+    aid = _aid_rows(rows, P)
+    if aid is not None:
+        bad |= (aid["used"] & ~aid["finite"]).any(-1)
 
     out = dict(pl=np.full((P, 3), np.inf), iterations=np.zeros((P, 3), int), emt=np.full(P, np.nan),
                sigma_acc=np.full((P, 3), np.nan), n_modes=np.zeros(P, int), p_nm=np.full(P, np.nan),
                k_fa=np.full((P, 3), np.nan), ratio=np.full(P, np.nan), dx=np.full((P, 3), np.nan),
-               fault_order=np.zeros(P, int), reason=np.where(bad, AraimReason.NAN_INPUT, AraimReason.OK))
+               fault_order=np.zeros(P, int), reason=np.where(bad, AraimReason.NAN_INPUT, AraimReason.OK),
+               n_modes_aid=np.zeros((P, len(AID_GROUPS)), int),
+               risk_aid=np.zeros((P, len(AID_GROUPS), 3)))
     # used rows first, ordered by system (stable): epochs with the same key share their fault modes
     order = np.lexsort((system, ~used), axis=-1)
     sys_sorted = np.take_along_axis(system, order, -1)
     used_sorted = np.take_along_axis(used, order, -1)
     key = np.where(used_sorted & ~bad[:, None], sys_sorted, -1)
+    if aid is not None:  # the aid rows keep their slots: which are used is part of the structure
+        key = np.concatenate([key, np.where(aid["used"] & ~bad[:, None], 1, -1)], -1)
     keys, group = np.unique(key, axis=0, return_inverse=True)
     group = group.reshape(-1)
     settings_json = settings.model_dump_json()
     table = None
     for g, k in enumerate(keys):
-        systems = tuple(int(c) for c in k[k >= 0])
+        systems = tuple(int(c) for c in k[:N][k[:N] >= 0])
         epochs = np.flatnonzero((group == g) & ~bad)
         if epochs.size == 0:
             continue
         present = list(dict.fromkeys(systems))
-        n_states = 3 + len(present)
-        if len(systems) < n_states:
+        aid_idx = np.flatnonzero(k[N:] > 0)
+        labels = () if aid is None else tuple((int(a), int(u)) for a, u in aid["label"][aid_idx])
+        nuisance = (np.zeros(0, int) if aid is None else np.flatnonzero(aid["state"][aid_idx].any(0)))
+        n_states = 3 + len(present) + nuisance.size
+        n_gnss = len(systems)
+        n_rows = n_gnss + aid_idx.size
+        if n_rows < n_states:
             out["reason"][epochs] = AraimReason.NO_POSITION
             continue
-        modes = _modes(systems, settings_json)
+        modes = _modes(systems, settings_json, labels)
         out["fault_order"][epochs] = modes.fault_order
         if modes.order_exceeded:
             out["reason"][epochs] = AraimReason.FAULT_ORDER
             continue
-        n_rows = len(systems)
-        clock_of_row = np.array([present.index(s) for s in systems])
-        idx = order[epochs, :n_rows]
+        clock_of_row = np.array([present.index(s) for s in systems], int)
+        incidence = np.zeros((n_rows, len(present) + nuisance.size), bool)
+        incidence[np.arange(n_gnss), clock_of_row] = True
+        idx = order[epochs, :n_gnss]
         take = lambda a: np.take_along_axis(a[epochs], idx, -1)  # noqa: E731
         G = np.concatenate([-np.take_along_axis(los[epochs], idx[..., None], 1),
-                            np.broadcast_to(np.eye(len(present))[clock_of_row], (epochs.size, n_rows, len(present)))],
-                           -1)
+                            np.broadcast_to(np.eye(len(present))[clock_of_row], (epochs.size, n_gnss, len(present))),
+                            np.zeros((epochs.size, n_gnss, nuisance.size))], -1)
         parts = [take(flat[k]) for k in ("c_int", "c_acc", "b_nom", "b_cont")]
         res = None if residual is None else take(residual)
+        if aid_idx.size:
+            incidence[n_gnss:, len(present):] = aid["state"][aid_idx][:, nuisance]
+            g_aid = aid["g"][epochs][:, aid_idx]
+            G = np.concatenate([G, np.concatenate([g_aid[..., :3], np.zeros(g_aid.shape[:-1] + (len(present),)),
+                                                   g_aid[..., 3 + nuisance]], -1)], 1)
+            c_aid = aid["c"][epochs][:, aid_idx]
+            zero = np.zeros_like(c_aid)
+            parts = [np.concatenate([x, y], -1) for x, y in zip(parts, (c_aid, c_aid, zero, zero))]
+            res = None if res is None else np.concatenate([res, aid["residual"][epochs][:, aid_idx]], -1)
+        kinds = np.array([a for a, _ in labels], int)
+        aid_mode = np.stack([modes.removed[:, n_gnss:][:, np.isin(kinds, group)].any(-1)
+                             for group in AID_GROUPS.values()], -1)  # (M, G)
         step = chunk_epochs(epochs.size, modes.removed.shape[0], n_rows, n_states)
         for a in range(0, epochs.size, step):
             sl = slice(a, a + step)
             e = epochs[sl]
-            r = _solve_group(G[sl], *(x[sl] for x in parts), None if res is None else res[sl], clock_of_row,
+            r = _solve_group(G[sl], *(x[sl] for x in parts), None if res is None else res[sl], incidence,
                              modes, settings, share[e])
             for name in ("pl", "iterations", "emt", "sigma_acc", "n_modes", "p_nm", "k_fa", "ratio", "dx"):
                 out[name][e] = r[name]
+            out["n_modes_aid"][e] = (r["monitored"][..., None] & aid_mode).sum(1)
+            out["risk_aid"][e] = np.einsum("mg,emq->egq", aid_mode.astype(float), np.nan_to_num(r["terms"]))
             out["reason"][e[r["singular"]]] = AraimReason.SINGULAR
             out["reason"][e[r["unmonitored"]]] = AraimReason.UNMONITORED
             if keep_table:
-                slot = idx[sl][0]
+                slot = np.concatenate([idx[sl][0], N + aid_idx])
                 table = ModeTable(removed=tuple(tuple(sorted(int(slot[i]) for i in np.flatnonzero(m)))
                                                 for m in modes.removed),
                                   **{name: v[0] if np.ndim(v) > 1 else v for name, v in r["table"].items()})
     return batch, out, table
+
+
+def _aid_rows(rows: AraimRows, P: int) -> dict[str, NDArray] | None:
+    """The aid rows of ``rows`` flattened to P epochs (None without them), and which are finite."""
+    A = rows.n_aid
+    if not A:
+        return None
+    g = np.asarray(rows.aid_g, float)
+    g = g.reshape(P, A, g.shape[-1])
+    c = np.asarray(rows.aid_c, float).reshape(P, A)
+    res = None if rows.aid_residual is None else np.asarray(rows.aid_residual, float).reshape(P, A)
+    finite = np.isfinite(g).all(-1) & np.isfinite(c) & (c > 0)
+    if res is not None:
+        finite &= np.isfinite(res)
+    return dict(g=g, c=c, residual=res, finite=finite, used=np.asarray(rows.aid_used, bool).reshape(P, A),
+                state=np.asarray(rows.aid_state, bool), label=np.asarray(rows.aid_label, int))
 
 
 def araim(rows: AraimRows, settings: AraimSettings | None = None, budget_share: ArrayLike = 1.0) -> AraimEpochs:
@@ -308,7 +395,9 @@ def araim(rows: AraimRows, settings: AraimSettings | None = None, budget_share: 
                        reason=shape(out["reason"].astype(np.int8)), n_modes=shape(out["n_modes"]),
                        fault_order=shape(out["fault_order"]), p_unmonitored=shape(out["p_nm"]),
                        k_fa=shape(out["k_fa"]), dx_enu=shape(out["dx"]), test_ratio=shape(ratio),
-                       alert=shape(ratio > 1.0), iterations=shape(out["iterations"]))
+                       alert=shape(ratio > 1.0), iterations=shape(out["iterations"]),
+                       n_modes_aid=shape(out["n_modes_aid"]),
+                       risk_aid_enu=shape(np.where(ok[:, None, None], out["risk_aid"], np.nan)))
 
 
 def araim_modes(rows: AraimRows, settings: AraimSettings | None = None) -> ModeTable | None:

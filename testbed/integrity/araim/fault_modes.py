@@ -1,6 +1,8 @@
 """ARAIM fault modes: events, their priors, the fault order to monitor, the modes (docs/design/araim.md §3).
 
-A *fault event* is one satellite (prior P_sat) or one constellation (P_const); events are independent.
+A *fault event* is one satellite (prior P_sat) or one constellation (P_const), and with vision rows one
+landmark (its two pixel rows) or the whole camera (every pixel row and the camera's rotation prior rows,
+a group like a constellation, §11); events are independent.
 A *fault mode* is the set of rows a combination of events removes; its prior is the product of its events'
 priors (eq. 5), as the ADD writes it: at least those events faulted, an upper bound on exactly those by the
 factor 1/Π(1 − p) ≈ 1.0003, so a single-satellite mode's prior is P_sat itself. The modes of one row structure (how many rows of which system,
@@ -17,10 +19,17 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from testbed.integrity.araim.settings import AraimSettings
+from testbed.integrity.araim.settings import SYSTEMS, AraimSettings, AidFaultPrior
 
 #: modes with an exposure prior above this are always monitored (MAAST-2's must-monitor floor)
 P_MUST_MONITOR = 1e-7
+#: kinds of a non-GNSS (aid) row: one landmark's pixel row, a prior row of the camera's rotation states, a row of
+#: an inertial (coasted) position prediction
+AID_LANDMARK, AID_CAMERA, AID_INERTIA = 0, 1, 2
+#: the aid groups whose modes are reported apart, and the row kinds of each
+AID_GROUPS: dict[str, tuple[int, ...]] = {"vision": (AID_LANDMARK, AID_CAMERA), "inertia": (AID_INERTIA,)}
+#: the group code of the camera event (after the GNSS systems' codes): consolidated like a constellation
+CAMERA_GROUP = len(SYSTEMS)
 
 
 @dataclass(frozen=True)
@@ -29,7 +38,7 @@ class FaultEvents:
 
     rows : per event, the row indices it removes.  p : (E,) instantaneous priors.
     p_exp : (E,) priors over the exposure, p·(1 + T_EXP/MFD) (eq. 5).  system : (E,) the system code of a
-    constellation event, -1 for a satellite event.
+    constellation event, :data:`CAMERA_GROUP` for the camera, -1 for a satellite or landmark event.
     """
 
     rows: tuple[frozenset[int], ...]
@@ -56,13 +65,22 @@ class ModeSet:
     order_exceeded: bool
 
 
-def fault_events(system: NDArray, settings: AraimSettings) -> FaultEvents:
-    """The satellite events (one per row) then the constellation events (one per system present).
+def fault_events(system: NDArray, settings: AraimSettings, aid: tuple[tuple[int, int], ...] = ()) -> FaultEvents:
+    """The satellite events (one per row), the constellation events (one per system present), then with aid
+    rows one event per landmark and one for the camera.
 
-    system : (N,) int system code of each row.
+    system : (N,) int system code of each GNSS row.  aid : per aid row (rows N, N+1, …), its (kind, unit):
+    (:data:`AID_LANDMARK`, landmark number) or (:data:`AID_CAMERA`, state number).
     """
     system = np.asarray(system)
     rows, p, tau, sys = [], [], [], []
+
+    def add(members, prior: AidFaultPrior, code: int) -> None:
+        rows.append(frozenset(members))
+        p.append(prior.p)
+        tau.append(settings.t_exp_s / (3600.0 * prior.mfd_h))
+        sys.append(code)
+
     for i, s in enumerate(system):
         ism = settings.system_ism(int(s))
         rows.append(frozenset({i}))
@@ -75,6 +93,19 @@ def fault_events(system: NDArray, settings: AraimSettings) -> FaultEvents:
         p.append(ism.p_const)
         tau.append(settings.t_exp_s / (3600.0 * ism.mfd_const_h))
         sys.append(s)
+    N = system.size
+    landmarks: dict[int, list[int]] = {}
+    for a, (kind, unit) in enumerate(aid):
+        if kind == AID_LANDMARK:
+            landmarks.setdefault(unit, []).append(N + a)
+    for members in landmarks.values():
+        add(members, settings.landmark, -1)
+    camera = [N + a for a, (kind, _) in enumerate(aid) if kind in (AID_LANDMARK, AID_CAMERA)]
+    if camera:
+        add(camera, settings.camera, CAMERA_GROUP)
+    inertia = [N + a for a, (kind, _) in enumerate(aid) if kind == AID_INERTIA]
+    if inertia:
+        add(inertia, settings.inertia, -1)
     p = np.array(p, float)
     return FaultEvents(tuple(rows), p, p * (1.0 + np.array(tau)), np.array(sys, int))
 
@@ -114,19 +145,20 @@ def fault_order(p_exp: NDArray, settings: AraimSettings) -> tuple[int, bool]:
     return r, False
 
 
-def fault_modes(system: NDArray, settings: AraimSettings) -> ModeSet:
-    """The monitored modes of rows of systems ``system`` (N,): enumerate, consolidate, select (eq. 5-8).
+def fault_modes(system: NDArray, settings: AraimSettings, aid: tuple[tuple[int, int], ...] = ()) -> ModeSet:
+    """The monitored modes of rows of systems ``system`` (N,) and aid rows ``aid`` (:func:`fault_events`):
+    enumerate, consolidate, select (eq. 5-8).
 
     1. every combination of at most N_fault,max events; identical removed sets are one mode (priors summed);
-    2. consolidation (``fc_thres`` > 0): a mode inside one constellation whose prior is below fc_thres × that
-       constellation's is folded into the constellation mode;
+    2. consolidation (``fc_thres`` > 0): a mode inside one constellation (or the camera) whose prior is below
+       fc_thres × that constellation's is folded into the constellation mode;
     3. selection: every mode whose p_exp exceeds :data:`P_MUST_MONITOR`, then the others by number of rows
        removed (then prior, largest first) until the unmonitored prior is at most P_THRES. The unmonitored
        prior is P(≥ N_fault,max + 1 events) (eq. 6) plus the modes left out.
     """
     system = np.asarray(system)
-    N = system.size
-    ev = fault_events(system, settings)
+    N = system.size + len(aid)
+    ev = fault_events(system, settings, aid)
     order, exceeded = fault_order(ev.p_exp, settings)
     log_none = float(np.sum(np.log1p(-ev.p)))
     log_none_exp = float(np.sum(np.log1p(-ev.p_exp)))

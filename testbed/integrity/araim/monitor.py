@@ -18,21 +18,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 from testbed.frames import LocalFrame
+from testbed.integrity.araim.fault_modes import AID_GROUPS, AID_LANDMARK
 from testbed.integrity.araim.core import ARAIM_REASONS, AraimEpochs, AraimReason, AraimRows, araim
 from testbed.integrity.araim.protection import EMT_LIMITS, SIGMA_ACC_V_LIMITS
 from testbed.integrity.araim.settings import SYSTEMS, AraimMonitorSettings, AraimSettings
 from testbed.integrity.araim.solution import AllInViewFix, all_in_view_fix
+from testbed.integrity.araim.vision_rows import CameraEpochs, camera_epochs, camera_rows
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.fde import EXCLUDED, Verdict, exclude
 from testbed.integrity.monitor import ANTENNA, MonitorContext, MonitorDefaults, Observations
 from testbed.integrity.settings import IntegritySettings
-from testbed.records import Diagnostics, GnssEpochs, MonitorOutput, epoch_array
+from testbed.records import Diagnostics, GnssEpochs, MonitorOutput, VisionEpochs, epoch_array
 
 #: RINEX 3 system letter -> system code (index into :data:`SYSTEMS`)
 SYSTEM_CODES = {"G": 0, "E": 1, "C": 2, "R": 3}
 #: the monitor's reasons: ARAIM's, then the position solve's own
 REASONS: tuple[str, ...] = ARAIM_REASONS + ("unavailable: the all-in-view position did not converge",)
 NOT_CONVERGED = len(ARAIM_REASONS)
+VISION = list(AID_GROUPS).index("vision")
 
 
 @dataclass(frozen=True)
@@ -44,6 +47,9 @@ class AraimDiagnostics(Diagnostics):
     unmonitored prior.  k_fa_v : the vertical threshold multiplier.  clock : (B..., T, 4) m, one receiver
     clock per system of :data:`SYSTEMS` (NaN for a system not used).  residual : (B..., T, S) m post-fit
     residuals per satellite slot (NaN on unused slots).  converged, n_iter : the all-in-view solve.
+    With ``vision`` (docs/design/araim.md §11): n_landmarks, the landmarks whose pixels are rows;
+    n_modes_vision, the monitored modes that remove vision rows; risk_vision_v, risk_vision_h, the integrity
+    risk those modes take at the VPL and HPL (over the exposure); vision : whether the options asked for them.
     """
 
     emt: NDArray = epoch_array()
@@ -57,6 +63,11 @@ class AraimDiagnostics(Diagnostics):
     residual: NDArray = epoch_array(1)
     converged: NDArray = epoch_array()
     n_iter: NDArray = epoch_array()
+    n_landmarks: NDArray = epoch_array()
+    n_modes_vision: NDArray = epoch_array()
+    risk_vision_v: NDArray = epoch_array()
+    risk_vision_h: NDArray = epoch_array()
+    vision: bool = False
 
     def trial_columns(self, vision_truth) -> dict[str, NDArray]:
         """Per trial: the largest EMT and σ_acc,v and the mean number of fault modes over its epochs."""
@@ -72,9 +83,23 @@ class AraimDiagnostics(Diagnostics):
             x = x[np.isfinite(x)]
             return f"{x.max():.2f} / {np.percentile(x, 95):.2f} m" if x.size else "-"
 
-        modes = np.asarray(self.n_modes)
-        return {"EMT max / p95": spread(self.emt), "σ_acc,v max / p95": spread(self.sigma_acc_v),
-                "fault modes (min-max)": f"{modes.min()}-{modes.max()}" if modes.size else "-"}
+        def span(x: NDArray) -> str:
+            x = np.asarray(x)
+            return f"{x.min()}-{x.max()}" if x.size else "-"
+
+        def largest(x: NDArray) -> str:
+            x = np.asarray(x, float)
+            x = x[np.isfinite(x)]
+            return f"{x.max():.2e}" if x.size else "-"
+
+        rows = {"EMT max / p95": spread(self.emt), "σ_acc,v max / p95": spread(self.sigma_acc_v),
+                "fault modes (min-max)": span(self.n_modes)}
+        if self.vision:
+            rows |= {"landmarks in ARAIM (min-max)": span(self.n_landmarks),
+                     "vision fault modes (min-max)": span(self.n_modes_vision),
+                     "vision integrity risk V / H (max)": f"{largest(self.risk_vision_v)} / "
+                                                          f"{largest(self.risk_vision_h)}"}
+        return rows
 
     def epoch_columns(self) -> dict[str, NDArray]:
         """EMT, σ_acc,v and σ_acc,h (m; NaN where unprotected), the fault modes monitored, N_fault,max, the
@@ -119,10 +144,14 @@ class _Solved:
 
 
 def _solve(sat_enu: NDArray, pr: NDArray, system: NDArray, used: NDArray, allocation: AraimSettings,
-           integrity: IntegritySettings, budget_share: NDArray | float = 1.0) -> _Solved:
-    """The all-in-view fix and ARAIM at it, for P epochs of N compacted rows (the reduced solves too)."""
+           integrity: IntegritySettings, budget_share: NDArray | float = 1.0, camera: CameraEpochs | None = None,
+           max_landmarks: int = 1) -> _Solved:
+    """The all-in-view fix and ARAIM at it, for P epochs of N compacted rows (the reduced solves too); with
+    ``camera`` the landmark pixel rows join at the GNSS fix (docs/design/araim.md §11)."""
     fix = all_in_view_fix(sat_enu, pr, system, used, allocation, integrity.max_iter, integrity.tol_m,
                           integrity.max_cond)
+    if camera is not None:
+        fix = replace(fix, rows=replace(fix.rows, **camera_rows(camera, fix.x[:, :3], max_landmarks)))
     ep = araim(fix.rows, allocation, budget_share)
     reason = ep.reason.astype(np.int8)
     reason = np.where((reason == AraimReason.OK) & ~np.isfinite(fix.x[:, 0]), AraimReason.SINGULAR, reason)
@@ -143,7 +172,7 @@ def _compact(used: NDArray) -> tuple[NDArray, int]:
 
 def araim_gnss(gnss: GnssEpochs, frame: LocalFrame, settings: AraimMonitorSettings | None = None,
                integrity: IntegritySettings | None = None, name: str = "araim",
-               threads: int | None = None) -> MonitorOutput:
+               threads: int | None = None, vision: VisionEpochs | None = None) -> MonitorOutput:
     """The ARAIM monitor's output at every epoch (and trial) of ``gnss``.
 
     Parameters
@@ -155,6 +184,8 @@ def araim_gnss(gnss: GnssEpochs, frame: LocalFrame, settings: AraimMonitorSettin
     integrity : the run's shared settings: its service levels, the solve's iterations, tolerance and
         conditioning (default: all defaults).
     threads : chunks of trials on this many threads (bit-identical whatever the count).
+    vision : the camera's landmark detections at the same epochs; read only with ``settings.vision`` (then
+        required): each tracked landmark's pixels become rows with their own fault modes (§11).
 
     Returns
     -------
@@ -171,17 +202,32 @@ def araim_gnss(gnss: GnssEpochs, frame: LocalFrame, settings: AraimMonitorSettin
     codes = system_codes(gnss)
     allocation = ms.allocation(tuple(ist.service_levels))
     known = np.array([c >= 0 and SYSTEMS[c] in allocation.ism for c in codes], bool)
+    camera = None
+    if ms.vision:
+        if vision is None:
+            raise ValueError(f"{name}: [monitor.araim] vision = true but the run has no vision observations (a "
+                             "monitor that reads them, va_raim, pixel or ekf, must be among the run's monitors)")
+        if len(vision.t) != len(gnss.t) or not np.allclose(vision.t, gnss.t, atol=1e-6):
+            raise ValueError(f"{name}: {len(gnss.t)} GNSS epochs but {len(vision.t)} vision epochs at other times "
+                             "(resample one onto the other first)")
+        camera = camera_epochs(vision, frame, gnss.antenna.lever_arm_body, bt, ms.sigma_px)
 
     def chunk(sl: slice) -> MonitorOutput:
+        cam = None if camera is None else camera.take(_flat_rows(bt, sl))
         return _araim_chunk(pr[sl], sat[sl], vis[sl], codes, known, np.asarray(gnss.t), frame, ms, allocation, ist,
-                            name)
+                            name, cam)
 
     return map_trial_chunks(chunk, bt, threads)
 
 
+def _flat_rows(bt: tuple, sl: slice) -> NDArray:
+    """The flat epoch indices (into prod(bt)) of the trial chunk ``sl`` of batch shape ``bt``."""
+    return np.arange(int(np.prod(bt, dtype=np.int64))).reshape(bt)[sl].reshape(-1)
+
+
 def _araim_chunk(pr: NDArray, sat: NDArray, vis: NDArray, codes: NDArray, known: NDArray, t: NDArray,
                  frame: LocalFrame, ms: AraimMonitorSettings, allocation: AraimSettings, ist: IntegritySettings,
-                 name: str) -> MonitorOutput:
+                 name: str, camera: CameraEpochs | None = None) -> MonitorOutput:
     bt, S = pr.shape[:-1], pr.shape[-1]
     P = int(np.prod(bt, dtype=np.int64))
     pr, sat, vis = pr.reshape(P, S), sat.reshape(P, S, 3), vis.reshape(P, S)
@@ -193,19 +239,27 @@ def _araim_chunk(pr: NDArray, sat: NDArray, vis: NDArray, codes: NDArray, known:
     z = np.take_along_axis(np.where(used_s, pr, 0.0), idx, -1)
     fallback = next(c for c in range(len(SYSTEMS)) if SYSTEMS[c] in allocation.ism)  # any code with an ISM
     system = np.where(used, codes[idx], fallback)
-    sv = _solve(sat_enu, z, system, used, allocation, ist)
+    sv = _solve(sat_enu, z, system, used, allocation, ist, camera=camera, max_landmarks=ms.max_landmarks)
     bad = (vis & known & ~(np.isfinite(pr) & np.isfinite(sat).all(-1))).any(-1)  # as GPS RAIM: no guessing
     if bad.any():
         sv = replace(sv, reason=np.where(bad, AraimReason.NAN_INPUT, sv.reason).astype(np.int8),
                      pos_enu=np.where(bad[:, None], np.nan, sv.pos_enu), clock=np.where(bad, np.nan, sv.clock))
-    out = _output(name, t, bt, S, idx, used, sv, allocation)
+    out = _output(name, t, bt, S, idx, used, sv, allocation, ms.vision)
     if not ms.fde:
         return out
-    return _exclusion(out, bt, idx, used, sat_enu, z, system, ms, allocation, ist)
+    return _exclusion(out, bt, idx, used, sat_enu, z, system, ms, allocation, ist, camera)
+
+
+def _landmarks_used(rows) -> NDArray:
+    """(P,) landmarks whose pixel rows are in the solution."""
+    if rows.n_aid == 0:
+        return np.zeros(np.shape(rows.used)[0], np.int16)
+    pix = np.asarray(rows.aid_label)[:, 0] == AID_LANDMARK
+    return (np.asarray(rows.aid_used)[:, pix].sum(-1) // 2).astype(np.int16)
 
 
 def _output(name: str, t: NDArray, bt: tuple, S: int, idx: NDArray, used: NDArray, sv: _Solved,
-            allocation: AraimSettings) -> MonitorOutput:
+            allocation: AraimSettings, vision: bool = False) -> MonitorOutput:
     ep, ok = sv.epochs, sv.reason == AraimReason.OK
     shape = lambda a: np.asarray(a).reshape(bt + np.shape(a)[1:])  # noqa: E731
     nan_where_not = lambda a: np.where(ok, a, np.nan)  # noqa: E731
@@ -221,7 +275,11 @@ def _output(name: str, t: NDArray, bt: tuple, S: int, idx: NDArray, used: NDArra
         p_unmonitored=shape(ep.p_unmonitored), k_fa_v=shape(nan_where_not(ep.k_fa[:, 2])),
         clock=shape(np.where(present & np.isfinite(sv.pos_enu[:, :1]), sv.fix.x[:, 3:], np.nan)),
         residual=shape(residual),
-        converged=shape(sv.fix.converged), n_iter=shape(sv.fix.iterations.astype(np.int16)))
+        converged=shape(sv.fix.converged), n_iter=shape(sv.fix.iterations.astype(np.int16)),
+        n_landmarks=shape(_landmarks_used(sv.fix.rows)),
+        n_modes_vision=shape(ep.n_modes_aid[:, VISION].astype(np.int16)),
+        risk_vision_v=shape(ep.risk_aid_enu[:, VISION, 2]), risk_vision_h=shape(ep.risk_aid_enu[:, VISION, :2].sum(-1)),
+        vision=vision)
     return MonitorOutput(
         name=name, t=t, pos_enu=shape(sv.pos_enu), clock=shape(sv.clock), hpl=shape(nan_where_not(ep.hpl)),
         vpl=shape(nan_where_not(ep.vpl)), test_stat=shape(ratio), threshold=shape(np.where(ok, 1.0, np.nan)),
@@ -240,7 +298,7 @@ def _scatter(values: NDArray, idx: NDArray, mask: NDArray, S: int) -> NDArray:
 
 def _exclusion(out: MonitorOutput, bt: tuple, idx: NDArray, used: NDArray, sat_enu: NDArray, z: NDArray,
                system: NDArray, ms: AraimMonitorSettings, allocation: AraimSettings,
-               ist: IntegritySettings) -> MonitorOutput:
+               ist: IntegritySettings, camera: CameraEpochs | None = None) -> MonitorOutput:
     """``out`` after exclusion on its alerted epochs (:func:`testbed.integrity.fde.exclude`): a unit is one
     used satellite; a candidate passes when its reduced geometry's own ARAIM tests all pass. The reduced
     PLs get 1/(n_candidates + 1) of the integrity budget: the exclusion may be the wrong one of them."""
@@ -250,7 +308,8 @@ def _exclusion(out: MonitorOutput, bt: tuple, idx: NDArray, used: NDArray, sat_e
     share = 1.0 / (n_cand + 1.0)
 
     def reduced(sel: NDArray, keep: NDArray) -> _Solved:
-        return _solve(sat_enu[sel], z[sel], system[sel], used[sel] & keep, allocation, ist, share[sel])
+        return _solve(sat_enu[sel], z[sel], system[sel], used[sel] & keep, allocation, ist, share[sel],
+                      None if camera is None else camera.take(sel), ms.max_landmarks)
 
     def solve_without(sel: NDArray, keep: NDArray) -> Verdict:
         sv = reduced(sel, keep)
@@ -314,7 +373,8 @@ class AraimMonitor(MonitorDefaults):
 
     def step(self, obs: Observations, state: None) -> tuple[MonitorOutput, None]:
         c = self.context
-        return araim_gnss(obs.gnss, c.frame, self.settings, c.integrity, name=self.name, threads=c.threads), None
+        return araim_gnss(obs.gnss, c.frame, self.settings, c.integrity, name=self.name, threads=c.threads,
+                          vision=obs.vision), None
 
 
 def build_monitor(context: MonitorContext, options: AraimMonitorSettings) -> AraimMonitor:

@@ -68,6 +68,14 @@ def ism_preset(name: Literal["wgc_lpv200", "icao2024_draft"]) -> dict[str, Const
     raise ValueError(f"ISM preset: expected 'wgc_lpv200' or 'icao2024_draft', got {name!r}")
 
 
+class AidFaultPrior(StrictModel):
+    """The fault prior of a non-GNSS fault event (one landmark, the whole camera): docs/design/araim.md §11."""
+
+    p: float = Field(ge=0.0, lt=1.0, description="prior probability of the fault at any instant")
+    mfd_h: float = Field(1.0, gt=0.0, description="mean duration of the fault (h): the exposure of an approach adds "
+                                                  "T_EXP/MFD to the prior")
+
+
 class AraimSettings(StrictModel):
     """Risk allocation, exposure model and solver tolerance of the ARAIM monitor (docs/design/araim.md)."""
 
@@ -106,6 +114,18 @@ class AraimSettings(StrictModel):
                                                       "unobservable")
     service_levels: tuple[str, ...] = Field(("LPV-200", "APV-I", "APV-II"),
                                             description="levels whose availability is reported, in this order")
+    landmark: AidFaultPrior = Field(AidFaultPrior(p=1e-5), description="fault prior of one landmark's pixels (a "
+                                                                       "mis-detection, a moved or mis-surveyed "
+                                                                       "landmark), each landmark independent; read "
+                                                                       "with vision rows only (docs/design/araim.md "
+                                                                       "§11)")
+    camera: AidFaultPrior = Field(AidFaultPrior(p=1e-4), description="fault prior of the whole camera (dithering or "
+                                                                     "an attitude error beyond their sigmas, a "
+                                                                     "mis-registered map, a calibration fault); "
+                                                                     "read with vision rows only")
+    inertia: AidFaultPrior = Field(AidFaultPrior(p=1e-5), description="fault prior of an inertial position "
+                                                                      "prediction given as rows (an IMU fault, a "
+                                                                      "wrong alignment): docs/design/araim.md §11")
 
     @field_validator("ism")
     @classmethod
@@ -166,6 +186,17 @@ class AraimMonitorSettings(AraimSettings):
         "best", description="which passing exclusion is taken: 'best' = the smallest largest normalised separation; "
                             "'unique' = only when exactly one passes")
     fde_max_excluded: int = Field(1, ge=1, le=2, description="satellites one exclusion may remove")
+    vision: bool = Field(False, description="landmark pixels as ARAIM rows with their own fault modes (one per "
+                                            "landmark, prior ``landmark``; one for the camera, prior ``camera``), "
+                                            "the camera's attitude-reference and dithering rotations as states "
+                                            "with prior rows (docs/design/araim.md §11); needs a monitor that "
+                                            "reads vision in the run (va_raim, pixel, ekf)")
+    max_landmarks: int = Field(6, ge=1, le=30, description="with ``vision``: at most this many detected landmarks "
+                                                          "an epoch, spread over the image (each adds two rows "
+                                                          "and a fault event)")
+    sigma_px: float | None = Field(None, gt=0.0, description="with ``vision``: the pixel sigma (px, per axis) the "
+                                                             "rows are weighted with; unset = the sigma the vision "
+                                                             "front end reports with each detection")
 
     @model_validator(mode="before")
     @classmethod

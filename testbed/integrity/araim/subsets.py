@@ -74,13 +74,16 @@ def subset_stats(G: NDArray, c_int: NDArray, c_acc: NDArray, b_nom: NDArray, b_c
     G : (E, N, n) geometry rows [−LOS_ENU | clock one-hot], n = 3 + clocks.
     c_int, c_acc : (E, N) m² row variances.  b_nom, b_cont : (E, N) m.
     removed : (M, N) bool rows each mode removes (mode 0 removes none).
-    clock_of_row : (N,) clock column (0 … n−4) of each row.
+    clock_of_row : (N,) clock column (0 … n−4) of each row, or (N, n−3) bool: the non-position states each
+        row observes (a state no kept row observes is pinned: a clock, or the camera rotation of the vision rows).
     residual : (E, N) prefit residuals Δy at the linearisation point (m), or None.
     """
     E, N, n = G.shape
     M = removed.shape[0]
     keep = ~removed
-    clock_rows = keep.astype(float) @ np.eye(n - 3)[clock_of_row]  # (M, C): kept rows per clock
+    incidence = np.asarray(clock_of_row)
+    incidence = incidence if incidence.ndim == 2 else np.eye(n - 3)[incidence]
+    clock_rows = keep.astype(float) @ incidence.astype(float)  # (M, C): kept rows per clock
     empty_clock = clock_rows == 0
     structurally_ok = keep.sum(1) >= 3 + (~empty_clock).sum(1)  # rows ≥ states left
     observable = np.empty((E, M), bool)
