@@ -101,15 +101,10 @@ class ApproachConfig(StrictModel):
         tables = options_tables().model_validate(v)
         return {name: table for name, table in tables if table is not None}
 
-    @model_validator(mode="after")
-    def _araim_vision_reads_vision(self):
-        """ARAIM's vision rows read the observations a vision monitor makes the run synthesise."""
-        araim = self.monitor.get("araim")
-        if "araim" in self.monitors and getattr(araim, "vision", False) and not reads("vision", self.monitors):
-            raise ValueError("[monitor.araim] vision = true reads the camera's detections, but no monitor of "
-                             f"{self.monitors} reads vision: add one that does (va_raim, pixel or ekf) or set "
-                             "vision = false")
-        return self
+    def reads(self, kind: str) -> bool:
+        """Whether a monitor of the run, with its options, reads observations of ``kind`` (the run synthesises
+        only those)."""
+        return reads(kind, self.monitors, self.monitor)
 
     @field_validator("start_time_utc")
     @classmethod

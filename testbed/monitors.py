@@ -27,13 +27,18 @@ from testbed.schema import StrictModel
 Builder = Callable[[MonitorContext, Any], Monitor]
 
 
+#: the observation kinds a monitor reads: fixed, or a function of its validated options (ARAIM reads the camera
+#: when its vision fault modes are on)
+Inputs = frozenset[str] | Callable[[Any], frozenset[str]]
+
+
 @dataclass(frozen=True)
 class MonitorEntry:
-    """build(context, options) -> Monitor, the observation kinds it reads, its options model, and what it costs
-    with given options (None: not measured; the resource estimate then assumes the costliest)."""
+    """build(context, options) -> Monitor, the observation kinds it reads (given its options), its options model,
+    and what it costs with given options (None: not measured; the resource estimate then assumes the costliest)."""
 
     build: Builder
-    inputs: frozenset[str]
+    inputs: Inputs
     options: type[StrictModel] = NoOptions
     cost: Callable[[Any], MonitorCost] | None = None
 
@@ -46,16 +51,17 @@ _SHIPPED: dict[str, MonitorEntry] = {
                         ekf.cost),
     "dpe": MonitorEntry(dpe.build_monitor, frozenset({"gnss", "correlators"}), dpe.DpeSettings, dpe.cost),
     # cost not measured for the resource estimate yet: the costliest shipped figures are assumed
-    "araim": MonitorEntry(araim.build_monitor, frozenset({"gnss"}), AraimMonitorSettings),
+    "araim": MonitorEntry(araim.build_monitor, araim.inputs, AraimMonitorSettings),
 }
 _ADDED: dict[str, MonitorEntry] = {}
 
 
-def register(name: str, builder: Builder, inputs: frozenset[str] | set[str],
+def register(name: str, builder: Builder, inputs: Inputs | set[str],
              options: type[StrictModel] = NoOptions, cost: Callable[[Any], MonitorCost] | None = None) -> None:
     """Make ``name`` a monitor an approach file, a campaign spec or ``--monitors`` can name.
 
-    inputs : the observation kinds it reads (the run synthesises only what some monitor reads).
+    inputs : the observation kinds it reads (the run synthesises only what some monitor reads), or a function
+        of its validated options returning them.
     options : the pydantic model of its ``[monitor.<name>]`` table (the builder receives it validated);
         by default it takes none.
     cost : ``cost(options) -> MonitorCost``, its measured cost for the resource estimate (None: the costliest
@@ -65,12 +71,13 @@ def register(name: str, builder: Builder, inputs: frozenset[str] | set[str],
         raise ValueError(f"monitor name: expected an identifier, got {name!r}")
     if name in _SHIPPED:
         raise ValueError(f"monitor {name!r} is a shipped monitor")
-    bad = set(inputs) - INPUT_KINDS
-    if bad:
-        raise ValueError(f"monitor {name!r}: unknown inputs {sorted(bad)}; expected some of {sorted(INPUT_KINDS)}")
     if not (isinstance(options, type) and issubclass(options, StrictModel)):
         raise ValueError(f"monitor {name!r}: options must be a testbed.schema.StrictModel subclass, got {options!r}")
-    _ADDED[name] = MonitorEntry(builder, frozenset(inputs), options, cost)
+    fixed = None if callable(inputs) else frozenset(inputs)
+    bad = set(fixed if fixed is not None else inputs(options())) - INPUT_KINDS  # a function: at its defaults
+    if bad:
+        raise ValueError(f"monitor {name!r}: unknown inputs {sorted(bad)}; expected some of {sorted(INPUT_KINDS)}")
+    _ADDED[name] = MonitorEntry(builder, inputs if fixed is None else fixed, options, cost)
 
 
 def unregister(name: str) -> None:
@@ -101,14 +108,17 @@ def entry(name: str) -> MonitorEntry:
     return _SHIPPED[name]
 
 
-def monitor_inputs(name: str) -> frozenset[str]:
-    """The observation kinds monitor ``name`` reads (without building it)."""
-    return entry(name).inputs
+def monitor_inputs(name: str, options: Mapping[str, Any] | None = None) -> frozenset[str]:
+    """The observation kinds monitor ``name`` reads (without building it), with its options from ``options``
+    (tables by monitor name, as :func:`monitor_options` reads them; None or absent: its defaults)."""
+    e = entry(name)
+    return e.inputs(monitor_options(name, options or {})) if callable(e.inputs) else e.inputs
 
 
-def reads(kind: str, names) -> bool:
-    """Whether any of the monitors ``names`` reads observations of ``kind`` (one of INPUT_KINDS)."""
-    return any(kind in monitor_inputs(n) for n in names)
+def reads(kind: str, names, options: Mapping[str, Any] | None = None) -> bool:
+    """Whether any of the monitors ``names`` (with their options from ``options``) reads observations of ``kind``
+    (one of INPUT_KINDS)."""
+    return any(kind in monitor_inputs(n, options) for n in names)
 
 
 def options_tables() -> type[StrictModel]:
@@ -145,6 +155,7 @@ def build_monitor(name: str, context: MonitorContext) -> Monitor:
     if missing:
         raise TypeError(f"monitor {name!r} lacks {', '.join(missing)} of the monitor contract; derive its class from "
                         "testbed.integrity.monitor.MonitorDefaults for the optional members' defaults")
-    if frozenset(mon.inputs) != e.inputs:
-        raise TypeError(f"monitor {name!r} reads {sorted(mon.inputs)} but was registered with {sorted(e.inputs)}")
+    registered = monitor_inputs(name, context.options)
+    if frozenset(mon.inputs) != registered:
+        raise TypeError(f"monitor {name!r} reads {sorted(mon.inputs)} but was registered with {sorted(registered)}")
     return mon

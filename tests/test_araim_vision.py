@@ -239,11 +239,21 @@ def test_vision_makes_the_constellation_mode_of_a_gps_only_sky_observable():
     assert 0.0 <= ep.risk_aid_enu[0, 2] < AraimSettings().p_hmi_vert
 
 
-def test_vision_modes_need_a_monitor_that_reads_vision():
-    ap = load_approach("zunz-rwy05-dfmc-vision")
-    assert ap.config.monitor["araim"].vision
-    with pytest.raises(ConfigError, match="vision = true"):
-        with_overrides(ap, monitors=["gps_raim", "araim"])
+def test_vision_modes_make_araim_read_the_camera_by_itself():
+    """The registry's inputs follow the options: with vision = true ARAIM reads the camera, so a run listing no
+    other vision monitor still synthesises the detections (and sets the vision rate), and a RINEX replay, which has
+    no camera, refuses it by the same rule that refuses va_raim."""
+    from testbed.monitors import monitor_inputs
+    from testbed.replay.run import check_monitors
+
+    assert monitor_inputs("araim") == {"gnss"}
+    assert monitor_inputs("araim", {"araim": {"vision": True}}) == {"gnss", "vision"}
+    ap = with_overrides(load_approach("zunz-rwy05-dfmc-vision"), monitors=["gps_raim", "araim"])
+    assert ap.config.monitor["araim"].vision and ap.config.reads("vision")
+    assert not with_overrides(load_approach("zunz-rwy05-dfmc"), monitors=["gps_raim", "araim"]).config.reads("vision")
+    check_monitors(("araim",), {"araim": {"vision": False}})
+    with pytest.raises(ConfigError, match=r"'araim' reads \['gnss', 'vision'\]"):
+        check_monitors(("araim",), {"araim": {"vision": True}})
 
 
 # ----------------------------------------------------------------------------- an inertial prediction
@@ -318,16 +328,19 @@ def _blockdiag(A, B):
     return out
 
 
-def test_a_rinex_replay_refuses_vision_modes(tmp_path):
-    """testbed monitor reads RINEX, which has no camera: the config is refused before any work."""
-    from testbed.replay.run import load_config
+def test_a_rinex_replay_refuses_vision_modes_before_any_work(tmp_path, capsys):
+    """testbed monitor reads RINEX, which has no camera: ARAIM with vision = true is refused, exit 2, before any
+    file is read (the observation files named here do not even exist)."""
+    from testbed.cli import main
 
     cfg = tmp_path / "m.toml"
     cfg.write_text("[monitor.araim]\nvision = true\n")
-    with pytest.raises(ConfigError, match="vision = true"):
-        load_config(cfg)
-    cfg.write_text("[monitor.araim]\nvision = false\n")
-    assert load_config(cfg).monitor["araim"]["vision"] is False
+    code = main(["monitor", str(tmp_path / "none.obs"), str(tmp_path / "none.nav"), "--config", str(cfg),
+                 "--monitors", "araim", "--out", str(tmp_path / "o")])
+    text = capsys.readouterr()
+    text = text.out + text.err
+    assert code == 2 and "--monitors" in text and "vision" in text and "Traceback" not in text, text
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.toml"]
 
 
 def test_the_araim_monitor_without_vision_observations_is_a_clear_error():

@@ -642,7 +642,7 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 gnss["constellations"] = list(c["constellations"])
             if c["terrain_masking"] is not None:
                 _set(d, "gnss.terrain_masking", bool(c["terrain_masking"]))
-            if reads("vision", spec.monitors):
+            if reads("vision", spec.monitors, d.get("monitor")):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
             idx = len(cells)

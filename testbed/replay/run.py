@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
+from typing import Any, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -186,18 +187,20 @@ def out_entries(monitors: tuple[str, ...], table_format: str, reference: bool) -
             *((f"stanford-{m}.png" for m in monitors) if reference else ()))
 
 
-def check_monitors(monitors: tuple[str, ...]) -> None:
-    """``--monitors``: registered monitors, each named once, each reading nothing but GNSS observations (a RINEX
-    file has no images, IMU or correlators); ConfigError naming the option otherwise."""
+def check_monitors(monitors: tuple[str, ...], options: Mapping[str, Any] | None = None) -> None:
+    """``--monitors``: registered monitors, each named once, each reading nothing but GNSS observations with its
+    options from ``options`` (a RINEX file has no images, IMU or correlators); ConfigError naming the option
+    otherwise."""
     problems = []
     if not monitors:
         problems.append("no monitor named; expected at least one")
     for name in monitors:
         if name not in monitor_names():
             problems.append(f"unknown monitor {name!r}; expected one of {list(monitor_names())}")
-        elif monitor_inputs(name) != frozenset({"gnss"}):
-            problems.append(f"{name!r} reads {sorted(monitor_inputs(name))}; a RINEX file has GNSS observations "
-                            f"only (expected a monitor reading 'gnss' alone, e.g. gps_raim, araim)")
+        elif monitor_inputs(name, options) != frozenset({"gnss"}):
+            problems.append(f"{name!r} reads {sorted(monitor_inputs(name, options))} with its [monitor.{name}] "
+                            f"options; a RINEX file has GNSS observations only (expected a monitor reading 'gnss' "
+                            f"alone, e.g. gps_raim, araim without vision)")
     twice = sorted({m for m in monitors if monitors.count(m) > 1})
     if twice:
         problems.append(f"{twice} named more than once; expected each monitor once")
@@ -206,9 +209,9 @@ def check_monitors(monitors: tuple[str, ...]) -> None:
 
 
 def _declare_outputs(outs: OutputSet, out_dir, rrd_path, table_format: str, monitors: tuple[str, ...],
-                     reference: bool) -> None:
+                     reference: bool, options: Mapping[str, Any]) -> None:
     """Every output tried and compared before any work (ConfigError naming the option)."""
-    check_monitors(monitors)
+    check_monitors(monitors, options)
     if table_format not in ("parquet", "csv"):
         raise ConfigError("--format", [f"--format {table_format!r}: expected 'parquet' or 'csv'"])
     if out_dir is not None:
@@ -228,7 +231,7 @@ def monitor_rinex(obs_path: str | Path, nav_path: str | Path, *, config: str | P
     """
     cfg = config if isinstance(config, MonitorFileConfig) else load_config(config)
     with OutputSet.using(outputs) as outs:
-        _declare_outputs(outs, out_dir, rrd_path, table_format, monitors, reference is not None)
+        _declare_outputs(outs, out_dir, rrd_path, table_format, monitors, reference is not None, cfg.monitor)
         return _monitor(obs_path, nav_path, cfg, out_dir, rrd_path, reference, table_format, monitors, outs)
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, model_validator
 
 from testbed.integrity.settings import IntegritySettings
 from testbed.schema import StrictModel
@@ -115,12 +115,3 @@ class MonitorFileConfig(StrictModel):
                                                description="each monitor's own options, `[monitor.<name>]`, as in "
                                                            "an approach file (checked by the monitor's options model "
                                                            "when the file is read)")
-
-    @field_validator("monitor")
-    @classmethod
-    def _no_camera(cls, v: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-        """A RINEX file has no camera: ARAIM's vision rows cannot be read from it."""
-        if isinstance(v.get("araim"), dict) and v["araim"].get("vision") is True:
-            raise ValueError("[monitor.araim] vision = true reads a camera's landmark detections, which RINEX "
-                             "observations do not have: set vision = false (or leave it out) for testbed monitor")
-        return v

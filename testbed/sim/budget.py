@@ -228,10 +228,10 @@ def sortie_shape(approach, duration_s: float | None = None) -> Shape:
     g = c.gnss
     eph = tracked_constellations(g, utc_to_gps_seconds(c.start_time_utc))
     monitors = tuple(dict.fromkeys(c.monitors))
-    vision = reads("vision", monitors)
+    vision = reads("vision", monitors, c.monitor)
     scene = c.vision.features
-    features = corridor_size(path.sample(200.0)[0], scene) if scene.enabled and reads("features", monitors) else 0
-    passes = int(reads("correlators", monitors)) + int(g.correlator_pseudoranges)
+    features = corridor_size(path.sample(200.0)[0], scene) if scene.enabled and reads("features", monitors, c.monitor) else 0
+    passes = int(reads("correlators", monitors, c.monitor)) + int(g.correlator_pseudoranges)
     cs = g.correlators
     return Shape(epochs=int(sortie_s * g.rate_hz) + 1, flight_s=flight_s, flight_steps=int(flight_s / c.flight.dt_s),
                  satellites=int(len(set(eph.sat_id.tolist()))), landmarks=len(build_landmarks(c.landmarks)),

@@ -22,7 +22,7 @@ from testbed.integrity.levels import strictest_limits
 from testbed.integrity.monitor import Monitor, MonitorContext, compute
 from testbed.integrity.settings import IntegritySettings
 from testbed.kernel_cache import compiled_before, mark_compiled
-from testbed.monitors import build_monitor, monitor_options, reads
+from testbed.monitors import build_monitor, monitor_options
 from testbed.records import Mount
 from testbed.schema import ConfigError, format_validation_error
 from testbed.sensors.gnss.settings import GnssSettings
@@ -55,7 +55,7 @@ class RunSetup:
         does not build a scene of millions of points: `testbed check` of a dense corridor (10 000 per km², 40 km
         wide, 50 km beyond) peaked at 5.7 GB resident for 48 s when the set-up built it."""
         scene = self.vision.features
-        if not (scene.enabled and reads("features", self.approach.config.monitors)):
+        if not (scene.enabled and self.approach.config.reads("features")):
             return None
         return corridor_features(self.path.sample(200.0)[0], scene, self.frame, self.terrain)
 
@@ -114,18 +114,18 @@ def build_setup(approach: Approach, terrain, monitor_threads: int | None = None,
     vision = vision_settings(approach)
     gnss = c.gnss
     ratio = vision.rate_hz / gnss.rate_hz
-    if reads("vision", c.monitors) and abs(ratio - round(ratio)) > 1e-9:
+    if c.reads("vision") and abs(ratio - round(ratio)) > 1e-9:
         raise ConfigError(approach.source, [
             f"vision.rate_hz ({vision.rate_hz}) must be an integer multiple of gnss.rate_hz ({gnss.rate_hz}): "
             "the vision monitors combine both at the GNSS epochs"])
-    if reads("imu", c.monitors):
+    if c.reads("imu"):
         steps = 1.0 / (c.imu.rate_hz * c.flight.dt_s)  # flight steps per IMU interval
-        per_vision = vision.rate_hz / c.imu.rate_hz if reads("vision", c.monitors) else gnss.rate_hz / c.imu.rate_hz
+        per_vision = vision.rate_hz / c.imu.rate_hz if c.reads("vision") else gnss.rate_hz / c.imu.rate_hz
         if abs(steps - round(steps)) > 1e-6 * steps or round(steps) < 1 or abs(1 / per_vision - round(1 / per_vision)) > 1e-6:
             raise ConfigError(approach.source, [
                 f"imu.rate_hz = {c.imu.rate_hz:g}: expected a divisor of the flight rate {1.0 / c.flight.dt_s:g} Hz "
-                f"and a multiple of the {'vision' if reads('vision', c.monitors) else 'GNSS'} rate"])
-    if reads("correlators", c.monitors) or gnss.correlator_pseudoranges:
+                f"and a multiple of the {'vision' if c.reads('vision') else 'GNSS'} rate"])
+    if c.reads("correlators") or gnss.correlator_pseudoranges:
         cs = gnss.correlators
         if cs.coherent_s * cs.n_noncoherent > 1.0 / gnss.rate_hz * (1 + 1e-9):
             raise ConfigError(approach.source, [

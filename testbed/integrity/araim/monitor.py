@@ -354,9 +354,12 @@ class AraimMonitor(MonitorDefaults):
     name: str
     context: MonitorContext
     settings: AraimMonitorSettings
-    inputs: ClassVar[frozenset[str]] = frozenset({"gnss"})
     reference: ClassVar[str] = ANTENNA
     compiles_kernels: ClassVar[bool] = True
+
+    @property
+    def inputs(self) -> frozenset[str]:
+        return inputs(self.settings)
 
     def prepare(self) -> None:
         """Compile (or load from numba's cache) the subset and PL kernels before the first epoch: one call on
@@ -375,6 +378,11 @@ class AraimMonitor(MonitorDefaults):
         c = self.context
         return araim_gnss(obs.gnss, c.frame, self.settings, c.integrity, name=self.name, threads=c.threads,
                           vision=obs.vision), None
+
+
+def inputs(options: AraimMonitorSettings) -> frozenset[str]:
+    """The pseudoranges, and the camera's detections when the vision fault modes are on."""
+    return frozenset({"gnss", "vision"}) if options.vision else frozenset({"gnss"})
 
 
 def build_monitor(context: MonitorContext, options: AraimMonitorSettings) -> AraimMonitor:

@@ -189,8 +189,8 @@ class AraimMonitorSettings(AraimSettings):
     vision: bool = Field(False, description="landmark pixels as ARAIM rows with their own fault modes (one per "
                                             "landmark, prior ``landmark``; one for the camera, prior ``camera``), "
                                             "the camera's attitude-reference and dithering rotations as states "
-                                            "with prior rows (docs/design/araim.md §11); needs a monitor that "
-                                            "reads vision in the run (va_raim, pixel, ekf)")
+                                            "with prior rows (docs/design/araim.md §11); the monitor then reads "
+                                            "the camera, which the run synthesises for it")
     max_landmarks: int = Field(6, ge=1, le=30, description="with ``vision``: at most this many detected landmarks "
                                                           "an epoch, spread over the image (each adds two rows "
                                                           "and a fault event)")
