@@ -164,3 +164,4 @@ def shift_mixture_log_density(z: np.ndarray, epoch: np.ndarray, shift: np.ndarra
         sk = shift[k]
         ell[:, k] = z[:, t] @ sk.T - 0.5 * np.einsum("ks,ks->k", sk, sk)
     return special.logsumexp(ell + log_pi, axis=1)
+
