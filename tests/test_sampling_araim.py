@@ -242,7 +242,7 @@ def test_conditional_hmi_against_the_bivariate_closed_form(mode, axis, bias_over
     j = int(np.flatnonzero((tests.mode == mode) & (tests.axis == axis))[0])
     one = fr.own_tests(tests, mode)
     one = sa.SeparationTests(one.rows[one.axis == axis], one.threshold[one.axis == axis], one.mode[one.axis == axis],
-                             one.axis[one.axis == axis], one.slots, one.prior[:1], one.removed, one.s0)
+                             one.axis[one.axis == axis], one.slots, one.prior[:1], one.removed, one.s0, one.los_enu)
     v = fr.fault_direction(tests, mode, axis)
     assert tests.s0[axis] @ v == pytest.approx(1.0)
     exact = own_axis_closed_form(tests, j, pl, bias_over_pl * pl, v)

@@ -54,6 +54,7 @@ class SeparationTests:
     prior: np.ndarray
     removed: tuple[tuple[int, ...], ...]
     s0: np.ndarray  # (3, N) the all-in-view position error per unit draw of each row (S⁽⁰⁾ · σ)
+    los_enu: np.ndarray  # (N, 3) the rows' lines of sight
 
     @property
     def tail(self) -> np.ndarray:
@@ -105,18 +106,21 @@ def epoch_tests(los_enu: np.ndarray, system: np.ndarray, sigma: np.ndarray, slot
     return SeparationTests(rows=D[k, q] * sigma, threshold=np.asarray(table.threshold)[k, q], mode=k, axis=q,
                            slots=np.asarray(slots), prior=np.asarray(table.p)[k],
                            removed=tuple(tuple(int(slots[i]) for i in m) for m in table.removed),
-                           s0=s0 * sigma)
+                           s0=s0 * sigma, los_enu=np.asarray(los_enu, float))
 
 
-def model_tests(model, system_letters, frame_R: np.ndarray, settings: AraimSettings) -> list[SeparationTests | None]:
-    """:func:`epoch_tests` at every epoch of a :class:`~testbed.campaign.sampling.LinearModel` with a solution:
-    the used slots, their lines of sight and σ drawn read from its design columns (unit lines of sight in ECEF
-    over σ), the systems from ``system_letters`` (S,), rotated to ENU by ``frame_R``."""
+def model_tests(model, system_letters, frame_R: np.ndarray, settings: AraimSettings,
+                epochs=None) -> list[SeparationTests | None]:
+    """:func:`epoch_tests` at every epoch (or those of ``epochs``; None elsewhere) of a
+    :class:`~testbed.campaign.sampling.LinearModel` with a solution: the used slots, their lines of sight and σ
+    drawn read from its design columns (unit lines of sight in ECEF over σ), the systems from
+    ``system_letters`` (S,), rotated to ENU by ``frame_R``."""
     codes = np.array([SYSTEM_CODES.get(str(c), -1) for c in system_letters])
+    wanted = set(range(model.used.shape[0]) if epochs is None else epochs)
     out = []
     for t in range(model.used.shape[0]):
         u = np.flatnonzero(model.used[t])
-        if u.size == 0 or not np.isfinite(model.vpl[t]):
+        if t not in wanted or u.size == 0 or not np.isfinite(model.vpl[t]):
             out.append(None)
             continue
         per_sigma = model.design[t, u, :3]  # los / σ
