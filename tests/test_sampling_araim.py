@@ -272,3 +272,32 @@ def test_worst_case_mode_risk_is_below_the_own_test_bound_and_found_by_the_searc
     assert risk.rate.settled, risk.rate
     assert 0 < risk.rate.lo and risk.rate.hi <= closed.max(), (risk.rate, closed.max())
     assert abs(risk.bias_m - grid[np.argmax(closed)]) <= 1.5 * step, (risk.bias_m, grid[np.argmax(closed)])
+
+
+#: araim-fa-fault-free's measured P_FA per epoch, its 95 % interval (docs/design/importance-sampling.md)
+ARAIM_FA_MEASURED = (1.044e-7, 1.363e-7)
+
+
+@pytest.mark.slow  # the geometry and ~800 tests at each of 150 epochs: ~40 s under load
+def test_araim_fa_spec_figures_against_the_union_bound():
+    """The shipped araim-fa-fault-free spec's measured P_FA per epoch (docs) lies below the union bound over its
+    epochs, the mean of Σ_j 2 Q(T_j/|d_j|) over every monitored test (its rows probed from the core), which is
+    the per-epoch allocation (P_FA,V + P_FA,H)/N_ES,cont to within 2 %: the thresholds are set by that bound,
+    and the tests' overlaps make the union smaller."""
+    from scipy import special
+
+    from testbed.campaign.context import cell_context
+    from testbed.campaign.sampling import linear_model
+    from testbed.campaign.spec import expand_cells, load_spec
+
+    loaded = load_spec("araim-fa-fault-free")
+    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
+    mon = next(m for m in ctx.setup.monitors if m.name == "araim")
+    st = mon.settings.allocation(tuple(mon.context.integrity.service_levels))
+    model = linear_model(ctx, "araim", None)[0]
+    tests = sa.model_tests(model, np.asarray(ctx.g_geom.system), ctx.setup.frame.R, st)
+    union = np.mean([2 * np.exp(special.logsumexp(t.tail)) for t in tests if t is not None])
+    allocation = (st.p_fa_vert + st.p_fa_hor) / st.n_es_cont
+    assert union == pytest.approx(allocation, rel=0.02), (union, allocation)
+    lo, hi = ARAIM_FA_MEASURED
+    assert hi < union, (hi, union)
