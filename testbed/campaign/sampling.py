@@ -128,6 +128,10 @@ def check_sampling(loaded, cells) -> None:
     if spec.sampling.proposal == "separation" and name is not None and name != "araim":
         problems.append(f"[sampling] proposal = 'separation' aims at ARAIM's solution-separation tests: expected "
                         f"monitor = 'araim' (got {name!r})")
+    if spec.sampling.proposal == "separation" and spec.sorties.start != "fixed":
+        problems.append(f"[sorties] start = {spec.sorties.start!r} with [sampling] proposal = 'separation': expected "
+                        "'fixed' (a sky window's components, one per test, take ~100 MB: sweep start_time_utc "
+                        "instead)")
     for c in cells:
         g = c.config.gnss
         coloured = [k for k in ("multipath_tau_s", "ura_tropo_tau_s") if getattr(g, k) is not None]
