@@ -327,9 +327,11 @@ def _aimed_monitor(spec: dict) -> str:
 def _weighted_section(inp: ReportInputs) -> tuple[list[str], list[tuple[str, str]]]:
     """Section: the weighted estimates of every rate, with their diagnostics."""
     samp = inp.man["spec"].get("sampling", {})
+    aim = (f"the `{samp.get('event')}` event" if samp.get("proposal", "shift") == "shift"
+           else "the tests' tails (false alerts)")  # scale, separation: `event` is not read
     md = ["## Rates by importance sampling", "",
-          f"The trials were drawn from a proposal (`[sampling]`: proposal `{samp.get('proposal')}` aimed at the "
-          f"`{samp.get('event')}` event of `{_aimed_monitor(inp.man['spec'])}`, defensive "
+          f"The trials were drawn from a proposal (`[sampling]`: proposal `{samp.get('proposal')}` aimed at "
+          f"{aim} of `{_aimed_monitor(inp.man['spec'])}`, defensive "
           f"share {samp.get('defensive')}), each carrying its log-likelihood ratio (`log_weight` in "
           "`trials.parquet`). Every rate is the weighted mean over the trials with its standard error and "
           f"{100 * inp.conf:g} % normal interval (the upper end: the {100 * (1 + inp.conf) / 2:g} % upper bound). "

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special, stats
 
+from testbed.campaign import sampling_araim
 from testbed.campaign.context import CellContext
 from testbed.integrity.monitor import Observations
 from testbed.monitors import monitor_inputs, monitor_names
@@ -69,7 +70,8 @@ MOVED_INPUTS = frozenset({"gnss"})
 #: the rates each proposal aims at: the shift at the errors beyond the PL (misleading) or the alert limit
 #: (hazardous) with no alert, the scale at the tests' tails (whatever the event)
 AIMED_RATES = {("shift", "misleading"): ("P_MI",), ("shift", "hazardous"): ("P_HMI",),
-               ("scale", "misleading"): ("P_FA",), ("scale", "hazardous"): ("P_FA",)}
+               ("scale", "misleading"): ("P_FA",), ("scale", "hazardous"): ("P_FA",),
+               ("separation", "misleading"): ("P_FA",), ("separation", "hazardous"): ("P_FA",)}
 
 
 def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str, event: str = "misleading"
@@ -123,6 +125,13 @@ def check_sampling(loaded, cells) -> None:
         problems.append(f"[sampling.monitor] {name!r} reads {sorted(monitor_inputs(name))}: expected a monitor "
                         f"that reads the pseudoranges alone (monitors that do: {', '.join(alone)}), whose position error is linear "
                         "in them")
+    if spec.sampling.proposal == "separation" and name is not None and name != "araim":
+        problems.append(f"[sampling] proposal = 'separation' aims at ARAIM's solution-separation tests: expected "
+                        f"monitor = 'araim' (got {name!r})")
+    if spec.sampling.proposal == "separation" and spec.sorties.start != "fixed":
+        problems.append(f"[sorties] start = {spec.sorties.start!r} with [sampling] proposal = 'separation': expected "
+                        "'fixed' (a sky window's components, one per test, take ~100 MB: sweep start_time_utc "
+                        "instead)")
     for c in cells:
         g = c.config.gnss
         coloured = [k for k in ("multipath_tau_s", "ura_tropo_tau_s") if getattr(g, k) is not None]
@@ -307,8 +316,21 @@ def cell_components(ctx: CellContext, spec, windows: np.ndarray | None) -> list[
             if len(_COMPONENTS) + len(missing) > _MAX_KEPT:
                 _COMPONENTS.clear()
             for w, m in zip(missing, models):
-                _COMPONENTS[key_cell, w] = components(m, plan, ctx.hal, ctx.val)
+                _COMPONENTS[key_cell, w] = (separation_components(ctx, name, m, plan) if plan.proposal == "separation"
+                                            else components(m, plan, ctx.hal, ctx.val))
         return [_COMPONENTS[key_cell, w] for w in want]
+
+
+def separation_components(ctx: CellContext, monitor_name: str, model: LinearModel, plan) -> Components:
+    """The ``separation`` proposal's components (:mod:`.sampling_araim`) on one window's linear model of the
+    ARAIM monitor ``monitor_name``: a mean shift to each solution-separation test's threshold."""
+    mon = next(m for m in ctx.setup.monitors if m.name == monitor_name)
+    settings = mon.settings.allocation(tuple(mon.context.integrity.service_levels))
+    tests = sampling_araim.model_tests(model, np.asarray(ctx.g_geom.system), ctx.setup.frame.R, settings)
+    S = model.used.shape[1]
+    ep, shift, log_share = sampling_araim.separation_components(tests, S, plan.mixture == "tail")
+    return Components(ep, shift, np.broadcast_to(np.zeros((1, S, S)), (ep.size, S, S)), np.zeros(ep.size, np.int64),
+                      log_share)
 
 
 _COMPONENTS: dict = {}
@@ -343,7 +365,7 @@ def draw_proposal(comps: list[Components], which: np.ndarray, plan, z: np.ndarra
     for i in np.flatnonzero(comp >= 0):
         c, k = comps[which[i]], comp[i]
         t = c.epoch[k]
-        shift[i, t] = c.shift[k] if plan.proposal == "shift" else (plan.scale - 1.0) * (c.parity[k] @ z[i, t])
+        shift[i, t] = c.shift[k] if plan.proposal != "scale" else (plan.scale - 1.0) * (c.parity[k] @ z[i, t])
     return ProposalDraw(comp, shift)
 
 
@@ -356,6 +378,10 @@ def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray)
         sel = np.flatnonzero(which == j)
         if sel.size == 0 or c.size == 0:
             continue  # no component: the trials were drawn from p (weight 1)
+        if plan.proposal == "separation":  # K ~ 10⁵ tests: one epoch at a time
+            mix = sampling_araim.shift_mixture_log_density(z[sel], c.epoch, c.shift, c.log_share)
+            out[sel] = -(np.logaddexp(np.log(alpha), np.log1p(-alpha) + mix) if alpha > 0 else mix)
+            continue
         zk = z[sel][:, c.epoch, :]  # (m, K, S)
         if plan.proposal == "shift":
             ell = np.einsum("mks,ks->mk", zk, c.shift) - 0.5 * np.einsum("ks,ks->k", c.shift, c.shift)

@@ -306,10 +306,12 @@ class SamplingPlan(StrictModel):
         "misleading", description="importance: the failure event aimed at: misleading (an error beyond the "
                                   "protection level, no alert) or hazardous (beyond the alert limit, the "
                                   "protection level within it, no alert)")
-    proposal: Literal["shift", "scale"] = Field(
+    proposal: Literal["shift", "scale", "separation"] = Field(
         "shift", description="importance: shift the mean of one epoch's errors to the event's nearest point "
                              "(misleading information), or scale one epoch's errors in the fit's residual space by "
-                             "`scale` (the test statistic's tail: false alarms; `event` is not read)")
+                             "`scale` (the test statistic's tail: false alarms; `event` is not read), or (ARAIM) "
+                             "shift them to one solution-separation test's threshold, a component per test "
+                             "(ARAIM's false alerts; `event` is not read)")
     scale: float = Field(2.0, gt=1.0, le=100.0, description="importance, proposal = 'scale': the factor on the "
                                                             "residual-space errors' standard deviation")
     defensive: float = Field(0.1, ge=0.0, lt=1.0, description="importance: share of the trials drawn from the error "
@@ -328,15 +330,15 @@ class SamplingPlan(StrictModel):
                 if value != default:
                     raise ValueError(f"[{key}] read only with method = 'importance', not with method = 'plain': "
                                      f"remove it, or set method = 'importance' (got {value!r})")
-        if self.proposal == "shift" and self.scale != type(self).model_fields["scale"].default:
-            raise ValueError(f"[scale] read only with proposal = 'scale', not with proposal = 'shift' "
+        if self.proposal != "scale" and self.scale != type(self).model_fields["scale"].default:
+            raise ValueError(f"[scale] read only with proposal = 'scale', not with proposal = '{self.proposal}' "
                              f"(got {self.scale!r})")
         if self.proposal == "scale" and self.mixture != "uniform":
             raise ValueError(f"[mixture] read only with proposal = 'shift' (a scaled epoch has no tail of its own to "
                              f"draw it by), got {self.mixture!r}")
-        if self.proposal == "scale" and self.event != type(self).model_fields["event"].default:
-            raise ValueError(f"[event] read only with proposal = 'shift' (proposal = 'scale' aims at the test "
-                             f"statistic's tail), got {self.event!r}")
+        if self.proposal != "shift" and self.event != type(self).model_fields["event"].default:
+            raise ValueError(f"[event] read only with proposal = 'shift' (proposal = '{self.proposal}' aims at the "
+                             f"tests' tails), got {self.event!r}")
         return self
 
 
