@@ -126,9 +126,9 @@ def test_scaled_ldl_inverse_matches_lapack_and_flags_singular_matrices():
 
 
 def test_results_do_not_depend_on_the_number_of_threads_or_the_batch():
-    """The kernels run the epochs of a large batch on numba's threads, each epoch alone, and a small batch on the
-    calling thread: one thread or two, or eight epochs alone, the same bytes (three constellations: downdates,
-    direct solves and the PL search)."""
+    """The kernels run the epochs of a large batch on numba's threads, each epoch alone, and a small batch on one:
+    one thread or two, or eight epochs alone, the same bytes (three constellations: downdates, direct solves and
+    the PL search)."""
     settings = AraimSettings()
     rows = batch_of_skies(np.random.default_rng(9), 64, (10, 10, 10), settings)
     assert 64 * (araim(one(rows, 0), settings).n_modes + 1) >= PARALLEL_MIN_WORK  # the parallel kernels run
@@ -147,18 +147,3 @@ def test_results_do_not_depend_on_the_number_of_threads_or_the_batch():
         assert getattr(one_thread, name).tobytes() == getattr(two_threads, name).tobytes(), name
         assert getattr(small, name).tobytes() == getattr(two_threads, name)[:8].tobytes(), name
 
-
-def test_the_monitors_preparation_compiles_both_kernel_paths():
-    """After the ``araim`` monitor's prepare, a small batch (the kernels on the calling thread) and a large one (the
-    parallel kernels) add no numba specialisation: nothing compiles mid-flight."""
-    from testbed.integrity.araim import kernels
-    from testbed.integrity.araim.monitor import AraimMonitor
-
-    AraimMonitor.prepare(None)
-    names = ("subset_stats_epochs", "subset_stats_serial", "protection_levels_epochs", "protection_levels_serial")
-    before = {n: len(getattr(kernels, n).signatures) for n in names}
-    settings = AraimSettings()
-    rows = batch_of_skies(np.random.default_rng(3), 80, (9, 9, 9), settings)
-    araim(rows, settings)
-    araim(one(rows, 0), settings)
-    assert all(before.values()) and {n: len(getattr(kernels, n).signatures) for n in names} == before

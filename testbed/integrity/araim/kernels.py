@@ -20,8 +20,8 @@ hundreds of modes of three constellations are dead (their priors are 10⁻¹⁰-
 far below the PL).
 
 The epochs of a batch are independent: each is computed alone on one thread (``prange``; a small batch on
-the calling thread, the ``_serial`` twins), so the results do not depend on the number of threads or on
-what else is in the batch.
+one thread, :func:`testbed.integrity.araim.subsets.run_kernel`), so the results do not depend on the
+number of threads or on what else is in the batch.
 """
 
 from __future__ import annotations
@@ -329,21 +329,9 @@ def subset_stats_epochs(G, c_int, c_acc, b_nom, b_cont, residual, has_residual, 
     :func:`testbed.integrity.araim.subsets.subset_stats` (outputs filled in place): G (E, N, n) rows,
     removed (M, N) bool, empty_clock (M, n − 3) bool clocks a mode leaves without a row, structurally_ok (M)
     bool. A mode of one or two rows that leaves every clock a row is a downdate of the all-in-view solution,
-    any other a direct solve (:func:`_direct`). Epochs run in parallel, each alone
-    (:func:`subset_stats_serial`: the same, on the calling thread)."""
+    any other a direct solve (:func:`_direct`). Epochs run in parallel, each alone."""
     rows, n_removed, fast = _mode_rows(removed, empty_clock, structurally_ok, G.shape[2] - 3)
     for e in prange(G.shape[0]):
-        _epoch_stats(e, G, c_int, c_acc, b_nom, b_cont, residual, has_residual, removed, empty_clock,
-                     structurally_ok, max_cond, rows, n_removed, fast, observable, sigma, bias, sigma_ss, bias_ss,
-                     separation, s0)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def subset_stats_serial(G, c_int, c_acc, b_nom, b_cont, residual, has_residual, removed, empty_clock,
-                        structurally_ok, max_cond, observable, sigma, bias, sigma_ss, bias_ss, separation, s0):
-    """:func:`subset_stats_epochs` on the calling thread (a small batch: waking threads costs more)."""
-    rows, n_removed, fast = _mode_rows(removed, empty_clock, structurally_ok, G.shape[2] - 3)
-    for e in range(G.shape[0]):
         _epoch_stats(e, G, c_int, c_acc, b_nom, b_cont, residual, has_residual, removed, empty_clock,
                      structurally_ok, max_cond, rows, n_removed, fast, observable, sigma, bias, sigma_ss, bias_ss,
                      separation, s0)
@@ -469,17 +457,6 @@ def protection_levels_epochs(sigma, bias, sigma_ss, bias_ss, separation, observa
     emt (E), ratio (E) max |separation|/T over monitored modes and axes (−∞ with none, NaN without residuals).
     """
     for e in prange(sigma.shape[0]):
-        _epoch_protection(e, sigma, bias, sigma_ss, bias_ss, separation, observable, k_fa, p, alpha, prior_class,
-                          z_lo, z_hi, z_dead, eps, target, protectable, has_residual, p_emt, tol, threshold, pl,
-                          iterations, emt, ratio)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def protection_levels_serial(sigma, bias, sigma_ss, bias_ss, separation, observable, k_fa, p, alpha, prior_class,
-                             z_lo, z_hi, z_dead, eps, target, protectable, has_residual, p_emt, tol, threshold, pl,
-                             iterations, emt, ratio):
-    """:func:`protection_levels_epochs` on the calling thread."""
-    for e in range(sigma.shape[0]):
         _epoch_protection(e, sigma, bias, sigma_ss, bias_ss, separation, observable, k_fa, p, alpha, prior_class,
                           z_lo, z_hi, z_dead, eps, target, protectable, has_residual, p_emt, tol, threshold, pl,
                           iterations, emt, ratio)

@@ -22,7 +22,6 @@ from testbed.integrity.araim.core import ARAIM_REASONS, AraimEpochs, AraimReason
 from testbed.integrity.araim.protection import EMT_LIMITS, SIGMA_ACC_V_LIMITS
 from testbed.integrity.araim.settings import SYSTEMS, AraimMonitorSettings, AraimSettings
 from testbed.integrity.araim.solution import AllInViewFix, all_in_view_fix
-from testbed.integrity.araim.subsets import PARALLEL_MIN_WORK
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.fde import EXCLUDED, Verdict, exclude
 from testbed.integrity.monitor import ANTENNA, MonitorContext, MonitorDefaults, Observations
@@ -290,15 +289,14 @@ class AraimMonitor(MonitorDefaults):
     compiles_kernels: ClassVar[bool] = True
 
     def prepare(self) -> None:
-        """Compile (or load from numba's cache) the subset and PL kernels before the first epoch: a small sky of
-        two systems, one epoch (the kernels on the calling thread) and a batch large enough for the parallel ones."""
+        """Compile (or load from numba's cache) the subset and PL kernels before the first epoch: one call on
+        a small sky of two systems."""
         az = np.radians(np.arange(8) * 45.0)
         el = np.radians(np.array([15.0, 60.0, 35.0, 80.0, 25.0, 50.0, 20.0, 70.0]))
         los = np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)], -1)
-        for epochs in (1, PARALLEL_MIN_WORK // 8):
-            rows = AraimRows.from_elevation(np.broadcast_to(los, (epochs, 8, 3)), np.arange(8) % 2,
-                                            np.ones((epochs, 8), bool), AraimSettings(), residual=np.zeros((epochs, 8)))
-            araim(rows, AraimSettings())
+        rows = AraimRows.from_elevation(los, np.arange(8) % 2, np.ones(8, bool), AraimSettings(),
+                                        residual=np.zeros(8))
+        araim(rows, AraimSettings())
 
     def initial_state(self) -> None:
         return None

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr, ndtri
 
-from testbed.integrity.araim.kernels import halve_protection_levels, protection_levels_epochs, protection_levels_serial
+from testbed.integrity.araim.kernels import halve_protection_levels, protection_levels_epochs
 from testbed.integrity.araim.subsets import SubsetStats, run_kernel
 from testbed.integrity.kernels import kernel_input
 from testbed.integrity.levels import service_level
@@ -136,7 +136,7 @@ def protection_levels(st: SubsetStats, p: NDArray, alpha: NDArray, k_fa: NDArray
     pl, iterations = np.empty((E, 3)), np.empty((E, 3), np.int64)
     threshold, emt, ratio = np.empty((E, M, 3)), np.empty(E), np.empty(E)
     ro = lambda a, dt=np.float64: kernel_input(a, np.shape(a), dtype=dt)  # noqa: E731
-    run_kernel(protection_levels_epochs, protection_levels_serial, E * M, ro(st.sigma), ro(st.bias), ro(st.sigma_ss),
+    run_kernel(protection_levels_epochs, E * M, ro(st.sigma), ro(st.bias), ro(st.sigma_ss),
                ro(st.bias_ss), ro(st.separation), ro(st.observable, np.bool_), ro(k_fa), ro(p), ro(alpha),
                ro(prior_class, np.int64), ro(z_lo), ro(z_hi), ro(z_dead), ro(eps), ro(target),
                ro(protectable, np.bool_), bool(has_residual), float(p_emt), float(tol), threshold, pl, iterations, emt,
