@@ -21,8 +21,7 @@ from scipy import special
 
 from testbed.integrity.araim.error_model import row_variances
 from testbed.integrity.araim.fault_modes import AID_GROUPS, ModeSet, fault_modes
-from testbed.integrity.araim.protection import (araim_availability, effective_monitor_threshold, fa_multipliers,
-                                                solve_protection_level)
+from testbed.integrity.araim.protection import araim_availability, fa_multipliers, protection_levels
 from testbed.integrity.araim.settings import SYSTEMS, AraimSettings
 from testbed.integrity.araim.subsets import chunk_epochs, subset_stats
 
@@ -201,6 +200,22 @@ def _check_rows(rows: AraimRows, settings: AraimSettings) -> tuple[tuple[int, ..
     return batch, N
 
 
+def _risk_terms(pl, st, p, monitored, protectable, threshold, alpha) -> NDArray:
+    """Each mode's term of eq. 16 at the protection levels ``pl`` (E, 3), (E, M, 3): the fault-free term with
+    weight 2, a monitored mode's P_k·min(Q((PL − T − b)/σ), α); NaN where the epoch is not protectable (what the
+    aid groups' risks sum)."""
+    weight = np.where(monitored, p, 0.0)
+    weight[:, 0] = 2.0
+    weight = np.where(protectable[:, None], weight, 0.0)[..., None].repeat(3, -1)  # (E, M, 3)
+    offset = np.where(monitored[..., None], threshold + st.bias, 0.0)
+    offset[:, 0] = st.bias[:, 0]
+    sigma = np.where(weight > 0.0, st.sigma, 1.0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        z = (pl[:, None, :] - offset) / sigma
+        terms = weight * np.minimum(0.5 * special.erfc(z / np.sqrt(2.0)), alpha[None, :, None])
+    return np.where(protectable[:, None, None], terms, np.nan)
+
+
 def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: ModeSet,
                  settings: AraimSettings, budget_share: NDArray) -> dict[str, NDArray]:
     """Every output of the epochs of one row structure (E epochs), plus the per-mode arrays."""
@@ -212,39 +227,20 @@ def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: 
     p_nm = modes.p_unmonitored + unobservable_p
     n_modes = monitored.sum(-1)
     k_fa = fa_multipliers(n_modes, settings.p_fa_hor, settings.p_fa_vert, settings.n_es_cont)  # (E, 3)
-    threshold = k_fa[:, None, :] * st.sigma_ss + st.bias_ss  # T_k,q (eq. 15)
-    threshold[:, 0] = 0.0
     n_es = settings.n_es_int if settings.max_pmd else 1
     alpha = np.minimum(1.0, modes.p_exp / (modes.p * n_es))
     alpha[0] = 1.0
     scale = 1.0 - p_nm / (settings.p_hmi_vert + settings.p_hmi_hor)  # budget left (eq. 16)
     budget = budget_share[:, None] * np.stack([0.5 * settings.p_hmi_hor * scale] * 2 + [settings.p_hmi_vert * scale], -1)
     protectable = st.observable[:, 0] & (scale > 0.0)
-    weight = np.where(monitored, modes.p, 0.0)
-    weight[:, 0] = 2.0
-    weight = np.where(protectable[:, None], weight, 0.0)[..., None].repeat(3, -1)  # (E, M, 3)
-    offset = np.where(monitored[..., None], threshold + st.bias, 0.0)
-    offset[:, 0] = st.bias[:, 0]
-    sigma = np.where(weight > 0.0, st.sigma, 1.0)
-    cap = np.broadcast_to(alpha[None, :, None], weight.shape)
-    move = lambda a: np.moveaxis(a, 1, -1)  # noqa: E731  (E, M, 3) -> (E, 3, M): terms last
     target = np.where(protectable[:, None], budget, 1.0) / settings.n_es_int
-    pl, iterations = solve_protection_level(move(offset), move(sigma), move(weight), move(cap), target,
-                                            settings.tol_pl)
-    pl = np.where(protectable[:, None], pl, np.inf)
-    with np.errstate(invalid="ignore", over="ignore"):
-        z = (pl[:, None, :] - offset) / sigma
-        terms = weight * np.minimum(0.5 * special.erfc(z / np.sqrt(2.0)), cap)  # (E, M, 3), eq. 16 at the PL
-    terms = np.where(protectable[:, None, None], terms, np.nan) * settings.n_es_int
-    emt = effective_monitor_threshold(threshold[..., 2], modes.p, monitored, settings.p_emt)
+    pl, iterations, threshold, emt, ratio = protection_levels(st, modes.p, alpha, k_fa, target, protectable,
+                                                              residual is not None, settings.p_emt, settings.tol_pl)
+    terms = _risk_terms(pl, st, modes.p, monitored, protectable, threshold, alpha) * settings.n_es_int
     sigma_acc = np.sqrt(np.einsum("eqi,ei->eq", st.s0 ** 2, c_acc))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.abs(st.separation) / threshold
-    ratio = np.where(monitored[..., None], ratio, -np.inf).reshape(E, -1).max(-1, initial=-np.inf)
     dx = (np.full((E, 3), np.nan) if residual is None else np.einsum("eqi,ei->eq", st.s0, residual))
     return dict(pl=pl, iterations=iterations, emt=emt, sigma_acc=sigma_acc, n_modes=n_modes, p_nm=p_nm, k_fa=k_fa,
-                monitored=monitored, terms=terms,
-                ratio=np.where(residual is None, np.nan, np.maximum(ratio, 0.0)), dx=dx,
+                monitored=monitored, terms=terms, ratio=ratio, dx=dx,
                 singular=~st.observable[:, 0], unmonitored=st.observable[:, 0] & (scale <= 0.0),
                 table=dict(p=modes.p, p_exp=modes.p_exp, alpha=alpha, observable=st.observable, sigma=st.sigma,
                            bias=st.bias, sigma_ss=st.sigma_ss, bias_ss=st.bias_ss, threshold=threshold,

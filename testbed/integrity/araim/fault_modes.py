@@ -163,10 +163,11 @@ def fault_modes(system: NDArray, settings: AraimSettings, aid: tuple[tuple[int, 
     log_none = float(np.sum(np.log1p(-ev.p)))
     log_none_exp = float(np.sum(np.log1p(-ev.p_exp)))
     modes: dict[frozenset[int], list[float]] = {}
+    p_event, p_exp_event = ev.p.tolist(), ev.p_exp.tolist()  # Python floats: a numpy call per combination cost ~10 µs
     for r in range(1, order + 1):
         for combo in itertools.combinations(range(len(ev.rows)), r):
             rows = frozenset().union(*(ev.rows[e] for e in combo))
-            pr = [float(np.prod(ev.p[list(combo)])), float(np.prod(ev.p_exp[list(combo)]))]
+            pr = [math.prod(p_event[e] for e in combo), math.prod(p_exp_event[e] for e in combo)]
             acc = modes.setdefault(rows, [0.0, 0.0])
             acc[0] += pr[0]
             acc[1] += pr[1]

@@ -6,8 +6,9 @@ The protection level of axis q solves the integrity-risk equation (eq. 16)
 
 with Q̃(x) = 1 for x ≤ 0, else Q(x) = 1 − Φ(x), by the ADD's half-interval search: from a bracket that
 holds the root, halve until it is at most TOL_PL wide and return its upper end (within TOL_PL above the
-root, never below it); the halving runs compiled (:mod:`testbed.integrity.araim.kernels`). All arrays are
-batched: epochs first, modes next, axes last.
+root, never below it); the halving runs compiled (:mod:`testbed.integrity.araim.kernels`), with the terms
+that cannot change a verdict set aside (:func:`protection_levels`). All arrays are batched: epochs first,
+modes next, axes last.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr, ndtri
 
-from testbed.integrity.araim.kernels import halve_protection_levels
+from testbed.integrity.araim.kernels import halve_protection_levels, protection_levels_epochs
+from testbed.integrity.araim.subsets import SubsetStats, run_kernel
 from testbed.integrity.kernels import kernel_input
 from testbed.integrity.levels import service_level
 
@@ -98,13 +100,48 @@ def solve_protection_level(offset: NDArray, sigma: NDArray, weight: NDArray, cap
     return hi.reshape(batch), iterations.reshape(batch)
 
 
-def effective_monitor_threshold(threshold_u: NDArray, p: NDArray, monitored: NDArray, p_emt: float) -> NDArray:
-    """EMT (eq. 17): the largest vertical threshold over monitored modes with prior ≥ P_EMT (0 if none).
+#: a term whose bound stays below this fraction of target/K above the bracket's low end is not evaluated
+DEAD_TERM_FRACTION = 1e-3
 
-    threshold_u : (E, M) m.  p : (M,) priors.  monitored : (E, M) bool (mode 0 excluded by the caller).
+
+def protection_levels(st: SubsetStats, p: NDArray, alpha: NDArray, k_fa: NDArray, target: NDArray,
+                      protectable: NDArray, has_residual: bool, p_emt: float,
+                      tol: float) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """Thresholds (eq. 15), protection levels (eq. 16, :func:`solve_protection_level`'s bracket and halving,
+    step for step), EMT (eq. 17) and the test ratio of E epochs of one mode set.
+
+    Parameters
+    ----------
+    st : the subset statistics (E epochs, M modes).  p, alpha : (M,) priors and caps (alpha[0] = 1).
+    k_fa : (E, 3).  target : (E, 3) eq. 16's right side.
+    protectable : (E,) bool.  has_residual : separations are defined.  p_emt, tol : settings.
+
+    Returns
+    -------
+    pl (E, 3) m (∞ where not protectable), iterations (E, 3), threshold (E, M, 3) m, emt (E,) m,
+    ratio (E,) (NaN without residuals).
     """
-    take = monitored & (p >= p_emt)
-    return np.max(np.where(take, threshold_u, 0.0), axis=-1, initial=0.0)
+    E, M = st.observable.shape
+    weight = np.asarray(p, float).copy()
+    weight[0] = 2.0  # the fault-free term's weight
+    classes, prior_class = np.unique(weight, return_inverse=True)  # the few distinct weights: Q⁻¹ once each
+    n_terms = np.where(protectable, 1 + (st.observable[:, 1:] & (weight[1:] > 0.0)).sum(-1), 1)[:, None, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_lo = q_inverse(np.minimum(target[..., None] / classes, 1.0))
+        z_hi = np.maximum(q_inverse(np.minimum(target[..., None] / (n_terms * classes), 1.0)), 1e-6)
+        eps = DEAD_TERM_FRACTION * target / n_terms[..., 0]
+        # Q(z) ≤ ½·exp(−z²/2) for z ≥ 0: w·Q(z) ≤ eps from z = √(2 ln(w/(2 eps))) on (0 when w ≤ 2 eps)
+        ln = np.log(classes / (2.0 * eps[..., None]))
+        z_dead = np.where(ln > 0.0, np.sqrt(np.maximum(2.0 * ln, 0.0)) * (1.0 + 1e-12), 0.0)
+    pl, iterations = np.empty((E, 3)), np.empty((E, 3), np.int64)
+    threshold, emt, ratio = np.empty((E, M, 3)), np.empty(E), np.empty(E)
+    ro = lambda a, dt=np.float64: kernel_input(a, np.shape(a), dtype=dt)  # noqa: E731
+    run_kernel(protection_levels_epochs, E * M, ro(st.sigma), ro(st.bias), ro(st.sigma_ss),
+               ro(st.bias_ss), ro(st.separation), ro(st.observable, np.bool_), ro(k_fa), ro(p), ro(alpha),
+               ro(prior_class, np.int64), ro(z_lo), ro(z_hi), ro(z_dead), ro(eps), ro(target),
+               ro(protectable, np.bool_), bool(has_residual), float(p_emt), float(tol), threshold, pl, iterations, emt,
+               ratio)
+    return pl, iterations, threshold, emt, ratio
 
 
 def araim_availability(hpl: NDArray, vpl: NDArray, emt: NDArray, sigma_acc_v: NDArray,

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -27,6 +28,23 @@ from testbed.integrity.kernels import kernel_input
 
 #: elements of the temporaries of one chunk of epochs
 CHUNK_ELEMENTS = 1 << 21
+#: epochs × modes below which a batch runs on one thread: a few milliseconds of work, where waking numba's
+#: threads (beside busy neighbours, waiting for one that is not scheduled) costs more than it saves
+PARALLEL_MIN_WORK = 20_000
+
+
+def run_kernel(kernel, work: int, *args) -> None:
+    """``kernel(*args)`` (a parallel kernel) on numba's threads when ``work`` (epochs × modes) is at least
+    :data:`PARALLEL_MIN_WORK`, else on one (the same per-epoch code: the same results)."""
+    if work >= PARALLEL_MIN_WORK:
+        kernel(*args)
+        return
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)  # this thread's setting only
+    try:
+        kernel(*args)
+    finally:
+        numba.set_num_threads(threads)
 
 
 @dataclass(frozen=True)
@@ -91,9 +109,10 @@ def subset_stats(G: NDArray, c_int: NDArray, c_acc: NDArray, b_nom: NDArray, b_c
     s0 = np.empty((E, 3, N))
     ro = lambda a, dt=np.float64: kernel_input(a, np.shape(a), dtype=dt)  # noqa: E731
     res = np.zeros((E, N)) if residual is None else residual
-    subset_stats_epochs(ro(G), ro(c_int), ro(c_acc), ro(b_nom), ro(b_cont), ro(res), residual is not None,
-                        ro(removed, np.bool_), ro(empty_clock, np.bool_), ro(structurally_ok, np.bool_),
-                        float(max_cond), observable, sigma, bias, sigma_ss, bias_ss, separation, s0)
+    run_kernel(subset_stats_epochs, E * M, ro(G), ro(c_int), ro(c_acc), ro(b_nom), ro(b_cont),
+               ro(res), residual is not None, ro(removed, np.bool_), ro(empty_clock, np.bool_),
+               ro(structurally_ok, np.bool_), float(max_cond), observable, sigma, bias, sigma_ss, bias_ss, separation,
+               s0)
     return SubsetStats(observable, sigma, bias, sigma_ss, bias_ss, separation, s0)
 
 

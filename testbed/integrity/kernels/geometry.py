@@ -14,6 +14,7 @@ import sys
 import numpy as np
 from numba import njit
 
+from testbed.integrity.kernels.small import _condition_1, _scaled_ldl_inverse
 from testbed.kernel_cache import keep_in_step
 
 # lsq.Reason codes (kernels cannot import lsq: lsq imports the kernels)
@@ -22,23 +23,6 @@ _OK, _NAN_INPUT, _NO_POSITION, _NO_REDUNDANCY, _SINGULAR = 0, 1, 2, 3, 4
 #: A used row whose (WS)ᵢᵢ is at or below this fraction of Wᵢᵢ has zero redundancy: the
 #: value is rounding noise, and a fault on the row moves the position unseen (slope inf).
 ZERO_REDUNDANCY_RTOL = 1e-12
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _condition_1(S, Si) -> float:
-    """‖S‖₁‖S⁻¹‖₁ (largest column sums of absolute values)."""
-    K = S.shape[0]
-    n_s = 0.0
-    n_si = 0.0
-    for c in range(K):
-        a = 0.0
-        b = 0.0
-        for i in range(K):
-            a += abs(S[i, c])
-            b += abs(Si[i, c])
-        n_s = max(n_s, a)
-        n_si = max(n_si, b)
-    return n_s * n_si
-
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def wls_one(G, h, z, wd, Wb, mask, max_cond,
@@ -125,56 +109,19 @@ def wls_one(G, h, z, wd, Wb, mask, max_cond,
                 M[i, K - 1] = 0.0
                 M[K - 1, i] = 0.0
             M[K - 1, K - 1] = 1.0
-        # -- Jacobi scaling, LDLᵀ, the inverse and its 1-norm condition -----------
+        # -- Jacobi scaling, LDLᵀ, the inverse and its 1-norm condition (inf: a pivot not positive) --
         d, piv, y = vec[0], vec[1], vec[2]
-        for i in range(K):
-            d[i] = np.sqrt(M[i, i]) if M[i, i] > 0.0 else 0.0
-            if not d[i] > 0.0:
-                code = _SINGULAR
-        if code == _OK:
-            for i in range(K):
-                for c in range(K):
-                    S[i, c] = 0.5 * (M[i, c] + M[c, i]) / (d[i] * d[c])
-            L[:, :] = 0.0
-            for c in range(K):
-                s = S[c, c]
-                for q in range(c):
-                    s -= L[c, q] * L[c, q] * piv[q]
-                if not (s > 0.0 and np.isfinite(s)):
-                    code = _SINGULAR
-                    break
-                piv[c] = s
-                for i in range(c + 1, K):
-                    s = S[i, c]
-                    for q in range(c):
-                        s -= L[i, q] * L[c, q] * piv[q]
-                    L[i, c] = s / piv[c]
-        if code == _OK:
-            for c in range(K):  # column c of S⁻¹: L D Lᵀ x = e_c
-                for i in range(K):
-                    s = 1.0 if i == c else 0.0
-                    for q in range(i):
-                        s -= L[i, q] * y[q]
-                    y[i] = s
-                for i in range(K - 1, -1, -1):
-                    s = y[i] / piv[i]
-                    for q in range(i + 1, K):
-                        s -= L[q, i] * Si[q, c]
-                    Si[i, c] = s
-            kappa = _condition_1(S, Si)
-            cond[0] = kappa if np.isfinite(kappa) else np.inf
-            if not cond[0] <= max_cond:
-                code = _SINGULAR
-            else:
-                for i in range(K):  # J = D⁻¹ S⁻¹ D⁻¹; a dropped clock is not estimated
-                    for c in range(K):
-                        J[i, c] = Si[i, c] / (d[i] * d[c])
-                if not clock:
-                    for i in range(K):
-                        J[i, K - 1] = 0.0
-                        J[K - 1, i] = 0.0
+        cond[0] = _scaled_ldl_inverse(M, d, S, L, Si, piv, y)
+        if not cond[0] <= max_cond:
+            code = _SINGULAR
         else:
-            cond[0] = np.inf
+            for i in range(K):  # J = D⁻¹ S⁻¹ D⁻¹; a dropped clock is not estimated
+                for c in range(K):
+                    J[i, c] = Si[i, c] / (d[i] * d[c])
+            if not clock:
+                for i in range(K):
+                    J[i, K - 1] = 0.0
+                    J[K - 1, i] = 0.0
         if code == _OK and nu - ns < 1:
             code = _NO_REDUNDANCY
     reason[0] = code
