@@ -45,9 +45,11 @@ import numpy as np
 from scipy import special, stats
 
 from testbed.campaign.context import CellContext
+from testbed.campaign.sampling_vision import PROBE_Z, TiltRecorder, VisionColumns, probe_tilt
 from testbed.integrity.monitor import Observations
 from testbed.monitors import monitor_inputs, monitor_names
 from testbed.schema import ConfigError
+from testbed.sensors.vision.detect import sample_vision
 from testbed.sim import pipeline
 from testbed.sim.streams import StreamTree
 
@@ -80,11 +82,13 @@ def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str, event: 
     does not aim at) and "not reached" (the monitor reads inputs the proposal leaves as drawn: events they drive
     come at their plain rate). Every weighted estimate is unbiased; only an aimed one is efficient."""
     try:
-        unmoved = sorted(monitor_inputs(monitor) - MOVED_INPUTS)
+        moved = moved_inputs(aimed_monitor)
+        unmoved = sorted(monitor_inputs(monitor) - moved)
     except (KeyError, ValueError):
         return "not reached", f"{monitor} is not a registered monitor here: what it reads is unknown"
     if unmoved:
-        return "not reached", (f"the proposal moves the pseudoranges only; {monitor} also reads "
+        what = "the pseudoranges only" if moved == MOVED_INPUTS else " and ".join(sorted(moved))
+        return "not reached", (f"the proposal moves {what}; {monitor} also reads "
                                f"{', '.join(unmoved)}, drawn from the error model, so the events those errors drive "
                                "come at their plain rate")
     aims = AIMED_RATES.get((proposal, event), ())
@@ -95,6 +99,16 @@ def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str, event: 
         return "moved", (f"aimed from {aimed_monitor}'s linear model; efficient for {monitor} where its failure "
                          "region is near that one's")
     return "aimed", f"aimed from {monitor}'s linear model"
+
+
+def moved_inputs(aimed_monitor: str) -> frozenset:
+    """The inputs a proposal aimed from ``aimed_monitor`` moves: the pseudoranges, and the camera's Gaussian draws
+    when that monitor reads the camera (:mod:`.sampling_vision`; its dithering and survey stay as drawn)."""
+    return MOVED_INPUTS | (monitor_inputs(aimed_monitor) & VISION_INPUTS)
+
+
+#: the inputs besides the pseudoranges a proposal can move: the camera's (:mod:`.sampling_vision`)
+VISION_INPUTS = frozenset({"vision"})
 
 
 # ----------------------------------------------------------------------------- checks before any work
@@ -119,10 +133,14 @@ def check_sampling(loaded, cells) -> None:
         problems.append(f"[sampling] method = 'importance': no monitor of {list(spec.monitors)} reads the "
                         f"pseudoranges alone (monitors that do: {', '.join(alone)}); the proposal is aimed from such a monitor's "
                         "linear model: add one to monitors, or set method = 'plain'")
-    elif monitor_inputs(name) != frozenset({"gnss"}):
+    elif not (monitor_inputs(name) == MOVED_INPUTS or monitor_inputs(name) == MOVED_INPUTS | VISION_INPUTS):
         problems.append(f"[sampling.monitor] {name!r} reads {sorted(monitor_inputs(name))}: expected a monitor "
-                        f"that reads the pseudoranges alone (monitors that do: {', '.join(alone)}), whose position error is linear "
-                        "in them")
+                        f"that reads the pseudoranges alone (monitors that do: {', '.join(alone)}), or the "
+                        "pseudoranges and the camera, whose position error is linear in their draws")
+    elif monitor_inputs(name) & VISION_INPUTS and spec.sampling.proposal != "shift":
+        problems.append(f"[sampling.proposal] {spec.sampling.proposal!r} with monitor {name!r}, which reads the "
+                        "camera: the scale proposal scales the pseudorange residual space only; expected "
+                        "proposal = 'shift'")
     for c in cells:
         g = c.config.gnss
         coloured = [k for k in ("multipath_tau_s", "ura_tropo_tau_s") if getattr(g, k) is not None]
@@ -180,22 +198,31 @@ class Components:
 
 def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None) -> list[LinearModel]:
     """The monitor's :class:`LinearModel` on the cell's geometry, one per sky window of ``windows`` (None: the
-    fixed start's one): the monitor on the error-free observations and on a :data:`PROBE_M` bias per slot."""
+    fixed start's one): the monitor on the error-free observations and on a :data:`PROBE_M` bias per slot; for a
+    monitor that reads the camera, also on :data:`~.sampling_vision.PROBE_Z` standard deviations per vision column
+    (:mod:`.sampling_vision`), whose columns follow the slots' in ``A``."""
     mon = next(m for m in ctx.setup.monitors if m.name == monitor_name)
     S = ctx.g_geom.prn.size
     W = 1 if windows is None else windows.size
-    P = S + 1
+    cols = vision_columns(ctx, monitor_name)
+    V = 0 if cols is None else cols.size
+    P = S + V + 1
     geom = ctx.gnss_geometry_of(None if windows is None else np.repeat(windows, P))
     base = pipeline.gnss_errors(ctx.plan, geom, StreamTree(0), W * P)  # for its σ and shapes; the draws are replaced
     T = ctx.t.size
     noise = np.zeros((W, P, T, S))
-    noise[:, np.arange(1, P), :, np.arange(S)] = PROBE_M
+    noise[:, np.arange(1, S + 1), :, np.arange(S)] = PROBE_M
     zero = np.zeros((W * P, T))
     errors = type(base)(batch=base.batch, sigma=base.sigma, noise=noise.reshape(W * P, T, S), clock_bias=zero,
                         clock_drift=zero, rr_noise=np.zeros_like(base.rr_noise), fault_seed=base.fault_seed,
                         fault_bit_generator=base.fault_bit_generator)
     gnss, _ = pipeline.gnss_observations(geom, errors, [])
-    out, _ = mon.step(Observations(gnss), mon.initial_state())
+    vision = None
+    if cols is not None:  # the error-free scene, the landmarks where they stand, and one vision column probed
+        vision, _ = sample_vision(ctx.v_geom, ctx.setup.vision, landmarks=ctx.landmarks, faults=[],
+                                  rng=StreamTree(0).generator("vision"), n_trials=W * P,
+                                  survey_ecef=ctx.landmarks.pos_ecef, tilt=probe_tilt(cols, S + 1, P))
+    out, _ = mon.step(Observations(gnss, vision), mon.initial_state())
     ref = pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
     pos = np.asarray(out.pos_enu, float).reshape(W, P, T, 3)
     sigma = np.broadcast_to(np.asarray(base.drawn_sigma, float), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
@@ -206,16 +233,25 @@ def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None
     vpl = np.asarray(out.vpl, float).reshape(W, P, T)[:, 0]
     models = []
     for w in range(W):
-        per_m = np.moveaxis(pos[w, 1:] - pos[w, :1], 0, -1) / PROBE_M  # (T, 3, S)
-        per_m = np.where(np.isfinite(per_m), per_m, 0.0)
+        per_unit = np.moveaxis(pos[w, 1:] - pos[w, :1], 0, -1)  # (T, 3, S + V)
+        per_unit = np.where(np.isfinite(per_unit) & ok[w][:, None, None], per_unit, 0.0)
+        per_m = per_unit[..., :S] / PROBE_M
         used = visible[w] & ok[w][:, None] & (np.abs(per_m).sum(1) > 0)
-        A = per_m * np.where(used, sigma[w], 0.0)[:, None, :]
+        A = np.concatenate([per_m * np.where(used, sigma[w], 0.0)[:, None, :], per_unit[..., S:] / PROBE_Z], -1)
         with np.errstate(divide="ignore", invalid="ignore"):
             per_draw = np.where(used[..., None], design[w] / sigma[w][..., None], 0.0)
         models.append(LinearModel(e0=pos[w, 0] - ref, A=A, design=per_draw, used=used,
                                   hpl=np.where(ok[w], hpl[w], np.nan),
                                   vpl=np.where(ok[w], vpl[w], np.nan), dimensions=tuple(out.dimensions)))
     return models
+
+
+def vision_columns(ctx: CellContext, monitor_name: str) -> VisionColumns | None:
+    """The vision columns a proposal aimed from ``monitor_name`` moves (:mod:`.sampling_vision`): None when that
+    monitor does not read the camera."""
+    if not (monitor_inputs(monitor_name) & VISION_INPUTS) or ctx.v_geom is None:
+        return None
+    return VisionColumns(len(ctx.landmarks))
 
 
 def design_columns(geom, shape: tuple[int, int, int]) -> np.ndarray:
@@ -371,14 +407,53 @@ def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray)
 
 
 def tilted_errors(ctx: CellContext, spec, errors, windows: np.ndarray | None, tree: StreamTree):
-    """The block's errors drawn from the proposal: ``(errors, log_weight (n,), component (n,))``."""
+    """The block's errors drawn from the proposal: ``(errors, log_weight (n,), component (n,))`` (a proposal that
+    moves the pseudoranges only; :func:`tilted_draws` in general)."""
+    d = tilted_draws(ctx, spec, errors, windows, tree)
+    return d.gnss, d.log_weight(), d.component
+
+
+@dataclass
+class TiltedDraws:
+    """One block's draws from the proposal: the tilted pseudorange errors, each trial's component (−1: the error
+    model), and, when the proposal moves the camera's draws too, the ``tilt`` to hand
+    :func:`~testbed.sim.pipeline.draw_vision` (it keeps the moved draws). :meth:`log_weight` after the draws."""
+
+    gnss: object
+    component: np.ndarray
+    vision_tilt: TiltRecorder | None
+    comps: list
+    which: np.ndarray
+    plan: object
+    z_gnss: np.ndarray
+
+    def log_weight(self) -> np.ndarray:
+        """(n,) ``log p/q`` of each trial's moved draws, the pseudoranges' and the camera's in one vector per epoch
+        (the camera's drawn through :attr:`vision_tilt` first)."""
+        z = self.z_gnss
+        if self.vision_tilt is not None:
+            if self.vision_tilt.z is None:
+                raise RuntimeError("TiltedDraws.log_weight: the camera's draws were not made through vision_tilt")
+            z = np.concatenate([z, self.vision_tilt.z], -1)
+        return log_weights(self.comps, self.which, self.plan, z)
+
+
+def tilted_draws(ctx: CellContext, spec, errors, windows: np.ndarray | None, tree: StreamTree) -> TiltedDraws:
+    """The block's draws from the proposal (:class:`TiltedDraws`): each trial's component from the block's
+    ``sampling`` stream, its shift split between the pseudorange slots and the vision columns
+    (:mod:`.sampling_vision`) of the monitor it is aimed from."""
     comps = cell_components(ctx, spec, windows)
     n = errors.noise.shape[0]
     which = np.zeros(n, np.int64) if windows is None else np.searchsorted(np.unique(windows), windows)
     _, z0 = pipeline.tilt_gnss_errors(errors)  # the draws as drawn
+    S = z0.shape[-1]
+    cols = vision_columns(ctx, sampling_monitor(spec))
+    if cols is not None:  # the camera's columns are drawn later; a shift does not read them
+        z0 = np.concatenate([z0, np.zeros(z0.shape[:2] + (cols.size,))], -1)
     draw = draw_proposal(comps, which, spec.sampling, z0, tree.generator("sampling"))
-    tilted, z = pipeline.tilt_gnss_errors(errors, draw.shift)
-    return tilted, log_weights(comps, which, spec.sampling, z), draw.component
+    tilted, z = pipeline.tilt_gnss_errors(errors, draw.shift[..., :S])
+    recorder = None if cols is None else TiltRecorder(cols, draw.shift[..., S:])
+    return TiltedDraws(tilted, draw.component, recorder, comps, which, spec.sampling, z)
 
 
 # ----------------------------------------------------------------------------- the estimates
