@@ -61,7 +61,7 @@ from testbed.sensors.faults import LandmarkMoved, Misassociation, PixelBias, VIS
 
 from .attitude_ref import attitude_draws, attitude_reference_from_draws, q_to_euler
 from .camera import PinholeCamera
-from .dithering import camera_pose, dither_rms_cam, dithering_angles, mount_from_settings
+from .dithering import camera_pose, dither_rms_cam, dithering_parts, mount_from_settings
 from .landmarks import Landmarks, build_landmarks, survey
 from .settings import DetectionSettings, LandmarkSettings, VisionSettings
 
@@ -75,16 +75,19 @@ class VisionDraws:
     (``tilt``), in standard units: ``pixel`` (B..., T, L, 2) the detection error over its σ (DE and the per-landmark
     blur), ``blur`` (B..., T) the frame's blur rotation over its spread (``blur_model = "rotation"``; zeros with
     ``"independent"``, which draws none), ``attitude_bias`` (B..., 1, 3) and ``attitude_noise`` (B..., T, 3) the
-    attitude reference's errors over their σ (roll, pitch, heading). ``dither_angle`` and ``dither_rate``
-    (B..., T, 3) rad, rad/s are the dithering as drawn (not standard units: a proposal leaves them; the probe of a
-    monitor's linear model zeroes them for the error-free scene)."""
+    attitude reference's errors over their σ (roll, pitch, heading), ``dither_noise`` (B..., T, 3) the dithering's
+    band-limited noise at the epochs over its σ (camera axes; a move is made through the noise's white grid,
+    :func:`~.dithering.dithering_parts`, so the noise stays the filter's). ``dither_tone_angle`` and
+    ``dither_tone_rate`` (B..., T, 3) rad, rad/s are the dithering's tones, of random phase (not Gaussian: a
+    proposal leaves them; the probe of a monitor's linear model zeroes them for the error-free scene)."""
 
     pixel: NDArray
     blur: NDArray
     attitude_bias: NDArray
     attitude_noise: NDArray
-    dither_angle: NDArray
-    dither_rate: NDArray
+    dither_noise: NDArray
+    dither_tone_angle: NDArray
+    dither_tone_rate: NDArray
 
 
 class FaultKind:
@@ -464,24 +467,31 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     g_survey, g_dith, g_att, g_noise, g_faults = _spawn(rng, len(RNG_STREAMS))
     fault_rngs = _spawn(g_faults, len(faults))
     lm_survey = survey(lm, g_survey, n_trials) if survey_ecef is None else _given_survey(survey_ecef, lm)
-    def dither():  # (B..., T, 3) angles and rates
-        return dithering_angles(t, settings.dithering, g_dith, n_trials, sample_rate_hz=settings.rate_hz)
+    ss = g_dith.bit_generator.seed_seq
+
+    def dither(noise_shift=None, gen=g_dith):  # (B..., T, 3) angles and rates, tones and noise apart
+        return dithering_parts(t, settings.dithering, gen, n_trials, sample_rate_hz=settings.rate_hz,
+                               noise_shift=noise_shift)
 
     if share is None:
-        delta, delta_rate = dither()
+        parts = dither()
     else:  # the same seed, times and settings dither every camera of a sweep alike: keyed on all the draw reads
-        ss = g_dith.bit_generator.seed_seq
-        delta, delta_rate = share(("dithering", t.tobytes(), settings.dithering.model_dump_json(), settings.rate_hz,
-                                   ss.entropy, ss.spawn_key, ss.pool_size, ss.n_children_spawned, n_trials), dither)
+        parts = share(("dithering", t.tobytes(), settings.dithering.model_dump_json(), settings.rate_hz,
+                       ss.entropy, ss.spawn_key, ss.pool_size, ss.n_children_spawned, n_trials), dither)
+    delta, delta_rate = parts.angle, parts.rate
     z_bias, z_att = attitude_draws(g_att, batch, (T,))
     noise_std = g_noise.standard_normal(batch + (T, L, 2))
     rotation_blur = det.blur_model == "rotation"
     # the frame's blur rotation: its own stream, so the DE draws stay as they were
     u = _spawn(g_noise, 1)[0].standard_normal(batch + (T,)) if rotation_blur else np.zeros(batch + (T,))
     if tilt is not None:
-        d = tilt(VisionDraws(noise_std, u, z_bias, z_att, delta, delta_rate))
-        noise_std, u, z_bias, z_att, delta, delta_rate = (d.pixel, d.blur, d.attitude_bias, d.attitude_noise,
-                                                          d.dither_angle, d.dither_rate)
+        d = tilt(VisionDraws(noise_std, u, z_bias, z_att, parts.noise_z, parts.tone_angle, parts.tone_rate))
+        noise_std, u, z_bias, z_att = d.pixel, d.blur, d.attitude_bias, d.attitude_noise
+        noise_angle, noise_rate = parts.noise_angle, parts.noise_rate
+        if not np.array_equal(d.dither_noise, parts.noise_z):  # moved through the noise's own white grid, drawn again
+            moved = dither(d.dither_noise - parts.noise_z, np.random.Generator(type(g_dith.bit_generator)(ss)))
+            noise_angle, noise_rate = moved.noise_angle, moved.noise_rate
+        delta, delta_rate = d.dither_tone_angle + noise_angle, d.dither_tone_rate + noise_rate
     q_ref, att_err, att_sigma = attitude_reference_from_draws(g.euler, settings.attitude_ref, z_bias, z_att)
 
     # True camera attitude: nominal × dithering (the position is not dithered).
