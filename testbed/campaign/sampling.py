@@ -39,7 +39,7 @@ from __future__ import annotations
 import hashlib
 import json
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import special, stats
@@ -141,6 +141,10 @@ def check_sampling(loaded, cells) -> None:
         problems.append(f"[sampling.proposal] {spec.sampling.proposal!r} with monitor {name!r}, which reads the "
                         "camera: the scale proposal scales the pseudorange residual space only; expected "
                         "proposal = 'shift'")
+    if spec.sampling.adapt != "none" and spec.sorties.start != "fixed":
+        problems.append(f"[sampling.adapt] {spec.sampling.adapt!r} with [sorties] start = "
+                        f"{spec.sorties.start!r}: the pilot refits the proposal of one sky; expected start = 'fixed' "
+                        "(sweep start_time_utc for several skies), or adapt = 'none'")
     for c in cells:
         g = c.config.gnss
         coloured = [k for k in ("multipath_tau_s", "ura_tropo_tau_s") if getattr(g, k) is not None]
@@ -190,6 +194,10 @@ class Components:
     parity: np.ndarray  # (K, S, S)
     dof: np.ndarray  # (K,)
     log_share: np.ndarray | None = None  # (K,) log-probabilities summing to 1
+    #: a shift component's event, for the adaptive step (:func:`cross_entropy_shifts`): the error's ENU direction
+    #: (K, 3) (the bounded dimension's, with the component's sign) and the limit (K,) it must exceed there
+    direction: np.ndarray | None = None
+    limit: np.ndarray | None = None
 
     @property
     def size(self) -> int:
@@ -274,7 +282,7 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
     scaled epoch (``"scale"``). Epochs whose event cannot happen (``"hazardous"`` where the PL exceeds the
     alert limit: unavailable) have none."""
     T, _, S = model.A.shape
-    epochs, shifts = [], []
+    epochs, shifts, directions, limits = [], [], [], []
     for dim, pl, al in (("V", model.vpl, val), ("H", model.hpl, hal)):
         if dim not in model.dimensions:
             continue
@@ -282,17 +290,19 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
         for t in np.flatnonzero(np.isfinite(limit)):
             A = model.A[t]
             if dim == "V":
-                s, e0 = A[2], model.e0[t, 2]
+                s, e0, axis = A[2], model.e0[t, 2], np.array([0.0, 0.0, 1.0])
             else:
                 vals, vecs = np.linalg.eigh(A[:2] @ A[:2].T)
                 u = vecs[:, -1]
-                s, e0 = u @ A[:2], float(u @ model.e0[t, :2])
+                s, e0, axis = u @ A[:2], float(u @ model.e0[t, :2]), np.array([u[0], u[1], 0.0])
             norm2 = float(s @ s)
             if not norm2 > 0:
                 continue
             for sign in (1.0, -1.0):
                 epochs.append(t)
                 shifts.append((sign * limit[t] - e0) * s / norm2)
+                directions.append(sign * axis)
+                limits.append(limit[t])
     if plan.proposal == "scale":
         return _parity_components(model)
     ep = np.array(epochs, np.int64)
@@ -301,7 +311,8 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
     if plan.mixture == "tail" and ep.size:  # each component in proportion to its own tail Q(|z*|)
         log_tail = stats.norm.logsf(np.linalg.norm(shifts, axis=1))
         log_share = log_tail - special.logsumexp(log_tail)
-    return Components(ep, shifts, np.zeros((ep.size, S, S)), np.zeros(ep.size, np.int64), log_share)
+    return Components(ep, shifts, np.zeros((ep.size, S, S)), np.zeros(ep.size, np.int64), log_share,
+                      np.array(directions, float).reshape(ep.size, 3), np.array(limits, float))
 
 
 def _parity_components(model: LinearModel) -> Components:
@@ -333,7 +344,8 @@ def cell_components(ctx: CellContext, spec, windows: np.ndarray | None) -> list[
     plan = spec.sampling
     name = sampling_monitor(spec)
     key_cell = hashlib.sha256(json.dumps([ctx.cell.config.model_dump(mode="json"), plan.model_dump(mode="json"),
-                                          name, spec.duration_s, spec.segment], sort_keys=True, default=str)
+                                          name, spec.duration_s, spec.segment, spec.base_seed, ctx.cell.index],
+                                         sort_keys=True, default=str)
                               .encode()).hexdigest()
     want = [None] if windows is None else [int(w) for w in np.unique(windows)]
     with _LOCK:  # blocks on threads: each window's model measured once
@@ -343,7 +355,8 @@ def cell_components(ctx: CellContext, spec, windows: np.ndarray | None) -> list[
             if len(_COMPONENTS) + len(missing) > _MAX_KEPT:
                 _COMPONENTS.clear()
             for w, m in zip(missing, models):
-                _COMPONENTS[key_cell, w] = components(m, plan, ctx.hal, ctx.val)
+                c = components(m, plan, ctx.hal, ctx.val)
+                _COMPONENTS[key_cell, w] = adapted_components(ctx, spec, c) if plan.adapt == "cross_entropy" else c
         return [_COMPONENTS[key_cell, w] for w in want]
 
 
@@ -438,11 +451,13 @@ class TiltedDraws:
         return log_weights(self.comps, self.which, self.plan, z)
 
 
-def tilted_draws(ctx: CellContext, spec, errors, windows: np.ndarray | None, tree: StreamTree) -> TiltedDraws:
+def tilted_draws(ctx: CellContext, spec, errors, windows: np.ndarray | None, tree: StreamTree,
+                 comps: list[Components] | None = None) -> TiltedDraws:
     """The block's draws from the proposal (:class:`TiltedDraws`): each trial's component from the block's
     ``sampling`` stream, its shift split between the pseudorange slots and the vision columns
-    (:mod:`.sampling_vision`) of the monitor it is aimed from."""
-    comps = cell_components(ctx, spec, windows)
+    (:mod:`.sampling_vision`) of the monitor it is aimed from. ``comps``: the components per sky window (None:
+    the cell's, :func:`cell_components`)."""
+    comps = cell_components(ctx, spec, windows) if comps is None else comps
     n = errors.noise.shape[0]
     which = np.zeros(n, np.int64) if windows is None else np.searchsorted(np.unique(windows), windows)
     _, z0 = pipeline.tilt_gnss_errors(errors)  # the draws as drawn
@@ -454,6 +469,75 @@ def tilted_draws(ctx: CellContext, spec, errors, windows: np.ndarray | None, tre
     tilted, z = pipeline.tilt_gnss_errors(errors, draw.shift[..., :S])
     recorder = None if cols is None else TiltRecorder(cols, draw.shift[..., S:])
     return TiltedDraws(tilted, draw.component, recorder, comps, which, spec.sampling, z)
+
+
+# ----------------------------------------------------------------------------- the adaptive step
+
+#: the pilot's draw block: no campaign block reaches it (at most 10⁷ trials), so its draws are its own
+PILOT_BLOCK = 2**40
+#: a component's mean is refitted from at least this many effective elite trials (Kish), else kept
+MIN_ELITE = 5.0
+
+
+def cross_entropy_shifts(comps: Components, z: np.ndarray, log_weight: np.ndarray, elite: np.ndarray
+                         ) -> Components:
+    """``comps`` with each shift refitted by the cross-entropy method (Rubinstein & Kroese 2017, ch. 8) from a
+    pilot's draws ``z`` (n, T, D), their ``log_weight`` (log p/q) and ``elite`` (n, K) (the trial's draws are in
+    component k's event): the mean of a Gaussian family that minimises the cross-entropy to the zero-variance
+    density ``p·1{event}/P`` is the event's conditional mean under ``p``, ``Σ w_i z_i / Σ w_i`` over the elite
+    trials, read at the component's epoch. A component with fewer than :data:`MIN_ELITE` effective elite trials
+    of its own (a pilot spread over many components) takes the pooled fit of one factor on every shift,
+    ``c = Σ w_i (z_i·m_k)/|m_k|² / Σ w_i`` over all components' elite (how far along its own direction the
+    event's mean lies, relative to the dominating point); with too few of those too, it keeps its dominating
+    point. The shares are kept (every epoch's event stays covered)."""
+    shift = comps.shift.copy()
+    hit_i, hit_k = np.nonzero(elite)
+    if hit_i.size == 0:
+        return comps
+    lw = log_weight[hit_i] - log_weight[hit_i].max()  # one scale for every elite trial (they are compared)
+    along = np.einsum("id,id->i", z[hit_i, comps.epoch[hit_k], :], comps.shift[hit_k]) \
+        / np.maximum(np.einsum("kd,kd->k", comps.shift, comps.shift)[hit_k], 1e-300)
+    w = np.exp(lw)
+    pooled = float(w @ along / w.sum()) if w.sum() ** 2 / np.sum(w**2) >= MIN_ELITE else None
+    for k in range(comps.size):
+        own = hit_k == k
+        wk = np.exp(lw[own] - lw[own].max()) if own.any() else np.zeros(0)
+        if wk.size and wk.sum() ** 2 / np.sum(wk**2) >= MIN_ELITE:
+            shift[k] = wk @ z[hit_i[own], comps.epoch[k], :] / wk.sum()
+        elif pooled is not None:
+            shift[k] = pooled * comps.shift[k]
+    return replace(comps, shift=shift)
+
+
+def component_events(comps: Components, err: np.ndarray, alert: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(n, K) each trial's event of each component: at its epoch, a solution, no alert, and the error (n, T, 3)
+    beyond the component's limit along its direction."""
+    t = comps.epoch
+    along = np.einsum("nkc,kc->nk", err[:, t, :], comps.direction)
+    return ok[:, t] & ~alert[:, t] & (along > comps.limit)
+
+
+def adapted_components(ctx: CellContext, spec, comps: Components) -> Components:
+    """``comps`` refitted from a pilot run (``[sampling] adapt = "cross_entropy"``): ``pilot_trials`` sorties
+    drawn from ``comps`` out of the pilot's own block (:data:`PILOT_BLOCK`, its streams apart from every
+    campaign block's), the aimed monitor run on them, its events per component (:func:`component_events`) the
+    elite of :func:`cross_entropy_shifts`. The pilot's sorties are not part of the estimate."""
+    plan = spec.sampling
+    name = sampling_monitor(spec)
+    mon = next(m for m in ctx.setup.monitors if m.name == name)
+    n = int(plan.pilot_trials)
+    tree = StreamTree.of_block(spec.base_seed, ctx.cell.index, PILOT_BLOCK, False)
+    errors = pipeline.gnss_errors(ctx.plan, ctx.g_geom, tree, n)
+    d = tilted_draws(ctx, spec, errors, None, tree, comps=[comps])
+    gnss, _ = pipeline.gnss_observations(ctx.g_geom, d.gnss, [])
+    vision = None
+    if "vision" in mon.inputs:
+        vision, _ = pipeline.draw_vision(ctx.plan, ctx.v_geom, tree, n, [], tilt=d.vision_tilt)
+    out, _ = mon.step(Observations(gnss, vision), mon.initial_state())
+    err = np.asarray(out.pos_enu, float) - pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
+    z = d.z_gnss if d.vision_tilt is None else np.concatenate([d.z_gnss, d.vision_tilt.z], -1)
+    elite = component_events(comps, err, np.asarray(out.alert, bool), np.asarray(out.reason) == 0)
+    return cross_entropy_shifts(comps, z, d.log_weight(), elite)
 
 
 # ----------------------------------------------------------------------------- the estimates
