@@ -233,3 +233,55 @@ def test_a_move_of_the_dithering_noise_is_made_through_its_white_grid():
     assert np.abs(dz).max() < 1e-6
     assert np.array_equal(moved.tone_angle, base.tone_angle)
     assert np.std(base.noise_z) == pytest.approx(1.0, abs=0.15)  # standard values under the error model
+
+
+def loose_pixel_spec(tmp_path: Path, name: str, trials: int, sampling: str) -> Path:
+    """The last 20 s of the runway-05 final, the pixel monitor alone with its PLs loosened (P_FA 1e-2, P_MD 0.1,
+    p_ff 1e-2, no two-fault hypothesis), so that fault-free misleading epochs come at ~1e-3 (brute force)."""
+    from testbed.resources import approaches_dir
+
+    ap = (approaches_dir() / "zunz-rwy05-final.toml").read_text().replace('name = "zunz-rwy05-final"',
+                                                                           'name = "loosepx"')
+    (tmp_path / "loosepx.toml").write_text(ap + "\n[integrity]\np_fa = 0.01\np_md = 0.1\n\n"
+                                                "[monitor.pixel]\np_ff = 0.01\ntwo_faults = false\n")
+    spec = tmp_path / f"{name}.toml"
+    spec.write_text(f'name = "{name}"\napproaches = ["loosepx.toml"]\nmonitors = ["pixel"]\ntrials = {trials}\n'
+                    'base_seed = 7\nblock_trials = 100\nchunk_trials = 1000\nper_epoch_trials = 0\n'
+                    'duration_s = 20.0\nsegment = "last"\n' + sampling)
+    return spec
+
+
+@pytest.mark.slow
+def test_pixel_importance_agrees_with_brute_force(tmp_path: Path):
+    """The pixel monitor's misleading epochs (~1e-3) at loosened PLs on the last 20 s of the runway-05 final:
+    4000 plain sorties and 1000 importance-sampled ones aimed from the pixel monitor (pseudoranges and camera
+    moved) estimate the same per-epoch and per-sortie rates, within 99 % of their combined standard error."""
+    plain = run_campaign(loose_pixel_spec(tmp_path, "plain", 4000, ""), tmp_path / "plain", progress=False).out_dir
+    imp = run_campaign(loose_pixel_spec(tmp_path, "imp", 1000, '[sampling]\nmethod = "importance"\nmonitor = "pixel"\n'),
+                       tmp_path / "imp", progress=False).out_dir
+    got = {}
+    for name, out in (("plain", plain), ("imp", imp)):
+        t = pq.read_table(out / "trials.parquet").to_pydict()
+        lw = np.asarray(t["log_weight"]) if "log_weight" in t else np.zeros(len(t["trial"]))
+        mi = np.asarray(t["mi_epochs"], float)
+        got[name] = {"epoch": weighted_rate(mi, np.asarray(t["epochs"], float), lw),
+                     "sortie": weighted_rate((mi > 0).astype(float), 1.0, lw)}
+    for per in ("epoch", "sortie"):
+        x, y = got["plain"][per], got["imp"][per]
+        print(per, x.text(), x.ess_events, y.text(), y.ess_events)
+        assert x.settled and y.settled, (x, y)
+        assert abs(x.estimate - y.estimate) <= 2.576 * np.hypot(x.se, y.se), (per, x, y)
+
+
+def test_the_scale_proposal_aimed_from_a_camera_monitor_is_refused_before_any_work(tmp_path: Path):
+    """The scale proposal scales the pseudorange residual space only: aimed from the pixel monitor it is refused,
+    naming the key, and nothing is written."""
+    from testbed.schema import ConfigError
+
+    spec = tmp_path / "bad.toml"
+    spec.write_text(PIXEL_SPEC.format(name="bad", trials=100, chunk=100).replace(
+        'monitor = "pixel"', 'monitor = "pixel"\nproposal = "scale"'))
+    with pytest.raises(ConfigError) as ei:
+        run_campaign(spec, tmp_path / "out", progress=False)
+    assert "[sampling.proposal]" in str(ei.value) and "pixel" in str(ei.value)
+    assert not (tmp_path / "out").exists()
