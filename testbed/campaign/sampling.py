@@ -419,13 +419,6 @@ def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray)
     return out
 
 
-def tilted_errors(ctx: CellContext, spec, errors, windows: np.ndarray | None, tree: StreamTree):
-    """The block's errors drawn from the proposal: ``(errors, log_weight (n,), component (n,))`` (a proposal that
-    moves the pseudoranges only; :func:`tilted_draws` in general)."""
-    d = tilted_draws(ctx, spec, errors, windows, tree)
-    return d.gnss, d.log_weight(), d.component
-
-
 @dataclass
 class TiltedDraws:
     """One block's draws from the proposal: the tilted pseudorange errors, each trial's component (−1: the error
