@@ -80,18 +80,25 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     # the fault-free errors are shared by every GNSS fault of the sweep, the observations by its cells of one fault
     errors = lambda: memo.shared(sky_key + ("errors", memo.seed_key(tree.seed("gnss")), n),  # noqa: E731
                                  lambda: pipeline.gnss_errors(plan, geom(), tree, n))
-    log_weight = component = None
+    log_weight = component = tilted = None
     if spec.sampling.method == "importance":  # the errors from the cell's proposal: its observations its own
-        drawn, log_weight, component = sampling.tilted_errors(ctx, spec, errors(), windows, tree)
-        errors = lambda: drawn  # noqa: E731
+        tilted = sampling.tilted_draws(ctx, spec, errors(), windows, tree)
+        errors = lambda: tilted.gnss  # noqa: E731
         sky_key = sky_key + ("importance", ctx.cell.index)
+        component = tilted.component
     gnss, gtruth = _shared_draw(sky_key, faults, GNSS_KINDS, tree.seed("gnss"), n,
                                 lambda: pipeline.gnss_observations(geom(), errors(), faults))
     vis = vtruth = None
-    if ctx.v_geom is not None:
+    if ctx.v_geom is not None and tilted is not None and tilted.vision_tilt is not None:
+        # the proposal moves the camera's draws too: the cell's own frames (the survey is the block's as ever)
+        vis, vtruth = pipeline.draw_vision(plan, ctx.v_geom, tree, n, faults, share=memo.shared,
+                                           tilt=tilted.vision_tilt)
+    elif ctx.v_geom is not None:
         # the camera frames and the block's one survey, shared: the cells of one survey hand VA-RAIM one record
         vis, vtruth = _shared_draw(("vision_draw", ctx.vision_draw_key), faults, VISION_KINDS, tree.seed("vision"), n,
                                    lambda: pipeline.draw_vision(plan, ctx.v_geom, tree, n, faults, share=memo.shared))
+    if tilted is not None:
+        log_weight = tilted.log_weight()
     target = np.full(n, -1, np.int64)
     target_sat = np.full(n, "", "<U3")
     if gtruth.faulty.any():

@@ -39,16 +39,18 @@ from __future__ import annotations
 import hashlib
 import json
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import special, stats
 
 from testbed.campaign import sampling_araim
 from testbed.campaign.context import CellContext
+from testbed.campaign.sampling_vision import PROBE_Z, TiltRecorder, VisionColumns, probe_tilt
 from testbed.integrity.monitor import Observations
 from testbed.monitors import monitor_inputs, monitor_names
 from testbed.schema import ConfigError
+from testbed.sensors.vision.detect import sample_vision
 from testbed.sim import pipeline
 from testbed.sim.streams import StreamTree
 
@@ -82,11 +84,13 @@ def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str, event: 
     does not aim at) and "not reached" (the monitor reads inputs the proposal leaves as drawn: events they drive
     come at their plain rate). Every weighted estimate is unbiased; only an aimed one is efficient."""
     try:
-        unmoved = sorted(monitor_inputs(monitor) - MOVED_INPUTS)
+        moved = moved_inputs(aimed_monitor)
+        unmoved = sorted(monitor_inputs(monitor) - moved)
     except (KeyError, ValueError):
         return "not reached", f"{monitor} is not a registered monitor here: what it reads is unknown"
     if unmoved:
-        return "not reached", (f"the proposal moves the pseudoranges only; {monitor} also reads "
+        what = "the pseudoranges only" if moved == MOVED_INPUTS else " and ".join(sorted(moved))
+        return "not reached", (f"the proposal moves {what}; {monitor} also reads "
                                f"{', '.join(unmoved)}, drawn from the error model, so the events those errors drive "
                                "come at their plain rate")
     aims = AIMED_RATES.get((proposal, event), ())
@@ -97,6 +101,16 @@ def coverage(monitor: str, rate: str, aimed_monitor: str, proposal: str, event: 
         return "moved", (f"aimed from {aimed_monitor}'s linear model; efficient for {monitor} where its failure "
                          "region is near that one's")
     return "aimed", f"aimed from {monitor}'s linear model"
+
+
+def moved_inputs(aimed_monitor: str) -> frozenset:
+    """The inputs a proposal aimed from ``aimed_monitor`` moves: the pseudoranges, and the camera's Gaussian draws
+    when that monitor reads the camera (:mod:`.sampling_vision`; its dithering and survey stay as drawn)."""
+    return MOVED_INPUTS | (monitor_inputs(aimed_monitor) & VISION_INPUTS)
+
+
+#: the inputs besides the pseudoranges a proposal can move: the camera's (:mod:`.sampling_vision`)
+VISION_INPUTS = frozenset({"vision"})
 
 
 # ----------------------------------------------------------------------------- checks before any work
@@ -121,10 +135,18 @@ def check_sampling(loaded, cells) -> None:
         problems.append(f"[sampling] method = 'importance': no monitor of {list(spec.monitors)} reads the "
                         f"pseudoranges alone (monitors that do: {', '.join(alone)}); the proposal is aimed from such a monitor's "
                         "linear model: add one to monitors, or set method = 'plain'")
-    elif monitor_inputs(name) != frozenset({"gnss"}):
+    elif not (monitor_inputs(name) == MOVED_INPUTS or monitor_inputs(name) == MOVED_INPUTS | VISION_INPUTS):
         problems.append(f"[sampling.monitor] {name!r} reads {sorted(monitor_inputs(name))}: expected a monitor "
-                        f"that reads the pseudoranges alone (monitors that do: {', '.join(alone)}), whose position error is linear "
-                        "in them")
+                        f"that reads the pseudoranges alone (monitors that do: {', '.join(alone)}), or the "
+                        "pseudoranges and the camera, whose position error is linear in their draws")
+    elif monitor_inputs(name) & VISION_INPUTS and spec.sampling.proposal != "shift":
+        problems.append(f"[sampling.proposal] {spec.sampling.proposal!r} with monitor {name!r}, which reads the "
+                        "camera: the scale proposal scales the pseudorange residual space only; expected "
+                        "proposal = 'shift'")
+    if spec.sampling.adapt != "none" and spec.sorties.start != "fixed":
+        problems.append(f"[sampling.adapt] {spec.sampling.adapt!r} with [sorties] start = "
+                        f"{spec.sorties.start!r}: the pilot refits the proposal of one sky; expected start = 'fixed' "
+                        "(sweep start_time_utc for several skies), or adapt = 'none'")
     if spec.sampling.proposal == "separation" and name is not None and name != "araim":
         problems.append(f"[sampling] proposal = 'separation' aims at ARAIM's solution-separation tests: expected "
                         f"monitor = 'araim' (got {name!r})")
@@ -181,6 +203,10 @@ class Components:
     parity: np.ndarray  # (K, S, S)
     dof: np.ndarray  # (K,)
     log_share: np.ndarray | None = None  # (K,) log-probabilities summing to 1
+    #: a shift component's event, for the adaptive step (:func:`cross_entropy_shifts`): the error's ENU direction
+    #: (K, 3) (the bounded dimension's, with the component's sign) and the limit (K,) it must exceed there
+    direction: np.ndarray | None = None
+    limit: np.ndarray | None = None
 
     @property
     def size(self) -> int:
@@ -189,22 +215,31 @@ class Components:
 
 def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None) -> list[LinearModel]:
     """The monitor's :class:`LinearModel` on the cell's geometry, one per sky window of ``windows`` (None: the
-    fixed start's one): the monitor on the error-free observations and on a :data:`PROBE_M` bias per slot."""
+    fixed start's one): the monitor on the error-free observations and on a :data:`PROBE_M` bias per slot; for a
+    monitor that reads the camera, also on :data:`~.sampling_vision.PROBE_Z` standard deviations per vision column
+    (:mod:`.sampling_vision`), whose columns follow the slots' in ``A``."""
     mon = next(m for m in ctx.setup.monitors if m.name == monitor_name)
     S = ctx.g_geom.prn.size
     W = 1 if windows is None else windows.size
-    P = S + 1
+    cols = vision_columns(ctx, monitor_name)
+    V = 0 if cols is None else cols.size
+    P = S + V + 1
     geom = ctx.gnss_geometry_of(None if windows is None else np.repeat(windows, P))
     base = pipeline.gnss_errors(ctx.plan, geom, StreamTree(0), W * P)  # for its σ and shapes; the draws are replaced
     T = ctx.t.size
     noise = np.zeros((W, P, T, S))
-    noise[:, np.arange(1, P), :, np.arange(S)] = PROBE_M
+    noise[:, np.arange(1, S + 1), :, np.arange(S)] = PROBE_M
     zero = np.zeros((W * P, T))
     errors = type(base)(batch=base.batch, sigma=base.sigma, noise=noise.reshape(W * P, T, S), clock_bias=zero,
                         clock_drift=zero, rr_noise=np.zeros_like(base.rr_noise), fault_seed=base.fault_seed,
                         fault_bit_generator=base.fault_bit_generator)
     gnss, _ = pipeline.gnss_observations(geom, errors, [])
-    out, _ = mon.step(Observations(gnss), mon.initial_state())
+    vision = None
+    if cols is not None:  # the error-free scene, the landmarks where they stand, and one vision column probed
+        vision, _ = sample_vision(ctx.v_geom, ctx.setup.vision, landmarks=ctx.landmarks, faults=[],
+                                  rng=StreamTree(0).generator("vision"), n_trials=W * P,
+                                  survey_ecef=ctx.landmarks.pos_ecef, tilt=probe_tilt(cols, S + 1, P))
+    out, _ = mon.step(Observations(gnss, vision), mon.initial_state())
     ref = pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
     pos = np.asarray(out.pos_enu, float).reshape(W, P, T, 3)
     sigma = np.broadcast_to(np.asarray(base.drawn_sigma, float), (W * P, T, S)).reshape(W, P, T, S)[:, 0]
@@ -215,16 +250,25 @@ def linear_model(ctx: CellContext, monitor_name: str, windows: np.ndarray | None
     vpl = np.asarray(out.vpl, float).reshape(W, P, T)[:, 0]
     models = []
     for w in range(W):
-        per_m = np.moveaxis(pos[w, 1:] - pos[w, :1], 0, -1) / PROBE_M  # (T, 3, S)
-        per_m = np.where(np.isfinite(per_m), per_m, 0.0)
+        per_unit = np.moveaxis(pos[w, 1:] - pos[w, :1], 0, -1)  # (T, 3, S + V)
+        per_unit = np.where(np.isfinite(per_unit) & ok[w][:, None, None], per_unit, 0.0)
+        per_m = per_unit[..., :S] / PROBE_M
         used = visible[w] & ok[w][:, None] & (np.abs(per_m).sum(1) > 0)
-        A = per_m * np.where(used, sigma[w], 0.0)[:, None, :]
+        A = np.concatenate([per_m * np.where(used, sigma[w], 0.0)[:, None, :], per_unit[..., S:] / PROBE_Z], -1)
         with np.errstate(divide="ignore", invalid="ignore"):
             per_draw = np.where(used[..., None], design[w] / sigma[w][..., None], 0.0)
         models.append(LinearModel(e0=pos[w, 0] - ref, A=A, design=per_draw, used=used,
                                   hpl=np.where(ok[w], hpl[w], np.nan),
                                   vpl=np.where(ok[w], vpl[w], np.nan), dimensions=tuple(out.dimensions)))
     return models
+
+
+def vision_columns(ctx: CellContext, monitor_name: str) -> VisionColumns | None:
+    """The vision columns a proposal aimed from ``monitor_name`` moves (:mod:`.sampling_vision`): None when that
+    monitor does not read the camera."""
+    if not (monitor_inputs(monitor_name) & VISION_INPUTS) or ctx.v_geom is None:
+        return None
+    return VisionColumns(len(ctx.landmarks))
 
 
 def design_columns(geom, shape: tuple[int, int, int]) -> np.ndarray:
@@ -247,7 +291,7 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
     scaled epoch (``"scale"``). Epochs whose event cannot happen (``"hazardous"`` where the PL exceeds the
     alert limit: unavailable) have none."""
     T, _, S = model.A.shape
-    epochs, shifts = [], []
+    epochs, shifts, directions, limits = [], [], [], []
     for dim, pl, al in (("V", model.vpl, val), ("H", model.hpl, hal)):
         if dim not in model.dimensions:
             continue
@@ -255,17 +299,19 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
         for t in np.flatnonzero(np.isfinite(limit)):
             A = model.A[t]
             if dim == "V":
-                s, e0 = A[2], model.e0[t, 2]
+                s, e0, axis = A[2], model.e0[t, 2], np.array([0.0, 0.0, 1.0])
             else:
                 vals, vecs = np.linalg.eigh(A[:2] @ A[:2].T)
                 u = vecs[:, -1]
-                s, e0 = u @ A[:2], float(u @ model.e0[t, :2])
+                s, e0, axis = u @ A[:2], float(u @ model.e0[t, :2]), np.array([u[0], u[1], 0.0])
             norm2 = float(s @ s)
             if not norm2 > 0:
                 continue
             for sign in (1.0, -1.0):
                 epochs.append(t)
                 shifts.append((sign * limit[t] - e0) * s / norm2)
+                directions.append(sign * axis)
+                limits.append(limit[t])
     if plan.proposal == "scale":
         return _parity_components(model)
     ep = np.array(epochs, np.int64)
@@ -274,7 +320,8 @@ def components(model: LinearModel, plan, hal: float, val: float) -> Components:
     if plan.mixture == "tail" and ep.size:  # each component in proportion to its own tail Q(|z*|)
         log_tail = stats.norm.logsf(np.linalg.norm(shifts, axis=1))
         log_share = log_tail - special.logsumexp(log_tail)
-    return Components(ep, shifts, np.zeros((ep.size, S, S)), np.zeros(ep.size, np.int64), log_share)
+    return Components(ep, shifts, np.zeros((ep.size, S, S)), np.zeros(ep.size, np.int64), log_share,
+                      np.array(directions, float).reshape(ep.size, 3), np.array(limits, float))
 
 
 def _parity_components(model: LinearModel) -> Components:
@@ -306,7 +353,8 @@ def cell_components(ctx: CellContext, spec, windows: np.ndarray | None) -> list[
     plan = spec.sampling
     name = sampling_monitor(spec)
     key_cell = hashlib.sha256(json.dumps([ctx.cell.config.model_dump(mode="json"), plan.model_dump(mode="json"),
-                                          name, spec.duration_s, spec.segment], sort_keys=True, default=str)
+                                          name, spec.duration_s, spec.segment, spec.base_seed, ctx.cell.index],
+                                         sort_keys=True, default=str)
                               .encode()).hexdigest()
     want = [None] if windows is None else [int(w) for w in np.unique(windows)]
     with _LOCK:  # blocks on threads: each window's model measured once
@@ -316,8 +364,12 @@ def cell_components(ctx: CellContext, spec, windows: np.ndarray | None) -> list[
             if len(_COMPONENTS) + len(missing) > _MAX_KEPT:
                 _COMPONENTS.clear()
             for w, m in zip(missing, models):
-                _COMPONENTS[key_cell, w] = (separation_components(ctx, name, m, plan) if plan.proposal == "separation"
-                                            else components(m, plan, ctx.hal, ctx.val))
+                if plan.proposal == "separation":
+                    c = separation_components(ctx, name, m, plan)
+                else:
+                    c = components(m, plan, ctx.hal, ctx.val)
+                    c = adapted_components(ctx, spec, c) if plan.adapt == "cross_entropy" else c
+                _COMPONENTS[key_cell, w] = c
         return [_COMPONENTS[key_cell, w] for w in want]
 
 
@@ -396,15 +448,118 @@ def log_weights(comps: list[Components], which: np.ndarray, plan, z: np.ndarray)
     return out
 
 
-def tilted_errors(ctx: CellContext, spec, errors, windows: np.ndarray | None, tree: StreamTree):
-    """The block's errors drawn from the proposal: ``(errors, log_weight (n,), component (n,))``."""
-    comps = cell_components(ctx, spec, windows)
+@dataclass
+class TiltedDraws:
+    """One block's draws from the proposal: the tilted pseudorange errors, each trial's component (−1: the error
+    model), and, when the proposal moves the camera's draws too, the ``tilt`` to hand
+    :func:`~testbed.sim.pipeline.draw_vision` (it keeps the moved draws). :meth:`log_weight` after the draws."""
+
+    gnss: object
+    component: np.ndarray
+    vision_tilt: TiltRecorder | None
+    comps: list
+    which: np.ndarray
+    plan: object
+    z_gnss: np.ndarray
+
+    def log_weight(self) -> np.ndarray:
+        """(n,) ``log p/q`` of each trial's moved draws, the pseudoranges' and the camera's in one vector per epoch
+        (the camera's drawn through :attr:`vision_tilt` first)."""
+        z = self.z_gnss
+        if self.vision_tilt is not None:
+            if self.vision_tilt.z is None:
+                raise RuntimeError("TiltedDraws.log_weight: the camera's draws were not made through vision_tilt")
+            z = np.concatenate([z, self.vision_tilt.z], -1)
+        return log_weights(self.comps, self.which, self.plan, z)
+
+
+def tilted_draws(ctx: CellContext, spec, errors, windows: np.ndarray | None, tree: StreamTree,
+                 comps: list[Components] | None = None) -> TiltedDraws:
+    """The block's draws from the proposal (:class:`TiltedDraws`): each trial's component from the block's
+    ``sampling`` stream, its shift split between the pseudorange slots and the vision columns
+    (:mod:`.sampling_vision`) of the monitor it is aimed from. ``comps``: the components per sky window (None:
+    the cell's, :func:`cell_components`)."""
+    comps = cell_components(ctx, spec, windows) if comps is None else comps
     n = errors.noise.shape[0]
     which = np.zeros(n, np.int64) if windows is None else np.searchsorted(np.unique(windows), windows)
     _, z0 = pipeline.tilt_gnss_errors(errors)  # the draws as drawn
+    S = z0.shape[-1]
+    cols = vision_columns(ctx, sampling_monitor(spec))
+    if cols is not None:  # the camera's columns are drawn later; a shift does not read them
+        z0 = np.concatenate([z0, np.zeros(z0.shape[:2] + (cols.size,))], -1)
     draw = draw_proposal(comps, which, spec.sampling, z0, tree.generator("sampling"))
-    tilted, z = pipeline.tilt_gnss_errors(errors, draw.shift)
-    return tilted, log_weights(comps, which, spec.sampling, z), draw.component
+    tilted, z = pipeline.tilt_gnss_errors(errors, draw.shift[..., :S])
+    recorder = None if cols is None else TiltRecorder(cols, draw.shift[..., S:])
+    return TiltedDraws(tilted, draw.component, recorder, comps, which, spec.sampling, z)
+
+
+# ----------------------------------------------------------------------------- the adaptive step
+
+#: the pilot's draw block: no campaign block reaches it (at most 10⁷ trials), so its draws are its own
+PILOT_BLOCK = 2**40
+#: a component's mean is refitted from at least this many effective elite trials (Kish), else kept
+MIN_ELITE = 5.0
+
+
+def cross_entropy_shifts(comps: Components, z: np.ndarray, log_weight: np.ndarray, elite: np.ndarray
+                         ) -> Components:
+    """``comps`` with each shift refitted by the cross-entropy method (Rubinstein & Kroese 2017, ch. 8) from a
+    pilot's draws ``z`` (n, T, D), their ``log_weight`` (log p/q) and ``elite`` (n, K) (the trial's draws are in
+    component k's event): the mean of a Gaussian family that minimises the cross-entropy to the zero-variance
+    density ``p·1{event}/P`` is the event's conditional mean under ``p``, ``Σ w_i z_i / Σ w_i`` over the elite
+    trials, read at the component's epoch. A component with fewer than :data:`MIN_ELITE` effective elite trials
+    of its own (a pilot spread over many components) takes the pooled fit of one factor on every shift,
+    ``c = Σ w_i (z_i·m_k)/|m_k|² / Σ w_i`` over all components' elite (how far along its own direction the
+    event's mean lies, relative to the dominating point); with too few of those too, it keeps its dominating
+    point. The shares are kept (every epoch's event stays covered)."""
+    shift = comps.shift.copy()
+    hit_i, hit_k = np.nonzero(elite)
+    if hit_i.size == 0:
+        return comps
+    lw = log_weight[hit_i] - log_weight[hit_i].max()  # one scale for every elite trial (they are compared)
+    along = np.einsum("id,id->i", z[hit_i, comps.epoch[hit_k], :], comps.shift[hit_k]) \
+        / np.maximum(np.einsum("kd,kd->k", comps.shift, comps.shift)[hit_k], 1e-300)
+    w = np.exp(lw)
+    pooled = float(w @ along / w.sum()) if w.sum() ** 2 / np.sum(w**2) >= MIN_ELITE else None
+    for k in range(comps.size):
+        own = hit_k == k
+        wk = np.exp(lw[own] - lw[own].max()) if own.any() else np.zeros(0)
+        if wk.size and wk.sum() ** 2 / np.sum(wk**2) >= MIN_ELITE:
+            shift[k] = wk @ z[hit_i[own], comps.epoch[k], :] / wk.sum()
+        elif pooled is not None:
+            shift[k] = pooled * comps.shift[k]
+    return replace(comps, shift=shift)
+
+
+def component_events(comps: Components, err: np.ndarray, alert: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(n, K) each trial's event of each component: at its epoch, a solution, no alert, and the error (n, T, 3)
+    beyond the component's limit along its direction."""
+    t = comps.epoch
+    along = np.einsum("nkc,kc->nk", err[:, t, :], comps.direction)
+    return ok[:, t] & ~alert[:, t] & (along > comps.limit)
+
+
+def adapted_components(ctx: CellContext, spec, comps: Components) -> Components:
+    """``comps`` refitted from a pilot run (``[sampling] adapt = "cross_entropy"``): ``pilot_trials`` sorties
+    drawn from ``comps`` out of the pilot's own block (:data:`PILOT_BLOCK`, its streams apart from every
+    campaign block's), the aimed monitor run on them, its events per component (:func:`component_events`) the
+    elite of :func:`cross_entropy_shifts`. The pilot's sorties are not part of the estimate."""
+    plan = spec.sampling
+    name = sampling_monitor(spec)
+    mon = next(m for m in ctx.setup.monitors if m.name == name)
+    n = int(plan.pilot_trials)
+    tree = StreamTree.of_block(spec.base_seed, ctx.cell.index, PILOT_BLOCK, False)
+    errors = pipeline.gnss_errors(ctx.plan, ctx.g_geom, tree, n)
+    d = tilted_draws(ctx, spec, errors, None, tree, comps=[comps])
+    gnss, _ = pipeline.gnss_observations(ctx.g_geom, d.gnss, [])
+    vision = None
+    if "vision" in mon.inputs:
+        vision, _ = pipeline.draw_vision(ctx.plan, ctx.v_geom, tree, n, [], tilt=d.vision_tilt)
+    out, _ = mon.step(Observations(gnss, vision), mon.initial_state())
+    err = np.asarray(out.pos_enu, float) - pipeline.reference_enu(mon, ctx.truth_ant_enu, ctx.truth_cg_enu)
+    z = d.z_gnss if d.vision_tilt is None else np.concatenate([d.z_gnss, d.vision_tilt.z], -1)
+    elite = component_events(comps, err, np.asarray(out.alert, bool), np.asarray(out.reason) == 0)
+    return cross_entropy_shifts(comps, z, d.log_weight(), elite)
 
 
 # ----------------------------------------------------------------------------- the estimates

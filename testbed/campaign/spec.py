@@ -287,7 +287,10 @@ class ReportSettings(StrictModel):
 
 
 #: the [sampling] keys read only with method = "importance" (refused, not ignored, with "plain")
-IMPORTANCE_KEYS = ("monitor", "event", "proposal", "scale", "defensive", "mixture")
+IMPORTANCE_KEYS = ("monitor", "event", "proposal", "scale", "defensive", "mixture", "adapt", "pilot_trials")
+
+#: [sampling] keys added after specs were first stored: left out of the hash at these values
+LATER_SAMPLING_DEFAULTS = {"mixture": "uniform", "adapt": "none", "pilot_trials": 400}
 
 
 class SamplingPlan(StrictModel):
@@ -321,6 +324,13 @@ class SamplingPlan(StrictModel):
                                "is drawn: uniformly, or in proportion to its own Gaussian tail Q(|z*|), so that the "
                                "epochs whose event is likeliest get the trials (a flight whose epochs' rates span "
                                "orders of magnitude)")
+    adapt: Literal["none", "cross_entropy"] = Field(
+        "none", description="importance, proposal = 'shift': refit each component's mean from a pilot run before "
+                            "the trials: the weighted mean of the pilot's draws that reached the component's event "
+                            "(the cross-entropy method)")
+    pilot_trials: int = Field(400, ge=50, le=100_000, description="adapt = 'cross_entropy': the pilot's sorties "
+                                                                  "(drawn apart from the campaign's, not in its "
+                                                                  "estimate)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -336,6 +346,11 @@ class SamplingPlan(StrictModel):
         if self.proposal == "scale" and self.mixture != "uniform":
             raise ValueError(f"[mixture] read only with proposal = 'shift' (a scaled epoch has no tail of its own to "
                              f"draw it by), got {self.mixture!r}")
+        if self.adapt == "none" and self.pilot_trials != type(self).model_fields["pilot_trials"].default:
+            raise ValueError(f"[pilot_trials] read only with adapt = 'cross_entropy' (got {self.pilot_trials!r})")
+        if self.proposal != "shift" and self.adapt != "none":
+            raise ValueError(f"[adapt] read only with proposal = 'shift' (the cross-entropy step refits a shift's "
+                             f"mean), got {self.adapt!r}")
         if self.proposal != "shift" and self.event != type(self).model_fields["event"].default:
             raise ValueError(f"[event] read only with proposal = 'shift' (proposal = '{self.proposal}' aims at the "
                              f"tests' tails), got {self.event!r}")
@@ -452,8 +467,9 @@ def _later_defaults_unset(d: dict) -> dict:
     uses none of them hashes, and compares on resume, as before."""
     if d.get("sampling") == SamplingPlan().model_dump(mode="json"):
         d = {k: v for k, v in d.items() if k != "sampling"}
-    elif isinstance(d.get("sampling"), dict) and d["sampling"].get("mixture") == "uniform":  # added later
-        d = {**d, "sampling": {k: v for k, v in d["sampling"].items() if k != "mixture"}}
+    elif isinstance(d.get("sampling"), dict):  # keys added later, at their defaults
+        d = {**d, "sampling": {k: v for k, v in d["sampling"].items()
+                               if not (k in LATER_SAMPLING_DEFAULTS and v == LATER_SAMPLING_DEFAULTS[k])}}
     faults = d.get("faults")
     if isinstance(faults, list):
         d = {**d, "faults": [{k: v for k, v in f.items() if not (k in LATER_FAULT_KEYS and v is None)}

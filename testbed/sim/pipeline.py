@@ -123,15 +123,17 @@ def landmark_survey(plan: SensorPlan, streams: StreamTree) -> np.ndarray:
 
 
 def draw_vision(plan: SensorPlan, v_geom, streams: StreamTree, n_trials: int | None = None,
-                faults: Sequence | None = None, share: Callable[..., Any] = compute):
+                faults: Sequence | None = None, share: Callable[..., Any] = compute,
+                tilt: Callable[[vdetect.VisionDraws], vdetect.VisionDraws] | None = None):
     """``(VisionEpochs, VisionTruth)`` of the vision geometry ``v_geom``: dithering, attitude reference, detection
     noise and the vision faults from the tree's vision stream, the landmarks as :func:`landmark_survey` has them
-    (``share``: as :func:`~testbed.sensors.vision.detect.sample_vision` takes it)."""
+    (``share``, ``tilt``: as :func:`~testbed.sensors.vision.detect.sample_vision` takes them; ``tilt`` is an
+    importance-sampling proposal's move of the Gaussian draws, :mod:`testbed.campaign.sampling_vision`)."""
     s = plan.setup
     faults = s.faults if faults is None else faults
     return vdetect.sample_vision(v_geom, s.vision, landmarks=s.landmarks, faults=list(faults),
                                  rng=streams.generator("vision"), n_trials=n_trials,
-                                 survey_ecef=landmark_survey(plan, streams), share=share)
+                                 survey_ecef=landmark_survey(plan, streams), share=share, tilt=tilt)
 
 
 def feature_ids(plan: SensorPlan, truth_g, terrain) -> np.ndarray:

@@ -79,11 +79,22 @@ def attitude_reference_from_euler(euler_true: ArrayLike, settings: AttitudeRefSe
     """
     eul_true = np.asarray(euler_true, float)
     batch = () if n_trials is None else (int(n_trials),)
+    z_bias, z_noise = attitude_draws(rng, batch, eul_true.shape[:-1])
+    return attitude_reference_from_draws(eul_true, settings, z_bias, z_noise)
+
+
+def attitude_draws(rng: np.random.Generator, batch: tuple, epochs: tuple) -> tuple[NDArray, NDArray]:
+    """The standard-normal draws of the reference's errors: the bias ``(B..., 1, 3)`` first, then the time-major
+    white noise ``(B..., T, 3)`` (prefix stable without a batch)."""
+    return rng.standard_normal(batch + (1, 3)), rng.standard_normal(batch + tuple(epochs) + (3,))
+
+
+def attitude_reference_from_draws(euler_true: ArrayLike, settings: AttitudeRefSettings, z_bias: NDArray,
+                                  z_noise: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """:func:`attitude_reference_from_euler` from the standard-normal draws of :func:`attitude_draws` (an
+    importance-sampling proposal may have moved them)."""
     sb = np.radians(settings.bias_sigma_deg)
     sn = np.radians(settings.noise_sigma_deg)
-    bias = rng.standard_normal(batch + (1, 3)) * sb
-    noise = rng.standard_normal(batch + eul_true.shape[:-1] + (3,)) * sn
-    err = bias + noise
-    eul = eul_true + err
-    q_ref = euler_to_q_fast(eul)
+    err = z_bias * sb + z_noise * sn
+    q_ref = euler_to_q_fast(np.asarray(euler_true, float) + err)
     return q_ref, err, np.sqrt(sb**2 + sn**2)

@@ -59,14 +59,35 @@ from testbed.frames import R_ecef_to_enu, R_to_q, ecef_to_geodetic
 from testbed.records import Mount, NotVisible, Truth, VisionEpochs, epoch_array
 from testbed.sensors.faults import LandmarkMoved, Misassociation, PixelBias, VISION_KINDS, active
 
-from .attitude_ref import attitude_reference_from_euler, q_to_euler
+from .attitude_ref import attitude_draws, attitude_reference_from_draws, q_to_euler
 from .camera import PinholeCamera
-from .dithering import camera_pose, dither_rms_cam, dithering_angles, mount_from_settings
+from .dithering import camera_pose, dither_rms_cam, dithering_parts, mount_from_settings
 from .landmarks import Landmarks, build_landmarks, survey
 from .settings import DetectionSettings, LandmarkSettings, VisionSettings
 
 #: Child generators spawned from ``rng`` by :func:`sample_vision`, in this order.
 RNG_STREAMS = ("survey", "dithering", "attitude_ref", "noise", "faults")
+
+
+@dataclass(frozen=True)
+class VisionDraws:
+    """The Gaussian draws of one :func:`sample_vision` call that an importance-sampling proposal may move
+    (``tilt``), in standard units: ``pixel`` (B..., T, L, 2) the detection error over its σ (DE and the per-landmark
+    blur), ``blur`` (B..., T) the frame's blur rotation over its spread (``blur_model = "rotation"``; zeros with
+    ``"independent"``, which draws none), ``attitude_bias`` (B..., 1, 3) and ``attitude_noise`` (B..., T, 3) the
+    attitude reference's errors over their σ (roll, pitch, heading), ``dither_noise`` (B..., T, 3) the dithering's
+    band-limited noise at the epochs over its σ (camera axes; a move is made through the noise's white grid,
+    :func:`~.dithering.dithering_parts`, so the noise stays the filter's). ``dither_tone_angle`` and
+    ``dither_tone_rate`` (B..., T, 3) rad, rad/s are the dithering's tones, of random phase (not Gaussian: a
+    proposal leaves them; the probe of a monitor's linear model zeroes them for the error-free scene)."""
+
+    pixel: NDArray
+    blur: NDArray
+    attitude_bias: NDArray
+    attitude_noise: NDArray
+    dither_noise: NDArray
+    dither_tone_angle: NDArray
+    dither_tone_rate: NDArray
 
 
 class FaultKind:
@@ -393,7 +414,8 @@ def _check_rng_trials(rng, n_trials) -> None:
 def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmarks: Landmarks | LandmarkSettings,
                   faults: list | None = None, rng: np.random.Generator,
                   n_trials: int | None = None, survey_ecef: NDArray | None = None,
-                  share: Callable[..., Any] | None = None) -> tuple[VisionEpochs, VisionTruth]:
+                  share: Callable[..., Any] | None = None,
+                  tilt: Callable[[VisionDraws], VisionDraws] | None = None) -> tuple[VisionEpochs, VisionTruth]:
     """Random part of the vision synthesis: detections from a :class:`VisionGeometry`.
 
     Parameters
@@ -419,6 +441,9 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     share : ``share(key, make)`` returns ``make()`` or what an earlier call with the same key made: the
         caller's sharing of the dithering between runs drawing it alike (a campaign's cells of one camera
         sweep); None computes it.
+    tilt : ``tilt(draws)`` returns the :class:`VisionDraws` to use in place of those drawn (same shapes): an
+        importance-sampling proposal's shift (:mod:`testbed.campaign.sampling`); None: as drawn. The streams
+        are read as without it.
 
     Returns
     -------
@@ -442,17 +467,32 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     g_survey, g_dith, g_att, g_noise, g_faults = _spawn(rng, len(RNG_STREAMS))
     fault_rngs = _spawn(g_faults, len(faults))
     lm_survey = survey(lm, g_survey, n_trials) if survey_ecef is None else _given_survey(survey_ecef, lm)
-    def dither():  # (B..., T, 3) angles and rates
-        return dithering_angles(t, settings.dithering, g_dith, n_trials, sample_rate_hz=settings.rate_hz)
+    ss = g_dith.bit_generator.seed_seq
+
+    def dither(noise_shift=None, gen=g_dith):  # (B..., T, 3) angles and rates, tones and noise apart
+        return dithering_parts(t, settings.dithering, gen, n_trials, sample_rate_hz=settings.rate_hz,
+                               noise_shift=noise_shift)
 
     if share is None:
-        delta, delta_rate = dither()
+        parts = dither()
     else:  # the same seed, times and settings dither every camera of a sweep alike: keyed on all the draw reads
-        ss = g_dith.bit_generator.seed_seq
-        delta, delta_rate = share(("dithering", t.tobytes(), settings.dithering.model_dump_json(), settings.rate_hz,
-                                   ss.entropy, ss.spawn_key, ss.pool_size, ss.n_children_spawned, n_trials), dither)
-    q_ref, att_err, att_sigma = attitude_reference_from_euler(g.euler, settings.attitude_ref, g_att, n_trials)
+        parts = share(("dithering", t.tobytes(), settings.dithering.model_dump_json(), settings.rate_hz,
+                       ss.entropy, ss.spawn_key, ss.pool_size, ss.n_children_spawned, n_trials), dither)
+    delta, delta_rate = parts.angle, parts.rate
+    z_bias, z_att = attitude_draws(g_att, batch, (T,))
     noise_std = g_noise.standard_normal(batch + (T, L, 2))
+    rotation_blur = det.blur_model == "rotation"
+    # the frame's blur rotation: its own stream, so the DE draws stay as they were
+    u = _spawn(g_noise, 1)[0].standard_normal(batch + (T,)) if rotation_blur else np.zeros(batch + (T,))
+    if tilt is not None:
+        d = tilt(VisionDraws(noise_std, u, z_bias, z_att, parts.noise_z, parts.tone_angle, parts.tone_rate))
+        noise_std, u, z_bias, z_att = d.pixel, d.blur, d.attitude_bias, d.attitude_noise
+        noise_angle, noise_rate = parts.noise_angle, parts.noise_rate
+        if not np.array_equal(d.dither_noise, parts.noise_z):  # moved through the noise's own white grid, drawn again
+            moved = dither(d.dither_noise - parts.noise_z, np.random.Generator(type(g_dith.bit_generator)(ss)))
+            noise_angle, noise_rate = moved.noise_angle, moved.noise_rate
+        delta, delta_rate = d.dither_tone_angle + noise_angle, d.dither_tone_rate + noise_rate
+    q_ref, att_err, att_sigma = attitude_reference_from_draws(g.euler, settings.attitude_ref, z_bias, z_att)
 
     # True camera attitude: nominal × dithering (the position is not dithered).
     if settings.dithering.enabled:
@@ -500,8 +540,7 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     # Detection noise with motion blur: camera rate = mount-rotated body rate + dithering rate.
     omega_cam = np.einsum("...tji,tj->...ti", R_d, g.omega_cam) + delta_rate
     blur = det.blur_factor * np.linalg.norm(omega_cam, axis=-1) * det.exposure_s * cam.fx  # (B..., T)
-    if det.blur_model == "rotation":  # the frame's blur is one rotation: common to its landmarks (+ a small own part)
-        u = _spawn(g_noise, 1)[0].standard_normal(batch + (T,))  # its own stream: the DE draws stay as they were
+    if rotation_blur:  # the frame's blur is one rotation: common to its landmarks (+ a small own part)
         blur_rot = (det.blur_factor * det.exposure_s * u)[..., None] * omega_cam  # (B..., T, 3) rad, camera axes
         common = rotation_shift(cam, det, p_scene, blur_rot, uv_raw)
         sigma = np.sqrt(det.sigma_px**2 + (det.blur_independent * blur)**2)  # (B..., T)

@@ -12,6 +12,8 @@ True camera attitude (camera axes x right, y down, z forward)::
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import signal
@@ -40,7 +42,8 @@ def mount_from_settings(settings: MountSettings) -> Mount:
 
 
 def _lowpass_noise(t: NDArray, rms: NDArray, bandwidth_hz: float, rng: np.random.Generator,
-                   batch: tuple[int, ...], sample_rate_hz: float | None = None) -> tuple[NDArray, NDArray]:
+                   batch: tuple[int, ...], sample_rate_hz: float | None = None,
+                   shift: NDArray | None = None) -> tuple[NDArray, NDArray, NDArray]:
     """Band-limited Gaussian noise and its time derivative sampled at ``t``.
 
     White noise on a fine grid (fs = max(10 × the bandwidth, 2 × the sample
@@ -56,6 +59,12 @@ def _lowpass_noise(t: NDArray, rms: NDArray, bandwidth_hz: float, rng: np.random
     ``sample_rate_hz``, so with ``batch = ()`` the output at ``t[:k]`` does not
     depend on the samples after ``t[k - 1]`` (bit for bit).
 
+    The sample at ``t`` is ``g_t · w`` times the scale, ``w`` the white grid: its standard value is
+    ``ζ_t = g_t·w / |g_t|``, standard normal. ``shift`` (*batch, T, 3) moves ``ζ_t`` by its value through the
+    white grid itself, ``w += δ g_t/|g_t|`` (an importance-sampling proposal: the process stays the
+    filter's, its likelihood ratio is that of ``ζ_t`` alone, ``exp(δ ζ_t − δ²/2)``; the samples at other
+    times move by their correlation with it).
+
     Parameters
     ----------
     t : (T,) s.  rms : (3,) per-component stationary std.
@@ -64,12 +73,13 @@ def _lowpass_noise(t: NDArray, rms: NDArray, bandwidth_hz: float, rng: np.random
 
     Returns
     -------
-    (*batch, T, 3) noise and (*batch, T, 3) its rate (rad, rad/s for angle rms).
+    (*batch, T, 3) noise, (*batch, T, 3) its rate (rad, rad/s for angle rms), and (*batch, T, 3) its
+    standard values ζ (0 on a component of zero rms).
     """
     T = t.size
     if T == 0:
         z = np.zeros(batch + (0, 3))
-        return z, z
+        return z, z, z
     if sample_rate_hz is None:
         sample_rate_hz = 1.0 / np.min(np.diff(t)) if T > 1 else 1.0
     fs = max(10.0 * bandwidth_hz, 2.0 * float(sample_rate_hz))
@@ -82,12 +92,21 @@ def _lowpass_noise(t: NDArray, rms: NDArray, bandwidth_hz: float, rng: np.random
     if sos is not None:
         h = signal.sosfilt(sos, np.r_[1.0, np.zeros(int(50 * fs / bandwidth_hz))])
         gain = 1.0 / np.sqrt(np.sum(h * h))
-        y = signal.sosfilt(sos, w, axis=-2)
     else:
-        y = w
+        h, gain = np.ones(1), 1.0
     pos = (t - t0) * fs
     i = np.clip(np.floor(pos).astype(int), 0, n - 2)
     f = (pos - i)[:, None]
+    g_norm = np.sqrt(np.sum(((1 - f) * np.r_[0.0, h] + f * np.r_[h, 0.0]) ** 2, axis=-1))  # (T,) |g_t|
+    if shift is not None and np.any(shift):
+        w = w.copy()
+        for idx in zip(*np.nonzero(shift)):  # a proposal moves one epoch of a trial: few of them
+            *b, k, ax = idx
+            g = f[k, 0] * np.r_[h, 0.0] + (1 - f[k, 0]) * np.r_[0.0, h]  # coefficients on w[i+1], w[i], w[i-1], ...
+            j = i[k] + 1 - np.arange(g.size)
+            keep = (j >= 0) & (j < n)
+            w[tuple(b) + (j[keep], ax)] += shift[idx] * g[keep] / g_norm[k]
+    y = signal.sosfilt(sos, w, axis=-2) if sos is not None else w
 
     def x(j: NDArray) -> NDArray:  # the scaled noise on grid points j only (the grid is ~50x the samples)
         return (y[..., j, :] * gain if sos is not None else y[..., j, :]) * rms
@@ -97,7 +116,29 @@ def _lowpass_noise(t: NDArray, rms: NDArray, bandwidth_hz: float, rng: np.random
 
     samp = x(i) * (1 - f) + x(i + 1) * f
     sampd = xdot(i) * (1 - f) + xdot(i + 1) * f
-    return samp, sampd
+    with np.errstate(divide="ignore", invalid="ignore"):
+        zeta = np.where(rms > 0, samp / (np.where(rms > 0, rms, 1.0) * gain * g_norm[:, None]), 0.0)
+    return samp, sampd, zeta
+
+
+@dataclass(frozen=True)
+class DitherParts:
+    """The dithering of :func:`dithering_parts`: the tones' angles and rates, the band-limited noise's, and the
+    noise's standard values at the samples (``ζ``, :func:`_lowpass_noise`), each (B..., T, 3) in camera axes."""
+
+    tone_angle: NDArray
+    tone_rate: NDArray
+    noise_angle: NDArray
+    noise_rate: NDArray
+    noise_z: NDArray
+
+    @property
+    def angle(self) -> NDArray:
+        return self.tone_angle + self.noise_angle
+
+    @property
+    def rate(self) -> NDArray:
+        return self.tone_rate + self.noise_rate
 
 
 def dithering_angles(t: ArrayLike, settings: DitheringSettings, rng: np.random.Generator,
@@ -121,29 +162,39 @@ def dithering_angles(t: ArrayLike, settings: DitheringSettings, rng: np.random.G
     delta_cam : (B..., T, 3) rad, rotation vector in camera axes (x: pitch, y: yaw, z: roll).
     rate_cam : (B..., T, 3) rad/s, its time derivative.
     """
+    d = dithering_parts(t, settings, rng, n_trials, sample_rate_hz=sample_rate_hz)
+    return d.angle, d.rate
+
+
+def dithering_parts(t: ArrayLike, settings: DitheringSettings, rng: np.random.Generator,
+                    n_trials: int | None = None, *, sample_rate_hz: float | None = None,
+                    noise_shift: NDArray | None = None) -> DitherParts:
+    """:func:`dithering_angles` in its parts (:class:`DitherParts`), the noise's standard values moved by
+    ``noise_shift`` (B..., T, 3) through its white grid (:func:`_lowpass_noise`; None: as drawn)."""
     t = np.asarray(t, float)
     batch = () if n_trials is None else (int(n_trials),)
-    delta = np.zeros(batch + (t.size, 3))
-    rate = np.zeros_like(delta)
+    tone = np.zeros(batch + (t.size, 3))
+    tone_rate = np.zeros_like(tone)
+    zero = np.zeros_like(tone)
     if not settings.enabled:
-        return delta, rate
-    for tone in settings.tones:
-        k = AXIS_TO_CAM[tone.axis]
-        if tone.phase_deg is None:
+        return DitherParts(tone, tone_rate, zero, zero, zero)
+    for tn in settings.tones:
+        k = AXIS_TO_CAM[tn.axis]
+        if tn.phase_deg is None:
             phase = rng.uniform(0.0, 2 * np.pi, size=batch + (1,))
         else:
-            phase = np.full(batch + (1,), np.radians(tone.phase_deg))
-        a = np.radians(tone.amplitude_deg)
-        w = 2 * np.pi * tone.freq_hz
-        delta[..., k] += a * np.sin(w * t + phase)
-        rate[..., k] += a * w * np.cos(w * t + phase)
+            phase = np.full(batch + (1,), np.radians(tn.phase_deg))
+        a = np.radians(tn.amplitude_deg)
+        w = 2 * np.pi * tn.freq_hz
+        tone[..., k] += a * np.sin(w * t + phase)
+        tone_rate[..., k] += a * w * np.cos(w * t + phase)
     rms_cam = np.zeros(3)
     rms_cam[RPY_TO_CAM] = np.radians(settings.noise_rms_deg)
-    if np.any(rms_cam > 0):
-        nz, nzd = _lowpass_noise(t, rms_cam, settings.noise_bandwidth_hz, rng, batch, sample_rate_hz)
-        delta += nz
-        rate += nzd
-    return delta, rate
+    if not np.any(rms_cam > 0):
+        return DitherParts(tone, tone_rate, zero, zero, zero)
+    nz, nzd, zeta = _lowpass_noise(t, rms_cam, settings.noise_bandwidth_hz, rng, batch, sample_rate_hz,
+                                   shift=noise_shift)
+    return DitherParts(tone, tone_rate, nz, nzd, zeta)
 
 
 def dither_rms_cam(settings: DitheringSettings) -> NDArray:
