@@ -141,6 +141,7 @@ def one_trajectory():
     return _trajectory(src, src)
 
 
+@pytest.mark.slow  # three sorties of the DPE (~2 min on a loaded 2-core machine)
 def test_the_aimed_projection_carries_the_real_dpe_error_and_the_tilt_is_reproducible(one_trajectory, monkeypatch):
     """On a real sortie (fast correlators, the DPE in full), the projection π of the SIS and thermal draws on the
     aimed direction, drawn plainly, correlates with z = (e − m)/σ above 0.95 (the thermal directions move the
