@@ -47,10 +47,18 @@ def dpe(sorties: int, workers: int, out: str | None) -> None:
         from testbed.studies.dpe_calibration import write_record
 
         write_record(rec, Path(out))
-    per_sortie = wall * workers / (2 * sorties)  # core-seconds a sortie
+    per_sortie = wall * workers / (2 * sorties)  # process-seconds of wall a sortie, at this run's load
     print(f"DPE K at a measured tail: {2 * sorties} sorties ({rec['trials']} calibration epochs) on {workers} "
           f"processes in {wall / 60:.1f} min; load average {load0:.1f} at the start, {load1[0]:.1f} (1 min) and "
           f"{load1[1]:.1f} (5 min) at the end, on {os.cpu_count()} cores")
+    for n, f in (rec["strata"] | {"all strata": rec["overall"]}).items():
+        r = f["rate"]
+        print(f"  {n}: " + (f"K {f['k']:.3f}, tail {r['estimate']:.3g} [{r['interval'][0]:.3g}, {r['interval'][1]:.3g}], "
+                            f"{r['effective_events']:.0f} effective events" if f["k"] is not None else
+                            f"not measured at P (deepest settled upper end {f['deepest_settled_upper']:.2g})"))
+    for n, r in rec["validation"]["rates"].items():
+        print(f"  held-out {n}: " + (f"{r['estimate']:.3g} [{r['interval'][0]:.3g}, {r['interval'][1]:.3g}]"
+                                      if r["settled"] else "not settled: " + "; ".join(r["problems"])))
     if rec["k"] is None:
         print("no K: the tail is not measured at P = 1e-7 in every stratum (more sorties)")
     else:
@@ -63,10 +71,11 @@ def dpe(sorties: int, workers: int, out: str | None) -> None:
         p = rec["p_hmi"]
         plain = (1 - p) / (p * rse**2)
         epochs = rec["trials"] / sorties
-        print(f"brute force at {per_sortie:.2f} core-s a sortie of {epochs:.0f} epochs: the full tail calibration "
-              f"(2 x 36 000 sorties, extrapolated) {72000 * per_sortie / 3600 / workers:.1f} h on {workers} cores; "
-              f"plain sampling to the same relative standard error ({100 * rse:.0f} %) at {p:g}: {plain:.2g} epochs, "
-              f"{plain / epochs * per_sortie / 3600 / 24 / 365 / workers:.0f} years on {workers} cores")
+        print(f"brute force at this run's pace ({per_sortie:.2f} s a sortie of {epochs:.0f} epochs per process, "
+              f"{workers} processes, the load above): the full tail calibration (2 x 36 000 sorties, still "
+              f"extrapolated) {72000 * per_sortie / 3600 / workers:.1f} h; plain sampling to the same relative "
+              f"standard error ({100 * rse:.0f} %) at {p:g}: {plain:.2g} epochs, "
+              f"{plain / epochs * per_sortie / 3600 / 24 / workers:.3g} days")
 
 
 def main() -> None:

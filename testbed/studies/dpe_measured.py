@@ -294,31 +294,39 @@ class MeasuredK:
 
 
 def fit_k_measured(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, p_hmi: float) -> MeasuredK:
-    """:class:`MeasuredK` of one set (module doc): the grid walked upwards in steps of 20 grid steps, then the
-    step that crossed walked one grid step at a time (the rate falls with K)."""
+    """:class:`MeasuredK` of one set (module doc). The grid is walked upwards in steps of 20 grid steps, then the
+    step that crossed one grid step at a time, to the first K whose rate's upper end is at most P; the tail is
+    measured there only if that rate is settled (a K further up, where a few events happen to settle a far
+    smaller rate, is not a measurement at P)."""
     deepest = np.inf
 
-    def ok(k: float) -> tuple[bool, Rate]:
+    def at(k: float) -> Rate:
         nonlocal deepest
         r = hmi_rate(t, lw, lw_unsolved, k)
         if r.settled:
             deepest = min(deepest, r.hi)
-        return r.settled and r.hi <= p_hmi, r
+        return r
+
+    def below(r: Rate) -> bool:
+        return r.events > 0 and r.hi <= p_hmi
 
     coarse = 20 * K_STEP
     lo = K_RANGE[0]
     while lo <= K_RANGE[1]:
-        hit, r = ok(lo)
+        r = at(lo)
         if r.events == 0:
             break
-        if hit:
+        if below(r):
             k = max(K_RANGE[0], lo - coarse)
             while k < lo - K_STEP / 2:  # the first grid K in the step that crossed
-                hit, r2 = ok(round(k + K_STEP, 9))
-                if hit:
-                    return MeasuredK(float(round(k + K_STEP, 6)), r2, deepest, p_hmi)
-                k += K_STEP
-            return MeasuredK(float(round(lo, 6)), r, deepest, p_hmi)
+                k = round(k + K_STEP, 9)
+                r2 = at(k)
+                if below(r2) or r2.events == 0:
+                    r, lo = r2, k
+                    break
+            if r.settled and r.events > 0:
+                return MeasuredK(float(round(lo, 6)), r, deepest, p_hmi)
+            break
         lo = round(lo + coarse, 9)
     return MeasuredK(None, None, float(deepest), p_hmi)
 
