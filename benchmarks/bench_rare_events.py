@@ -62,12 +62,14 @@ def dpe(sorties: int, workers: int, out: str | None) -> None:
     if rec["k"] is None:
         print("no K: the tail is not measured at P = 1e-7 in every stratum (more sorties)")
     else:
-        lo, hi = rec["interval"]
         r = rec["strata"].get(rec["k_from"].removeprefix("stratum '").removesuffix("'"), rec["overall"])["rate"]
-        rse = (hi - lo) / (2 * 1.96 * r["estimate"])
-        print(f"K = {rec['k']:.3f} ({rec['k_from']}); tail there {r['estimate']:.3g} [{lo:.3g}, {hi:.3g}], "
-              f"{r['effective_events']:.0f} effective events, held-out check "
+        print(f"K = {rec['k']:.3f} ({rec['k_from']}); tail there {r['estimate']:.3g} [{r['interval'][0]:.3g}, "
+              f"{r['interval'][1]:.3g}], {r['effective_events']:.0f} effective events, held-out check "
               f"{'PASSED' if rec['validation']['passed'] else 'FAILED'}")
+    r = rec["overall"]["rate"]
+    if rec["overall"]["k"] is not None:  # the brute-force comparison at the all-strata precision
+        lo, hi = r["interval"]
+        rse = (hi - lo) / (2 * 1.96 * r["estimate"])
         p = rec["p_hmi"]
         plain = (1 - p) / (p * rse**2)
         epochs = rec["trials"] / sorties

@@ -339,7 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--method", choices=("tail", "importance"), default="tail",
                    help="tail: a Gaussian fitted to the measured tails, extrapolated to --p-hmi; importance: the tail "
                         "measured at --p-hmi by importance sampling of the SIS and thermal draws (docs/design/dpe.md "
-                        "§6.8; ~2000 epochs a stratum suffice: --sorties 84); default %(default)s")
+                        "§6.8; at 150 sorties a set five of six strata were measured); default %(default)s")
     k.add_argument("--workers", type=_in_range(int, 1, 257), default=1,
                    help="--method importance: processes running the chunks (default %(default)s)")
     add_allow_large(k)

@@ -158,3 +158,14 @@ def test_the_aimed_projection_carries_the_real_dpe_error_and_the_tilt_is_reprodu
         np.testing.assert_array_equal(a[k], b[k])
     tilted = a["component"] >= 0
     assert tilted.mean() > 0.8 and np.median(np.abs(a["z"][tilted])) > 3.5  # the levels are 4.5-6.5 σ
+
+
+def test_k_is_not_taken_where_a_few_events_settle_a_far_smaller_rate():
+    """The rate crosses P where it is not settled (three heavy events between 5 and 7 σ): the tail is not
+    measured at P, and a K beyond them, where a cluster of tiny weights settles a rate of 1e-12, is no answer."""
+    rng = np.random.default_rng(0)
+    t = np.concatenate([np.abs(rng.standard_normal(10_000)), [5.2, 5.9, 6.6], np.full(200, 7.5)])
+    lw = np.concatenate([np.zeros(10_000), np.log([2e-4, 2e-4, 2e-4]), np.full(200, np.log(1e-8))])
+    fit = dm.fit_k_measured(t, lw, np.zeros(0), P)
+    assert fit.k is None
+    assert dm.hmi_rate(t, lw, np.zeros(0), 7.0).settled  # the far rate is settled: the rule, not the data, refuses
