@@ -169,3 +169,12 @@ def test_k_is_not_taken_where_a_few_events_settle_a_far_smaller_rate():
     fit = dm.fit_k_measured(t, lw, np.zeros(0), P)
     assert fit.k is None
     assert dm.hmi_rate(t, lw, np.zeros(0), 7.0).settled  # the far rate is settled: the rule, not the data, refuses
+
+
+@pytest.mark.parametrize("args, text", [(["--workers", "2"], "--workers: read only with --method importance"),
+                                        (["--method", "importance", "--work", "w"], "--work: read only with --method tail")])
+def test_calibrate_dpe_refuses_options_of_the_other_method(tmp_path, capsys, args, text):
+    code = main(["calibrate-dpe", "--out", str(tmp_path / "k.json"), *args])
+    out = capsys.readouterr()
+    assert code == 2 and text in out.out + out.err
+    assert not (tmp_path / "k.json").exists() and not (tmp_path / "w").exists()
