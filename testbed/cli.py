@@ -164,10 +164,20 @@ def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
     if args.resume and args.work is None:
         raise ConfigError("command line", ["--resume: expected --work DIR too (the chunks a run stored are resumed "
                                            "from its work folder; without one nothing is stored)"])
+    if args.method == "importance":
+        given = [f for f, v in (("--work", args.work), ("--resume", args.resume), ("--scheduler", args.scheduler)) if v]
+        if given:
+            raise ConfigError("command line", [f"{', '.join(given)}: read only with --method tail (the importance-"
+                                               "sampled calibration runs its chunks on --workers processes)"])
+    elif args.workers != 1:
+        raise ConfigError("command line", ["--workers: read only with --method importance (the tail calibration "
+                                           "runs its chunks here or on --scheduler)"])
     trajectories = SET_C_TRAJECTORIES if args.trajectories == ["set-c"] else tuple(args.trajectories or ())
     for t in (args.approach, *trajectories):
         load_approach(t)  # every named approach reads before any work (exit 2 naming the file and key)
     budget_gate(lambda: calibration_estimate(args.approach, args.sorties, trajectories), args.allow_large)
+    if args.method == "importance":
+        return _calibrate_dpe_measured(args, out, trajectories)
     with OutputSet() as outs:
         outs.file(out, "--out")
         if args.work is not None:
@@ -191,6 +201,44 @@ def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
               f"{v['levels_checked']} levels (worst observed/bound {v['worst_ratio']:.2f}), |e| > VPL {v['exceedances']} "
               f"(allowed {v['allowed']}): {'PASSED' if v['passed'] else 'FAILED'}")
         print(f"wrote {out}; use it with [dpe] k_factor = \"{out}\"")
+    return 0 if v["passed"] else 1
+
+
+def _calibrate_dpe_measured(args: argparse.Namespace, out: Path, trajectories: tuple[str, ...]) -> int:
+    """`testbed calibrate-dpe --method importance`: K at a measured tail (docs/design/dpe.md §6.8)."""
+    from testbed.outputs import OutputSet
+    from testbed.schema import ConfigError
+    from testbed.studies.dpe_calibration import write_record
+    from testbed.studies.dpe_measured import calibrate_dpe_measured
+
+    with OutputSet() as outs:
+        outs.file(out, "--out")
+        try:
+            rec = calibrate_dpe_measured(args.approach, sorties=args.sorties, p_hmi=args.p_hmi, seed=args.seed,
+                                         trajectories=trajectories, chunk=args.chunk, workers=args.workers,
+                                         progress=lambda m: print(m, flush=True))
+        except ValueError as exc:
+            if isinstance(exc, ConfigError):
+                raise
+            raise ConfigError(Path(args.approach), [f"calibrate-dpe: {exc}"]) from None
+        write_record(rec, outs.staged(out))
+        outs.commit()
+    v = rec["validation"]
+    if rec["k"] is None:
+        print(f"no K: the tail is not measured at P_HMI = {rec['p_hmi']:g} in "
+              + "; ".join(f"{n} (deepest settled upper bound {f['deepest_settled_upper']:.2g})"
+                          for n, f in (rec["strata"] | {"all strata": rec["overall"]}).items() if f["k"] is None)
+              + f": more sorties (--sorties, now {args.sorties})")
+    else:
+        lo, hi = rec["interval"]
+        print(f"K = {rec['k']:.3f} ({rec['k_from']}): P(|e| > K*sigma + |m|) measured at {lo:.3g}-{hi:.3g} per epoch "
+              f"(95 %), {rec['trials']} importance-sampled calibration epochs, P_HMI = {rec['p_hmi']:g}")
+        print("held-out: " + "; ".join(f"{n} {r['estimate']:.3g} [{r['interval'][0]:.3g}, {r['interval'][1]:.3g}]"
+                                       if r.get("settled") else f"{n} not settled"
+                                       for n, r in v["rates"].items())
+              + f": {'PASSED' if v['passed'] else 'FAILED'}")
+    print(f"wrote {out}" + (f"; use it with [monitor.dpe] k_factor = \"{out}\"" if v["passed"] else
+                            " (a record whose held-out check failed is refused as a k_factor)"))
     return 0 if v["passed"] else 1
 
 
@@ -292,6 +340,12 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--work", type=Path, help="folder keeping every chunk as it finishes (a killed run resumes)")
     k.add_argument("--resume", action="store_true", help="continue the calibration stored in --work")
     k.add_argument("--scheduler", help="Dask scheduler address: chunks run on its workers")
+    k.add_argument("--method", choices=("tail", "importance"), default="tail",
+                   help="tail: a Gaussian fitted to the measured tails, extrapolated to --p-hmi; importance: the tail "
+                        "measured at --p-hmi by importance sampling of the SIS and thermal draws (docs/design/dpe.md "
+                        "§6.8; at 150 sorties a set five of six strata were measured); default %(default)s")
+    k.add_argument("--workers", type=_in_range(int, 1, 257), default=1,
+                   help="--method importance: processes running the chunks (default %(default)s)")
     add_allow_large(k)
     k.set_defaults(func=_cmd_calibrate_dpe)
 

@@ -216,12 +216,52 @@ def record_problems(rec) -> list[str]:
     n = rec.get("n")
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         out.append(f"n = {n!r}: expected a count of calibration epochs (an integer >= 1)")
+    out += _provenance_problems(rec)
     st = rec.get("settings")
     if not (isinstance(st, dict) and set(st) == {"dpe", "correlators"}
             and all(isinstance(v, dict) and v for v in st.values())):
         out.append(f"settings = {st!r}: expected the tables 'dpe' and 'correlators' the record was fitted for")
     elif rec.get("fingerprint") != hashlib.sha256(json.dumps(st, sort_keys=True).encode()).hexdigest()[:16]:
         out.append(f"fingerprint = {rec.get('fingerprint')!r}: does not match its settings (edited by hand?)")
+    return out
+
+
+#: the estimators a record may name (docs/design/dpe.md §6.2, §6.3, §6.8)
+ESTIMATORS = ("tail", "quantile", "importance")
+
+
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
+
+
+def _provenance_problems(rec: dict) -> list[str]:
+    """The estimator's name, and for a K at a measured tail (``importance``) the measurement's provenance:
+    its interval (at most ``p_hmi`` at its upper end: what "measured" means), trials, effective sample size,
+    proposal and a passed held-out check."""
+    est = rec.get("estimator", "tail")
+    if est not in ESTIMATORS:
+        return [f"estimator = {est!r}: expected one of {', '.join(ESTIMATORS)}"]
+    if est != "importance":
+        return []
+    out = []
+    p = rec.get("p_hmi")
+    iv = rec.get("interval")
+    if not (isinstance(iv, list) and len(iv) == 2 and all(_number(x) for x in iv) and 0.0 <= iv[0] <= iv[1]
+            and (not _number(p) or iv[1] <= p)):
+        out.append(f"interval = {iv!r}: expected [lower, upper] of the measured tail at k, 0 <= lower <= upper <= "
+                   f"p_hmi")
+    n = rec.get("trials")
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        out.append(f"trials = {n!r}: expected the number of importance-sampled epochs (an integer >= 1)")
+    ess = rec.get("n_eff")
+    if not (_number(ess) and ess > 0):
+        out.append(f"n_eff = {ess!r}: expected the weights' effective sample size (a number > 0)")
+    if not isinstance(rec.get("proposal"), dict):
+        out.append(f"proposal = {rec.get('proposal')!r}: expected the table of the proposal the tail was measured with")
+    v = rec.get("validation")
+    if not (isinstance(v, dict) and v.get("passed") is True):
+        out.append(f"validation.passed = {v.get('passed') if isinstance(v, dict) else v!r}: expected true (a K "
+                   "whose held-out check failed is not used)")
     return out
 
 

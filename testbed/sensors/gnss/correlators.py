@@ -88,10 +88,17 @@ def noise_spectrum(step_m: float, size: int, bandwidth_chips: float, squared: bo
     return NoiseSpectrum(np.sqrt(np.clip(lam, 0.0, None) / L), size, ratio)
 
 
-def draw_noise(rng: np.random.Generator, spec: NoiseSpectrum, lead: tuple[int, ...]) -> NDArray:
-    """(lead..., M) complex draws of the stationary process ``spec`` factors (E[w wᵀ] = 0)."""
+def draw_noise(rng: np.random.Generator, spec: NoiseSpectrum, lead: tuple[int, ...], tilt=None) -> NDArray:
+    """(lead..., M) complex draws of the stationary process ``spec`` factors (E[w wᵀ] = 0).
+
+    tilt : None, or ``(shift, seen)``: ``shift`` (lead..., L) is added to the standard complex draws z
+        (CN(0, 1) each) before they are coloured, and ``seen(z)`` is given the draws as tilted (an importance
+        sampler's hook, docs/design/dpe.md §6.8)."""
     L = spec.amplitude.size
     z = rng.standard_normal(lead + (L, 2)).view(np.complex128)[..., 0] * np.sqrt(0.5)
+    if tilt is not None:
+        z = z + tilt[0]
+        tilt[1](z)
     return np.fft.fft(spec.amplitude * z, axis=-1)[..., : spec.size]
 
 
@@ -147,8 +154,12 @@ _EXACT_BYTES = 256 * 2**20
 
 
 def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid: DelayGrid, A: NDArray,
-                    delay: NDArray, echo_delay: NDArray, alpha: NDArray, echo_phase: NDArray) -> NDArray:
-    """(S, M) statistic of one epoch's tracked satellites (A, delays, echoes per satellite)."""
+                    delay: NDArray, echo_delay: NDArray, alpha: NDArray, echo_phase: NDArray, tilt=None) -> NDArray:
+    """(S, M) statistic of one epoch's tracked satellites (A, delays, echoes per satellite).
+
+    tilt : None, or an object whose ``shift(K, spec)`` gives the (S, 2, L) shift of the standard draws of the
+        processes U (fast synthesis; K the paths' Gram root, V = K U) and whose ``seen(z)`` is given them
+        as tilted (docs/design/dpe.md §6.8)."""
     b, n_b = settings.bandwidth_chips, settings.n_noncoherent
     d = grid.offsets[None, :] - delay[:, None]
     R0 = tabulated_correlation(d, b)
@@ -156,6 +167,8 @@ def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid
     spec = noise_spectrum(grid.step_m, grid.size, b)
     S = delay.size
     if settings.synthesis == "exact":
+        if tilt is not None:
+            raise ValueError("correlators: a noise tilt needs synthesis = 'fast' (the exact synthesis draws every block)")
         theta = rng.uniform(0.0, 2.0 * np.pi, (S, n_b))
         c0 = np.exp(1j * theta)
         c1 = alpha[:, None] * np.exp(1j * (theta + echo_phase))
@@ -172,7 +185,7 @@ def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid
         return out
     H = _path_gram(alpha, echo_phase, n_b)
     K = _sqrt_psd(H)
-    U = draw_noise(rng, spec, (S, 2))
+    U = draw_noise(rng, spec, (S, 2), None if tilt is None else (tilt.shift(K, spec), tilt.seen))
     V = np.einsum("smn,snj->smj", K, U)
     signal = A[:, None] ** 2 * (R0 * R0 * H[:, 0, 0, None].real + 2.0 * R0 * R1 * H[:, 0, 1, None].real
                                 + R1 * R1 * H[:, 1, 1, None].real)
@@ -192,13 +205,23 @@ def cn0_estimate(stat: NDArray, settings: CorrelatorSettings) -> NDArray:
     return 10.0 * np.log10(np.maximum(a2, 1e-3) / settings.coherent_s)
 
 
+def sis_sigma(elevation_rad: NDArray, settings: GnssSettings) -> NDArray:
+    """σ_SIS of each satellite (m): σ_URA ⊕ the residual troposphere at its elevation (docs/design/dpe.md eq. 2.10)."""
+    return np.hypot(settings.sigma_ura_m, sigma_tropo(elevation_rad, settings.sigma_tropo_zenith_m))
+
+
 def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth, settings: GnssSettings,
-                           seed_words: NDArray, first_epoch: int = 0) -> tuple[CorrelatorEpochs, CorrelatorTruth]:
+                           seed_words: NDArray, first_epoch: int = 0, sis_shift: NDArray | None = None,
+                           noise_tilt=None) -> tuple[CorrelatorEpochs, CorrelatorTruth]:
     """Correlograms of every tracked satellite at ``gnss``'s epochs (one trial, unbatched).
 
     truth : at the same epochs (AGL height and climb rate for the ground echo).
     seed_words : the run's correlator seed words; ``first_epoch`` the index of ``gnss``'s first
         epoch in the flight (each epoch's generator is keyed by its index).
+    sis_shift : (T, S) added to the standard-normal SIS draws before they are scaled by σ_SIS (an importance
+        sampler's tilt, docs/design/dpe.md §6.8; None: the error model itself). Every other draw is unchanged.
+    noise_tilt : None, or ``noise_tilt(i, k, A, delay, grid)`` giving epoch i's tilt of the thermal noise draws
+        of its tracked slots k (see :func:`epoch_statistic`), or None for no tilt at that epoch.
     """
     cs = settings.correlators
     grid = delay_grid(cs)
@@ -209,7 +232,8 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
     cn0 = cn0_at(el, cs)
     # a residual carrier frequency Δf turns the phasor by 2πΔf·T over a block: the coherent sum keeps |sinc(Δf·T)|
     A = np.sqrt(amplitude_sq(cn0, cs.coherent_s)) * abs(np.sinc(cs.residual_doppler_hz * cs.coherent_s))
-    sig_sis = np.hypot(settings.sigma_ura_m, sigma_tropo(el, settings.sigma_tropo_zenith_m))
+    sig_sis = sis_sigma(el, settings)
+    shift = np.zeros((T, S)) if sis_shift is None else np.asarray(sis_shift, float)
     fault = np.asarray(gnss_truth.fault_bias, float)
     clean = np.asarray(gnss_truth.geometric_range) + np.asarray(gnss_truth.clock_bias)[:, None] + fault
     sin_el = np.sin(np.maximum(el, 0.0))
@@ -224,13 +248,15 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
     delay = np.full((T, S), np.nan)
     for i in range(T):
         g_sis, g_noise = epoch_generator(seed_words, first_epoch + i).spawn(2)
-        sis[i] = sig_sis[i] * g_sis.standard_normal(S)
+        sis[i] = sig_sis[i] * (g_sis.standard_normal(S) + shift[i])
         k = np.flatnonzero(vis[i])
         if not k.size:
             continue
         delay[i, k] = clean[i, k] + sis[i, k] - rho_ref[i, k]
         phase = (2.0 * np.pi * (echo_delay[i, k, None] + echo_rate[i, k, None] * t_block) / L1_WAVELENGTH_M + np.pi)
-        stat[i, k] = epoch_statistic(g_noise, cs, grid, A[i, k], delay[i, k], echo_delay[i, k], alpha[i, k], phase)
+        tilt = None if noise_tilt is None else noise_tilt(i, k, A[i, k], delay[i, k], grid)
+        stat[i, k] = epoch_statistic(g_noise, cs, grid, A[i, k], delay[i, k], echo_delay[i, k], alpha[i, k], phase,
+                                     tilt)
     with np.errstate(invalid="ignore"):
         est = np.where(vis, cn0_estimate(np.nan_to_num(stat, nan=0.0), cs), np.nan)
     epochs = CorrelatorEpochs(t=np.asarray(gnss.t), prn=np.asarray(gnss.prn), sat_pos_ecef=np.asarray(gnss.sat_pos_ecef),

@@ -1,0 +1,453 @@
+"""The DPE's K fitted where its tail is *measured* at P_HMI, by importance sampling (docs/design/dpe.md §6.8).
+
+The tail estimator (:func:`~testbed.integrity.dpe.calibration.fit_k_tail`) measures the normalised error's
+tails down to ~100/N and extrapolates to P = 10⁻⁷ under a Gaussian assumption; measuring 10⁻⁷ by brute force
+takes ~10⁹ epochs. Here the per-satellite signal-in-space draws, the few low-dimensional terms of an epoch's
+vertical error, are drawn from a proposal aimed at large vertical errors, and the correlators' thermal noise
+(thousands of draws) stays plain. An epoch's SIS errors are ``ε = σ_SIS·u``, ``u ~ N(0, I)``, white from epoch
+to epoch; the DPE moves its solution by ``A_U·ε`` (``A = J Gᵀ W``, its CRB weighting, docs/design/dpe.md
+eq. 5.6), so the SIS part of the vertical error is ``s·u`` with ``s = A_U ∘ σ_SIS`` and the thermal part has
+variance ``J_UU``. With ``f = |s|²/(|s|² + J_UU)`` the SIS share of the variance, the mean shift of ``u`` along
+``s/|s|`` that minimises the second moment of the estimator of ``P(|e| > ℓσ)`` with the thermal part plain is
+
+    μ(ℓ) = ℓ·√f / (2 − f)
+
+(the dominating point ``ℓ√f`` when the SIS were all, half of it when they are nothing). Each epoch draws one
+component of a mixture (the signs ± and the levels ``ℓ`` of :data:`LEVELS`) or, with probability
+``defensive``, none (the error model itself). Each epoch is a trial: its weight is its own draws' likelihood
+ratio (the campaign sampler's :func:`~testbed.campaign.sampling.log_weights`), and the rates are
+:func:`~testbed.campaign.sampling.weighted_rate` with its diagnostics.
+
+K is the smallest factor on a 0.005 grid at which the weighted estimate of P(|e| > K·σ + |m|) per epoch with a
+solution is settled and the upper end of its interval is at most P, in every C/N0 × multipath stratum; K is
+the largest of those. The held-out check estimates the same rate at that K on another set of sorties (other
+seeds, other start times), per stratum and over all: it passes when every estimate is settled and at most P.
+
+**Assumption**: an epoch's outcome depends on its own draws (the DPE starts from the same-epoch GPS fix; the
+previous DPE fix, a function of earlier draws, is used only when that fails).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import importlib.metadata
+import subprocess
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from scipy.special import ndtri
+
+from testbed.campaign.sampling import Components, Rate, draw_proposal, log_weights, weighted_rate
+from testbed.campaign.spec import SamplingPlan
+from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, settings_fingerprint
+from testbed.monitors import monitor_options
+from testbed.studies.dpe_calibration import CN0_OFFSETS_DB, MULTIPATH, _trajectory, sortie_plan, vdop
+
+#: the mixture's levels ℓ (in σ of the epoch's VPL): the tail is measured from ~4 σ to ~7 σ
+LEVELS = (4.5, 5.5, 6.5)
+DEFENSIVE = 0.1
+#: the K grid the tail is read on, and the interval's confidence (two-sided normal: its upper end is 97.5 %)
+K_STEP = 0.005
+K_RANGE = (2.0, 20.0)
+CONFIDENCE = 0.95
+ASSUMPTION = ("the tail is measured, not extrapolated: importance sampling of the per-satellite SIS draws (the "
+              "correlators' thermal noise drawn plainly); an epoch's outcome depends on its own draws (white SIS "
+              "and correlator noise; the previous DPE fix is used only when the same-epoch GPS fix fails)")
+
+
+def plan() -> SamplingPlan:
+    """The mixture's plan in the campaign sampler's terms: mean shifts, a defensive share, uniform components."""
+    return SamplingPlan(method="importance", proposal="shift", defensive=DEFENSIVE)
+
+
+def vertical_response(los_enu: np.ndarray, cn0_dbhz: np.ndarray, visible: np.ndarray, coherent_s: float,
+                      n_blocks: int, bandwidth_chips: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per epoch, the DPE's vertical error per metre of each satellite's delay ``A_U`` (T, S) and the delays'
+    CRB σ_δ (T, S), from its CRB weighting at the true C/N0 (docs/design/dpe.md eq. 2.13-2.14, 5.6); zero
+    where an epoch has fewer than four satellites in view."""
+    from testbed.correlation import amplitude_sq, crb_delay_sigma
+
+    T, S, _ = los_enu.shape
+    a_u, sd = np.zeros((T, S)), np.zeros((T, S))
+    for t in range(T):
+        k = np.flatnonzero(visible[t])
+        if k.size < 4:
+            continue
+        g = np.concatenate([-los_enu[t, k], np.ones((k.size, 1))], 1)
+        sd[t, k] = crb_delay_sigma(amplitude_sq(cn0_dbhz[t, k], coherent_s), n_blocks, bandwidth_chips)
+        w = 1.0 / sd[t, k] ** 2
+        a_u[t, k] = (np.linalg.inv(g.T @ (g * w[:, None])) @ (g * w[:, None]).T)[2]
+    return a_u, sd
+
+
+def aim(a_u: np.ndarray, sigma_sis: np.ndarray, sigma_delay: np.ndarray, thermal: bool = True
+        ) -> tuple[np.ndarray, np.ndarray]:
+    """The unit direction of the vertical error's gradient in each epoch's whitened draws, split into its SIS
+    part ``h_sis`` (T, S) (per standard SIS draw) and its thermal part ``h_noise`` (T, S) (per unit whitened
+    shift along a satellite's delay direction); zero rows where the epoch has no response. ``thermal=False``:
+    the SIS alone (the thermal noise drawn plainly)."""
+    gs = a_u * sigma_sis
+    gn = a_u * sigma_delay if thermal else np.zeros_like(a_u)
+    norm = np.sqrt((gs * gs).sum(1) + (gn * gn).sum(1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(norm[:, None] > 0, gs / norm[:, None], 0.0), np.where(norm[:, None] > 0, gn / norm[:, None], 0.0)
+
+
+def epoch_components(has_response: np.ndarray, levels: tuple[float, ...] = LEVELS) -> list[Components]:
+    """One :class:`Components` per epoch on the one-dimensional projection π of its draws on the aimed direction
+    (π ~ N(0, 1) under the error model): the shifts ±ℓ of :data:`LEVELS`; none where the epoch has no response."""
+    shift = np.array([sg * lv for lv in levels for sg in (1.0, -1.0)])[:, None]
+    full = Components(np.zeros(shift.shape[0], np.int64), shift, np.zeros((shift.shape[0], 1, 1)),
+                      np.zeros(shift.shape[0], np.int64))
+    empty = Components(np.zeros(0, np.int64), np.zeros((0, 1)), np.zeros((0, 1, 1)), np.zeros(0, np.int64))
+    return [full if h else empty for h in has_response]
+
+
+def tilted_projection_shifts(comps: list[Components], which: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Each epoch's component (−1: the error model) and the shift of its projection π (n,)."""
+    draw = draw_proposal(comps, which, plan(), np.zeros((which.size, 1, 1)), rng)
+    return draw.component, draw.shift[:, 0, 0]
+
+
+def epoch_log_weights(comps: list[Components], which: np.ndarray, pi: np.ndarray) -> np.ndarray:
+    """(n,) log p/q of each epoch's projection ``pi`` (n,), as tilted."""
+    return log_weights(comps, which, plan(), np.asarray(pi, float)[:, None, None])
+
+
+def delay_directions(K: np.ndarray, spec, A: np.ndarray, delay: np.ndarray, grid, n_blocks: int,
+                     bandwidth_chips: float) -> np.ndarray:
+    """(S, 2, L) unit (complex norm 1) directions of the standard draws of the processes U that move each
+    satellite's correlogram as a later code delay does: the cross term's shift ΔV₀ = −A·N_b·R_B′(δ − δ_k)
+    (the signal's derivative in the delay, docs/design/dpe.md eq. 2.8) through V = K U, uncoloured."""
+    from testbed.sensors.gnss.correlators import tabulated_correlation
+
+    L = spec.amplitude.size
+    j = np.arange(L)
+    off = grid.delay0_m + grid.step_m * np.where(j < grid.size + (L - grid.size) // 2, j, j - L)  # periodic grid
+    x = off[None, :] - delay[:, None]
+    h = 0.25
+    d_r = (tabulated_correlation(x + h, bandwidth_chips) - tabulated_correlation(x - h, bandwidth_chips)) / (2 * h)
+    dv = np.zeros((delay.size, 2, L), complex)
+    dv[:, 0] = -(A * n_blocks)[:, None] * d_r
+    du = np.einsum("sij,sjl->sil", np.linalg.pinv(K), dv)
+    amp = spec.amplitude
+    keep = amp > 1e-9 * amp.max()
+    dz = np.where(keep, np.fft.ifft(du, axis=-1) / np.where(keep, amp, 1.0), 0.0)
+    norm = np.sqrt((np.abs(dz) ** 2).sum((1, 2)))
+    return dz / np.where(norm > 0, norm, 1.0)[:, None, None]
+
+
+class _NoiseTilt:
+    """The thermal part of one sortie's tilt (``synthesize_correlators``' ``noise_tilt``): per epoch, the shift
+    ``c·h_noise,k/√2`` of satellite k's standard draws along its delay direction, and the draws' projection
+    ``√2·Re⟨e_k, z_k⟩`` weighted by ``h_noise,k`` summed into ``pi_noise``."""
+
+    def __init__(self, shift: np.ndarray, h_noise: np.ndarray, correlators) -> None:
+        self.c, self.h, self.cs = shift, h_noise, correlators
+        self.pi_noise = np.zeros(shift.size)
+
+    def __call__(self, i: int, k: np.ndarray, A: np.ndarray, delay: np.ndarray, grid):
+        if not np.any(self.h[i, k]):
+            return None
+        h = self.h[i, k]
+        outer = self
+
+        class One:
+            def shift(self, K, spec):
+                self.e = delay_directions(K, spec, A, delay, grid, outer.cs.n_noncoherent, outer.cs.bandwidth_chips)
+                return outer.c[i] * h[:, None, None] * self.e / np.sqrt(2.0)
+
+            def seen(self, z):
+                proj = np.sqrt(2.0) * np.real(np.sum(np.conj(self.e) * z, axis=(1, 2)))
+                outer.pi_noise[i] = float(h @ proj)
+
+        return One()
+
+
+def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: str, key: tuple[int, int],
+           seed: int, thermal: bool = True, levels: tuple[float, ...] = LEVELS) -> dict[str, np.ndarray]:
+    """One importance-sampled sortie: per epoch with a solution z, e, σ, m, the log weight and the component;
+    the unsolved epochs' log weights; the projection π of every epoch's draws (module doc)."""
+    from testbed.integrity.monitor import Observations
+    from testbed.sensors.gnss.correlators import cn0_at, sis_sigma, synthesize_correlators
+    from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
+
+    cs = setup.gnss.correlators.model_copy(update={"cn0_offset_db": setup.gnss.correlators.cn0_offset_db + cn0_db,
+                                                   "multipath": multipath})
+    gs = setup.gnss.model_copy(update={"correlators": cs})
+    start = ap.config.start_time_utc + dt.timedelta(seconds=offset_s)
+    geom = gnss_geometry(truth_g, setup.antenna, gs, start_utc=start, terrain=setup.terrain)
+    g_gnss, g_corr, g_sampling = np.random.SeedSequence(seed, spawn_key=key).spawn(3)  # the first two: the plain run's
+    g, gt = sample_gnss(geom, gs, rng=np.random.default_rng(g_gnss))
+    vis = np.asarray(g.visible, bool)
+    el = np.asarray(gt.elevation, float)
+    ant = np.asarray(gt.antenna_pos_ecef, float)
+    los = np.asarray(g.sat_pos_ecef, float) - ant[:, None, :]
+    los_enu = setup.frame.vec_ecef_to_enu(los / np.linalg.norm(los, axis=-1, keepdims=True))
+    sig = sis_sigma(el, gs)
+    a_u, sd = vertical_response(los_enu, cn0_at(el, cs), vis, cs.coherent_s, cs.n_noncoherent, cs.bandwidth_chips)
+    h_sis, h_noise = aim(a_u, np.where(vis, sig, 0.0), sd, thermal and cs.synthesis == "fast")
+    has = (np.abs(h_sis).sum(1) + np.abs(h_noise).sum(1)) > 0
+    comps = epoch_components(has, levels)
+    which = np.arange(len(comps))
+    comp, c = tilted_projection_shifts(comps, which, np.random.default_rng(g_sampling))
+    tilt = _NoiseTilt(c, h_noise, cs)
+    corr, ct = synthesize_correlators(g, gt, truth_g, gs, g_corr.generate_state(4), sis_shift=c[:, None] * h_sis,
+                                      noise_tilt=tilt if np.any(h_noise) else None)
+    u = np.where(vis, np.nan_to_num(np.asarray(ct.sis_m, float)) / sig, 0.0)  # the standard SIS draws, as tilted
+    pi = (h_sis * u).sum(1) + tilt.pi_noise
+    lw = epoch_log_weights(comps, which, pi)
+    out, _ = mon.step(Observations(g, correlators=corr), mon.initial_state())
+    d = out.diagnostics
+    ok = out.reason == 0
+    e = out.pos_enu[:, 2] - setup.frame.ecef_to_enu(ant)[:, 2]
+    sigma = np.hypot(d.sigma_ob, d.sigma_sis_u) if mon.settings.sis == "add" else d.sigma_ob
+    return {"z": ((e - d.median_m) / sigma)[ok], "e": e[ok], "sigma": sigma[ok], "m": d.median_m[ok],
+            "log_weight": lw[ok], "component": comp[ok].astype(np.int16), "pi": pi[ok],
+            "vdop": vdop(setup.frame, np.asarray(g.sat_pos_ecef, float), vis, ant)[ok],
+            "unsolved_log_weight": lw[~ok]}
+
+
+@dataclasses.dataclass(frozen=True)
+class MeasuredRun:
+    """What fixes a measured calibration's sorties: the approach (by path), its trajectories, sorties per set,
+    seed, sorties per chunk."""
+
+    approach: str
+    trajectories: tuple[str, ...]
+    sorties: int
+    seed: int
+    chunk: int
+
+    @property
+    def n_chunks(self) -> int:
+        return -(-self.sorties // self.chunk)
+
+
+#: the seed streams' set keys: the plain calibration's sets are 0 and 1, these are other streams
+SET_KEYS = {"calibration": 2, "validation": 3}
+
+
+def measured_chunk(run: MeasuredRun, set_key: int, chunk: int) -> dict[str, np.ndarray]:
+    """One chunk of sorties of a set, in sortie order (a pure function of (run, set, chunk))."""
+    trajectories = run.trajectories or (run.approach,)
+    shift = 0.0 if set_key == SET_KEYS["calibration"] else 0.5 * 86400.0 / run.sorties
+    parts = []
+    for j in range(chunk * run.chunk, min((chunk + 1) * run.chunk, run.sorties)):
+        t, offset, cn0, mp, stratum = sortie_plan(j, run.sorties, len(trajectories), shift)
+        ap, setup, truth_g, mon = _trajectory(run.approach, trajectories[t])
+        one = sortie(ap, setup, truth_g, mon, offset, cn0, mp, (set_key, j), run.seed)
+        one["stratum"] = np.full(one["z"].size, stratum, np.int8)
+        one["unsolved_stratum"] = np.full(one["unsolved_log_weight"].size, stratum, np.int8)
+        parts.append(one)
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _chunk_job(args) -> dict[str, np.ndarray]:
+    run, set_key, chunk = args
+    return measured_chunk(run, set_key, chunk)
+
+
+def run_sets(run: MeasuredRun, workers: int = 1, progress: Callable[[str], None] | None = None
+             ) -> dict[str, dict[str, np.ndarray]]:
+    """Both sets' per-epoch arrays; chunks on ``workers`` processes (the result does not depend on them)."""
+    say = progress or (lambda _: None)
+    jobs = [(run, SET_KEYS[name], c) for name in SET_KEYS for c in range(run.n_chunks)]
+    got = []
+    if workers <= 1:
+        for i, j in enumerate(jobs):
+            got.append(measured_chunk(*j))
+            say(f"{i + 1}/{len(jobs)} chunks of {run.chunk} sorties")
+    else:
+        with ProcessPoolExecutor(workers) as ex:
+            for i, res in enumerate(ex.map(_chunk_job, jobs)):
+                got.append(res)
+                say(f"{i + 1}/{len(jobs)} chunks of {run.chunk} sorties")
+    out = {}
+    for n, name in enumerate(SET_KEYS):
+        mine = got[n * run.n_chunks:(n + 1) * run.n_chunks]
+        out[name] = {k: np.concatenate([p[k] for p in mine]) for k in mine[0]}
+    return out
+
+
+def hmi_rate(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, k: float) -> Rate:
+    """P(|e| > k·σ + |m|) per epoch with a solution: ``t = (|e| − |m|)/σ`` of the solved epochs; the unsolved
+    ones enter the ratio's denominator with zero (a ratio of two weighted means)."""
+    num = np.concatenate([(t > k).astype(float), np.zeros(lw_unsolved.size)])
+    den = np.concatenate([np.ones(t.size), np.zeros(lw_unsolved.size)])
+    return weighted_rate(num, den, np.concatenate([lw, lw_unsolved]), CONFIDENCE)
+
+
+@dataclasses.dataclass(frozen=True)
+class MeasuredK:
+    """K at a measured tail: the smallest grid K whose rate is settled with its upper end ≤ P (None: no such K
+    before the estimate stopped settling: the tail is not measured that deep), the rate there, and the deepest
+    settled upper end reached."""
+
+    k: float | None
+    rate: Rate | None
+    deepest_hi: float
+    p_hmi: float
+
+
+def fit_k_measured(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, p_hmi: float) -> MeasuredK:
+    """:class:`MeasuredK` of one set (module doc). The grid is walked upwards in steps of 20 grid steps, then the
+    step that crossed one grid step at a time, to the first K whose rate's upper end is at most P; the tail is
+    measured there only if that rate is settled (a K further up, where a few events happen to settle a far
+    smaller rate, is not a measurement at P)."""
+    deepest = np.inf
+
+    def at(k: float) -> Rate:
+        nonlocal deepest
+        r = hmi_rate(t, lw, lw_unsolved, k)
+        if r.settled:
+            deepest = min(deepest, r.hi)
+        return r
+
+    def below(r: Rate) -> bool:
+        return r.events > 0 and r.hi <= p_hmi
+
+    coarse = 20 * K_STEP
+    lo = K_RANGE[0]
+    while lo <= K_RANGE[1]:
+        r = at(lo)
+        if r.events == 0:
+            break
+        if below(r):
+            k = max(K_RANGE[0], lo - coarse)
+            while k < lo - K_STEP / 2:  # the first grid K in the step that crossed
+                k = round(k + K_STEP, 9)
+                r2 = at(k)
+                if below(r2) or r2.events == 0:
+                    r, lo = r2, k
+                    break
+            if r.settled and r.events > 0:
+                return MeasuredK(float(round(lo, 6)), r, deepest, p_hmi)
+            break
+        lo = round(lo + coarse, 9)
+    return MeasuredK(None, None, float(deepest), p_hmi)
+
+
+def _threshold(d: dict[str, np.ndarray]) -> np.ndarray:
+    return (np.abs(d["e"]) - np.abs(d["m"])) / d["sigma"]
+
+
+def weighted_median(x: np.ndarray, lw: np.ndarray) -> float:
+    """The median of ``x`` under the weights exp(lw) (the error model's median of z)."""
+    o = np.argsort(x)
+    w = np.exp(lw[o] - lw.max())
+    c = np.cumsum(w)
+    return float(x[o][np.searchsorted(c, 0.5 * c[-1])])
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                              text=True, timeout=10).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def _version() -> str:
+    try:
+        return importlib.metadata.version("testbed")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def _rate_record(r: Rate | None) -> dict:
+    if r is None:
+        return {"estimate": None}
+    return {"estimate": r.estimate, "interval": [r.lo, r.hi], "settled": r.settled, "problems": list(r.problems),
+            "effective_events": r.ess_events, "ess_weights": r.ess_weights, "trials": r.trials, "events": r.events}
+
+
+def calibrate_dpe_measured(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 600,
+                           p_hmi: float = DEFAULT_P_HMI, seed: int = 0, trajectories: tuple[str | Path, ...] = (),
+                           chunk: int = 25, workers: int = 1, progress: Callable[[str], None] | None = None,
+                           sets: dict | None = None) -> dict[str, Any]:
+    """Fit K at a measured tail on ``sorties`` importance-sampled sorties and check it on as many held-out ones
+    (module doc). Returns the K record (the tail estimator's schema plus the provenance of the measurement).
+    ``sets``: the two sets' arrays of this run measured before (:func:`run_sets`), to fit again without flying."""
+    from testbed.config import load_approach, resolve_approach
+
+    if sorties < 6:
+        raise ValueError(f"sorties: expected at least 6 (one per stratum), got {sorties}")
+    if not 0 < p_hmi < 0.01:
+        raise ValueError(f"p_hmi: expected a probability below 0.01, got {p_hmi}")
+    src = str(resolve_approach(approach))
+    trajs = tuple(str(resolve_approach(t)) for t in trajectories)
+    run = MeasuredRun(src, trajs if trajs != (src,) else (), sorties, seed, chunk)
+    names = run.trajectories or (src,)
+    ap = load_approach(src)
+    fingerprint, cover = settings_fingerprint(
+        monitor_options("dpe", ap.config.monitor).model_copy(update={"k_factor": 1.0}), ap.config.gnss.correlators)
+    sets = run_sets(run, workers, progress) if sets is None else sets
+    c, v = sets["calibration"], sets["validation"]
+
+    def strata_of(d):
+        return {f"cn0 {CN0_OFFSETS_DB[s % 3]:+g} dB, multipath {MULTIPATH[s // 3]}":
+                (d["stratum"] == s, d["unsolved_stratum"] == s) for s in range(6)}
+
+    tc, tv = _threshold(c), _threshold(v)
+    overall = fit_k_measured(tc, c["log_weight"], c["unsolved_log_weight"], p_hmi)
+    fits = {n: fit_k_measured(tc[m], c["log_weight"][m], c["unsolved_log_weight"][mu], p_hmi)
+            for n, (m, mu) in strata_of(c).items()}
+    unmeasured = [n for n, f in fits.items() if f.k is None] + (["all strata"] if overall.k is None else [])
+    if unmeasured:
+        k, k_from, chosen = None, "", None
+    else:
+        k_from, chosen = max(fits.items(), key=lambda kv: kv[1].k)
+        k = max(chosen.k, overall.k)
+        if overall.k >= chosen.k:
+            k_from, chosen = "all strata", overall
+        else:
+            k_from = f"stratum '{k_from}'"
+    checks = {}
+    if k is not None:
+        checks["all strata"] = hmi_rate(tv, v["log_weight"], v["unsolved_log_weight"], k)
+        for n, (m, mu) in strata_of(v).items():
+            checks[n] = hmi_rate(tv[m], v["log_weight"][m], v["unsolved_log_weight"][mu], k)
+    passed = bool(checks) and all(r.settled and r.estimate <= p_hmi for r in checks.values())
+    b_z = weighted_median(c["z"], c["log_weight"])
+    q = float(-ndtri(p_hmi / 2.0))
+    lw_all = np.concatenate([c["log_weight"], c["unsolved_log_weight"]])
+    w = np.exp(lw_all - lw_all.max())
+    spacing = 86400.0 / sorties
+    ess = float(w.sum() ** 2 / np.sum(w * w))
+    rec = {
+        "what": "K of the dpe monitor's VPL = K*sigma + |median| (testbed calibrate-dpe --method importance)",
+        "k": k, "sigma_z": None if k is None else (k - abs(b_z)) / q, "b_z": b_z, "p_hmi": p_hmi,
+        "estimator": "importance",
+        "binding": {"side": "both", "tail_level": None if chosen is None else chosen.rate.hi},
+        "k_from": k_from,
+        "overall": {"k": overall.k, "rate": _rate_record(overall.rate), "deepest_settled_upper": overall.deepest_hi},
+        "strata": {n: {"k": f.k, "rate": _rate_record(f.rate), "deepest_settled_upper": f.deepest_hi,
+                       "n": int(strata_of(c)[n][0].sum())} for n, f in fits.items()},
+        "n": int(c["z"].size), "n_eff": ess, "n_calibration": int(c["z"].size),
+        "deepest_level": None if chosen is None else chosen.rate.hi,
+        "interval": None if chosen is None else [chosen.rate.lo, chosen.rate.hi],
+        "trials": int(c["z"].size + c["unsolved_log_weight"].size),
+        "method": "importance sampling of the per-satellite SIS draws (docs/design/dpe.md §6.8)",
+        "proposal": {"kind": "mean shift of the standard SIS draws along the DPE's vertical response A_U*sigma_SIS, "
+                             "per epoch", "levels": list(LEVELS), "shift": "mu = level*sqrt(f)/(2-f), "
+                     "f = |s|^2/(|s|^2 + J_UU)", "defensive": DEFENSIVE, "confidence": CONFIDENCE,
+                     "k_step": K_STEP},
+        "validation": {"passed": passed, "epochs": int(v["z"].size),
+                       "rates": {n: _rate_record(r) for n, r in checks.items()},
+                       "rule": "every held-out estimate of P(|e| > K*sigma + |m|) settled and at most p_hmi"},
+        "approach": ap.name, "trajectories": [load_approach(t).name for t in names], "sorties_per_set": sorties,
+        "seed": seed,
+        "seed_keys": {"calibration": "SeedSequence(seed, spawn_key=(2, sortie)): gnss, correlators, sampling",
+                      "validation": "SeedSequence(seed, spawn_key=(3, sortie)): gnss, correlators, sampling"},
+        "start_offsets_s": {"calibration": f"sortie * {spacing:g}", "validation": f"sortie * {spacing:g} + {spacing / 2:g}"},
+        "strata_cycle": {"cn0_offset_db": list(CN0_OFFSETS_DB), "multipath": list(MULTIPATH),
+                         "trajectory": "(sortie // 6) mod the number of trajectories"},
+        "fingerprint": fingerprint, "settings": cover, "assumption": ASSUMPTION,
+        "version": _version(), "commit": _commit(),
+        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+    }
+    return rec
