@@ -55,7 +55,7 @@ def linear_model_of(problem, vision: bool = True) -> LinearModel:
     A = np.zeros((T, 3, S + cols.size))
     A[:, 2, :S] = g * sig_g
     if vision:
-        A[:, 2, S + cols.pixel.start:S + cols.pixel.stop] = h * sig_px
+        A[:, 2, S + cols.detection.start:S + cols.detection.stop] = h * sig_px
         hJ = np.einsum("ti,tia->ta", h, J)
         A[:, 2, S + cols.attitude_noise.start:S + cols.attitude_noise.stop] = hJ * sig_n
         A[:, 2, S + cols.attitude_bias.start:S + cols.attitude_bias.stop] = hJ * sig_b
@@ -73,7 +73,7 @@ def sorties(problem, comps: Components, n: int, seed: int):
     cols = VisionColumns(L)
     rng = np.random.default_rng(seed)
     z = rng.standard_normal((n, T, S))
-    drawn = VisionDraws(pixel=rng.standard_normal((n, T, L, 2)), blur=rng.standard_normal((n, T)),
+    drawn = VisionDraws(detection=rng.standard_normal((n, T, L, 2)), blur=rng.standard_normal((n, T)),
                         attitude_bias=rng.standard_normal((n, 1, 3)), attitude_noise=rng.standard_normal((n, T, 3)),
                         dither_noise=rng.standard_normal((n, T, 3)), dither_tone_angle=np.zeros((n, T, 3)),
                         dither_tone_rate=np.zeros((n, T, 3)))
@@ -86,7 +86,7 @@ def sorties(problem, comps: Components, n: int, seed: int):
     rec = TiltRecorder(cols, draw.shift[..., S:])
     moved = rec(drawn)
     lw = log_weights([comps], which, PLAN, np.concatenate([zg, rec.z], -1))
-    eps_pix = sig_px * moved.pixel.reshape(n, T, 2 * L) + np.einsum(
+    eps_pix = sig_px * moved.detection.reshape(n, T, 2 * L) + np.einsum(
         "tia,nta->nti", J, sig_b * moved.attitude_bias + sig_n * moved.attitude_noise)
     e_v = np.einsum("ts,nts->nt", g, tilted.noise) + np.einsum("ti,nti->nt", h, eps_pix)
     return e_v, lw

@@ -44,7 +44,7 @@ class VisionColumns:
     landmarks: int
 
     @property
-    def pixel(self) -> slice:
+    def detection(self) -> slice:
         return slice(0, 2 * self.landmarks)
 
     @property
@@ -76,15 +76,15 @@ class VisionColumns:
 
     def stack(self, d: VisionDraws) -> np.ndarray:
         """(n, T, size) the draws ``d`` (trial axis first) as columns, the bias repeated at every epoch."""
-        n, T = d.pixel.shape[:2]
-        return np.concatenate([d.pixel.reshape(n, T, -1), d.blur[..., None], d.attitude_noise, d.dither_noise,
+        n, T = d.detection.shape[:2]
+        return np.concatenate([d.detection.reshape(n, T, -1), d.blur[..., None], d.attitude_noise, d.dither_noise,
                                np.broadcast_to(d.attitude_bias, (n, T, 3))], axis=-1)
 
     def shifted(self, d: VisionDraws, shift: np.ndarray) -> VisionDraws:
         """``d`` moved by ``shift`` (n, T, size) (standard units); the bias by the sum over the epochs of its
         columns (a component shifts one epoch)."""
-        n, T = d.pixel.shape[:2]
-        return VisionDraws(pixel=d.pixel + shift[..., self.pixel].reshape(d.pixel.shape),
+        n, T = d.detection.shape[:2]
+        return VisionDraws(detection=d.detection + shift[..., self.detection].reshape(d.detection.shape),
                            blur=d.blur + shift[..., self.blur],
                            attitude_noise=d.attitude_noise + shift[..., self.attitude_noise],
                            attitude_bias=d.attitude_bias + shift[..., self.attitude_bias].sum(1, keepdims=True),
@@ -99,12 +99,12 @@ def probe_tilt(cols: VisionColumns, first: int, probes: int):
     pseudoranges, or none)."""
 
     def tilt(d: VisionDraws) -> VisionDraws:
-        n, T = d.pixel.shape[:2]
+        n, T = d.detection.shape[:2]
         z = np.zeros((n, T, cols.size))
         j = np.arange(n) % probes - first
         on = (j >= 0) & (j < cols.size)
         z[np.flatnonzero(on), :, j[on]] = PROBE_Z
-        zero = VisionDraws(pixel=np.zeros_like(d.pixel), blur=np.zeros_like(d.blur),
+        zero = VisionDraws(detection=np.zeros_like(d.detection), blur=np.zeros_like(d.blur),
                            attitude_bias=np.zeros_like(d.attitude_bias),
                            attitude_noise=np.zeros_like(d.attitude_noise), dither_noise=np.zeros_like(d.dither_noise),
                            dither_tone_angle=np.zeros_like(d.dither_tone_angle),

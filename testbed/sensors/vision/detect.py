@@ -72,7 +72,7 @@ RNG_STREAMS = ("survey", "dithering", "attitude_ref", "noise", "faults")
 @dataclass(frozen=True)
 class VisionDraws:
     """The Gaussian draws of one :func:`sample_vision` call that an importance-sampling proposal may move
-    (``tilt``), in standard units: ``pixel`` (B..., T, L, 2) the detection error over its σ (DE and the per-landmark
+    (``tilt``), in standard units: ``detection`` (B..., T, L, 2) the detection error over its σ (DE and the per-landmark
     blur), ``blur`` (B..., T) the frame's blur rotation over its spread (``blur_model = "rotation"``; zeros with
     ``"independent"``, which draws none), ``attitude_bias`` (B..., 1, 3) and ``attitude_noise`` (B..., T, 3) the
     attitude reference's errors over their σ (roll, pitch, heading), ``dither_noise`` (B..., T, 3) the dithering's
@@ -81,7 +81,7 @@ class VisionDraws:
     ``dither_tone_rate`` (B..., T, 3) rad, rad/s are the dithering's tones, of random phase (not Gaussian: a
     proposal leaves them; the probe of a monitor's linear model zeroes them for the error-free scene)."""
 
-    pixel: NDArray
+    detection: NDArray
     blur: NDArray
     attitude_bias: NDArray
     attitude_noise: NDArray
@@ -486,7 +486,7 @@ def sample_vision(geometry: VisionGeometry, settings: VisionSettings, *, landmar
     u = _spawn(g_noise, 1)[0].standard_normal(batch + (T,)) if rotation_blur else np.zeros(batch + (T,))
     if tilt is not None:
         d = tilt(VisionDraws(noise_std, u, z_bias, z_att, parts.noise_z, parts.tone_angle, parts.tone_rate))
-        noise_std, u, z_bias, z_att = d.pixel, d.blur, d.attitude_bias, d.attitude_noise
+        noise_std, u, z_bias, z_att = d.detection, d.blur, d.attitude_bias, d.attitude_noise
         noise_angle, noise_rate = parts.noise_angle, parts.noise_rate
         if not np.array_equal(d.dither_noise, parts.noise_z):  # moved through the noise's own white grid, drawn again
             moved = dither(d.dither_noise - parts.noise_z, np.random.Generator(type(g_dith.bit_generator)(ss)))
