@@ -9,6 +9,7 @@ landmark.
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from test_pixel import CAMERA, FRAME, LANDMARKS, K, scene
 from testbed.config import load_approach, with_overrides
 from testbed.inertial import body_to_world
 from testbed.integrity.araim import AraimRows, AraimSettings, araim
-from testbed.integrity.araim.core import AraimReason, araim_modes
+from testbed.integrity.araim.core import _risk_terms, AraimReason, araim_modes
 from testbed.integrity.araim.fault_modes import AID_CAMERA, AID_LANDMARK
 from testbed.integrity.araim.inertia_rows import with_inertial_prediction
 from testbed.integrity.araim.vision_rows import camera_epochs, camera_rows
@@ -193,17 +194,26 @@ def test_vpl_solves_the_protection_level_equation():
             aid_modes.append(any(i >= N for i in removed))
     target = st.p_hmi_vert * (1 - float(ep.p_unmonitored) / (st.p_hmi_vert + st.p_hmi_hor)) / st.n_es_int
 
+    def q_tilde(z):  # eq. 16's Q̃: a mode's error may sit anywhere up to its threshold
+        return 1.0 if z <= 0.0 else stats.norm.sf(z)
+
     def risk(pl):
         return (2 * stats.norm.sf((pl - b0) / s0)
-                + sum(p * min(stats.norm.sf((pl - off) / s), a) for p, off, s, a in terms) - target)
+                + sum(p * min(q_tilde((pl - off) / s), a) for p, off, s, a in terms) - target)
 
     vpl = optimize.brentq(risk, 0.0, 1e3, xtol=1e-6)
     assert float(ep.vpl) - st.tol_pl - 1e-6 <= vpl <= float(ep.vpl) + 1e-6
     # the risk the vision modes take at the VPL, over the exposure (× N_ES)
     at = float(ep.vpl)
-    vision = sum(p * min(stats.norm.sf((at - off) / s), a) for (p, off, s, a), v in zip(terms, aid_modes) if v)
+    vision = sum(p * min(q_tilde((at - off) / s), a) for (p, off, s, a), v in zip(terms, aid_modes) if v)
     assert sum(aid_modes) == int(ep.n_modes_aid[0]) > 0
     np.testing.assert_allclose(ep.risk_aid_enu[0, 2], vision * st.n_es_int, rtol=1e-6)
+    # a mode whose threshold and bias reach past the PL counts in full (Q̃ = 1): the reported risk is the PL
+    # equation's own term, not Q's, there
+    one = SimpleNamespace(bias=np.array([[[0.0] * 3, [0.0] * 3]]), sigma=np.ones((1, 2, 3)))
+    t = _risk_terms(np.full((1, 3), 5.0), one, np.array([1.0, 1e-5]), np.array([[False, True]]), np.array([True]),
+                    np.full((1, 2, 3), 8.0), np.array([1.0, 1.0]))
+    np.testing.assert_allclose(t[0, 1], 1e-5)  # Q would give 1e-5 · Q(−3) ≈ 0.9987e-5
 
 
 def test_a_biased_landmark_leaves_its_own_subset_unmoved():

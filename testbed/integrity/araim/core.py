@@ -17,11 +17,10 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import special
 
 from testbed.integrity.araim.error_model import row_variances
 from testbed.integrity.araim.fault_modes import AID_GROUPS, ModeSet, fault_modes
-from testbed.integrity.araim.protection import araim_availability, fa_multipliers, protection_levels
+from testbed.integrity.araim.protection import araim_availability, fa_multipliers, protection_levels, q_tilde
 from testbed.integrity.araim.settings import SYSTEMS, AraimSettings
 from testbed.integrity.araim.subsets import chunk_epochs, subset_stats
 
@@ -202,7 +201,7 @@ def _check_rows(rows: AraimRows, settings: AraimSettings) -> tuple[tuple[int, ..
 
 def _risk_terms(pl, st, p, monitored, protectable, threshold, alpha) -> NDArray:
     """Each mode's term of eq. 16 at the protection levels ``pl`` (E, 3), (E, M, 3): the fault-free term with
-    weight 2, a monitored mode's P_k·min(Q((PL − T − b)/σ), α); NaN where the epoch is not protectable (what the
+    weight 2, a monitored mode's P_k·min(Q̃((PL − T − b)/σ), α); NaN where the epoch is not protectable (what the
     aid groups' risks sum)."""
     weight = np.where(monitored, p, 0.0)
     weight[:, 0] = 2.0
@@ -212,7 +211,7 @@ def _risk_terms(pl, st, p, monitored, protectable, threshold, alpha) -> NDArray:
     sigma = np.where(weight > 0.0, st.sigma, 1.0)
     with np.errstate(invalid="ignore", over="ignore"):
         z = (pl[:, None, :] - offset) / sigma
-        terms = weight * np.minimum(0.5 * special.erfc(z / np.sqrt(2.0)), alpha[None, :, None])
+        terms = weight * np.minimum(q_tilde(z), alpha[None, :, None])  # Q̃, as the PL search sums it
     return np.where(protectable[:, None, None], terms, np.nan)
 
 
