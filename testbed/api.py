@@ -64,9 +64,11 @@ def check_file(path: str | Path) -> list[str]:
     """Every problem with an approach or campaign file (empty list when it is valid)."""
     try:
         if is_campaign_file(path):
+            from testbed.campaign.sampling import check_sampling
             from testbed.campaign.spec import expand_cells, load_spec
 
-            expand_cells(load_spec(path))  # validates every cell's approach too
+            loaded = load_spec(path)
+            check_sampling(loaded, expand_cells(loaded))  # every cell's approach too, and the sampling plan
             return []
         from testbed.sim.preflight import preflight
 

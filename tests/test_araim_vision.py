@@ -388,3 +388,53 @@ def test_the_monitor_reads_the_camera_per_trial_and_reports_the_vision_modes():
         np.testing.assert_array_equal(d.n_modes_vision[b], alone.diagnostics.n_modes_vision)
     plain = araim_gnss(gnss, FRAME, ms.model_copy(update={"vision": False}), threads=2)
     assert not plain.diagnostics.vision and "vision fault modes (min-max)" not in plain.diagnostics.summary_rows()
+
+
+# ----------------------------------------------------------------------------- in campaigns
+
+def _spec(tmp_path, approach: str, tail: str) -> str:
+    p = tmp_path / "s.toml"
+    p.write_text(f'name = "s"\napproaches = ["{approach}"]\nmonitors = ["araim"]\ntrials = 4\nduration_s = 2.0\n'
+                 + tail)
+    return str(p)
+
+
+def test_a_camera_fault_is_judged_per_cell_with_the_monitors_options(tmp_path, capsys):
+    """ARAIM alone reads the camera when its options say so: a pixel fault is accepted on the vision approach and
+    refused, naming the cell, where ARAIM's vision modes are off (the spec alone cannot tell)."""
+    from testbed.cli import main
+
+    fault = '[[faults]]\nkind = "pixel_bias"\nmagnitudes = [10.0]\nonset_s = 0.0\n'
+    assert main(["check", _spec(tmp_path, "zunz-rwy05-dfmc-vision", fault)]) == 0
+    capsys.readouterr()
+    assert main(["check", _spec(tmp_path, "zunz-rwy05-dfmc", fault)]) == 1
+    text = capsys.readouterr().out
+    assert "cell 0" in text and "pixel_bias fault needs a monitor that reads vision" in text, text
+
+
+def test_importance_sampling_refuses_a_monitor_whose_options_change_what_it_reads(tmp_path, capsys):
+    """The proposal is aimed and its coverage reported from a monitor's registered inputs: ARAIM with its vision
+    modes on is refused before any work, by `check` and by `campaign` alike (it ended in a traceback)."""
+    from testbed.cli import main
+
+    spec = _spec(tmp_path, "zunz-rwy05-dfmc-vision", '[sampling]\nmethod = "importance"\n')
+    assert main(["check", spec]) == 1
+    said = capsys.readouterr().out
+    assert "araim read ['gnss', 'vision'] with their options" in said and "not supported yet" in said, said
+    assert main(["campaign", spec, "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("table, said", [("max_landmarks = 3", "max_landmarks read only with vision = true"),
+                                         ("camera = { p = 1e-3 }", "camera read only with vision = true"),
+                                         ("inertia = { p = 1e-4 }", "feeds no inertial prediction")])
+def test_araim_options_the_monitor_would_not_read_are_refused(tmp_path, capsys, table, said):
+    from testbed.cli import main
+    from testbed.resources import approaches_dir
+
+    p = tmp_path / "a.toml"
+    p.write_text((approaches_dir() / "zunz-rwy05-dfmc.toml").read_text() + f"\n[monitor.araim]\n{table}\n")
+    code = main(["fly", str(p), "--no-record"])
+    text = capsys.readouterr()
+    text = text.out + text.err
+    assert code == 2 and "monitor.araim" in text and said in text and "Traceback" not in text, text

@@ -579,16 +579,21 @@ def test_the_campaign_sweeps_constellations_and_terrain_masking(tmp_path):
 
 def test_campaign_tables_name_the_faulty_satellite_with_its_system(tmp_path):
     """A random satellite fault over three constellations lands on Galileo and BeiDou satellites too; the trials
-    table names each with its RINEX name, the PRN alone (``fault_target``) being ambiguous across systems."""
+    table names each with its RINEX name, the PRN alone (``fault_target``) being ambiguous across systems; a fault on
+    every satellite of a system is named by the system's letter."""
     import pyarrow.parquet as pq
 
     spec = tmp_path / "s.toml"
     spec.write_text('name = "s"\napproaches = ["zunz-rwy05-dfmc"]\nmonitors = ["gps_raim"]\ntrials = 24\n'
-                    'duration_s = 2.0\nbase_seed = 5\n[[faults]]\nkind = "gps_step"\nmagnitudes = [30.0]\nonset_s = 0.0\n')
+                    'duration_s = 2.0\nbase_seed = 5\n[[faults]]\nkind = "gps_step"\nmagnitudes = [30.0]\nonset_s = 0.0\n'
+                    '[[faults]]\nkind = "constellation_bias"\nsystem = "galileo"\nmagnitudes = [30.0]\nonset_s = 0.0\n')
     assert main(["campaign", str(spec), "--out", str(tmp_path / "o"), "--workers", "1", "--no-report",
                  "--quiet"]) == 0
-    rows = pq.read_table(tmp_path / "o" / "trials.parquet", columns=["fault_target", "fault_satellite"]).to_pylist()
-    assert len(rows) == 24
+    table = pq.read_table(tmp_path / "o" / "trials.parquet", columns=["cell", "fault_target", "fault_satellite"])
+    every = table.to_pylist()
+    assert len(every) == 48
+    assert {r["fault_satellite"] for r in every if r["cell"] == 1} == {"E"}  # every Galileo satellite: the system
+    rows = [r for r in every if r["cell"] == 0]
     for r in rows:
         assert r["fault_satellite"][0] in "GEC" and int(r["fault_satellite"][1:]) == r["fault_target"], r
     assert {r["fault_satellite"][0] for r in rows} >= {"G", "E"}, rows  # 24 draws over 23 satellites of 3 systems

@@ -601,3 +601,14 @@ def test_araim_hmi_spec_figures_against_the_closed_form():
         when = cell.config.start_time_utc.strftime("%Y-%m-%dT%H:%M:%SZ")
         lo, hi = ARAIM_HMI_MEASURED[when]
         assert lo <= exact <= hi, (when, exact)
+
+
+def test_check_applies_the_sampling_rules_the_campaign_applies(tmp_path, capsys):
+    """`testbed check` of a spec runs the sampling plan's checks too: a separation proposal from GPS RAIM said
+    'ok' to check and was refused by campaign."""
+    from testbed.cli import main
+
+    spec = loose_spec(tmp_path, "sep", 100, 100, '[sampling]\nmethod = "importance"\nproposal = "separation"')
+    assert main(["check", str(spec)]) == 1
+    said = capsys.readouterr().out
+    assert "proposal = 'separation' aims at ARAIM's solution-separation tests" in said, said

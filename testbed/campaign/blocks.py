@@ -60,7 +60,8 @@ class BlockDraw:
     #: from (-1: the error model itself); None with plain sampling
     log_weight: np.ndarray | None = None
     component: np.ndarray | None = None
-    #: (n,) RINEX name of the faulty satellite ("E11": PRNs alone repeat across systems), "" where none
+    #: (n,) RINEX name of the faulty satellite ("E11": PRNs alone repeat across systems), the system letter ("E")
+    #: for a fault on every satellite of a system, "" where none
     fault_satellite: np.ndarray | None = None
 
 
@@ -104,7 +105,9 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     if gtruth.faulty.any():
         hit = gtruth.faulty.any(axis=-2)  # (n, S)
         target = np.where(hit.any(-1), np.asarray(gnss.prn)[hit.argmax(-1)], -1)
-        target_sat = np.where(hit.any(-1), gnss.sat_id[hit.argmax(-1)], "")
+        first = hit.argmax(-1)  # a system-wide fault (several satellites hit): the system's letter alone
+        target_sat = np.where(hit.sum(-1) > 1, np.asarray(gnss.system)[first], gnss.sat_id[first])
+        target_sat = np.where(hit.any(-1), target_sat, "")
     elif vtruth is not None and np.asarray(vtruth.faulty).any():
         hit = np.asarray(vtruth.faulty).any(axis=-2)
         target = np.where(hit.any(-1), hit.argmax(-1), -1)

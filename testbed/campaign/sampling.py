@@ -155,6 +155,14 @@ def check_sampling(loaded, cells) -> None:
                         "'fixed' (a sky window's components, one per test, take ~100 MB: sweep start_time_utc "
                         "instead)")
     for c in cells:
+        moved_by_options = [m for m in spec.monitors if monitor_inputs(m, c.config.monitor) != monitor_inputs(m)]
+        if moved_by_options:
+            problems.append(f"cell {c.index} ({c.approach.name}): {', '.join(moved_by_options)} read "
+                            + "; ".join(f"{sorted(monitor_inputs(m, c.config.monitor))} with their options"
+                                        for m in moved_by_options)
+                            + ": the proposal is aimed, and its coverage reported, from a monitor's registered "
+                            "inputs; importance sampling with such options is not supported yet: expected "
+                            "method = 'plain'")
         g = c.config.gnss
         coloured = [k for k in ("multipath_tau_s", "ura_tropo_tau_s") if getattr(g, k) is not None]
         if coloured:

@@ -42,7 +42,7 @@ from testbed.integrity.levels import strictest_limits
 from testbed.monitors import MonitorName, monitor_options, reads
 from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, FileName, StrictModel
-from testbed.sensors.faults import SYSTEM_KINDS
+from testbed.sensors.faults import SYSTEM_KINDS, VISION_KINDS
 from testbed.sensors.gnss.constellations import constellation_orbits
 from testbed.sensors.gnss.navfile import MAX_AGE_S
 from testbed.sensors.gnss.settings import checked_constellation_set
@@ -412,10 +412,6 @@ class CampaignSpec(StrictModel):
         if self.sampling.monitor is not None and self.sampling.monitor not in self.monitors:
             raise ValueError(f"[sampling.monitor] {self.sampling.monitor!r}: expected one of the spec's monitors "
                              f"{list(self.monitors)}")
-        if not reads("vision", self.monitors):
-            vis = [f.kind for f in self.faults if f.kind in ("pixel_bias", "landmark_moved")]
-            if vis:
-                raise ValueError(f"vision faults {vis} need a monitor that reads vision in monitors")
         return self
 
 
@@ -660,12 +656,15 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
                 gnss["constellations"] = list(c["constellations"])
             if c["terrain_masking"] is not None:
                 _set(d, "gnss.terrain_masking", bool(c["terrain_masking"]))
-            if reads("vision", spec.monitors, d.get("monitor")):
+            if _reads_vision(spec.monitors, d.get("monitor")):
                 # the vision monitors combine both sensors at the GNSS epochs
                 _set(d, "vision.rate_hz", d.get("gnss", {}).get("rate_hz", ap.config.gnss.rate_hz))
             idx = len(cells)
             try:
                 cfg = validate(ApproachConfig, d, ap.source)
+                if fam.kind in VISION_KINDS and not cfg.reads("vision"):
+                    raise ConfigError(ap.source, [f"a {fam.kind} fault needs a monitor that reads vision, with its "
+                                                  f"options; none of {list(spec.monitors)} does"])
                 preflight(replace(ap, config=cfg), trim=False)  # what the run loads (the trim: once, when flying)
                 file_problems = _broadcast_sortie_problems(cfg, spec)
                 if file_problems:
@@ -698,6 +697,15 @@ def expand_cells(loaded: LoadedSpec) -> list[Cell]:
     if problems:
         raise ConfigError(loaded.source, problems)
     return cells
+
+
+def _reads_vision(monitors, tables: dict | None) -> bool:
+    """Whether the monitors read vision with their options as given (not yet validated: an invalid table reads as
+    its defaults here, and the cell's validation names the problem)."""
+    try:
+        return reads("vision", monitors, tables)
+    except ValueError:  # pydantic's ValidationError included
+        return reads("vision", monitors)
 
 
 def _broadcast_sortie_problems(cfg: ApproachConfig, spec: CampaignSpec) -> list[str]:

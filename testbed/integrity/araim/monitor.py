@@ -205,8 +205,8 @@ def araim_gnss(gnss: GnssEpochs, frame: LocalFrame, settings: AraimMonitorSettin
     camera = None
     if ms.vision:
         if vision is None:
-            raise ValueError(f"{name}: [monitor.araim] vision = true but the run has no vision observations (a "
-                             "monitor that reads them, va_raim, pixel or ekf, must be among the run's monitors)")
+            raise ValueError(f"{name}: [monitor.araim] vision = true but no vision observations were given (a run "
+                             "synthesises them for this monitor; a caller of araim_gnss passes them as vision=)")
         if len(vision.t) != len(gnss.t) or not np.allclose(vision.t, gnss.t, atol=1e-6):
             raise ValueError(f"{name}: {len(gnss.t)} GNSS epochs but {len(vision.t)} vision epochs at other times "
                              "(resample one onto the other first)")

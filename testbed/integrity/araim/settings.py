@@ -210,6 +210,19 @@ class AraimMonitorSettings(AraimSettings):
                 data = {**data, "ism": {**ism_preset(preset), **dict(data.get("ism") or {})}}
         return data
 
+    @model_validator(mode="after")
+    def _read_options_only(self):
+        """Options the monitor would not read are refused, not ignored: the vision ones without ``vision``, and
+        ``inertia`` (the monitor feeds no inertial prediction: docs/design/araim.md §11)."""
+        set_ = self.model_fields_set
+        unread = [k for k in ("max_landmarks", "sigma_px", "landmark", "camera") if k in set_] if not self.vision else []
+        if unread:
+            raise ValueError(f"{', '.join(unread)} read only with vision = true (got vision = false)")
+        if "inertia" in set_:
+            raise ValueError("inertia: the araim monitor feeds no inertial prediction, so its prior is not read "
+                             "(the core's with_inertial_prediction takes it: docs/design/araim.md §11)")
+        return self
+
     def allocation(self, service_levels: tuple[str, ...]) -> AraimSettings:
         """The :class:`AraimSettings` these options hold, reporting ``service_levels`` (the run's)."""
         return AraimSettings(**{k: getattr(self, k) for k in AraimSettings.model_fields if k != "service_levels"},
