@@ -50,7 +50,7 @@ NAMES_ALLOWED = {
     "cli.py": "testbed calibrate-dpe and its help",
     "campaign/report.py": "the VA-RAIM reproduction's GPS baseline column",
     "replay/run.py": "testbed monitor runs GPS RAIM by default",
-    "campaign/sampling.py": "the separation proposal aims at ARAIM's solution-separation tests (araim alone has them)",
+    "campaign/sampling.py": "the separation proposal aims at ARAIM's tests (araim alone has them); a refusal names the camera monitors",
 }
 #: the rooms whose modules are the monitors and their mathematics (they name what they are), and the studies:
 #: experiments about particular monitors (a paper's reproduction, where vision pays, the DPE's K calibration)

@@ -134,7 +134,8 @@ def check_sampling(loaded, cells) -> None:
     if name is None:
         problems.append(f"[sampling] method = 'importance': no monitor of {list(spec.monitors)} reads the "
                         f"pseudoranges alone (monitors that do: {', '.join(alone)}); the proposal is aimed from such a monitor's "
-                        "linear model: add one to monitors, or set method = 'plain'")
+                        "linear model, or from a camera monitor's named by [sampling] monitor (pixel, va_raim): add "
+                        "one to monitors or name it, or set method = 'plain'")
     elif not (monitor_inputs(name) == MOVED_INPUTS or monitor_inputs(name) == MOVED_INPUTS | VISION_INPUTS):
         problems.append(f"[sampling.monitor] {name!r} reads {sorted(monitor_inputs(name))}: expected a monitor "
                         f"that reads the pseudoranges alone (monitors that do: {', '.join(alone)}), or the "

@@ -303,8 +303,9 @@ class SamplingPlan(StrictModel):
 
     method: Literal["plain", "importance"] = Field("plain", description="plain | importance")
     monitor: str | None = Field(None, description="importance: the monitor whose linear model aims the proposal "
-                                                  "(one of the spec's monitors reading the pseudoranges alone; "
-                                                  "default: the first such)")
+                                                  "(one of the spec's monitors reading the pseudoranges, or the "
+                                                  "pseudoranges and the camera, whose draws are then moved too; "
+                                                  "default: the first reading the pseudoranges alone)")
     event: Literal["misleading", "hazardous"] = Field(
         "misleading", description="importance: the failure event aimed at: misleading (an error beyond the "
                                   "protection level, no alert) or hazardous (beyond the alert limit, the "
@@ -320,8 +321,9 @@ class SamplingPlan(StrictModel):
     defensive: float = Field(0.1, ge=0.0, lt=1.0, description="importance: share of the trials drawn from the error "
                                                               "model itself (bounds every weight by 1/defensive)")
     mixture: Literal["uniform", "tail"] = Field(
-        "uniform", description="importance, proposal = 'shift': how often each component (epoch, dimension, sign) "
-                               "is drawn: uniformly, or in proportion to its own Gaussian tail Q(|z*|), so that the "
+        "uniform", description="importance, proposal = 'shift' or 'separation': how often each component (epoch, "
+                               "dimension or test, sign) is drawn: uniformly, or in proportion to its own Gaussian "
+                               "tail Q(|z*|), so that the "
                                "epochs whose event is likeliest get the trials (a flight whose epochs' rates span "
                                "orders of magnitude)")
     adapt: Literal["none", "cross_entropy"] = Field(
