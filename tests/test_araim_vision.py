@@ -9,7 +9,6 @@ landmark.
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -210,10 +209,9 @@ def test_vpl_solves_the_protection_level_equation():
     np.testing.assert_allclose(ep.risk_aid_enu[0, 2], vision * st.n_es_int, rtol=1e-6)
     # a mode whose threshold and bias reach past the PL counts in full (Q̃ = 1): the reported risk is the PL
     # equation's own term, not Q's, there
-    one = SimpleNamespace(bias=np.array([[[0.0] * 3, [0.0] * 3]]), sigma=np.ones((1, 2, 3)))
-    t = _risk_terms(np.full((1, 3), 5.0), one, np.array([1.0, 1e-5]), np.array([[False, True]]), np.array([True]),
-                    np.full((1, 2, 3), 8.0), np.array([1.0, 1.0]))
-    np.testing.assert_allclose(t[0, 1], 1e-5)  # Q would give 1e-5 · Q(−3) ≈ 0.9987e-5
+    t = _risk_terms(np.full((1, 3), 5.0), np.zeros((1, 1, 3)), np.ones((1, 1, 3)), np.array([1e-5]),
+                    np.array([[True]]), np.array([True]), np.full((1, 1, 3), 8.0), np.array([1.0]))
+    np.testing.assert_allclose(t[0, 0], 1e-5)  # Q would give 1e-5 · Q(−3) ≈ 0.9987e-5
 
 
 def test_a_biased_landmark_leaves_its_own_subset_unmoved():

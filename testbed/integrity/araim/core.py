@@ -199,24 +199,20 @@ def _check_rows(rows: AraimRows, settings: AraimSettings) -> tuple[tuple[int, ..
     return batch, N
 
 
-def _risk_terms(pl, st, p, monitored, protectable, threshold, alpha) -> NDArray:
-    """Each mode's term of eq. 16 at the protection levels ``pl`` (E, 3), (E, M, 3): the fault-free term with
-    weight 2, a monitored mode's P_k·min(Q̃((PL − T − b)/σ), α); NaN where the epoch is not protectable (what the
-    aid groups' risks sum)."""
-    weight = np.where(monitored, p, 0.0)
-    weight[:, 0] = 2.0
-    weight = np.where(protectable[:, None], weight, 0.0)[..., None].repeat(3, -1)  # (E, M, 3)
-    offset = np.where(monitored[..., None], threshold + st.bias, 0.0)
-    offset[:, 0] = st.bias[:, 0]
-    sigma = np.where(weight > 0.0, st.sigma, 1.0)
+def _risk_terms(pl, bias, sigma, p, monitored, protectable, threshold, alpha) -> NDArray:
+    """Chosen modes' terms of eq. 16 at the protection levels ``pl`` (E, 3), (E, M, 3) for the M modes given (their
+    ``bias``, ``sigma``, ``threshold`` (E, M, 3), priors ``p`` and caps ``alpha`` (M,)): P_k·min(Q̃((PL − T − b)/σ),
+    α) where monitored, 0 where not, NaN where the epoch is not protectable (what the aid groups' risks sum)."""
+    weight = np.where(monitored & protectable[:, None], p, 0.0)[..., None]  # (E, M, 1)
     with np.errstate(invalid="ignore", over="ignore"):
-        z = (pl[:, None, :] - offset) / sigma
+        z = (pl[:, None, :] - np.where(weight > 0.0, threshold + bias, 0.0)) / np.where(weight > 0.0, sigma, 1.0)
         terms = weight * np.minimum(q_tilde(z), alpha[None, :, None])  # Q̃, as the PL search sums it
     return np.where(protectable[:, None, None], terms, np.nan)
 
 
 def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: ModeSet,
-                 settings: AraimSettings, budget_share: NDArray) -> dict[str, NDArray]:
+                 settings: AraimSettings, budget_share: NDArray, risk_modes: NDArray | None = None
+                 ) -> dict[str, NDArray]:
     """Every output of the epochs of one row structure (E epochs), plus the per-mode arrays."""
     E = G.shape[0]
     st = subset_stats(G, c_int, c_acc, b_nom, b_cont, modes.removed, clock_of_row, settings.max_cond, residual)
@@ -235,7 +231,11 @@ def _solve_group(G, c_int, c_acc, b_nom, b_cont, residual, clock_of_row, modes: 
     target = np.where(protectable[:, None], budget, 1.0) / settings.n_es_int
     pl, iterations, threshold, emt, ratio = protection_levels(st, modes.p, alpha, k_fa, target, protectable,
                                                               residual is not None, settings.p_emt, settings.tol_pl)
-    terms = _risk_terms(pl, st, modes.p, monitored, protectable, threshold, alpha) * settings.n_es_int
+    terms = None  # the risk terms of the modes asked for (the aid groups'), over the exposure
+    if risk_modes is not None and risk_modes.any():
+        k = np.flatnonzero(risk_modes)
+        terms = _risk_terms(pl, st.bias[:, k], st.sigma[:, k], modes.p[k], monitored[:, k], protectable,
+                            threshold[:, k], alpha[k]) * settings.n_es_int
     sigma_acc = np.sqrt(np.einsum("eqi,ei->eq", st.s0 ** 2, c_acc))
     dx = (np.full((E, 3), np.nan) if residual is None else np.einsum("eqi,ei->eq", st.s0, residual))
     return dict(pl=pl, iterations=iterations, emt=emt, sigma_acc=sigma_acc, n_modes=n_modes, p_nm=p_nm, k_fa=k_fa,
@@ -328,11 +328,13 @@ def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False, bud
             sl = slice(a, a + step)
             e = epochs[sl]
             r = _solve_group(G[sl], *(x[sl] for x in parts), None if res is None else res[sl], incidence,
-                             modes, settings, share[e])
+                             modes, settings, share[e], aid_mode.any(-1))
             for name in ("pl", "iterations", "emt", "sigma_acc", "n_modes", "p_nm", "k_fa", "ratio", "dx"):
                 out[name][e] = r[name]
             out["n_modes_aid"][e] = (r["monitored"][..., None] & aid_mode).sum(1)
-            out["risk_aid"][e] = np.einsum("mg,emq->egq", aid_mode.astype(float), np.nan_to_num(r["terms"]))
+            if r["terms"] is not None:
+                aid = aid_mode[aid_mode.any(-1)].astype(float)  # (M_aid, G): the modes the terms are of
+                out["risk_aid"][e] = np.einsum("mg,emq->egq", aid, np.nan_to_num(r["terms"]))
             out["reason"][e[r["singular"]]] = AraimReason.SINGULAR
             out["reason"][e[r["unmonitored"]]] = AraimReason.UNMONITORED
             if keep_table:
