@@ -171,6 +171,7 @@ def test_dask_local_cluster_gives_the_same_tables(reference, tmp_path):
     assert same(table(reference), table(tmp_path / "out"))
 
 
+@pytest.mark.slow  # 15 s: spawns two worker processes (the Ctrl-C test below spawns them in the default set too)
 def test_local_worker_processes_give_the_same_tables(reference, tmp_path):
     spec = write_spec(tmp_path, chunk=10)  # 4 chunk rows of 2 cells
     res = run_campaign(spec, tmp_path / "out", progress=False, workers=2)
