@@ -135,8 +135,11 @@ def arg_in_range(kind, lo, hi):
         except ValueError:
             v = None
         if v is None or not lo <= v < hi:
-            raise argparse.ArgumentTypeError(f"expected a {kind.__name__} in [{lo:g}, {hi:g}), got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected a {kind.__name__} in [{show(lo)}, {show(hi)}), got {text!r}")
         return v
+
+    def show(x) -> str:
+        return f"{x:g}" if isinstance(x, float) else str(x)
 
     return parse
 

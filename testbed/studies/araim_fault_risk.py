@@ -161,7 +161,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--epochs", type=epochs_arg, default=[0], help="comma-separated epoch indices (default: 0)")
     ap.add_argument("--trials", type=arg_in_range(int, 100, 10**8), default=1000,
                     help="trials per mode, axis and bias, at least 100 (default 1000)")
-    ap.add_argument("--seed", type=arg_in_range(int, 0, 2**63), default=0, help="seed ≥ 0 (default 0)")
+    ap.add_argument("--seed", type=arg_in_range(int, 0, 2**32), default=0, help="seed ≥ 0 (default 0)")
     ap.add_argument("--profiles", type=arg_in_range(int, 0, 1001), default=RANDOM_PROFILES,
                     help="random fault profiles tried per mode of several rows, beside the least-norm profile of "
                          f"each axis (default {RANDOM_PROFILES}; 0 with the axes' profiles only)")
