@@ -20,7 +20,8 @@ has one profile (its row); a mode of several rows (a constellation, several sate
 the search tries the least-norm profile for each axis (:func:`fault_direction`) and ``random_profiles`` random
 ones, not every profile. The best grid bias and its two neighbours are then compared with every test on the
 search draws, and the rate is estimated once, with fresh draws, at the bias chosen: an unbiased estimate of
-P(HMI_q | k, b) at that (profile, bias), not the maximum of several noisy estimates.
+P(HMI_q | k, b) at that (profile, bias), not the maximum of several noisy estimates (the search itself may
+stop short of the worst bias or profile, which leaves the figure low).
 
     P_HMI,q ≤ Σ_k P_k · max_{v,b} P(HMI_q | k, v, b)  against  P_HMI,q · (1 − P_unmonitored / P_HMI) / N_ES,int
 

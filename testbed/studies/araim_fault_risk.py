@@ -9,7 +9,11 @@ modes grouped by class (one satellite, a constellation, several satellites), and
 (P_HMI,V, or P_HMI,H / 2 per horizontal axis, times 1 − P_unmonitored/P_HMI, over N_ES,int), the PL
 equation's right side. The protection levels are the core's on the same rows (the monitor's VPL beside it).
 
-    python -m testbed.studies.araim_fault_risk [SPEC] [--epochs 0,75,149] [--trials 1000]
+The verdict per axis (:func:`budget_verdict`) counts no mode without a rate as 0: a mode whose event no trial
+reached, or whose weights have not settled, withholds it ("not shown", the modes listed). A mode of several
+rows is searched over a few fault profiles (``--profiles``), not all: a line says its figure holds for those.
+
+    python -m testbed.studies.araim_fault_risk [SPEC] [--epochs 0,75,149] [--trials 1000] [--profiles 4]
 """
 
 from __future__ import annotations
