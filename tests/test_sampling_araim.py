@@ -310,13 +310,15 @@ SPEC_EPOCHS = (0, 75, 149)
 
 @pytest.mark.slow  # the geometry of the spec's first cell (~30 s under load), then ~2 s an epoch
 def test_araim_fa_spec_separation_estimate_and_figures_against_the_bounds():
-    """The shipped araim-fa-fault-free spec's own linear model (its rows probed from the core, ~800 monitored
+    """The shipped araim-fa-fault-free spec's own linear model (its rows probed from the core, 531–813 monitored
     tests an epoch): at three epochs the separation mixture (sampling_araim's components and tail shares, the
     campaign's draw and weight functions; 2000 trials) estimates the union of the alerts, and its 99 % interval
-    meets the Bonferroni bounds there: below the union bound Σ_j 2 Q(T_j/|d_j|), above the second-order bound
-    over every test (the pairs by Owen's T, checked against the bivariate normal integrals on the fixed sky). The union bound is the per-epoch allocation
-    (P_FA,V + P_FA,H)/N_ES,cont to within 2 % (the thresholds are set by it), and the measured P_FA per epoch
-    that the docs give lies below its mean over the epochs."""
+    meets the Bonferroni bounds there (e.g. epoch 0: 1.29e-7 between 9.4e-8 and 1.65e-7; weights off by the
+    tail shares do not settle, an estimate off by 2 either way misses the bounds): below the union bound
+    Σ_j 2 Q(T_j/|d_j|), above the second-order bound over every test (the pairs by Owen's T, checked against
+    the bivariate normal integrals on the fixed sky). The union bound is the per-epoch allocation
+    (P_FA,V + P_FA,H)/N_ES,cont to within 5 % an epoch and 2 % over the epochs (the thresholds are set by it),
+    and the measured P_FA per epoch that the docs give lies below its mean over the epochs."""
     from scipy import special
 
     from testbed.campaign.context import cell_context

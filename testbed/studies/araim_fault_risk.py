@@ -90,9 +90,10 @@ def budget_verdict(risks: list[fr.ModeRisk], target: float) -> BudgetVerdict:
 def verdict_text(axis: str, v: BudgetVerdict, worst: int = 3) -> str:
     """The study's line for one axis: the settled sum, the verdict or "not shown" with the modes that withhold
     it (their count and the ``worst`` likeliest, by prior times estimate)."""
-    head = (f"{axis}: Σ_k P_k·max_b P(HMI | k, b) over the {v.settled} settled of {v.settled + len(v.missing)} "
-            f"modes = {v.total:.3g} (upper 95 % ends summed: {v.total_hi:.3g}) against the axis's budget per "
-            f"epoch {v.target:.3g}: ")
+    of = f"{v.settled + len(v.missing)} modes"
+    head = (f"{axis}: Σ_k P_k·max_b P(HMI | k, b) over the {v.settled} settled of {of} = {v.total:.3g} (upper 95 % "
+            f"ends summed: {v.total_hi:.3g})" if v.settled else f"{axis}: none of the {of} settled") + \
+        f" against the axis's budget per epoch {v.target:.3g}: "
     if v.verdict == "ABOVE":
         head += "ABOVE (the settled modes' lower 95 % ends alone exceed it)"
     elif v.verdict == "within":
@@ -120,7 +121,8 @@ def summary(result: dict) -> list[list]:
             worst = max(rs, key=lambda r: r.rate.estimate if r.rate.settled else -1.0)
             v = budget_verdict(rs, np.inf)
             no_event = sum(r.rate.events == 0 for r in rs)
-            total = f"{v.total:.3g} (≤ {v.total_hi:.3g})" + (f", {len(v.missing)} not shown" if v.missing else "")
+            total = (f"{v.total:.3g} (≤ {v.total_hi:.3g})" if v.settled else "no mode settled") \
+                + (f", {len(v.missing)} not shown" if v.missing else "")
             out.append([AXES[q], cls, len(rs), worst.rate.text(),
                         f"{worst.removed} at {worst.bias_m:.2f} m ({worst.profile})", total,
                         f"{v.settled}/{len(rs)}" + (f" ({no_event} no event)" if no_event else "")])
