@@ -424,3 +424,27 @@ def test_fault_risk_study_refuses_bad_arguments_before_any_work(argv, expected, 
         study.main(argv)
     assert exc.value.code == 2
     assert expected in capsys.readouterr().err
+
+
+def test_fault_profiles_of_a_mode_of_several_rows():
+    """A one-satellite mode has one fault profile (its row); a constellation has the least-norm profile of the
+    axis first (the least norm of all: |v| = 1/|s0_q| on its rows, Cauchy–Schwarz), the other axes' and the
+    random ones, each on the mode's rows only and moving the axis by one metre (s0_q·v = 1); the search
+    reports which profile and how many it tried."""
+    from testbed.campaign import fault_risk as fr
+    from testbed.integrity.araim.core import araim
+
+    tests = sky_tests(REAL)
+    assert len(fr.fault_profiles(tests, 3, 2, 4, np.random.default_rng(0))) == 1
+    profiles = fr.fault_profiles(tests, 13, 2, 4, np.random.default_rng(0))
+    rows = np.isin(tests.slots, tests.removed[13])
+    assert rows.sum() == 6 and [p[0] for p in profiles][:3] == ["least-norm", "least-norm E", "least-norm N"]
+    assert len(profiles) == 7
+    for _, v in profiles:
+        assert np.all(v[~rows] == 0) and tests.s0[2] @ v == pytest.approx(1.0)
+    least = 1.0 / np.linalg.norm(tests.s0[2][rows])
+    assert np.linalg.norm(profiles[0][1]) == pytest.approx(least)
+    assert all(np.linalg.norm(v) > least for _, v in profiles[1:])
+    pl = float(araim(sa.epoch_rows(LOS, SYSTEM, REAL), REAL).pl_enu[2])
+    r = fr.mode_risk(tests, 13, 2, pl, n_search=200, n=200, seed=0, random_profiles=2)
+    assert r.profiles == 5 and r.profile in {"least-norm", "least-norm E", "least-norm N", "random 1", "random 2"}
