@@ -242,22 +242,9 @@ def _calibrate_dpe_measured(args: argparse.Namespace, out: Path, trajectories: t
     return 0 if v["passed"] else 1
 
 
-def _in_range(kind, lo, hi):
-    """An argparse type: a ``kind`` number in [lo, hi) (argparse prints the message and exits 2)."""
-    def parse(text: str):
-        try:
-            v = kind(text)
-        except ValueError:
-            v = None
-        if v is None or not lo <= v < hi:
-            raise argparse.ArgumentTypeError(f"expected a {kind.__name__} in [{lo:g}, {hi:g}), got {text!r}")
-        return v
-
-    return parse
-
-
 def build_parser() -> argparse.ArgumentParser:
     from testbed.monitors import monitor_names
+    from testbed.schema import arg_in_range as _in_range
     from testbed.sim.budget import add_allow_large
 
     p = argparse.ArgumentParser(prog="testbed", description="GNSS/vision integrity testbed for approaches into ZUNZ")

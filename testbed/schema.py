@@ -9,6 +9,7 @@ that names the key path, and nothing can be changed after validation.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import types
@@ -123,6 +124,24 @@ class ConfigError(ValueError):
         self.problems = list(problems)
         lines = "\n".join(f"  {self.source}: {p}" for p in self.problems)
         super().__init__(f"{len(self.problems)} problem(s) in {self.source}:\n{lines}")
+
+
+def arg_in_range(kind, lo, hi):
+    """An argparse type: a ``kind`` number in [lo, hi) (argparse names the option, prints the message and exits
+    2 before any work)."""
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            v = None
+        if v is None or not lo <= v < hi:
+            raise argparse.ArgumentTypeError(f"expected a {kind.__name__} in [{show(lo)}, {show(hi)}), got {text!r}")
+        return v
+
+    def show(x) -> str:
+        return f"{x:g}" if isinstance(x, float) else str(x)
+
+    return parse
 
 
 def exit_code(command: Callable[[], int]) -> int:

@@ -14,7 +14,7 @@ from scipy import stats
 from test_sampling import gaussian_model, loose_spec, weighted_draws
 
 from testbed.campaign.runner import run_campaign
-from testbed.campaign.sampling import component_events, components, cross_entropy_shifts, weighted_rate
+from testbed.campaign.sampling import MAX_VOV, component_events, components, cross_entropy_shifts, weighted_rate
 from testbed.campaign.spec import SamplingPlan, load_spec
 from testbed.campaign.store import tables_equal
 
@@ -37,10 +37,10 @@ def test_cross_entropy_corrects_a_proposal_that_misses_part_of_the_error(p):
     """``P(|s·z + d| > L) = 2 Q(L / sqrt(|s|² + σ_d²))`` with ``d`` an error the proposal leaves as drawn (σ_d =
     0.35 |s|, as the dithering's tones are left): the dominating point of the linear model in ``z`` (which does
     not see ``d``) overshoots; the refit from a 2000-trial pilot moves the shifts back towards the event's
-    conditional mean (shorter shifts). At equal trials (20000 each) an estimate whose weights settled holds the
-    closed form in its 99 % interval; at 1e-5 both settle and the refit's variance is the lower (0.93 of the
-    dominating point's); at 1e-7 the refit's does not settle (variance of the variance 0.21): the step is no
-    guaranteed gain (docs/design/importance-sampling.md)."""
+    conditional mean (shorter shifts). At equal trials (20000 each) each estimate but one settles and holds the
+    closed form in its 99 % interval; at 1e-5 the refit's variance is the lower (0.93 of the dominating
+    point's); at 1e-7 the refit's does not settle, and the diagnostic says why (variance of the variance 0.21
+    > 0.1): the step is no guaranteed gain (docs/design/importance-sampling.md)."""
     model = gaussian_model(1, 8, np.array([1.0]))
     s_norm = float(np.linalg.norm(model.A[0, 2]))
     sigma_d = 0.35 * s_norm
@@ -55,7 +55,10 @@ def test_cross_entropy_corrects_a_proposal_that_misses_part_of_the_error(p):
     for name, comps in (("dominating point", base), ("cross-entropy", ce)):
         _, err, lw = tail_with_an_unmoved_part(model, L, sigma_d, comps, 20000, seed=5)
         r = weighted_rate((np.abs(err[..., 2]) > L).sum(-1), 1, lw, 0.99)
-        assert not r.settled or r.lo <= p <= r.hi, (name, r, p)
+        if (p, name) == (1e-7, "cross-entropy"):  # the documented diagnostic withholds it: VOV past 0.1
+            assert not r.settled and r.vov > MAX_VOV, (name, r)
+        else:
+            assert r.settled and r.lo <= p <= r.hi, (name, r, p)
         rates[name] = r
     if p == 1e-5:  # both settled: the refit's variance the lower (0.93 of the dominating point's)
         assert rates["dominating point"].settled and rates["cross-entropy"].settled

@@ -1,24 +1,33 @@
 """ARAIM's integrity risk per fault mode by importance sampling: P(HMI | mode k faulty, bias b) at the worst
-bias, and its prior-weighted sum against the allocation (docs/design/importance-sampling.md, "ARAIM").
+bias found, and its prior-weighted sum against the allocation (docs/design/importance-sampling.md, "ARAIM").
 
 The all-in-view error on axis ``q`` and every solution separation are linear in the standard-normal draws
 ``z`` and the fault's bias: ``e_q = s0_q·(z + β)``, ``Δ_j = d_j·(z + β)`` (:class:`~.sampling_araim.
 SeparationTests`: the monitor's own rows, probed from the ARAIM core). The fault puts ``β = b·v`` on mode k's
-rows, ``v`` the least-norm profile on them that moves ``e_q`` by one metre (:func:`fault_direction`): one
-satellite's bias, or a constellation's biases in proportion to their weight in the position. Hazardous
-misleading information is ``|e_q| > PL_q`` with no test alerting.
+rows, ``v`` a profile on them scaled to move ``e_q`` by one metre, so ``b`` is the fault's effect on the axis.
+Hazardous misleading information is ``|e_q| > PL_q`` with no test alerting.
 
 The conditional probability is estimated by importance sampling on ``z`` alone, the fault being given: a
 mixture of two mean shifts, one per sign of the error, to the dominating point of the event (a least-norm
 ``z`` that puts ``e_q`` at ``±PL`` with every separation back inside its threshold, :func:`dominating_point`;
 the faulty mode's own test sees the bias whole, ``Δ_kq = −S⁽⁰⁾_q b`` on the removed rows, so past its
 threshold the event needs both the error's and the separations' tails), drawn by their tails, beside a
-defensive share from ``p``. The worst
-bias is searched on a grid with the same draws at every bias, on mode k's own test (the tightest; the full
-event is a subset of it), then the rate is estimated afresh with every test at the best grid bias and its
-two neighbours (fresh draws: the maximum of noisy estimates is not its own estimate).
+defensive share from ``p``.
 
-    P_HMI,q ≤ Σ_k P_k · max_b P(HMI_q | k, b)  against  P_HMI,q · (1 − P_unmonitored / P_HMI) / N_ES,int
+The worst fault is searched, with the same draws throughout, on mode k's own test (the tightest; the full event
+is a subset of it): over a grid of biases along each profile of :func:`fault_profiles`. A one-satellite mode
+has one profile (its row); a mode of several rows (a constellation, several satellites) has a space of them:
+the search tries the least-norm profile for each axis (:func:`fault_direction`) and ``random_profiles`` random
+ones, not every profile. The best grid bias and its two neighbours are then compared with every test on the
+search draws, and the rate is estimated once, with fresh draws, at the bias chosen: an unbiased estimate of
+P(HMI_q | k, b) at that (profile, bias), not the maximum of several noisy estimates (the search itself may
+stop short of the worst bias or profile, which leaves the figure low).
+
+    P_HMI,q ≤ Σ_k P_k · max_{v,b} P(HMI_q | k, v, b)  against  P_HMI,q · (1 − P_unmonitored / P_HMI) / N_ES,int
+
+For a one-satellite mode the searched figure estimates the maximum over the bias (to the grid's step). For a
+mode of several rows it is the maximum over the profiles tried only: the worst profile of the mode's rows is
+not searched in full, so the sum is an estimate of the bound's right side on the profiles tried, not a bound.
 """
 
 from __future__ import annotations
@@ -44,6 +53,8 @@ class ModeRisk:
     axis: int
     bias_m: float
     rate: Rate
+    profile: str = "least-norm"  # the fault profile on the mode's rows the worst bias was found on
+    profiles: int = 1  # profiles tried (1: the mode has one row, or only the least-norm profile was tried)
 
 
 def fault_direction(tests: SeparationTests, mode: int, axis: int) -> np.ndarray:
@@ -54,6 +65,32 @@ def fault_direction(tests: SeparationTests, mode: int, axis: int) -> np.ndarray:
     s = np.where(rows, tests.s0[axis], 0.0)
     n2 = float(s @ s)
     return s / n2 if n2 > 0 else np.zeros_like(s)
+
+
+def fault_profiles(tests: SeparationTests, mode: int, axis: int, random_profiles: int, rng: np.random.Generator
+                   ) -> list[tuple[str, np.ndarray]]:
+    """``[(label, v (N,))]`` the fault profiles searched for mode ``mode`` on ``axis``, each on the mode's rows
+    and scaled to ``s0_q · v = 1``: the least-norm one first (:func:`fault_direction`); for a mode of several
+    rows also the least-norm profiles of the other axes and ``random_profiles`` uniform random directions on
+    the rows (each sign-flipped to move the axis positively; one that barely moves it, |s0_q·u| below 1 % of
+    its largest, is dropped: its bias would be out of the grid's reach)."""
+    first = fault_direction(tests, mode, axis)
+    rows = np.flatnonzero(np.isin(tests.slots, tests.removed[mode]))
+    if rows.size < 2 or not first.any():
+        return [("least-norm", first)]
+    s = tests.s0[axis]
+    out = [("least-norm", first)]
+    candidates = [(f"least-norm {'ENU'[a]}", fault_direction(tests, mode, a)) for a in range(3) if a != axis]
+    for i in range(random_profiles):
+        u = np.zeros_like(s)
+        u[rows] = rng.standard_normal(rows.size)
+        candidates.append((f"random {i + 1}", u / np.linalg.norm(u)))
+    reach = np.linalg.norm(s[rows])
+    for label, u in candidates:
+        g = float(s @ u)
+        if abs(g) > 0.01 * reach * np.linalg.norm(u):
+            out.append((label, u / g))
+    return out
 
 
 def hmi_draws(tests: SeparationTests, mode: int, axis: int, pl: float, bias: float, v: np.ndarray, z: np.ndarray,
@@ -109,28 +146,33 @@ def own_tests(tests: SeparationTests, mode: int) -> SeparationTests:
 
 
 def mode_risk(tests: SeparationTests, mode: int, axis: int, pl: float, n_search: int = 400, n: int = 1000,
-              grid: int = 41, seed: int = 0, defensive: float = 0.1) -> ModeRisk:
+              grid: int = 41, seed: int = 0, defensive: float = 0.1, random_profiles: int = 0) -> ModeRisk:
     """Mode ``mode``'s worst-case conditional risk on ``axis`` against the protection level ``pl`` (module
-    doc): the bias searched over ``grid`` values from 0 to PL + T + 5σ (``n_search`` trials, own test), then
-    estimated with ``n`` fresh trials and every test at the best bias and its neighbours."""
+    doc): the fault searched over ``grid`` biases from 0 to PL + T + 5σ along each profile of
+    :func:`fault_profiles` (``n_search`` trials, own test), the best bias and its neighbours compared with
+    every test on the same draws, then the rate estimated once at the bias chosen with ``n`` fresh trials."""
     own = own_tests(tests, mode)
-    v = fault_direction(tests, mode, axis)
     prior = float(own.prior[0])
     sigma = float(np.linalg.norm(tests.s0[axis]))
     t_own = float(own.threshold[own.axis == axis][0])
     biases = np.linspace(0.0, pl + t_own + 5.0 * sigma, grid)
     rng = np.random.default_rng([seed, mode, axis])
+    profiles = fault_profiles(tests, mode, axis, random_profiles, np.random.default_rng([seed, mode, axis, 1]))
 
-    def estimate(which: SeparationTests, bias: float, z: np.ndarray, pick: np.ndarray) -> Rate:
+    def estimate(which: SeparationTests, bias: float, v: np.ndarray, z: np.ndarray, pick: np.ndarray) -> Rate:
         event, lw = hmi_draws(which, mode, axis, pl, float(bias), v, z, pick, defensive)
         return weighted_rate(event.astype(float), 1.0, lw)
 
-    z, pick = rng.standard_normal((n_search, v.size)), rng.random(n_search)
-    i = int(np.argmax([estimate(own, b, z, pick).estimate for b in biases]))
-    z, pick = rng.standard_normal((n, v.size)), rng.random(n)
-    near = [(float(b), estimate(tests, b, z, pick)) for b in biases[max(i - 1, 0): i + 2]]
-    bias, rate = max(near, key=lambda br: br[1].estimate)
-    return ModeRisk(mode, tests.removed[mode], prior, axis, bias, rate)
+    z, pick = rng.standard_normal((n_search, tests.s0.shape[1])), rng.random(n_search)
+    found = [(estimate(own, b, v, z, pick).estimate, p, i) for p, (_, v) in enumerate(profiles)
+             for i, b in enumerate(biases)]
+    _, p, i = max(found, key=lambda f: f[0])
+    label, v = profiles[p]
+    near = biases[max(i - 1, 0): i + 2]
+    bias = float(near[max(range(near.size), key=lambda j: estimate(tests, near[j], v, z, pick).estimate)])
+    z, pick = rng.standard_normal((n, v.size)), rng.random(n)  # fresh: the chosen bias's own estimate
+    rate = estimate(tests, bias, v, z, pick)
+    return ModeRisk(mode, tests.removed[mode], prior, axis, bias, rate, label, len(profiles))
 
 
 def mode_class(tests: SeparationTests, mode: int, system: np.ndarray) -> str:
