@@ -178,3 +178,42 @@ def test_calibrate_dpe_refuses_options_of_the_other_method(tmp_path, capsys, arg
     out = capsys.readouterr()
     assert code == 2 and text in out.out + out.err
     assert not (tmp_path / "k.json").exists() and not (tmp_path / "w").exists()
+
+
+@pytest.mark.parametrize("alpha, echo_m", [(0.0, 0.0), (0.1, 20.0), (0.1, 100.0), (0.3, 40.0), (0.5, 120.0)])
+def test_the_thermal_direction_moves_the_correlogram_as_a_later_delay_does_with_a_ground_echo(alpha, echo_m):
+    """The fast synthesis, its draws shifted along :func:`dm.delay_directions`, changes the statistic as the same
+    draws at a later code delay do (direct path and echo moving together), to 0.1 % (measured 0.04 %) with
+    an echo of amplitude 0.1-0.5 at 20-120 m and varying block phases; the direction of the direct path alone
+    misses the echo's part (0.2-0.8 % at the shipped −20 dB echo, 23 % at 0.5 and 120 m)."""
+    from testbed.sensors.gnss.correlators import delay_grid, epoch_statistic
+    from testbed.sensors.gnss.settings import CorrelatorSettings
+
+    cs = CorrelatorSettings(synthesis="fast", statistic="pow")
+    grid = delay_grid(cs)
+    A, delay, echo, a = np.full(1, 1e3), np.full(1, 3.0), np.full(1, echo_m), np.full(1, alpha)
+    phase = (0.4 + 2.0 * np.pi * 0.07 * np.arange(cs.n_noncoherent))[None, :]
+
+    class Along:
+        def __init__(self, echo_delay):
+            self.echo_delay = echo_delay
+
+        def shift(self, K, spec):
+            return dm.delay_directions(K, spec, A, delay, grid, cs.n_noncoherent, cs.bandwidth_chips, self.echo_delay)
+
+        def seen(self, z):
+            pass
+
+    def stat(d, tilt=None):
+        return epoch_statistic(np.random.default_rng(5), cs, grid, A, d, echo, a, phase, tilt)[0]
+
+    base = stat(delay)
+    moved = stat(delay + 0.05) - base
+    along = stat(delay, Along(echo)) - base
+    s = (moved @ along) / (along @ along)
+    assert np.linalg.norm(moved - s * along) < 0.001 * np.linalg.norm(moved)
+    if alpha:
+        direct = stat(delay, Along(None)) - base
+        s0 = (moved @ direct) / (direct @ direct)
+        missed = np.linalg.norm(moved - s0 * direct)
+        assert missed > 5 * np.linalg.norm(moved - s * along) and missed > 0.002 * np.linalg.norm(moved)
