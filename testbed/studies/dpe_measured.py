@@ -118,20 +118,25 @@ def epoch_log_weights(comps: list[Components], which: np.ndarray, pi: np.ndarray
 
 
 def delay_directions(K: np.ndarray, spec, A: np.ndarray, delay: np.ndarray, grid, n_blocks: int,
-                     bandwidth_chips: float) -> np.ndarray:
+                     bandwidth_chips: float, echo_delay: np.ndarray | None = None) -> np.ndarray:
     """(S, 2, L) unit (complex norm 1) directions of the standard draws of the processes U that move each
-    satellite's correlogram as a later code delay does: the cross term's shift ΔV₀ = −A·N_b·R_B′(δ − δ_k)
-    (the signal's derivative in the delay, docs/design/dpe.md eq. 2.8) through V = K U, uncoloured."""
+    satellite's correlogram as a later code delay does (docs/design/dpe.md §6.8). A delay ε moves the direct
+    path and its echo together, so the signal term A²·RᵀHR (R = (R_B(δ − δ_k), R_B(δ − δ_k − Δ)), H the paths'
+    Gram matrix) changes by −2εA²·RᵀHR′, which the cross term 2A·Re(RᵀV) reproduces with ΔV = −εA·H·R′;
+    through V = K U this is ΔU = K⁺ΔV, uncoloured. Without an echo (H = diag(N_b, 0)) this is the direct path's
+    ΔV₀ = −εA·N_b·R_B′ alone. ``echo_delay`` (S,): Δ of each satellite (None: no echo)."""
     from testbed.sensors.gnss.correlators import tabulated_correlation
 
     L = spec.amplitude.size
     j = np.arange(L)
     off = grid.delay0_m + grid.step_m * np.where(j < grid.size + (L - grid.size) // 2, j, j - L)  # periodic grid
     x = off[None, :] - delay[:, None]
+    echo = np.zeros(delay.size) if echo_delay is None else np.asarray(echo_delay, float)
     h = 0.25
-    d_r = (tabulated_correlation(x + h, bandwidth_chips) - tabulated_correlation(x - h, bandwidth_chips)) / (2 * h)
-    dv = np.zeros((delay.size, 2, L), complex)
-    dv[:, 0] = -(A * n_blocks)[:, None] * d_r
+    d_r = np.stack([(tabulated_correlation(y + h, bandwidth_chips) - tabulated_correlation(y - h, bandwidth_chips))
+                    / (2 * h) for y in (x, x - echo[:, None])], 1)  # (S, 2, L): R′ of the direct path, of the echo
+    H = np.einsum("sij,skj->sik", K, np.conj(K))
+    dv = -A[:, None, None] * np.einsum("sij,sjl->sil", H, d_r)
     du = np.einsum("sij,sjl->sil", np.linalg.pinv(K), dv)
     amp = spec.amplitude
     keep = amp > 1e-9 * amp.max()
@@ -149,7 +154,7 @@ class _NoiseTilt:
         self.c, self.h, self.cs = shift, h_noise, correlators
         self.pi_noise = np.zeros(shift.size)
 
-    def __call__(self, i: int, k: np.ndarray, A: np.ndarray, delay: np.ndarray, grid):
+    def __call__(self, i: int, k: np.ndarray, A: np.ndarray, delay: np.ndarray, grid, echo_delay: np.ndarray):
         if not np.any(self.h[i, k]):
             return None
         h = self.h[i, k]
@@ -157,7 +162,8 @@ class _NoiseTilt:
 
         class One:
             def shift(self, K, spec):
-                self.e = delay_directions(K, spec, A, delay, grid, outer.cs.n_noncoherent, outer.cs.bandwidth_chips)
+                self.e = delay_directions(K, spec, A, delay, grid, outer.cs.n_noncoherent, outer.cs.bandwidth_chips,
+                                          echo_delay)
                 return outer.c[i] * h[:, None, None] * self.e / np.sqrt(2.0)
 
             def seen(self, z):

@@ -220,8 +220,8 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
         epoch in the flight (each epoch's generator is keyed by its index).
     sis_shift : (T, S) added to the standard-normal SIS draws before they are scaled by σ_SIS (an importance
         sampler's tilt, docs/design/dpe.md §6.8; None: the error model itself). Every other draw is unchanged.
-    noise_tilt : None, or ``noise_tilt(i, k, A, delay, grid)`` giving epoch i's tilt of the thermal noise draws
-        of its tracked slots k (see :func:`epoch_statistic`), or None for no tilt at that epoch.
+    noise_tilt : None, or ``noise_tilt(i, k, A, delay, grid, echo_delay)`` giving epoch i's tilt of the thermal
+        noise draws of its tracked slots k (see :func:`epoch_statistic`), or None for no tilt at that epoch.
     """
     cs = settings.correlators
     grid = delay_grid(cs)
@@ -254,7 +254,7 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
             continue
         delay[i, k] = clean[i, k] + sis[i, k] - rho_ref[i, k]
         phase = (2.0 * np.pi * (echo_delay[i, k, None] + echo_rate[i, k, None] * t_block) / L1_WAVELENGTH_M + np.pi)
-        tilt = None if noise_tilt is None else noise_tilt(i, k, A[i, k], delay[i, k], grid)
+        tilt = None if noise_tilt is None else noise_tilt(i, k, A[i, k], delay[i, k], grid, echo_delay[i, k])
         stat[i, k] = epoch_statistic(g_noise, cs, grid, A[i, k], delay[i, k], echo_delay[i, k], alpha[i, k], phase,
                                      tilt)
     with np.errstate(invalid="ignore"):
