@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -183,14 +184,10 @@ def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
         if args.work is not None:
             outs.folder(args.work, "--work", kept="the chunks finished so far are kept there (the same command "
                                                   "with --resume continues)")
-        try:
+        with _as_config_error(args.approach):  # too few epochs for the tail levels, and the like
             rec = calibrate_dpe(args.approach, sorties=args.sorties, p_hmi=args.p_hmi, seed=args.seed,
                                 trajectories=trajectories, chunk=args.chunk, work=args.work, resume=args.resume,
                                 scheduler=args.scheduler, progress=lambda m: print(m, flush=True))
-        except ValueError as exc:  # too few epochs for the tail levels, and the like
-            if isinstance(exc, ConfigError):
-                raise
-            raise ConfigError(Path(args.approach), [f"calibrate-dpe: {exc}"]) from None
         write_record(rec, outs.staged(out))
         outs.commit()
         v = rec["validation"]
@@ -204,23 +201,31 @@ def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
     return 0 if v["passed"] else 1
 
 
+@contextlib.contextmanager
+def _as_config_error(approach):
+    """A calibration's ValueError (bad arguments, too few epochs) as a ConfigError naming the approach: exit 2."""
+    from testbed.schema import ConfigError
+
+    try:
+        yield
+    except ConfigError:
+        raise
+    except ValueError as exc:
+        raise ConfigError(Path(approach), [f"calibrate-dpe: {exc}"]) from None
+
+
 def _calibrate_dpe_measured(args: argparse.Namespace, out: Path, trajectories: tuple[str, ...]) -> int:
     """`testbed calibrate-dpe --method importance`: K at a measured tail (docs/design/dpe.md §6.8)."""
     from testbed.outputs import OutputSet
-    from testbed.schema import ConfigError
     from testbed.studies.dpe_calibration import write_record
     from testbed.studies.dpe_measured import calibrate_dpe_measured
 
     with OutputSet() as outs:
         outs.file(out, "--out")
-        try:
+        with _as_config_error(args.approach):
             rec = calibrate_dpe_measured(args.approach, sorties=args.sorties, p_hmi=args.p_hmi, seed=args.seed,
                                          trajectories=trajectories, chunk=args.chunk, workers=args.workers,
                                          progress=lambda m: print(m, flush=True))
-        except ValueError as exc:
-            if isinstance(exc, ConfigError):
-                raise
-            raise ConfigError(Path(args.approach), [f"calibrate-dpe: {exc}"]) from None
         write_record(rec, outs.staged(out))
         outs.commit()
     v = rec["validation"]

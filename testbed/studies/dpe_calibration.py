@@ -149,19 +149,45 @@ def vdop(frame, sat_ecef: np.ndarray, visible: np.ndarray, ant_ecef: np.ndarray)
         return np.where(geom.solvable, lsq.dops(geom)["vdop"], np.nan)
 
 
-def calibration_chunk(run: CalibrationRun, set_key: int, chunk: int) -> dict[str, np.ndarray]:
-    """The errors of one chunk of sorties of set ``set_key`` (0 calibration, 1 validation), in sortie order."""
+def chunk_sorties(run: CalibrationRun, set_key: int, chunk: int, held_out: bool, one_sortie: Callable
+                  ) -> list[tuple[dict[str, np.ndarray], int, int]]:
+    """Each sortie of one chunk of set ``set_key``, in sortie order: ``(one_sortie(...)'s arrays, its stratum, its
+    trajectory)``; the held-out set's start times are shifted half a step (disjoint from the calibration's).
+    ``one_sortie(approach, setup, truth, monitor, offset_s, cn0_offset_db, multipath, key, seed)``."""
     trajectories = run.trajectories or (run.approach,)
-    shift = 0.0 if set_key == 0 else 0.5 * 86400.0 / run.sorties
-    parts = []
+    shift = 0.5 * 86400.0 / run.sorties if held_out else 0.0
+    out = []
     for j in range(chunk * run.chunk, min((chunk + 1) * run.chunk, run.sorties)):
         t, offset, cn0, mp, stratum = sortie_plan(j, run.sorties, len(trajectories), shift)
         ap, setup, truth_g, mon = _trajectory(run.approach, trajectories[t])
-        one = _sortie_errors(ap, setup, truth_g, mon, offset, cn0, mp, (set_key, j), run.seed)
+        out.append((one_sortie(ap, setup, truth_g, mon, offset, cn0, mp, (set_key, j), run.seed), stratum, t))
+    return out
+
+
+def calibration_chunk(run: CalibrationRun, set_key: int, chunk: int) -> dict[str, np.ndarray]:
+    """The errors of one chunk of sorties of set ``set_key`` (0 calibration, 1 validation), in sortie order."""
+    parts = []
+    for one, stratum, t in chunk_sorties(run, set_key, chunk, set_key != 0, _sortie_errors):
         one["stratum"] = np.full(one["z"].size, stratum, np.int8)
         one["trajectory"] = np.full(one["z"].size, t, np.int8)
         parts.append(one)
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def calibration_run(approach: str | Path, trajectories: tuple[str | Path, ...], sorties: int, seed: int, chunk: int,
+                    p_hmi: float) -> CalibrationRun:
+    """The run a calibration's arguments fix (approaches resolved to paths), or a ValueError naming the bad one."""
+    from testbed.config import resolve_approach
+
+    if sorties < 6:
+        raise ValueError(f"sorties: expected at least 6 (one per stratum), got {sorties}")
+    if chunk < 1:
+        raise ValueError(f"chunk: expected at least 1 sortie per chunk, got {chunk}")
+    if not 0 < p_hmi < 0.01:
+        raise ValueError(f"p_hmi: expected a probability below 0.01, got {p_hmi}")
+    src = str(resolve_approach(approach))
+    trajs = tuple(str(resolve_approach(t)) for t in trajectories)
+    return CalibrationRun(src, trajs if trajs != (src,) else (), sorties, seed, chunk)
 
 
 class WorkFolder:
@@ -293,17 +319,10 @@ def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60,
     Returns the calibration record (what ``testbed calibrate-dpe`` writes), or None when ``max_chunks``
     stopped the run early (resume it with the same ``work`` folder).
     """
-    from testbed.config import load_approach, resolve_approach
+    from testbed.config import load_approach
 
-    if sorties < 6:
-        raise ValueError(f"sorties: expected at least 6 (one per stratum), got {sorties}")
-    if chunk < 1:
-        raise ValueError(f"chunk: expected at least 1 sortie per chunk, got {chunk}")
-    if not 0 < p_hmi < 0.01:
-        raise ValueError(f"p_hmi: expected a probability below 0.01, got {p_hmi}")
-    src = str(resolve_approach(approach))
-    trajs = tuple(str(resolve_approach(t)) for t in trajectories)
-    run = CalibrationRun(src, trajs if trajs != (src,) else (), sorties, seed, chunk)
+    run = calibration_run(approach, trajectories, sorties, seed, chunk, p_hmi)
+    src = run.approach
     names = run.trajectories or (src,)
     ap = load_approach(src)  # the settings K is for
     _enough_epochs(src, names, sorties)

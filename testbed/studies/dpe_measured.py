@@ -44,7 +44,8 @@ from testbed.campaign.sampling import Components, Rate, draw_proposal, log_weigh
 from testbed.campaign.spec import SamplingPlan
 from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, settings_fingerprint
 from testbed.monitors import monitor_options
-from testbed.studies.dpe_calibration import CN0_OFFSETS_DB, MULTIPATH, _trajectory, sortie_plan, vdop
+from testbed.studies.dpe_calibration import (CN0_OFFSETS_DB, MULTIPATH, CalibrationRun, calibration_run,
+                                             chunk_sorties, vdop)
 
 #: the mixture's levels ℓ (in σ of the epoch's VPL): the tail is measured from ~4 σ to ~7 σ
 LEVELS = (4.5, 5.5, 6.5)
@@ -217,35 +218,14 @@ def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: s
             "unsolved_log_weight": lw[~ok]}
 
 
-@dataclasses.dataclass(frozen=True)
-class MeasuredRun:
-    """What fixes a measured calibration's sorties: the approach (by path), its trajectories, sorties per set,
-    seed, sorties per chunk."""
-
-    approach: str
-    trajectories: tuple[str, ...]
-    sorties: int
-    seed: int
-    chunk: int
-
-    @property
-    def n_chunks(self) -> int:
-        return -(-self.sorties // self.chunk)
-
-
 #: the seed streams' set keys: the plain calibration's sets are 0 and 1, these are other streams
 SET_KEYS = {"calibration": 2, "validation": 3}
 
 
-def measured_chunk(run: MeasuredRun, set_key: int, chunk: int) -> dict[str, np.ndarray]:
+def measured_chunk(run: CalibrationRun, set_key: int, chunk: int) -> dict[str, np.ndarray]:
     """One chunk of sorties of a set, in sortie order (a pure function of (run, set, chunk))."""
-    trajectories = run.trajectories or (run.approach,)
-    shift = 0.0 if set_key == SET_KEYS["calibration"] else 0.5 * 86400.0 / run.sorties
     parts = []
-    for j in range(chunk * run.chunk, min((chunk + 1) * run.chunk, run.sorties)):
-        t, offset, cn0, mp, stratum = sortie_plan(j, run.sorties, len(trajectories), shift)
-        ap, setup, truth_g, mon = _trajectory(run.approach, trajectories[t])
-        one = sortie(ap, setup, truth_g, mon, offset, cn0, mp, (set_key, j), run.seed)
+    for one, stratum, _ in chunk_sorties(run, set_key, chunk, set_key != SET_KEYS["calibration"], sortie):
         one["stratum"] = np.full(one["z"].size, stratum, np.int8)
         one["unsolved_stratum"] = np.full(one["unsolved_log_weight"].size, stratum, np.int8)
         parts.append(one)
@@ -257,7 +237,7 @@ def _chunk_job(args) -> dict[str, np.ndarray]:
     return measured_chunk(run, set_key, chunk)
 
 
-def run_sets(run: MeasuredRun, workers: int = 1, progress: Callable[[str], None] | None = None
+def run_sets(run: CalibrationRun, workers: int = 1, progress: Callable[[str], None] | None = None
              ) -> dict[str, dict[str, np.ndarray]]:
     """Both sets' per-epoch arrays; chunks on ``workers`` processes (the result does not depend on them)."""
     say = progress or (lambda _: None)
@@ -378,15 +358,10 @@ def calibrate_dpe_measured(approach: str | Path = "zunz-rwy05-dpe", *, sorties: 
     """Fit K at a measured tail on ``sorties`` importance-sampled sorties and check it on as many held-out ones
     (module doc). Returns the K record (the tail estimator's schema plus the provenance of the measurement).
     ``sets``: the two sets' arrays of this run measured before (:func:`run_sets`), to fit again without flying."""
-    from testbed.config import load_approach, resolve_approach
+    from testbed.config import load_approach
 
-    if sorties < 6:
-        raise ValueError(f"sorties: expected at least 6 (one per stratum), got {sorties}")
-    if not 0 < p_hmi < 0.01:
-        raise ValueError(f"p_hmi: expected a probability below 0.01, got {p_hmi}")
-    src = str(resolve_approach(approach))
-    trajs = tuple(str(resolve_approach(t)) for t in trajectories)
-    run = MeasuredRun(src, trajs if trajs != (src,) else (), sorties, seed, chunk)
+    run = calibration_run(approach, trajectories, sorties, seed, chunk, p_hmi)
+    src = run.approach
     names = run.trajectories or (src,)
     ap = load_approach(src)
     fingerprint, cover = settings_fingerprint(
