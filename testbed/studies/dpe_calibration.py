@@ -174,6 +174,21 @@ def calibration_chunk(run: CalibrationRun, set_key: int, chunk: int) -> dict[str
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
+def run_provenance(approach: str, trajectories: list[str], sorties: int, seed: int, spacing: float,
+                   seed_keys: dict[str, str], fingerprint, cover, assumption: str) -> dict[str, Any]:
+    """What a K record says of the sorties it was fitted and checked on: approach, trajectories, sizes, seeds and
+    their stream keys, start times, strata, the settings it is for, the assumption, the date."""
+    return {
+        "approach": approach, "trajectories": trajectories, "sorties_per_set": sorties, "seed": seed,
+        "seed_keys": seed_keys,
+        "start_offsets_s": {"calibration": f"sortie * {spacing:g}", "validation": f"sortie * {spacing:g} + {spacing / 2:g}"},
+        "strata_cycle": {"cn0_offset_db": list(CN0_OFFSETS_DB), "multipath": list(MULTIPATH),
+                         "trajectory": "(sortie // 6) mod the number of trajectories"},
+        "fingerprint": fingerprint, "settings": cover, "assumption": assumption,
+        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+    }
+
+
 def calibration_run(approach: str | Path, trajectories: tuple[str | Path, ...], sorties: int, seed: int, chunk: int,
                     p_hmi: float) -> CalibrationRun:
     """The run a calibration's arguments fix (approaches resolved to paths), or a ValueError naming the bad one."""
@@ -350,15 +365,10 @@ def calibrate_dpe(approach: str | Path = "zunz-rwy05-dpe", *, sorties: int = 60,
         "validation": {"passed": check.passed, "tails_hold": check.tails_hold, "worst_ratio": check.worst_ratio,
                        "levels_checked": check.levels_checked, "exceedances": check.exceedances,
                        "allowed": check.allowed, "epochs": check.epochs},
-        "approach": ap.name, "trajectories": [load_approach(t).name for t in names], "sorties_per_set": sorties,
-        "seed": seed,
-        "seed_keys": {"calibration": "SeedSequence(seed, spawn_key=(0, sortie))",
-                      "validation": "SeedSequence(seed, spawn_key=(1, sortie))"},
-        "start_offsets_s": {"calibration": f"sortie * {spacing:g}", "validation": f"sortie * {spacing:g} + {spacing / 2:g}"},
-        "strata_cycle": {"cn0_offset_db": list(CN0_OFFSETS_DB), "multipath": list(MULTIPATH),
-                         "trajectory": "(sortie // 6) mod the number of trajectories"},
-        "fingerprint": fingerprint, "settings": cover, "assumption": ASSUMPTION,
-        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        **run_provenance(ap.name, [load_approach(t).name for t in names], sorties, seed, spacing,
+                         {"calibration": "SeedSequence(seed, spawn_key=(0, sortie))",
+                          "validation": "SeedSequence(seed, spawn_key=(1, sortie))"}, fingerprint, cover,
+                         ASSUMPTION),
     }
 
 

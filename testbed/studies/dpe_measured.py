@@ -44,8 +44,8 @@ from testbed.campaign.sampling import Components, Rate, draw_proposal, log_weigh
 from testbed.campaign.spec import SamplingPlan
 from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, settings_fingerprint
 from testbed.monitors import monitor_options
-from testbed.studies.dpe_calibration import (CN0_OFFSETS_DB, MULTIPATH, CalibrationRun, calibration_run,
-                                             chunk_sorties, vdop)
+from testbed.studies.dpe_calibration import (CN0_OFFSETS_DB, MULTIPATH, CalibrationRun, calibration_run, chunk_sorties,
+                                             run_provenance, vdop)
 
 #: the mixture's levels ℓ (in σ of the epoch's VPL): the tail is measured from ~4 σ to ~7 σ
 LEVELS = (4.5, 5.5, 6.5)
@@ -420,15 +420,10 @@ def calibrate_dpe_measured(approach: str | Path = "zunz-rwy05-dpe", *, sorties: 
         "validation": {"passed": passed, "epochs": int(v["z"].size),
                        "rates": {n: _rate_record(r) for n, r in checks.items()},
                        "rule": "every held-out estimate of P(|e| > K*sigma + |m|) settled and at most p_hmi"},
-        "approach": ap.name, "trajectories": [load_approach(t).name for t in names], "sorties_per_set": sorties,
-        "seed": seed,
-        "seed_keys": {"calibration": "SeedSequence(seed, spawn_key=(2, sortie)): gnss, correlators, sampling",
-                      "validation": "SeedSequence(seed, spawn_key=(3, sortie)): gnss, correlators, sampling"},
-        "start_offsets_s": {"calibration": f"sortie * {spacing:g}", "validation": f"sortie * {spacing:g} + {spacing / 2:g}"},
-        "strata_cycle": {"cn0_offset_db": list(CN0_OFFSETS_DB), "multipath": list(MULTIPATH),
-                         "trajectory": "(sortie // 6) mod the number of trajectories"},
-        "fingerprint": fingerprint, "settings": cover, "assumption": ASSUMPTION,
+        **run_provenance(ap.name, [load_approach(t).name for t in names], sorties, seed, spacing,
+                         {"calibration": "SeedSequence(seed, spawn_key=(2, sortie)): gnss, correlators, sampling",
+                          "validation": "SeedSequence(seed, spawn_key=(3, sortie)): gnss, correlators, sampling"},
+                         fingerprint, cover, ASSUMPTION),
         "version": _version(), "commit": _commit(),
-        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
     return rec
