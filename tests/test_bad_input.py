@@ -734,6 +734,7 @@ def test_calibrate_dpe_names_an_unknown_trajectory_before_any_work(work, capsys)
     assert not list(cwd.iterdir())
 
 
+@pytest.mark.slow  # 10 s: a calibration chunk stored, then a different run refused
 def test_calibrate_dpe_refuses_a_work_folder_of_another_run_and_changes_nothing(work, capsys):
     cwd, _ = work
     w = cwd / "w"

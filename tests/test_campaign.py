@@ -272,6 +272,7 @@ def test_a_damaged_consolidated_table_is_kept_aside_and_consolidated_again(refer
 
 
 
+@pytest.mark.slow  # 8.5 s: a worker process killed mid-run and the campaign resumed
 def test_kill_and_resume_equals_an_uninterrupted_run(reference, tmp_path):
     spec = write_spec(tmp_path)
     out = tmp_path / "out"
@@ -313,7 +314,8 @@ def test_kill_and_resume_equals_an_uninterrupted_run(reference, tmp_path):
     assert same(table(reference, "stanford_hist.parquet"), table(out, "stanford_hist.parquet"))
 
 
-@pytest.mark.parametrize("to", [pytest.param("group", marks=pytest.mark.slow), "driver"])
+@pytest.mark.slow  # 18 s a variant: two throttled worker processes interrupted
+@pytest.mark.parametrize("to", ["group", "driver"])
 def test_ctrl_c_on_worker_processes_stops_them_keeps_the_stored_chunks_and_resumes(reference, tmp_path, to):
     """SIGINT as a terminal's Ctrl-C sends it (to the whole foreground group: driver and workers) and as
     ``kill -INT`` does (to the driver alone, whose workers must still stop at once)."""
@@ -713,6 +715,7 @@ def test_stanford_counts_are_numpys_histogram2d():
         assert np.array_equal(H, want) and (c > 0).all()
 
 
+@pytest.mark.slow  # 10 s
 def test_every_table_of_a_report_is_well_formed(reference, tmp_path, capsys, monkeypatch):
     """The report's Markdown tables render: the same number of cells in the header, the separator and every
     row, with swept axes (the tiny spec) and with none (quick-look: its cells differ by the fault only)."""
