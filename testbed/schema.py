@@ -135,7 +135,8 @@ def arg_in_range(kind, lo, hi):
         except ValueError:
             v = None
         if v is None or not lo <= v < hi:
-            raise argparse.ArgumentTypeError(f"expected a {kind.__name__} in [{show(lo)}, {show(hi)}), got {text!r}")
+            what = {"int": "an integer", "float": "a number"}.get(kind.__name__, f"a {kind.__name__}")
+            raise argparse.ArgumentTypeError(f"expected {what} in [{show(lo)}, {show(hi)}), got {text!r}")
         return v
 
     def show(x) -> str:

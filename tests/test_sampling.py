@@ -10,6 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy import stats
 
+from testbed.campaign.context import cell_context
 from testbed.campaign.report import write_report
 from testbed.campaign.runner import run_campaign
 from testbed.campaign.sampling import Components, LinearModel, components, draw_proposal, log_weights, weighted_rate
@@ -213,6 +214,15 @@ def loose_spec(tmp_path: Path, name: str, trials: int, chunk: int, sampling: str
                          duration=duration)
 
 
+def run_and_read(spec: Path, out: Path):
+    """Run ``spec`` into ``out``; its first cell's context and its epochs and trials tables (as dicts)."""
+    out = run_campaign(spec, out, progress=False).out_dir
+    loaded = load_spec(spec)
+    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
+    return (ctx, pq.read_table(out / "epochs.parquet").to_pydict(),
+            pq.read_table(out / "trials.parquet").to_pydict())
+
+
 def rates(out: Path) -> dict:
     t = pq.read_table(out / "trials.parquet").to_pydict()
     lw = np.asarray(t["log_weight"]) if "log_weight" in t else np.zeros(len(t["trial"]))
@@ -306,15 +316,9 @@ def test_vertical_misleading_rate_against_the_geometry_closed_form(tmp_path):
     element of (HᵀWH)⁻¹ and independent of the residual test, so an epoch is vertically misleading with
     probability 2 Q(VPL/σ_v) · P(χ²_{n-4} < T²). H and W are built here from the satellites' positions and
     the error model's σ (no monitor code); the weighted estimate's 99 % interval holds the exact rate."""
-    from testbed.campaign.context import cell_context
-
     spec = loose_spec(tmp_path, "cf", 2000, 1000, '[sampling]\nmethod = "importance"', p_fa=1e-3, p_md=1e-2,
                       per_epoch=2000, duration=10.0)
-    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
-    loaded = load_spec(spec)
-    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
-    ep = pq.read_table(out / "epochs.parquet").to_pydict()
-    tr = pq.read_table(out / "trials.parquet").to_pydict()
+    ctx, ep, tr = run_and_read(spec, tmp_path / "out")
     T = ctx.t.size
     vpl = np.asarray(ep["vpl"]).reshape(-1, T)[0]
     thr = np.asarray(ep["threshold"]).reshape(-1, T)[0]
@@ -367,7 +371,6 @@ def test_hmi_rate_at_the_default_settings_against_the_closed_form(tmp_path):
     independent of the error), less the two together, which is below the smaller of the two (here 1e-300
     against 1e-23: the sum is exact to every digit). The vertical tail by scipy.stats.norm, the horizontal one by
     quadrature of the geometry's 2-D Gaussian; the weighted estimate's 99 % interval holds the sum."""
-    from testbed.campaign.context import cell_context
     from testbed.resources import campaigns_dir
 
     text = (campaigns_dir() / "raim-hmi-fault-free.toml").read_text()
@@ -376,11 +379,7 @@ def test_hmi_rate_at_the_default_settings_against_the_closed_form(tmp_path):
     text = text[:text.index("[sweep]")] + text[text.index("[sampling]"):]  # the approach's own start time
     spec = tmp_path / "hmi.toml"
     spec.write_text(text)
-    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
-    loaded = load_spec(spec)
-    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
-    ep = pq.read_table(out / "epochs.parquet").to_pydict()
-    tr = pq.read_table(out / "trials.parquet").to_pydict()
+    ctx, ep, tr = run_and_read(spec, tmp_path / "out")
     T = ctx.t.size
     hpl, vpl, thr = (np.asarray(ep[k]).reshape(-1, T)[0] for k in ("hpl", "vpl", "threshold"))
     parts = np.array([np.array([(2 * stats.norm.sf(ctx.val / np.sqrt(C[2, 2])) if vpl[t] <= ctx.val else 0.0),
@@ -399,17 +398,12 @@ def test_false_alarm_rate_against_the_chi_square_closed_form(tmp_path, p_fa):
     residual test's statistic is χ² with n − 4 degrees of freedom (n: the satellites in view, counted here from
     the geometry), so an epoch alerts with probability scipy.stats.chi2.sf(T², n − 4). The scale proposal's
     weighted per-epoch false-alarm rate holds it in its 99 % interval."""
-    from testbed.campaign.context import cell_context
-
     spec = loose_spec(tmp_path, "fa", 4000, 2000, '[sampling]\nmethod = "importance"\nproposal = "scale"\n'
                       'scale = 3.0', p_fa=p_fa, p_md=1e-3, per_epoch=1, duration=20.0)
-    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
-    loaded = load_spec(spec)
-    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
-    thr = np.asarray(pq.read_table(out / "epochs.parquet").column("threshold").to_numpy())
+    ctx, ep, tr = run_and_read(spec, tmp_path / "out")
+    thr = np.asarray(ep["threshold"])
     n = ctx.g_geom.visible.sum(-1)
     exact = float(np.mean(stats.chi2.sf(thr, n - 4)))
-    tr = pq.read_table(out / "trials.parquet").to_pydict()
     r = weighted_rate(np.asarray(tr["onset_alerts"], float), np.asarray(tr["onset_epochs"], float),
                       np.asarray(tr["log_weight"]), 0.99)
     assert exact == pytest.approx(p_fa, rel=1e-6)  # T² is the χ² quantile at p_fa
@@ -421,17 +415,11 @@ def test_horizontal_misleading_rate_against_the_quadrature(tmp_path):
     its major axis: GPS RAIM at the default settings, first 10 s, epochs with |e_h| > HPL and no alert
     (about 1e-27 per epoch). Exact: the geometry's 2-D Gaussian tail by quadrature times P(χ²_{n-4} < T²);
     the weighted estimate's 99 % interval holds it."""
-    from testbed.campaign.context import cell_context
-
     spec = tmp_path / "mi.toml"
     spec.write_text('name = "mi"\napproaches = ["zunz-rwy05-final"]\nmonitors = ["gps_raim"]\ntrials = 2000\n'
                     'base_seed = 4\nchunk_trials = 1000\nper_epoch_trials = 2000\nduration_s = 10.0\n'
                     '[sampling]\nmethod = "importance"\nevent = "misleading"\n')
-    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
-    loaded = load_spec(spec)
-    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
-    ep = pq.read_table(out / "epochs.parquet").to_pydict()
-    tr = pq.read_table(out / "trials.parquet").to_pydict()
+    ctx, ep, tr = run_and_read(spec, tmp_path / "out")
     T = ctx.t.size
     hpl, thr = (np.asarray(ep[k]).reshape(-1, T)[0] for k in ("hpl", "threshold"))
     exact = float(np.mean([horizontal_tail(C[:2, :2], hpl[t]) * stats.chi2.cdf(thr[t], n - 4)
@@ -499,15 +487,9 @@ def test_araim_vertical_tail_on_three_constellations_against_the_closed_form(tmp
     σ told gives), so an epoch's |e_v| exceeds its VPL (13.4 m) with probability 2 Q(VPL/σ_v), about 2e-55. The
     weighted estimate's 99 % interval holds it: the draws are standardised by the σ drawn, and the inter-system
     offsets, left untilted, cancel in the weights. No such epoch alerted."""
-    from testbed.campaign.context import cell_context
-
     spec = dfmc_spec(tmp_path, "cf", 1000, '[sampling]\nmethod = "importance"\nevent = "misleading"',
                      per_epoch=1000)
-    out = run_campaign(spec, tmp_path / "out", progress=False).out_dir
-    loaded = load_spec(spec)
-    ctx = cell_context(expand_cells(loaded)[0], loaded.spec)
-    ep = pq.read_table(out / "epochs.parquet").to_pydict()
-    tr = pq.read_table(out / "trials.parquet").to_pydict()
+    ctx, ep, tr = run_and_read(spec, tmp_path / "out")
     T = ctx.t.size
     vpl = np.asarray(ep["vpl"]).reshape(-1, T)[0]
     exact = float(np.mean(2 * stats.norm.sf(vpl / araim_vertical_sigmas(ctx))))
@@ -588,7 +570,6 @@ def test_araim_hmi_spec_figures_against_the_closed_form():
     from the geometry (:func:`araim_vertical_sigmas`). Each start time's measured 95 % interval holds it."""
     from scipy import special
 
-    from testbed.campaign.context import cell_context
     from testbed.campaign.sampling import linear_model
 
     loaded = load_spec("araim-hmi-fault-free")
