@@ -166,3 +166,22 @@ def test_the_imu_segment_starts_at_the_cells_first_gnss_epoch(segment):
     assert ctx.t[0] == 0.0 and ctx.imu_start[0] == 0.0
     assert t_imu[0] >= 0.0 and t_imu[-1] >= ctx.t[-1] - 1e-9
     np.testing.assert_allclose(ctx.imu_start[3], ctx.truth_cg_enu[0], atol=1e-6)
+
+
+def test_the_araim_variant_in_the_loop_is_block_independent_and_reports_its_budget():
+    """``pl_variant = "araim"`` (IMU prior 1e-8, so it may go unmonitored) on 3 km of the final with the camera:
+    2 s and 7 s blocks give bit-identical PLs, tests and EMT (the bank, snapshot and landmarks seen carried across
+    blocks); every epoch protected (finite PLs, reason 0), its error inside them, no alert."""
+    ap = _short(("ekf",))
+    cfg = ap.config.model_copy(update={"monitor": {"ekf": {"pl_variant": "araim",
+                                                           "araim": {"inertia": {"p": 1e-8}}}}})
+    ap = dataclasses.replace(ap, config=cfg)
+    a = run_approach(ap, seed=3, rrd_path=None, block_s=2.0)
+    b = run_approach(ap, seed=3, rrd_path=None, block_s=7.0)
+    oa, ob = a.outputs["ekf"], b.outputs["ekf"]
+    for f in ("hpl", "vpl", "alert", "reason"):
+        np.testing.assert_array_equal(getattr(oa, f), getattr(ob, f), err_msg=f)
+    np.testing.assert_array_equal(oa.diagnostics.emt, ob.diagnostics.emt)
+    assert (oa.reason == 0).all() and np.isfinite(oa.vpl).all() and np.isfinite(oa.diagnostics.emt).all()
+    assert not oa.alert.any() and a.summaries["ekf"].mi_epochs == 0
+    assert (oa.diagnostics.n_modes >= 6).all()

@@ -14,7 +14,9 @@ included. Its output per GNSS epoch:
   with ``pl_variant = "ss"`` the solution-separation test (:mod:`.separation`);
   ``test_stat`` is the NIS, ``alert`` any of them;
 * **protection levels**: ``ss`` (default) the solution-separation PLs, which bound the
-  error under a fault of any one satellite or of the vision rows as a whole; ``covariance``
+  error under a fault of any one satellite or of the vision rows as a whole; ``araim`` ARAIM's budget over
+  the bank, the IMU a fault mode of its own (:mod:`.filter_araim`: its separation test is then the only alert,
+  the χ² tests diagnostics); ``covariance``
   ``HPL = K_ff √λ_max(P_EN)``, ``VPL = K_ff σ_U`` with ``K_ff = Φ⁻¹(1 − P_ff/2)``: the
   fault-free bound only, **not fault tolerant**;
 * availability per service level on those PLs.
@@ -32,13 +34,16 @@ from typing import ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import Field
+from pydantic import Field, model_validator
 from scipy import stats
 
+from testbed.integrity.araim import AraimSettings
+from testbed.integrity.araim.protection import araim_availability
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.gps_only import gps_satellites
 from testbed.integrity.monitor import MonitorContext, MonitorCost, MonitorDefaults, Observations, REFERENCE_POINT
 from testbed.navigation.ekf import CameraNoise, ImuNoise, NavState, predict_compiled
+from testbed.navigation.filter_araim import FILTER_ARAIM_REASONS, filter_araim
 from testbed.navigation.run import ClockNoise, filter_epochs, state_from_init
 from testbed.navigation.separation import Bank, separation
 from testbed.navigation.slam import FeatureSettings, SlamState, run_slam, start
@@ -46,8 +51,17 @@ from testbed.records import Diagnostics, MonitorOutput, epoch_array
 from testbed.schema import StrictModel
 
 #: the filter's reason texts
-EKF_REASONS: tuple[str, ...] = ("ok", "unavailable: the filter is not initialised (no alignment yet)")
+EKF_REASONS: tuple[str, ...] = ("ok", "unavailable: the filter is not initialised (no alignment yet)",
+                                 *FILTER_ARAIM_REASONS)
 NOT_INITIALISED = 1
+#: where the ARAIM variant's reasons start in :data:`EKF_REASONS`
+ARAIM_REASON_BASE = 1
+
+
+#: ARAIM settings the filter's variant does not read (refused when set), and the ISM keys likewise
+ARAIM_UNREAD = frozenset({"user_error", "tropo_zenith_m", "fc_thres", "min_fault_order", "max_fault_order", "max_cond",
+                          "service_levels"})
+ISM_UNREAD = frozenset({"sigma_ura_m", "sigma_ure_m", "b_nom_m", "b_cont_m"})
 
 
 class EkfSettings(StrictModel):
@@ -57,10 +71,16 @@ class EkfSettings(StrictModel):
                         description="fault-free risk of the protection levels: K_ff = Φ⁻¹(1 − P_ff/2) multiplies the "
                                     "position sigmas ('covariance') and the full filter's share of the separation "
                                     "bound ('ss')")
-    pl_variant: Literal["ss", "covariance"] = Field(
+    pl_variant: Literal["ss", "covariance", "araim"] = Field(
         "ss", description="protection levels: 'ss' = solution separation over sub-filters without each satellite "
-                          "and without the vision rows (fault tolerant); 'covariance' = K_ff·σ "
-                          "(fault-free only, not fault tolerant)")
+                          "and without the vision rows (fault tolerant); 'araim' = ARAIM's fault modes, thresholds "
+                          "and protection-level equation over sub-filters without each satellite, without every "
+                          "satellite, without each landmark (ss_vision) and without the camera, and the IMU as a fault mode of its own (its subset: the "
+                          "epoch's pseudoranges alone); 'covariance' = K_ff·σ (fault-free only, not fault tolerant)")
+    araim: AraimSettings = Field(default_factory=AraimSettings,
+                                 description="with pl_variant = 'araim': the allocation and priors (GPS's ISM priors "
+                                             "for satellites and the constellation; landmark, camera and inertia "
+                                             "priors); the filter's own noise model replaces the ISM's σ and b_nom")
     ss_vision: Literal["landmark", "camera"] = Field(
         "landmark", description="solution separation's vision fault modes: 'landmark' = a sub-filter without each "
                                 "landmark (a misidentified landmark, the pixel monitor's threat); 'camera' = one "
@@ -91,6 +111,30 @@ class EkfSettings(StrictModel):
     lost_frames: int = Field(5, ge=0, le=10_000, description="a feature unseen for this many GNSS epochs is "
                                                             "marginalised")
 
+    @model_validator(mode="after")
+    def _araim_reads_its_own(self):
+        """The ARAIM variant's table is read only with it, and it runs without SLAM features."""
+        if self.pl_variant != "araim":
+            if "araim" in self.model_fields_set:
+                raise ValueError(f"araim: read only with pl_variant = 'araim' (pl_variant = {self.pl_variant!r})")
+            return self
+        if "features" in self.model_fields_set and self.features:
+            raise ValueError("features = true: pl_variant = 'araim' runs the filter without SLAM features "
+                             "(expected false or unset)")
+        unread = sorted(self.araim.model_fields_set & ARAIM_UNREAD)
+        gps = self.araim.ism.get("GPS")
+        unread += [f"ism.{k}" for k in self.araim.ism if k != "GPS" and "ism" in self.araim.model_fields_set]
+        unread += [f"ism.GPS.{k}" for k in sorted(gps.model_fields_set & ISM_UNREAD)] if gps is not None else []
+        if unread:
+            raise ValueError(f"araim: {', '.join(unread)} not read by the filter's variant (its covariances are the "
+                             "filter's noise model, its satellites GPS's, its modes single events, its levels the "
+                             "run's: docs/design/nav-filter.md §8.4)")
+        return self
+
+    @property
+    def araim_variant(self) -> bool:
+        return self.pl_variant == "araim"
+
     def feature_settings(self) -> FeatureSettings:
         return FeatureSettings(self.feature_slots, self.feature_clones, self.parallax_deg, self.max_wait_frames,
                                self.lost_frames)
@@ -112,6 +156,8 @@ class EkfDiagnostics(Diagnostics):
     ss_ratio: NDArray = epoch_array()
     n_modes: NDArray = epoch_array()
     n_features: NDArray = epoch_array()  # features in the filter's state (0 without [vision.features])
+    emt: NDArray = epoch_array()  # 'araim': the effective monitor threshold (m), NaN otherwise
+    p_unmonitored: NDArray = epoch_array()  # 'araim': the exposure prior left unmonitored, NaN otherwise
     k_ff: float = 0.0
 
 
@@ -119,12 +165,13 @@ class EkfDiagnostics(Diagnostics):
 class EkfState:
     """The filter's carry between blocks: None before the alignment; the sub-filter bank (ss); the last
     epochs' NIS and dof within the window (their times (W,), values (B, W)); with ground features the
-    SLAM filter instead of ``nav`` and ``bank`` (it holds its own bank)."""
+    SLAM filter instead of ``nav`` and ``bank`` (it holds its own bank); the landmarks seen so far (B, L) (araim)."""
 
     nav: NavState | None = None
     bank: Bank | None = None
     window: tuple[NDArray, NDArray, NDArray] | None = None
     slam: SlamState | None = None
+    seen: NDArray | None = None
 
 
 @dataclass(frozen=True)
@@ -152,16 +199,17 @@ class EkfMonitor(MonitorDefaults):
         lead = np.shape(g.pseudorange)[:-2]
         T = len(g.t)
         nav, bank, slam = state.nav, state.bank, state.slam
-        ss = self.settings.pl_variant == "ss"
+        araim = self.settings.araim_variant
+        ss = self.settings.pl_variant == "ss" or araim
         if nav is None and slam is None and obs.init is not None:
             nav = state_from_init(obs.init, None if not lead else lead[0])
             S, per_landmark = np.shape(g.prn)[0], self.settings.ss_vision == "landmark"
-            if self.settings.features and obs.features is not None:
+            if self.settings.features and obs.features is not None and not araim:
                 slam, nav = start(nav, self.settings.feature_settings(), S if ss else None, per_landmark), None
             elif ss:
-                bank = Bank.empty(nav.p.shape[0], S, per_landmark)
+                bank = Bank.empty(nav.p.shape[0], S, per_landmark, gnss_mode=araim, camera_mode=araim and per_landmark)
         if (nav is None and slam is None) or obs.imu is None:
-            return self._unavailable(g.t, lead, T), EkfState(nav, bank, state.window, slam)
+            return self._unavailable(g.t, lead, T), EkfState(nav, bank, state.window, slam, state.seen)
         vis = obs.vision if self.settings.vision else None
         # one camera: its dithering turns every pixel of a frame together (landmarks and features)
         sig = obs.vision.dither_sigma if obs.vision is not None else np.zeros(3)
@@ -178,16 +226,18 @@ class EkfMonitor(MonitorDefaults):
             trace, nav, bank = filter_epochs(
                 nav, obs.imu, self.context.frame, noise, g, vis, ClockNoise(), camera=camera,
                 survey_sigma_m=self.settings.landmark_survey_sigma_m, through_end=True, range_rate_sigma_m_s=rr,
-                bank=bank)
-        out, window = self._output(trace, bank, lead, state.window)
-        return out, EkfState(nav, None if slam is not None else bank, window, slam)
+                bank=bank, snapshot=araim)
+        seen, n_landmarks = landmarks_seen(vis, state.seen, trace.p.shape[0], T)
+        out, window = self._output(trace, bank, lead, state.window, n_landmarks)
+        return out, EkfState(nav, None if slam is not None else bank, window, slam, seen)
 
     def _test_share(self) -> float:
         """P_FA split equally between the enabled tests (a union bound keeps their joint rate within P_FA)."""
         n = 1 + (self.settings.window_s > 0) + (self.settings.pl_variant == "ss")
         return self.context.integrity.p_fa / n
 
-    def _output(self, tr, bank: Bank | None, lead: tuple, window) -> tuple[MonitorOutput, tuple]:
+    def _output(self, tr, bank: Bank | None, lead: tuple, window, n_landmarks: NDArray
+                ) -> tuple[MonitorOutput, tuple]:
         st = self.context.integrity
         share = self._test_share()
         k_ff = float(stats.norm.isf(self.settings.p_ff / 2))
@@ -201,7 +251,19 @@ class EkfMonitor(MonitorDefaults):
         w_stat, w_thr, window = windowed_chi2(tr.t, nis_raw, dof, window, self.settings.window_s, share)
         with np.errstate(invalid="ignore"):
             alert |= w_stat > w_thr
-        if bank is not None:
+        nan = np.full(nis.shape, np.nan)
+        emt, p_nm, reason = nan, nan, np.zeros(nis.shape, np.int8)
+        levels = tuple(service_level(s) for s in st.service_levels)
+        if self.settings.araim_variant:
+            allocation = self.settings.araim.model_copy(update={"service_levels": tuple(st.service_levels)})
+            fa = filter_araim(tr.p, P, bank.modes, bank.vision_mode, bank.per_landmark, tr.sub_dp, tr.sub_Pp,
+                              tr.snap_p, tr.snap_P, n_landmarks, allocation)
+            hpl, vpl = np.hypot(fa.pl_enu[..., 0], fa.pl_enu[..., 1]), fa.pl_enu[..., 2]
+            alert = fa.ratio > 1.0  # ARAIM's tests are the alert; the χ² tests stay diagnostics
+            ratio, n_modes, emt, p_nm = fa.ratio, fa.n_modes, fa.emt, fa.p_unmonitored
+            reason = np.where(fa.reason > 0, ARAIM_REASON_BASE + fa.reason, 0).astype(np.int8)
+            avail = araim_availability(hpl, vpl, emt, sig[..., 2], allocation.service_levels)
+        elif bank is not None:
             sep = separation(P, tr.sub_dp, tr.sub_Pp, share, st.p_md, self.settings.p_ff)
             hpl, vpl = np.hypot(sep.pl_enu[..., 0], sep.pl_enu[..., 1]), sep.pl_enu[..., 2]
             alert |= sep.ratio > 1.0
@@ -210,20 +272,22 @@ class EkfMonitor(MonitorDefaults):
             lam = np.linalg.eigvalsh(P[..., :2, :2])[..., -1]
             hpl, vpl = k_ff * np.sqrt(np.maximum(lam, 0.0)), k_ff * sig[..., 2]
             ratio, n_modes = np.full(hpl.shape, np.nan), np.zeros(hpl.shape, np.int64)
-        levels = tuple(service_level(s) for s in st.service_levels)
+        if not self.settings.araim_variant:
+            avail = availability(hpl, vpl, levels)
         shape = lambda a: a.reshape(lead + a.shape[1:]) if lead else a[0]  # noqa: E731
         n_feat = getattr(tr, "n_features", np.zeros(nis.shape, np.int64))
         diag = EkfDiagnostics(sigma_enu=shape(sig), cov_enu=shape(P), nis=shape(nis), dof=shape(dof),
                               accel_bias=shape(tr.ba), gyro_bias=shape(tr.bg), clock_drift=shape(tr.cd),
                               window_stat=shape(w_stat), window_threshold=shape(w_thr), ss_ratio=shape(ratio),
-                              n_modes=shape(n_modes), n_features=shape(n_feat), k_ff=k_ff)
+                              n_modes=shape(n_modes), n_features=shape(n_feat), emt=shape(emt),
+                              p_unmonitored=shape(p_nm), k_ff=k_ff)
         hpl, vpl = shape(hpl), shape(vpl)
         T = tr.t.size
         return MonitorOutput(
             name=self.name, t=np.asarray(tr.t), pos_enu=shape(tr.p), clock=shape(tr.cb), hpl=hpl, vpl=vpl,
-            test_stat=shape(nis), threshold=shape(thr), alert=shape(alert), available=availability(hpl, vpl, levels),
+            test_stat=shape(nis), threshold=shape(thr), alert=shape(alert), available=shape(avail),
             service_levels=tuple(st.service_levels), n_used=shape(dof).astype(np.int16),
-            excluded=np.full(lead + (T,), -1, np.int16), reason=np.zeros(lead + (T,), np.int8), reasons=EKF_REASONS,
+            excluded=np.full(lead + (T,), -1, np.int16), reason=shape(reason), reasons=EKF_REASONS,
             diagnostics=diag), window
 
     def _unavailable(self, t: NDArray, lead: tuple, T: int) -> MonitorOutput:
@@ -233,13 +297,24 @@ class EkfMonitor(MonitorDefaults):
         diag = EkfDiagnostics(sigma_enu=z(3), cov_enu=z(3, 3), nis=nan, dof=np.zeros(lead + (T,), np.int64), accel_bias=z(3),
                               gyro_bias=z(3), clock_drift=nan, window_stat=nan, window_threshold=nan, ss_ratio=nan,
                               n_modes=np.zeros(lead + (T,), np.int64), n_features=np.zeros(lead + (T,), np.int64),
-                              k_ff=float(stats.norm.isf(self.settings.p_ff / 2)))
+                              emt=nan, p_unmonitored=nan, k_ff=float(stats.norm.isf(self.settings.p_ff / 2)))
         return MonitorOutput(
             name=self.name, t=np.asarray(t), pos_enu=z(3), clock=nan, hpl=nan, vpl=nan, test_stat=nan, threshold=nan,
             alert=np.zeros(lead + (T,), bool), available=np.zeros(lead + (T, len(st.service_levels)), bool),
             service_levels=tuple(st.service_levels), n_used=np.zeros(lead + (T,), np.int16),
             excluded=np.full(lead + (T,), -1, np.int16), reason=np.full(lead + (T,), NOT_INITIALISED, np.int8),
             reasons=EKF_REASONS, diagnostics=diag)
+
+
+def landmarks_seen(vision, seen: NDArray | None, B: int, T: int) -> tuple[NDArray | None, NDArray]:
+    """The landmarks detected so far per trial (B, L), carried across blocks, and their count at each epoch (B, T)
+    (zeros without vision)."""
+    if vision is None:
+        return seen, np.zeros((B, T)) if seen is None else np.broadcast_to(seen.sum(-1)[:, None], (B, T)).astype(float)
+    det = np.broadcast_to(np.asarray(vision.detected, bool), (B,) + np.shape(vision.detected)[-2:])
+    before = np.zeros((B, det.shape[-1]), bool) if seen is None else seen
+    cum = np.logical_or.accumulate(det, axis=1) | before[:, None, :]
+    return (cum[:, -1] if T else before), cum.sum(-1).astype(float)
 
 
 def windowed_chi2(t: NDArray, nis: NDArray, dof: NDArray, carry, span: float, p_fa: float):

@@ -20,6 +20,7 @@ from testbed.navigation.ekf import predict_compiled as predict
 from testbed.navigation.separation import Bank, spawn, stack_subs
 from testbed.navigation.separation import settle as settle_subs
 from testbed.navigation.separation import update as update_subs
+from testbed.navigation.snapshot import gnss_snapshot
 from testbed.records import GnssEpochs, ImuSamples, NavInit, VisionEpochs
 
 
@@ -50,6 +51,8 @@ class EkfTrace:
     dof: NDArray  # (B, T)
     sub_dp: NDArray | None = None  # solution-separation sub-filters' position offsets (R, T, 3)
     sub_Pp: NDArray | None = None  # and position covariance blocks (R, T, 3, 3)
+    snap_p: NDArray | None = None  # the IMU-free (pseudorange) position (B, T, 3), NaN below four rows
+    snap_P: NDArray | None = None  # and its covariance (B, T, 3, 3) (:mod:`.snapshot`)
 
     @property
     def P_pos(self) -> NDArray:
@@ -70,20 +73,21 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
                   vision: VisionEpochs | None, clock: ClockNoise, t_aid: NDArray | None = None,
                   camera: CameraNoise = CameraNoise(), survey_sigma_m: float = 0.05,
                   through_end: bool = False, range_rate_sigma_m_s: float | None = None,
-                  bank: Bank | None = None) -> tuple[EkfTrace, NavState, Bank | None]:
+                  bank: Bank | None = None, snapshot: bool = False) -> tuple[EkfTrace, NavState, Bank | None]:
     """:func:`run_ekf`, and the state after the last aiding epoch (``through_end``: after every IMU
     interval given, as a block of a live run needs to hand on). ``range_rate_sigma_m_s``: also a
     range-rate row per satellite with that 1σ (None: pseudoranges only).
 
     ``bank``: also run the solution-separation sub-filters (:mod:`.separation`), spawning one per
     measurement mode at its first use; the trace then holds their position offsets and blocks, and the
-    grown bank is returned (None in, None out).
+    grown bank is returned (None in, None out). ``snapshot``: also the epoch's position without the IMU, from its
+    pseudoranges alone (:mod:`.snapshot`), in the trace.
     """
     B = s.p.shape[0]
     t_aid = np.asarray(gnss.t if gnss is not None else t_aid, float)
     T = t_aid.size
     out = {k: [] for k in ("p", "v", "C", "ba", "bg", "cb", "cd", "P", "nis", "dof")}
-    sub_dp, sub_Pp = [], []
+    sub_dp, sub_Pp, snaps = [], [], []
     k_imu = 0
     for k in range(T):
         k_end = int(np.searchsorted(imu.t, t_aid[k] + 1e-9, side="right"))
@@ -95,6 +99,7 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
         nis = np.zeros(B)
         dof = np.zeros(B, np.int64)
         stages = []
+        snap = (np.full((B, 3), np.nan), np.full((B, 3, 3), np.nan))
         if gnss is not None:
             # the body rate the antenna's lever arm turns with: the last IMU interval's, bias-corrected
             omega = imu_block(imu.dtheta, B, k_end - 1, k_end)[:, 0] / imu.dt - s.bg if k_end > 0 else np.zeros((B, 3))
@@ -107,6 +112,8 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
             if rows is None:
                 continue
             nu, H, R, mask, row_sat, row_landmark = rows
+            if snapshot and row_landmark is None:
+                snap = gnss_snapshot(s.p, s.P, nu, H, R, mask)
             if bank is not None:  # a mode first used now: its sub-filter is the mains as they stand (exact)
                 row_mode = row_sat if row_landmark is None else bank.vision_modes(row_landmark)
                 bank = spawn(bank, s.P, row_mode[mask.any(0)])
@@ -119,6 +126,7 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
             out[name].append(getattr(s, name))
         out["nis"].append(nis)
         out["dof"].append(dof)
+        snaps.append(snap)
         if bank is not None:
             sub_dp.append(bank.dx[:, :3].copy())  # copies: a view would keep the whole bank alive per epoch
             sub_Pp.append(bank.P[:, :3, :3].copy())
@@ -129,6 +137,9 @@ def filter_epochs(s: NavState, imu: ImuSamples, frame: LocalFrame, imu_noise: Im
     if bank is not None:
         subs = dict(zip(("sub_dp", "sub_Pp"), stack_subs(sub_dp, sub_Pp, st["P"][..., :3, :3], B) if T else
                         (np.zeros((0, 0, 3)), np.zeros((0, 0, 3, 3)))))
+    if snapshot:
+        subs.update(snap_p=np.stack([a for a, _ in snaps], 1) if T else np.zeros((B, 0, 3)),
+                    snap_P=np.stack([b for _, b in snaps], 1) if T else np.zeros((B, 0, 3, 3)))
     return EkfTrace(t=t_aid, **st, **subs), s, bank
 
 

@@ -40,6 +40,9 @@ from scipy import stats
 
 from testbed.navigation.ekf import N, gain_update
 
+#: the mode of the sub-filter without any satellite's rows (a constellation-wide fault)
+GNSS_MODE = -1
+
 
 @dataclass(frozen=True)
 class Bank:
@@ -52,14 +55,17 @@ class Bank:
     n_trials: int
     vision_mode: int  # = S, the satellite slots' count: the camera mode (landmark l is S + 1 + l)
     per_landmark: bool = True
+    gnss_mode: bool = False  # also a sub-filter without every satellite (:data:`GNSS_MODE`)
+    camera_mode: bool = False  # with per_landmark, also one without every pixel row (mode S)
     #: the mains' transition and covariance since the last aiding epoch, when a block ended between epochs
     #: (the sub-filters are propagated at the next epoch, by the same product a single pass forms)
     pending: tuple[NDArray, NDArray] | None = None
 
     @classmethod
-    def empty(cls, n_trials: int, n_slots: int, per_landmark: bool = True, n: int = N) -> Bank:
+    def empty(cls, n_trials: int, n_slots: int, per_landmark: bool = True, n: int = N, gnss_mode: bool = False,
+              camera_mode: bool = False) -> Bank:
         return cls(np.zeros(0, int), np.zeros(0, int), np.zeros((0, n)), np.zeros((0, n, n)), n_trials, n_slots,
-                   per_landmark)
+                   per_landmark, gnss_mode, camera_mode)
 
     def vision_modes(self, landmarks: NDArray) -> NDArray:
         """The modes of landmark indices ``landmarks`` (any shape)."""
@@ -71,11 +77,23 @@ class Bank:
         """The spawned modes, in bank order (M,)."""
         return self.mode[::self.n_trials]
 
+    def removes(self, mode: NDArray, row_mode: NDArray) -> NDArray:
+        """Whether sub-filters of modes ``mode`` (R, 1) skip rows of modes ``row_mode`` (1, M): their own rows, for
+        :data:`GNSS_MODE` every satellite's, and for the camera mode beside the landmarks' every pixel row."""
+        S = self.vision_mode
+        return ((row_mode == mode) | ((mode == GNSS_MODE) & (row_mode >= 0) & (row_mode < S))
+                | (self.camera_mode & (mode == S) & (row_mode >= S)))
+
 
 def spawn(bank: Bank, P_main: NDArray, used_modes: NDArray) -> Bank:
     """Append a sub-filter per trial for every mode in ``used_modes`` the bank does not hold yet."""
     held = set(bank.modes.tolist())
-    new = [int(m) for m in np.unique(used_modes) if int(m) not in held]
+    used = np.unique(used_modes)
+    if bank.gnss_mode and np.any((used >= 0) & (used < bank.vision_mode)):
+        used = np.append(used, GNSS_MODE)
+    if bank.camera_mode and np.any(used >= bank.vision_mode):
+        used = np.append(used, bank.vision_mode)
+    new = [int(m) for m in used if int(m) not in held]
     if not new:
         return bank
     B, k = bank.n_trials, len(new)
@@ -111,7 +129,7 @@ def update(bank: Bank, nu0: NDArray, H0: NDArray, R0: NDArray, mask0: NDArray, r
         return bank
     t = bank.trial
     H = H0[t]
-    mask = mask0[t] & (row_mode[None, :] != bank.mode[:, None])
+    mask = mask0[t] & ~bank.removes(bank.mode[:, None], row_mode[None, :])
     nu = nu0[t] - np.einsum("rmn,rn->rm", H, bank.dx)
     # the main's own form: Joseph for the 17-state core, P − KHP with slam.py's static block
     dx, P, _, _ = gain_update(bank.P, nu, H, R0[t], mask, joseph=bank.dx.shape[-1] == N)
@@ -185,4 +203,4 @@ def separation(P_main: NDArray, sub_dp: NDArray, sub_Pp: NDArray, p_fa_share: fl
     return Separation(np.maximum(k_ff * np.sqrt(var0), bound.max(0)), r.max(axis=(0, -1)), n_modes)
 
 
-__all__ = ["Bank", "Separation", "augment", "propagate", "separation", "settle", "spawn", "stack_subs", "update"]
+__all__ = ["GNSS_MODE", "Bank", "Separation", "augment", "propagate", "separation", "settle", "spawn", "stack_subs", "update"]

@@ -219,8 +219,9 @@ class AraimMonitorSettings(AraimSettings):
         if unread:
             raise ValueError(f"{', '.join(unread)} read only with vision = true (got vision = false)")
         if "inertia" in set_:
-            raise ValueError("inertia: the araim monitor feeds no inertial prediction, so its prior is not read "
-                             "(the core's with_inertial_prediction takes it: docs/design/araim.md §11)")
+            raise ValueError("inertia: the araim monitor feeds no inertial prediction, so its prior is not read (the "
+                             "GNSS/vision/INS filter's [monitor.ekf] pl_variant = 'araim' puts the IMU in ARAIM's "
+                             "budget: docs/design/nav-filter.md §8.4)")
         return self
 
     def allocation(self, service_levels: tuple[str, ...]) -> AraimSettings:

@@ -1,0 +1,193 @@
+"""ARAIM's budget over the GNSS/vision/INS filter (testbed.navigation.filter_araim, .snapshot; docs/design/nav-filter.md
+§8.4): the IMU-free snapshot against a nonlinear least-squares fix solved from scratch, its separation from the filter
+distributed as Σ_s − P says, the GNSS-wide sub-filter against a filter run without GNSS, the unmonitored prior against
+the ARAIM core's enumeration of the same events, the protection levels against a root finder on eq. 16, an IMU fault
+detected before its error leaves the protection levels, and unobservable modes giving reasons, not exceptions."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import optimize, stats
+
+from test_ekf import FRAME, NOISE, _final
+from testbed.integrity.araim import AraimSettings
+from testbed.integrity.araim.fault_modes import AID_CAMERA, AID_INERTIA, AID_LANDMARK, fault_events, prob_at_least
+from testbed.integrity.araim.protection import q_function
+from testbed.navigation.ekf import ClockNoise
+from testbed.navigation.filter_araim import (FAULT_ORDER, OK, UNMONITORED, dual_events, filter_araim, select_modes)
+from testbed.navigation.monitor import EkfSettings
+from testbed.navigation.run import filter_epochs
+from testbed.navigation.separation import GNSS_MODE, Bank
+
+
+def _run(B, duration=20.0, seed=7, imu_accel_up=0.0, onset_s=10.0, gnss_visible=None):
+    tr, g1, gnss, imu, s0, cb, cd = _final(B, duration=duration, seed=seed)
+    if imu_accel_up:  # a vertical accelerometer bias from the onset (body z, level flight: ≈ up)
+        dv = np.array(imu.dvel, float)
+        dv[..., imu.t >= onset_s, 2] += imu_accel_up * imu.dt
+        imu = replace(imu, dvel=dv)
+    if gnss_visible is not None:
+        gnss = replace(gnss, visible=np.asarray(gnss.visible) & gnss_visible)
+    bank = Bank.empty(B, np.shape(gnss.prn)[0], True, gnss_mode=True, camera_mode=True)
+    trace, _, bank = filter_epochs(s0, imu, FRAME, NOISE, gnss, None, ClockNoise(), bank=bank, snapshot=True)
+    return g1, gnss, trace, bank, (s0, imu)
+
+
+def _araim(trace, bank, settings=None):
+    B, T = trace.p.shape[:2]
+    return filter_araim(trace.p, trace.P[..., :3, :3], bank.modes, bank.vision_mode, bank.per_landmark, trace.sub_dp,
+                        trace.sub_Pp, trace.snap_p, trace.snap_P, np.zeros((B, T)), settings or AraimSettings())
+
+
+@pytest.fixture(scope="module")
+def fault_free():
+    return _run(100)
+
+
+def test_the_snapshot_is_the_least_squares_fix_of_the_epochs_pseudoranges(fault_free):
+    """The snapshot (one Gauss-Newton step from the filter's prior) against scipy's nonlinear least squares on the
+    same pseudoranges and σ, solved from a point 100 m away: within 1 mm, at three epochs and trials."""
+    g1, gnss, trace, _, _ = fault_free
+    for b, k in ((0, 3), (7, 11), (42, 19)):
+        pr = np.asarray(gnss.pseudorange)
+        at = lambda a, tail=(): np.broadcast_to(a, pr.shape + tail)[b, k]  # noqa: E731
+        vis = at(gnss.visible)
+        sat = FRAME.ecef_to_enu(at(gnss.sat_pos_ecef, (3,))[vis])
+        z, sig = pr[b, k, vis], at(gnss.sigma)[vis]
+        res = lambda x: (np.linalg.norm(sat - x[:3], axis=-1) + x[3] - z) / sig  # noqa: E731
+        x0 = np.r_[g1.pos_enu[k] + 100.0, 0.0]
+        fit = optimize.least_squares(res, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        np.testing.assert_allclose(trace.snap_p[b, k], fit.x[:3], atol=1e-3)
+
+
+def test_the_snapshot_separation_is_distributed_as_its_covariance_says(fault_free):
+    """Fault-free, 100 runs: per axis at four epochs Σ (Δ/σ_ss)² with σ²_ss = (Σ_s − P)_qq inside the two-sided
+    99.9 % χ²(100) band (12 cells), and the snapshot's own error against Σ_s likewise at the last epoch."""
+    g1, _, trace, _, _ = fault_free
+    B = trace.p.shape[0]
+    lo, hi = stats.chi2.ppf([0.0005, 0.9995], B)
+    var_ss = np.diagonal(trace.snap_P - trace.P[..., :3, :3], axis1=-2, axis2=-1)
+    q = ((trace.snap_p - trace.p) ** 2 / var_ss)[:, [1, 5, 10, 19]].sum(0)
+    assert np.all((q > lo) & (q < hi)), q
+    e = ((trace.snap_p - g1.pos_enu) ** 2 / np.diagonal(trace.snap_P, axis1=-2, axis2=-1))[:, -1].sum(0)
+    assert np.all((e > lo) & (e < hi)), e
+
+
+def test_the_gnss_wide_sub_filter_is_the_filter_without_any_satellite():
+    """The bank's sub-filter without every satellite (GNSS_MODE) against a filter run on its own with no satellite
+    visible: its position variances within 0.5 % at every epoch, the covariances within 1e-4 of the largest entry
+    (measured: 1e-5 and 1e-4; the gap: linearisation about the main's trajectory)."""
+    B = 6
+    g1, gnss, trace, bank, (s0, imu) = _run(B)
+    alone = filter_epochs(s0, imu, FRAME, NOISE, replace(gnss, visible=np.zeros(np.shape(gnss.visible), bool)), None,
+                          ClockNoise())[0]
+    i = int(np.flatnonzero(bank.modes == GNSS_MODE)[0])
+    ref = alone.P[..., :3, :3]
+    np.testing.assert_allclose(trace.sub_Pp[i * B:(i + 1) * B], ref, rtol=5e-3, atol=1e-4 * np.abs(ref).max())
+
+
+def test_dual_events_equal_the_araim_cores_enumeration_of_the_same_events():
+    """P(≥2 events) over 9 satellites, the GPS constellation, 4 landmarks, the camera and the IMU against the ARAIM
+    core's fault events and its exact P(at least r) (eq. 6), to 1e-9 relative; and the part inside the GNSS group
+    against P(≥2 of its events) × P(no other event)."""
+    st = AraimSettings()
+    aid = tuple((AID_LANDMARK, l) for l in range(4) for _ in range(2)) + ((AID_CAMERA, 0), (AID_INERTIA, 0))
+    ev = fault_events(np.zeros(9, int), st, aid)
+    total, inside = dual_events(np.array(9.0), np.array(True), np.array(4.0), st)
+    np.testing.assert_allclose(total, prob_at_least(ev.p_exp, 2), rtol=1e-9)
+    gnss = np.r_[np.ones(10, bool), np.zeros(ev.p_exp.size - 10, bool)]
+    np.testing.assert_allclose(inside["gnss"], prob_at_least(ev.p_exp[gnss], 2) * np.prod(1 - ev.p_exp[~gnss]),
+                               rtol=1e-9)
+
+
+def test_modes_under_the_must_monitor_floor_are_left_out_until_the_unmonitored_prior_reaches_p_thres():
+    """Three optional modes (exposure priors 3e-8, 2e-8, 1e-8) and one must-monitor mode, base 1e-8, P_THRES 8e-8:
+    all optional ones fit unmonitored (7e-8); with base 3e-8 the largest is monitored (then 6e-8)."""
+    active = np.ones((4, 1), bool)
+    p_exp = np.array([[3e-8], [2e-8], [1e-8], [1e-5]])
+    mon, nm = select_modes(active, p_exp, np.zeros_like(p_exp), np.array([1e-8]), 8e-8)
+    assert mon[:, 0].tolist() == [False, False, False, True] and np.isclose(nm[0], 7e-8)
+    mon, nm = select_modes(active, p_exp, np.zeros_like(p_exp), np.array([3e-8]), 8e-8)
+    assert mon[:, 0].tolist() == [True, False, False, True] and np.isclose(nm[0], 6e-8)
+
+
+def test_protection_levels_solve_the_integrity_risk_equation(fault_free):
+    """At five epochs of one run the vertical PL against brentq on eq. 16 written out here from the filter's
+    covariances (fault-free term 2Q(PL/σ₀), each monitored mode p·min(Q((PL − T)/σ_k), α)): within the tolerance
+    above the root."""
+    _, _, trace, bank, _ = fault_free
+    st = AraimSettings()
+    fa = _araim(trace, bank, st)
+    M = bank.modes.size
+    var0 = trace.P[0, :, 2, 2]
+    var_k = np.concatenate([trace.sub_Pp[::trace.p.shape[0], :, 2, 2], trace.snap_P[None, 0, :, 2, 2]])
+    p_inst = np.array([st.ism["GPS"].p_const if m == GNSS_MODE else st.ism["GPS"].p_sat for m in bank.modes]
+                      + [st.inertia.p])
+    tau = np.array([st.ism["GPS"].mfd_const_h if m == GNSS_MODE else st.ism["GPS"].mfd_sat_h for m in bank.modes]
+                   + [st.inertia.mfd_h])
+    alpha = np.minimum(1.0, (1 + st.t_exp_s / (3600 * tau)) / st.n_es_int)
+    for k in (2, 6, 10, 15, 19):
+        live = var_k[:, k] > var0[k]
+        n = int(fa.n_modes[0, k])
+        assert n == live.sum()
+        k_fa = stats.norm.isf(st.p_fa_vert / (2 * st.n_es_cont * n))
+        thr = k_fa * np.sqrt(np.maximum(var_k[:, k] - var0[k], 0.0))
+        target = st.p_hmi_vert * (1 - fa.p_unmonitored[0, k] / (st.p_hmi_vert + st.p_hmi_hor)) / st.n_es_int
+
+        def risk(pl):
+            z = (pl - thr[live]) / np.sqrt(var_k[live, k])
+            modes = p_inst[live] * np.minimum(np.where(z <= 0, 1.0, q_function(z)), alpha[live])
+            return 2 * q_function(pl / np.sqrt(var0[k])) + modes.sum() - target
+
+        root = optimize.brentq(risk, 0.0, 1e4, xtol=1e-9)
+        assert root - 1e-9 <= fa.pl_enu[0, k, 2] <= root + st.tol_pl, (k, fa.pl_enu[0, k, 2], root)
+    assert M >= 7
+
+
+def test_an_imu_fault_is_detected_before_its_error_leaves_the_protection_levels():
+    """A 1 m/s² vertical accelerometer bias from 10 s, 20 runs: every run alerts by 17 s (measured: 15-16 s), and no
+    epoch has a vertical error beyond the VPL without an alert; fault-free, the same seeds raise no alert."""
+    g1, _, trace, bank, _ = _run(20, duration=30.0, seed=5, imu_accel_up=1.0)
+    fa = _araim(trace, bank)
+    alert = fa.ratio > 1
+    assert alert.any(1).all() and np.all(g1.t[np.argmax(alert, 1)] <= 17.0)
+    err = np.abs(g1.pos_enu[..., 2] - trace.p[..., 2])
+    assert not np.any((err > fa.pl_enu[..., 2]) & ~alert)
+    assert err.max() > 10.0  # the fault is large enough to matter
+    _, _, trace0, bank0, _ = _run(20, duration=30.0, seed=5)
+    assert not (_araim(trace0, bank0).ratio > 1).any()
+
+
+def test_below_four_satellites_the_imu_mode_is_unobservable_and_its_prior_decides():
+    """Three satellites: the snapshot is NaN, so with P_inertia 1e-5 the epoch is unavailable with its reason (∞
+    PLs, no exception); with 1e-9 the mode fits unmonitored and the epoch is protected. A satellite and the IMU failing
+    together (priors 1e-4 and 1e-3: 3e-7 with three satellites) need dual-event modes: that reason."""
+    tr, g1, gnss, *_ = _final(4, duration=5.0, seed=1)
+    S = np.shape(gnss.visible)[-1]
+    keep = np.zeros(S, bool)
+    keep[np.flatnonzero(np.asarray(gnss.visible).reshape(-1, S).all(0))[:3]] = True
+    g1, _, trace, bank, _ = _run(4, duration=5.0, seed=1, gnss_visible=keep)
+    assert np.isnan(trace.snap_p).all() and np.sum(bank.modes >= 0) == 3
+    fa = _araim(trace, bank)
+    assert np.all(fa.reason == UNMONITORED) and np.isinf(fa.pl_enu).all()
+    st = AraimSettings(inertia={"p": 1e-9})
+    fa = _araim(trace, bank, st)
+    assert np.all(fa.reason == OK) and np.isfinite(fa.pl_enu).all()
+    ism = dict(AraimSettings().ism)
+    ism["GPS"] = ism["GPS"].model_copy(update={"p_sat": 1e-4})
+    fa = _araim(trace, bank, AraimSettings(ism=ism, inertia={"p": 1e-3}))
+    assert np.all(fa.reason == FAULT_ORDER)
+
+
+def test_the_variants_options_are_refused_where_they_are_not_read():
+    for bad in ({"araim": {}}, {"pl_variant": "araim", "features": True},
+                {"pl_variant": "araim", "araim": {"max_fault_order": 2}},
+                {"pl_variant": "araim", "araim": {"ism": {"Galileo": {}}}},
+                {"pl_variant": "araim", "araim": {"ism": {"GPS": {"b_nom_m": 1.0}}}}):
+        with pytest.raises(ValueError):
+            EkfSettings(**bad)
+    ok = EkfSettings(pl_variant="araim", araim={"inertia": {"p": 1e-7}, "ism": {"GPS": {"p_const": 1e-8}}})
+    assert ok.araim.inertia.p == 1e-7 and ok.araim.ism["GPS"].p_const == 1e-8
