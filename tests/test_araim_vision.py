@@ -119,6 +119,23 @@ def test_gnss_only_rows_are_unchanged_by_an_unused_camera_block():
     assert np.all(b.n_modes_aid == 0) and np.all(b.risk_aid_enu == 0.0)
 
 
+def test_epochs_of_different_structures_in_one_call_equal_each_alone():
+    """Two epochs whose camera rows differ (4 landmarks, then the first one's pixels unused: two row structures)
+    solved in one call give each epoch's own results (the vision group's reported risk was computed with a name the
+    next structure's loop reused: the second structure ended in an IndexError)."""
+    _, a, _ = _case(n_landmarks=4, residual_seed=2)
+    used = a.aid_used.copy()
+    used[np.flatnonzero(a.aid_label[:, 0] == AID_LANDMARK)[:2]] = False
+    b = replace(a, aid_used=used)
+    batch = {f: np.stack([getattr(a, f), getattr(b, f)]) for f in ("los_enu", "used", "c_int", "c_acc", "b_nom",
+                                                                     "b_cont", "residual", "aid_g", "aid_used",
+                                                                     "aid_c", "aid_residual")}
+    both = araim(replace(a, **batch))
+    for k, one in enumerate((araim(a), araim(b))):
+        for name in ("hpl", "vpl", "emt", "test_ratio", "n_modes", "n_modes_aid", "risk_aid_enu"):
+            np.testing.assert_allclose(getattr(both, name)[k], getattr(one, name), rtol=1e-12, err_msg=name)
+
+
 def test_rotation_states_with_prior_rows_give_the_pixel_models_full_covariance():
     """Marginalising the rotation states: σ_px² I + J_rot diag(σ²) J_rotᵀ is pixel_covariance exactly."""
     _, rows, geo = _case(n_landmarks=5)

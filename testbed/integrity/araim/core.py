@@ -333,8 +333,8 @@ def _run(rows: AraimRows, settings: AraimSettings, keep_table: bool = False, bud
                 out[name][e] = r[name]
             out["n_modes_aid"][e] = (r["monitored"][..., None] & aid_mode).sum(1)
             if r["terms"] is not None:
-                aid = aid_mode[aid_mode.any(-1)].astype(float)  # (M_aid, G): the modes the terms are of
-                out["risk_aid"][e] = np.einsum("mg,emq->egq", aid, np.nan_to_num(r["terms"]))
+                of_group = aid_mode[aid_mode.any(-1)].astype(float)  # (M_aid, G): the modes the terms are of
+                out["risk_aid"][e] = np.einsum("mg,emq->egq", of_group, np.nan_to_num(r["terms"]))
             out["reason"][e[r["singular"]]] = AraimReason.SINGULAR
             out["reason"][e[r["unmonitored"]]] = AraimReason.UNMONITORED
             if keep_table:
