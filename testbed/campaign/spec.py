@@ -471,7 +471,7 @@ LATER_AXES = ("constellations", "terrain_masking")
 
 
 #: fault-family keys added after specs were first stored: left out of the hash while unset (None)
-LATER_FAULT_KEYS = ("system", "direction_ecef")
+LATER_FAULT_KEYS = ("system", "direction_ecef", "axis")
 
 
 def _later_defaults_unset(d: dict) -> dict:

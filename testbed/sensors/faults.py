@@ -283,10 +283,12 @@ class _ImuBias(_Timed):
     window (:func:`imu_fault_increments`)."""
 
     #: the sensor hit ("gyro": the angle increments, "accel": the velocity increments), the names of the bias and
-    #: rate keys, and their unit in SI (rad or m) per the file's unit
+    #: rate keys and their units as the file gives them, and the SI value (rad or m) of one of the file's units
     sensor: ClassVar[str]
     bias_key: ClassVar[str]
     rate_key: ClassVar[str]
+    bias_unit: ClassVar[str]
+    rate_unit: ClassVar[str]
     to_si: ClassVar[float] = 1.0
 
     axis: Literal["x", "y", "z"] | None = Field(
@@ -509,7 +511,7 @@ def imu_fault_increments(faults: list, t: NDArray, dt: float) -> tuple[NDArray, 
             continue
         t1, t2 = imu_fault_overlap(f, t, dt)
         span = t2 - t1
-        ramp = 0.5 * span * (t2 + t1)  # ½(τ₂² − τ₁²), exact where the squares would cancel
+        ramp = 0.5 * span * (t2 + t1)  # ½(τ₂² − τ₁²) without subtracting two large squares
         out[f.sensor] += span[:, None] * f.bias_si + ramp[:, None] * f.rate_si
     return out["gyro"], out["accel"]
 
