@@ -70,7 +70,7 @@ FILE_KINDS = (
 #: unit by key-name suffix, longest first (the project's naming convention)
 UNIT_SUFFIXES = (
     ("_m_s_sqrt_s", "m/s/√s"), ("_rad_sqrt_s", "rad/√s"), ("_m2_s3", "m²/s³"), ("_m2_s", "m²/s"),
-    ("_m_s2", "m/s²"), ("_rad_s", "rad/s"), ("_m_s", "m/s"), ("_per_km2", "1/km²"), ("_chips", "chip rates"),
+    ("_deg_h_s", "deg/h/s"), ("_deg_h", "deg/h"), ("_m_s3", "m/s³"), ("_m_s2", "m/s²"), ("_rad_s", "rad/s"), ("_m_s", "m/s"), ("_per_km2", "1/km²"), ("_chips", "chip rates"),
     ("_deg", "deg"), ("_hz", "Hz"), ("_kt", "kt"), ("_px", "px"), ("_db", "dB"), ("_mm", "mm"),
     ("_ppm", "ppm"), ("_m", "m"), ("_s", "s"),
 )

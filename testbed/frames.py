@@ -30,6 +30,7 @@ C_LIGHT = 299_792_458.0
 
 FT = 0.3048  # metres per foot (exact)
 KT = 1852.0 / 3600.0  # metres per second per knot (exact)
+DEG_PER_H = np.pi / 180.0 / 3600.0  # rad/s per degree per hour (a gyro's bias unit)
 
 # NED <-> ENU component swap; it is its own inverse.
 R_NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])

@@ -485,13 +485,16 @@ class NavInit:
 @dataclass(frozen=True)
 class ImuTruth:
     """The IMU's truth (evaluation only): error-free increments (K, 3), biases (B..., K, 3) in
-    force over each interval, scale-factor errors (B..., 3)."""
+    force over each interval, the increments the injected faults added (K, 3; zero without),
+    scale-factor errors (B..., 3)."""
 
     t: NDArray = epoch_array(batched=False)
     dtheta: NDArray = epoch_array(1)
     dvel: NDArray = epoch_array(1)
     gyro_bias: NDArray = epoch_array(1)
     accel_bias: NDArray = epoch_array(1)
+    fault_dtheta: NDArray = epoch_array(1)
+    fault_dvel: NDArray = epoch_array(1)
     gyro_scale: NDArray = field()
     accel_scale: NDArray = field()
 

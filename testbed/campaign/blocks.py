@@ -26,7 +26,7 @@ from testbed.campaign.tables import monitor_tables, paired_columns, weight_colum
 from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.monitor import Observations, provided_output
 from testbed.records import MonitorOutput, map_epoch_arrays
-from testbed.sensors.faults import GNSS_KINDS, VISION_KINDS
+from testbed.sensors.faults import GNSS_KINDS, IMU_KINDS, VISION_KINDS, imu_fault_epochs
 from testbed.sensors.gnss.code_tracking import correlator_pseudoranges
 from testbed.sensors.gnss.correlators import synthesize_correlators
 from testbed.sim import pipeline
@@ -48,7 +48,7 @@ class BlockDraw:
     obs: Observations
     gnss_truth: object
     vision_truth: object | None
-    fault_target: np.ndarray  # (n,) PRN of the faulty satellite / index of the faulty landmark, -1 none
+    fault_target: np.ndarray  # (n,) PRN of the faulty satellite / index of the faulty landmark / 0 the IMU, -1 none
     start_offset_s: np.ndarray  # (n,) the sortie's start, s after the approach's start time
     sky_window: np.ndarray  # (n,) int sky window whose geometry it flew in (-1: the fixed start)
     fault_present: np.ndarray  # (n, T) epochs whose observations carry the injected fault (all True: none)
@@ -119,6 +119,10 @@ def draw_block(ctx: CellContext, spec, block: int) -> BlockDraw:
     if ctx.feature_ids is not None:  # every trial's pixels under its own (dithered) camera
         tracks = pipeline.draw_features(plan, ctx.feature_ids, vtruth, tree, n_trials=n)
     present = _fault_present(gnss, gtruth, vis, vtruth, faulted=bool(faults))
+    imu_hit = _imu_fault_epochs(ctx, faults)
+    if imu_hit is not None:  # every trial's IMU carries the same fault: the IMU (0) is its target
+        present = present | imu_hit
+        target = np.where(imu_hit.any(), np.maximum(target, 0), target)
     return BlockDraw(trials, Observations(gnss, vis, imu, init, features=tracks), gtruth, vtruth, target, offsets,
                      np.full(n, -1, np.int64) if windows is None else windows, present, tree, model_gnss,
                      log_weight, component, target_sat)
@@ -222,6 +226,17 @@ def _fault_present(gnss, gtruth, vis, vtruth, faulted: bool) -> np.ndarray:
     if vtruth is not None:
         present |= (np.asarray(vtruth.faulty, bool) & np.asarray(vis.detected, bool)).any(-1)
     return present
+
+
+def _imu_fault_epochs(ctx: CellContext, faults: list) -> np.ndarray | None:
+    """(T,) the epochs whose IMU increments since the previous epoch carry an IMU fault of ``faults`` (None
+    without one; none when no monitor reads the IMU: the run draws no IMU for the fault to reach)."""
+    if not any(f.kind in IMU_KINDS for f in faults):
+        return None
+    if ctx.imu_increments is None:
+        return np.zeros(ctx.t.size, bool)
+    t_imu, _, _, dt = ctx.imu_increments
+    return imu_fault_epochs(faults, ctx.t, t_imu, dt)
 
 
 def run_block(ctx: CellContext, spec, block: int) -> dict[str, dict[str, np.ndarray]]:

@@ -12,8 +12,10 @@ Decided here, where the trials' geometry fixes it: a GPS fault on a named PRN (i
 elevation, terrain and airframe masks and the tracking schedule, at an epoch of the fault's window in
 any sky window of the sorties); a vision fault on a named landmark, and a moved landmark (named or drawn
 at the onset) after its move: in the nominal image (the camera's attitude widened by its dithering),
-within range and in line of sight at an epoch of the window. A fault on a random satellite or detected
-landmark is drawn among those in view at its onset, so it is left to the report.
+within range and in line of sight at an epoch of the window. An IMU fault reaches every trial's increments
+alike, so it happens when a monitor of the cell reads the IMU and an epoch of the sortie follows an IMU
+interval its window meets. A fault on a random satellite or detected landmark is drawn among those in view at its onset, so it
+is left to the report.
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import numpy as np
 from testbed.campaign.context import cell_context
 from testbed.campaign.spec import Cell, LoadedSpec, expand_cells
 from testbed.schema import ConfigError
-from testbed.sensors.faults import GNSS_KINDS, SYSTEM_KINDS, LandmarkMoved, active, named_targets, satellite_ids
+from testbed.sensors.faults import (GNSS_KINDS, IMU_KINDS, SYSTEM_KINDS, LandmarkMoved, active, imu_fault_epochs,
+                                   named_targets, satellite_ids)
 
 
 def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) -> None:
@@ -45,10 +48,12 @@ def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) 
         if faulty and all(why for _, why in faulty):
             f = loaded.spec.faults[fam]
             target = (f"system = {f.system!r}" if f.kind in SYSTEM_KINDS else f"prn = {f.prn}"
-                      if f.kind in GNSS_KINDS else f"landmark = {f.landmark!r}")  # a spec's table
+                      if f.kind in GNSS_KINDS else f"axis = {f.axis!r}" if f.kind in IMU_KINDS
+                      else f"landmark = {f.landmark!r}")  # a spec's table
             ids = [c.index for c, _ in faulty]
             expected = ("a PRN in view then, or prn = \"random\" (one in view at the onset, per sortie)"
-                        if f.kind in GNSS_KINDS else "a landmark in the image then, or a smaller move")
+                        if f.kind in GNSS_KINDS else "an onset inside the sortie and a monitor that reads the IMU"
+                        if f.kind in IMU_KINDS else "a landmark in the image then, or a smaller move")
             problems.append(f"faults.{fam} ({f.kind}, {target}): in every cell that carries it ({_span(ids)}), "
                             f"{faulty[0][1]}: no trial could exercise the fault, so none could detect it; expected "
                             f"{expected}")
@@ -58,7 +63,7 @@ def check_faults_exercised(loaded: LoadedSpec, cells: list[Cell] | None = None) 
 
 def _decidable(fault) -> bool:
     """Faults whose target the geometry fixes (not drawn among those in view at the onset)."""
-    if fault.kind in SYSTEM_KINDS:
+    if fault.kind in SYSTEM_KINDS or fault.kind in IMU_KINDS:
         return True
     if fault.kind in GNSS_KINDS:
         return fault.targets != "random"
@@ -72,11 +77,25 @@ def fault_never_happens(cell: Cell, spec) -> str:
     on = active(fault, ctx.t)
     end = "the end of the sortie" if fault.end_s is None else f"{fault.end_s:g} s"
     window = f"from the onset ({fault.onset_s:g} s) to {end}"
+    if fault.kind in IMU_KINDS:
+        return _imu_never(ctx, fault, window)
     if not on.any():
         return f"the sortie has no epoch {window}"
     if fault.kind in GNSS_KINDS:
         return _gnss_never(ctx, fault, on, window)
     return _vision_never(ctx, fault, on, window)
+
+
+def _imu_never(ctx, fault, window: str) -> str:
+    """An IMU fault reaches the increments of every trial alike: it happens when the cell reads the IMU and an
+    IMU interval of the sortie meets its window."""
+    if ctx.imu_increments is None:
+        return "no monitor of the cell reads the IMU"
+    t_imu, _, _, dt = ctx.imu_increments
+    if imu_fault_epochs([fault], ctx.t, t_imu, dt).any():
+        return ""
+    return (f"no epoch of the sortie ({float(ctx.t[0]):g}-{float(ctx.t[-1]):g} s) follows an IMU interval "
+            f"{window}")
 
 
 def _gnss_never(ctx, fault, on: np.ndarray, window: str) -> str:

@@ -42,7 +42,7 @@ from testbed.integrity.levels import strictest_limits
 from testbed.monitors import MonitorName, monitor_options, reads
 from testbed.sim.preflight import preflight
 from testbed.schema import ConfigError, FileName, StrictModel
-from testbed.sensors.faults import SYSTEM_KINDS, VISION_KINDS
+from testbed.sensors.faults import IMU_KINDS, SYSTEM_KINDS, VISION_KINDS
 from testbed.sensors.gnss.constellations import constellation_orbits
 from testbed.sensors.gnss.navfile import MAX_AGE_S
 from testbed.sensors.gnss.settings import checked_constellation_set
@@ -50,12 +50,14 @@ from testbed.sensors.gnss.timebase import utc_to_gps_seconds
 from testbed.sensors.vision.settings import LandmarkSet
 
 FaultKindName = Literal["none", "gps_step", "gps_ramp", "constellation_bias", "constellation_orbit", "pixel_bias",
-                        "landmark_moved"]
+                        "landmark_moved", "imu_accel_bias", "imu_gyro_bias"]
 
 #: what the magnitude of each fault family means (units go into tables and figure labels)
 MAGNITUDE_UNITS = {"none": "", "gps_step": "m", "gps_ramp": "m/s", "constellation_bias": "m",
                    "constellation_orbit": "m", "pixel_bias": "px",
-                   "landmark_moved": "m"}
+                   "landmark_moved": "m", "imu_accel_bias": "m/s²", "imu_gyro_bias": "deg/h"}
+#: the fault table key each IMU family's magnitude sets
+IMU_MAGNITUDE_KEYS = {"imu_accel_bias": "bias_m_s2", "imu_gyro_bias": "bias_deg_h"}
 
 
 class FaultSweep(StrictModel):
@@ -65,7 +67,9 @@ class FaultSweep(StrictModel):
                                                  "constellation_bias (bias_m on every satellite of `system`) | "
                                                  "constellation_orbit (every satellite of `system` moved this far "
                                                  "along `direction_ecef`) | "
-                                                 "pixel_bias (magnitude_px) | landmark_moved (metres along direction_enu)")
+                                                 "pixel_bias (magnitude_px) | landmark_moved (metres along direction_enu) | "
+                                                 "imu_accel_bias (bias_m_s2 along `axis`) | imu_gyro_bias (bias_deg_h "
+                                                 "along `axis`)")
     magnitudes: list[float] = Field([0.0], min_length=1, description="fault sizes; 0 = a fault-free cell")
     onset_s: float = Field(20.0, ge=0, description="fault onset, s after the approach start")
     end_s: float | None = Field(None, description="fault end (exclusive), s; None = to the end")
@@ -80,6 +84,9 @@ class FaultSweep(StrictModel):
     angle_deg: float = Field(0.0, description="pixel_bias: direction in the image, deg")
     direction_enu: tuple[float, float, float] = Field((1.0, 0.0, 0.0),
                                                       description="landmark_moved: unit direction (ENU) of the move")
+    axis: Literal["x", "y", "z"] | None = Field(
+        None, description="imu_accel_bias, imu_gyro_bias: the body axis (FRD: x forward, y right, z down) the bias "
+                          "acts along, a signed magnitude (required there, refused with another kind)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -107,6 +114,12 @@ class FaultSweep(StrictModel):
         elif self.direction_ecef is not None:
             raise ValueError(f"direction_ecef = {list(self.direction_ecef)} is read by kind 'constellation_orbit' "
                              f"only, not by kind {self.kind!r}: remove it")
+        if self.kind in IMU_KINDS and self.axis is None:
+            raise ValueError(f"kind {self.kind!r}: expected axis = 'x', 'y' or 'z' (the body axis, FRD, the bias "
+                             "acts along)")
+        if self.kind not in IMU_KINDS and self.axis is not None:
+            raise ValueError(f"axis = {self.axis!r} is read by kinds {', '.join(map(repr, IMU_KINDS))} only, not by "
+                             f"kind {self.kind!r}: remove it")
         return self
 
     def _move(self, magnitude: float) -> tuple[float, float, float]:
@@ -132,6 +145,8 @@ class FaultSweep(StrictModel):
             n = math.hypot(*self.direction_ecef)
             return {"kind": "constellation_orbit", "system": self.system,
                     "translation_m": tuple(magnitude * (c / n) for c in self.direction_ecef), **win}
+        if self.kind in IMU_KINDS:
+            return {"kind": self.kind, "axis": self.axis, IMU_MAGNITUDE_KEYS[self.kind]: magnitude, **win}
         if self.kind == "pixel_bias":
             return {"kind": "pixel_bias", "landmark": self.landmark, "magnitude_px": magnitude,
                     "angle_deg": self.angle_deg, **win}
@@ -456,7 +471,7 @@ LATER_AXES = ("constellations", "terrain_masking")
 
 
 #: fault-family keys added after specs were first stored: left out of the hash while unset (None)
-LATER_FAULT_KEYS = ("system", "direction_ecef")
+LATER_FAULT_KEYS = ("system", "direction_ecef", "axis")
 
 
 def _later_defaults_unset(d: dict) -> dict:

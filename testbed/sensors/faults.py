@@ -7,18 +7,22 @@ records them, so evaluation can tell faulty measurements apart.
 
 GNSS faults are turned into a bias array here (:func:`gnss_fault_bias`);
 vision faults are applied by the vision sensor, which owns the geometry they
-perturb, using :func:`active` for the time window.
+perturb, using :func:`active` for the time window; IMU faults into the angle and
+velocity increments they add over each IMU interval (:func:`imu_fault_increments`),
+which the IMU synthesis adds to its measured increments.
 """
 
 from __future__ import annotations
 
+import math
 import re
-from typing import Annotated, Literal, Union
+from typing import Annotated, ClassVar, Literal, Union
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import AfterValidator, Field, model_validator
+from pydantic import AfterValidator, BeforeValidator, Field, model_validator
 
+from testbed.frames import DEG_PER_H
 from testbed.schema import StrictModel
 
 def _some_satellite(v):
@@ -224,12 +228,164 @@ class Misassociation(_Timed):
         return self
 
 
+#: the IMU's body axes (FRD: x forward, y right, z down), as an IMU fault's ``axis`` names them
+BODY_AXES = ("x", "y", "z")
+
+
+def _body_vector(limit: float, unit: str):
+    """A BeforeValidator: a number (along ``axis``) or a 3-vector of numbers (body FRD), each within ±``limit``."""
+
+    def check(v):
+        def number(x) -> bool:
+            return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+        if number(v):
+            parts = [v]
+        elif isinstance(v, (list, tuple)) and len(v) == 3 and all(number(x) for x in v):
+            parts = list(v)
+        else:
+            raise ValueError(f"expected a number (along axis = 'x', 'y' or 'z') or a 3-vector [x, y, z] of numbers "
+                             f"(body axes: x forward, y right, z down), in {unit}")
+        if any(not math.isfinite(x) or abs(x) > limit for x in parts):
+            raise ValueError(f"expected finite values within ±{limit:g} {unit} per axis")
+        return float(v) if number(v) else tuple(float(x) for x in v)
+
+    return BeforeValidator(check)
+
+
+def _body_field(limit: float, unit: str, default, description: str):
+    """A field taking a number or a 3-vector (docs show the per-axis bound)."""
+    one = Annotated[float, Field(ge=-limit, le=limit)]
+    return Annotated[Union[one, tuple[one, one, one]], _body_vector(limit, unit)], Field(default,
+                                                                                         description=description)
+
+
+_ACCEL_BIAS, _ACCEL_BIAS_FIELD = _body_field(
+    200.0, "m/s²", 0.0, "accelerometer bias from the onset, m/s²: a number along `axis`, or a 3-vector [x, y, z] in "
+                        "body axes (FRD) without `axis`; within ±200 m/s² (20 g: beyond an aircraft accelerometer's "
+                        "range) per axis")
+_ACCEL_RATE, _ACCEL_RATE_FIELD = _body_field(
+    20.0, "m/s³", 0.0, "growth of the accelerometer bias after the onset, m/s³ (bias + rate·τ, τ = t − onset): a "
+                       "number along `axis`, or a 3-vector without it; within ±20 m/s³ per axis")
+_GYRO_BIAS, _GYRO_BIAS_FIELD = _body_field(
+    3.6e6, "deg/h", 0.0, "gyro bias from the onset, deg/h (1 deg/h = 4.85e-6 rad/s; a tactical gyro's own bias is "
+                         "about 1 deg/h): a number along `axis`, or a 3-vector [x, y, z] in body axes (FRD) without "
+                         "`axis`; within ±3.6e6 deg/h (1000 deg/s) per axis")
+_GYRO_RATE, _GYRO_RATE_FIELD = _body_field(
+    3.6e4, "deg/h/s", 0.0, "growth of the gyro bias after the onset, deg/h per second (bias + rate·τ, τ = t − onset): "
+                           "a number along `axis`, or a 3-vector without it; within ±36000 deg/h/s (10 deg/s²) per "
+                           "axis")
+
+
+class _ImuBias(_Timed):
+    """A bias on one IMU sensor triad from the onset: bias + rate·τ (τ = t − onset), on one body axis or as a
+    3-vector; the increments of each interval carry its integral over the part of the interval inside the fault's
+    window (:func:`imu_fault_increments`)."""
+
+    #: the sensor hit ("gyro": the angle increments, "accel": the velocity increments), the names of the bias and
+    #: rate keys and their units as the file gives them, and the SI value (rad or m) of one of the file's units
+    sensor: ClassVar[str]
+    bias_key: ClassVar[str]
+    rate_key: ClassVar[str]
+    bias_unit: ClassVar[str]
+    rate_unit: ClassVar[str]
+    to_si: ClassVar[float] = 1.0
+
+    axis: Literal["x", "y", "z"] | None = Field(
+        None, description="body axis (FRD: x forward, y right, z down) the bias and rate act along when they are "
+                          "numbers; unset with 3-vectors")
+
+    @model_validator(mode="after")
+    def _shape(self):
+        values = {k: getattr(self, k) for k in (self.bias_key, self.rate_key)}
+        vectors = [k for k, v in values.items() if isinstance(v, tuple)]
+        scalars = [k for k, v in values.items() if not isinstance(v, tuple) and v != 0.0]
+        if self.axis is not None and vectors:
+            k = vectors[0]
+            raise ValueError(f"[{k}] a 3-vector takes no axis (axis = {self.axis!r}): give a number along the axis, "
+                             f"or remove axis (got {list(values[k])})")
+        if self.axis is None and scalars:
+            k = scalars[0]
+            raise ValueError(f"[{k}] a number needs axis = 'x', 'y' or 'z' (body FRD: x forward, y right, z down), "
+                             f"or give a 3-vector [x, y, z] (got {values[k]!r})")
+        if not any(np.any(np.asarray(v) != 0.0) for v in values.values()):
+            raise ValueError(f"[{self.bias_key}] expected a non-zero {self.bias_key} or {self.rate_key} (a fault that "
+                             f"adds nothing) (got {values[self.bias_key]!r})")
+        return self
+
+    def _si(self, key: str) -> NDArray:
+        v = getattr(self, key)
+        out = np.zeros(3)
+        if isinstance(v, tuple):
+            out[:] = v
+        elif self.axis is not None:
+            out[BODY_AXES.index(self.axis)] = v
+        return out * self.to_si
+
+    @property
+    def bias_si(self) -> NDArray:
+        """(3,) the bias from the onset, body axes, SI (rad/s or m/s²)."""
+        return self._si(self.bias_key)
+
+    @property
+    def rate_si(self) -> NDArray:
+        """(3,) the bias's growth per second after the onset, body axes, SI (rad/s² or m/s³)."""
+        return self._si(self.rate_key)
+
+    @property
+    def size_text(self) -> str:
+        """The bias and rate as the file gives them (for messages)."""
+        def text(key: str, unit: str) -> str:
+            v = getattr(self, key)
+            return (f"[{', '.join(f'{c:g}' for c in v)}] {unit}" if isinstance(v, tuple)
+                    else f"{v:+g} {unit} along {self.axis}")
+
+        parts = [text(self.bias_key, self.bias_unit)]
+        if np.any(np.asarray(getattr(self, self.rate_key)) != 0.0):
+            parts.append("growing by " + text(self.rate_key, self.rate_unit))
+        return ", ".join(parts) + " (body FRD)"
+
+
+class ImuAccelBias(_ImuBias):
+    """An accelerometer fault: a bias step (``bias_m_s2``) and ramp (``rate_m_s3``) from the onset, on one body
+    axis or as a 3-vector; each velocity increment carries the bias integrated over the part of its interval inside
+    the fault's window."""
+
+    sensor: ClassVar[str] = "accel"
+    bias_key: ClassVar[str] = "bias_m_s2"
+    rate_key: ClassVar[str] = "rate_m_s3"
+    bias_unit: ClassVar[str] = "m/s²"
+    rate_unit: ClassVar[str] = "m/s³"
+
+    kind: Literal["imu_accel_bias"] = Field(..., description="fault kind")
+    bias_m_s2: _ACCEL_BIAS = _ACCEL_BIAS_FIELD
+    rate_m_s3: _ACCEL_RATE = _ACCEL_RATE_FIELD
+
+
+class ImuGyroBias(_ImuBias):
+    """A gyro fault: a bias step (``bias_deg_h``) and ramp (``rate_deg_h_s``) from the onset, in degrees per hour,
+    on one body axis or as a 3-vector; each angle increment carries the bias integrated over the part of its
+    interval inside the fault's window."""
+
+    sensor: ClassVar[str] = "gyro"
+    bias_key: ClassVar[str] = "bias_deg_h"
+    rate_key: ClassVar[str] = "rate_deg_h_s"
+    bias_unit: ClassVar[str] = "deg/h"
+    rate_unit: ClassVar[str] = "deg/h/s"
+    to_si: ClassVar[float] = DEG_PER_H
+
+    kind: Literal["imu_gyro_bias"] = Field(..., description="fault kind")
+    bias_deg_h: _GYRO_BIAS = _GYRO_BIAS_FIELD
+    rate_deg_h_s: _GYRO_RATE = _GYRO_RATE_FIELD
+
+
 Fault = Annotated[Union[GpsStep, GpsRamp, GpsClockRunoff, ConstellationBias, ConstellationOrbit, PixelBias,
-                        LandmarkMoved, Misassociation], Field(discriminator="kind")]
+                        LandmarkMoved, Misassociation, ImuAccelBias, ImuGyroBias], Field(discriminator="kind")]
 GNSS_KINDS = ("gps_step", "gps_ramp", "gps_clock", "constellation_bias", "constellation_orbit")
 #: the GNSS kinds that hit every satellite of one system (``system``), not chosen satellites
 SYSTEM_KINDS = ("constellation_bias", "constellation_orbit")
 VISION_KINDS = ("pixel_bias", "landmark_moved", "misassociation")
+IMU_KINDS = ("imu_accel_bias", "imu_gyro_bias")
 
 
 def active(fault: _Timed, t: NDArray) -> NDArray:
@@ -331,3 +487,46 @@ def gnss_fault_bias(faults: list, t: NDArray, prn: NDArray, visible: NDArray,
         else:
             bias[:, hit] += fault_profile(f, t)[:, None]
     return bias
+
+
+def imu_fault_overlap(fault: _ImuBias, t: NDArray, dt: float) -> tuple[NDArray, NDArray]:
+    """Where the fault's window [onset, end) meets each IMU interval (t − dt, t]: the times since the onset
+    (τ₁, τ₂) (K,) of the shared part's ends, τ₁ = τ₂ where they do not meet."""
+    t = np.asarray(t, float)
+    lo = np.maximum(t - dt, fault.onset_s)
+    hi = t if fault.end_s is None else np.minimum(t, fault.end_s)
+    hi = np.maximum(hi, lo)
+    return lo - fault.onset_s, hi - fault.onset_s
+
+
+def imu_fault_increments(faults: list, t: NDArray, dt: float) -> tuple[NDArray, NDArray]:
+    """The (Δθ, Δv) (K, 3) the IMU faults of a schedule add to the increments of the intervals (t − dt, t]
+    ending at ``t`` (K,): each fault's bias b + r·τ integrated over the part of the interval inside its window,
+    b·(τ₂ − τ₁) + ½·r·(τ₂² − τ₁²) (:func:`imu_fault_overlap`), so a partial interval at the onset or the end is
+    counted exactly. Other kinds are ignored; no randomness (every trial's IMU carries the same fault)."""
+    t = np.asarray(t, float)
+    out = {"gyro": np.zeros((t.size, 3)), "accel": np.zeros((t.size, 3))}
+    for f in faults:
+        if f.kind not in IMU_KINDS:
+            continue
+        t1, t2 = imu_fault_overlap(f, t, dt)
+        span = t2 - t1
+        ramp = 0.5 * span * (t2 + t1)  # ½(τ₂² − τ₁²) without subtracting two large squares
+        out[f.sensor] += span[:, None] * f.bias_si + ramp[:, None] * f.rate_si
+    return out["gyro"], out["accel"]
+
+
+def imu_fault_epochs(faults: list, t: NDArray, t_imu: NDArray, dt: float) -> NDArray:
+    """Mask (T,) of the epochs ``t`` whose IMU increments since the previous epoch carry an IMU fault of the
+    schedule: an interval (t_imu − dt, t_imu] (``t_imu`` (K,)) the fault's window meets for a positive time
+    ends after the previous epoch and at or before this one."""
+    t, t_imu = np.asarray(t, float), np.asarray(t_imu, float)
+    hit = np.zeros(t_imu.size, bool)
+    for f in faults:
+        if f.kind in IMU_KINDS:
+            t1, t2 = imu_fault_overlap(f, t_imu, dt)
+            hit |= t2 > t1
+    at = np.searchsorted(t, t_imu[hit] - 1e-6 * dt, side="left")  # the first epoch at or after each end
+    out = np.zeros(t.size, bool)
+    out[at[at < t.size]] = True
+    return out

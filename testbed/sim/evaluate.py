@@ -150,7 +150,7 @@ def describe_faults(faults, prn: NDArray, faulty: NDArray, visible: NDArray, t: 
     the observations carried it on and at how many epochs (``faulty``/``visible``: (T, S), ``prn``: (S,)).
     A GNSS fault that no tracked satellite carried is said to be "not exercised". ``system`` (S,): the slots'
     system letters (None: GPS alone, named by PRN)."""
-    from testbed.sensors.faults import GNSS_KINDS, SYSTEM_KINDS, satellite_ids
+    from testbed.sensors.faults import GNSS_KINDS, IMU_KINDS, SYSTEM_KINDS, satellite_ids
 
     gps_alone = system is None or bool(np.all(np.asarray(system) == "G"))
 
@@ -163,7 +163,9 @@ def describe_faults(faults, prn: NDArray, faulty: NDArray, visible: NDArray, t: 
         if f.kind == "constellation_orbit":
             xyz = lambda v: ", ".join(f"{c:g}" for c in v)  # noqa: E731
             size = f"translation [{xyz(f.translation_m)}] m, rotation [{xyz(f.rotation_mas)}] mas (ECEF X, Y, Z)"
-        if f.kind in SYSTEM_KINDS:
+        if f.kind in IMU_KINDS:
+            size, target = f.size_text, f"the IMU's {'accelerometers' if f.sensor == 'accel' else 'gyros'}"
+        elif f.kind in SYSTEM_KINDS:
             target = f"every {f.system} satellite"
         elif getattr(f, "sat", None) is not None:
             target = ", ".join(f.targets)

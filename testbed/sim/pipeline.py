@@ -27,7 +27,7 @@ from testbed.records import ImuSamples, MonitorOutput
 from testbed.sensors.gnss.constellations import tracked_constellations
 from testbed.sensors.gnss.synth import GnssErrors, GnssGeometry, apply_gnss_errors, draw_gnss_errors
 from testbed.sensors.gnss.timebase import utc_to_gps_seconds
-from testbed.sensors.imu import ImuErrorStream, apply_errors
+from testbed.sensors.imu import ImuErrorStream, apply_errors, apply_faults
 from testbed.sensors.imu.alignment import align
 from testbed.sensors.vision import detect as vdetect
 from testbed.sensors.vision.dithering import mount_from_settings
@@ -159,11 +159,15 @@ def imu_errors(plan: SensorPlan, streams: StreamTree, n_trials: int | None = Non
     return ImuErrorStream(imu, 1.0 / imu.rate_hz, streams.generator("imu"), n_trials)
 
 
-def imu_samples(plan: SensorPlan, increments: tuple, stream: ImuErrorStream) -> ImuSamples:
-    """The measured increments: the true ``(t, Δθ, Δv, Δt)`` with the stream's next errors."""
+def imu_samples(plan: SensorPlan, increments: tuple, stream: ImuErrorStream,
+                faults: Sequence | None = None) -> ImuSamples:
+    """The measured increments: the true ``(t, Δθ, Δv, Δt)`` with the stream's next errors and the IMU faults of
+    the set-up (or ``faults``), which draw nothing."""
     imu = plan.setup.imu
-    t, dth, dvl, _ = increments
+    faults = plan.setup.faults if faults is None else faults
+    t, dth, dvl, dt = increments
     d_th, d_v = apply_errors(dth, dvl, stream, stream.draw(np.size(t)))
+    d_th, d_v = apply_faults(np.asarray(t, float), d_th, d_v, dt, faults)
     return ImuSamples(t=t, dtheta=d_th, dvel=d_v, dt=1.0 / imu.rate_hz,
                       lever_arm_body=np.asarray(imu.lever_arm_body_m, float), earth_rotation=imu.earth_rotation,
                       figures=imu.figures())

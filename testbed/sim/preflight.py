@@ -3,7 +3,8 @@
 The models check each value on its own (types, finiteness, ranges); this checks
 what only the loaded run can say: the terrain and the almanac or navigation file
 load and cover the approach, every fault names a satellite of the constellation
-and a landmark of the scene and starts before the flight can end, the start
+and a landmark of the scene and starts before the flight can end (an IMU fault
+needs a monitor that reads the IMU, a vision fault one that reads vision), the start
 point is above the terrain, and the aircraft trims at the start. ``testbed
 check`` runs it, and so does the first step of every command that flies.
 Every problem is one line naming the file, the key path, the value and what
@@ -17,8 +18,10 @@ import math
 import numpy as np
 
 from testbed.config import Approach
+from testbed.monitors import monitor_inputs, monitor_names
 from testbed.outputs import check_output
 from testbed.schema import ConfigError
+from testbed.sensors.faults import IMU_KINDS
 
 KT = 1852.0 / 3600.0
 
@@ -39,6 +42,7 @@ def preflight(approach: Approach, *, trim: bool = True):
     if eph is not None:
         problems += _gnss_fault_problems(approach, eph)
     problems += _vision_fault_problems(approach, setup)
+    problems += _imu_fault_problems(approach)
     problems += _vision_weight_problems(setup)
     problems += _timing_problems(approach, setup)
     problems += _terrain_problems(approach, setup)
@@ -127,6 +131,16 @@ def _vision_fault_problems(approach: Approach, setup) -> list[str]:
             out.append(f"faults.{k}.{key} = {bad[0]!r}: not a landmark of the scene (expected one of "
                        f"{ids[:12]}{' ...' if len(ids) > 12 else ''})")
     return out
+
+
+def _imu_fault_problems(approach: Approach) -> list[str]:
+    """An IMU fault needs a monitor that reads the IMU (the run synthesises the IMU only for one)."""
+    cfg = approach.config
+    if cfg.reads("imu"):
+        return []
+    readers = [n for n in monitor_names() if "imu" in monitor_inputs(n, cfg.monitor)]
+    return [f"faults.{k}.kind = {f.kind!r}: an IMU fault, but no configured monitor reads the IMU (monitors = "
+            f"{list(cfg.monitors)}; expected one of {readers})" for k, f in enumerate(cfg.faults) if f.kind in IMU_KINDS]
 
 
 def _vision_weight_problems(setup) -> list[str]:

@@ -32,9 +32,9 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
+from testbed.frames import DEG_PER_H
 from testbed.schema import LeverArm, StrictModel
 
-DEG_PER_H = np.pi / 180.0 / 3600.0  # rad/s
 DEG_PER_SQRT_H = np.pi / 180.0 / 60.0  # rad/√s
 MG = 9.80665e-3  # m/s²
 PER_SQRT_H = 1.0 / 60.0  # (unit)/√h -> (unit)/√s

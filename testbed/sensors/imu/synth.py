@@ -5,7 +5,9 @@ equations, so the navigation mechanisation reproduces the truth from them);
 :class:`ImuErrorStream` draws the errors of a batch of trials interval by
 interval, time-major, so any chunking of the intervals gives bit-identical
 draws and, for one trial, the first k intervals never depend on later ones
-(prefix stability, as the other sensors); :func:`sample_imu` puts them together.
+(prefix stability, as the other sensors); :func:`apply_faults` adds the injected
+IMU faults (:mod:`testbed.sensors.faults`, deterministic: no draw); :func:`sample_imu`
+puts them together.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from scipy import signal
 from testbed.frames import LocalFrame
 from testbed.inertial import body_to_world, earth_rate_world, inverse_strapdown, local_to_world
 from testbed.records import ImuSamples, ImuTruth, Truth
+from testbed.sensors.faults import imu_fault_increments
 
 from .settings import ImuSettings
 
@@ -111,16 +114,29 @@ def apply_errors(dtheta: NDArray, dvel: NDArray, stream: ImuErrorStream, errors:
     return dth, dv
 
 
-def sample_imu(truth: Truth, settings: ImuSettings, rng: np.random.Generator, n_trials: int | None = None
-               ) -> tuple[ImuSamples, ImuTruth]:
-    """IMU increments along a flight (``n_trials`` independent IMUs when given: a leading trial axis)."""
+def apply_faults(t: NDArray, dtheta: NDArray, dvel: NDArray, dt: float, faults) -> tuple[NDArray, NDArray]:
+    """Increments (B..., K, 3) of the intervals ending at ``t`` (K,) with the IMU faults of ``faults`` added
+    (:func:`~testbed.sensors.faults.imu_fault_increments`: the same for every trial); unchanged without one."""
+    add_th, add_v = imu_fault_increments(list(faults), t, dt)
+    if not (add_th.any() or add_v.any()):
+        return dtheta, dvel
+    return dtheta + add_th, dvel + add_v
+
+
+def sample_imu(truth: Truth, settings: ImuSettings, rng: np.random.Generator, n_trials: int | None = None,
+               faults=()) -> tuple[ImuSamples, ImuTruth]:
+    """IMU increments along a flight (``n_trials`` independent IMUs when given: a leading trial axis), with the
+    IMU faults of ``faults`` (a fault schedule; its other kinds are ignored)."""
     t, dtheta, dvel, dt = true_increments(truth, settings)
     stream = ImuErrorStream(settings, dt, rng, n_trials)
     err = stream.draw(t.size)
     dth, dv = apply_errors(dtheta, dvel, stream, err)
+    dth, dv = apply_faults(t, dth, dv, dt, faults)
+    fault_th, fault_v = imu_fault_increments(list(faults), t, dt)
     lever = np.asarray(settings.lever_arm_body_m, float)
     samples = ImuSamples(t=t, dtheta=dth, dvel=dv, dt=dt, lever_arm_body=lever, earth_rotation=settings.earth_rotation,
                          figures=settings.figures())
     itruth = ImuTruth(t=t, dtheta=dtheta, dvel=dvel, gyro_bias=err["bias_g"], accel_bias=err["bias_a"],
+                      fault_dtheta=fault_th, fault_dvel=fault_v,
                       gyro_scale=stream.scale["g"], accel_scale=stream.scale["a"])
     return samples, itruth
