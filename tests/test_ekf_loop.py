@@ -168,20 +168,30 @@ def test_the_imu_segment_starts_at_the_cells_first_gnss_epoch(segment):
     np.testing.assert_allclose(ctx.imu_start[3], ctx.truth_cg_enu[0], atol=1e-6)
 
 
-def test_the_araim_variant_in_the_loop_is_block_independent_and_reports_its_budget():
-    """``pl_variant = "araim"`` (IMU prior 1e-8, so it may go unmonitored) on 3 km of the final with the camera:
-    2 s and 7 s blocks give bit-identical PLs, tests and EMT (the bank, snapshot and landmarks seen carried across
-    blocks); every epoch protected (finite PLs, reason 0), its error inside them, no alert."""
+def test_the_araim_variant_in_the_loop_detects_an_imu_fault_and_is_block_independent():
+    """``pl_variant = "araim"`` (IMU prior 1e-8, so it may go unmonitored with fewer than four satellites) on 3 km of
+    the final with the camera. Fault-free in 2 s blocks: every epoch protected (finite PLs and EMT, reason 0), its
+    error inside them, no alert. With a 0.5 m/s² accelerometer bias on body z from 20 s, in 7 s blocks: up to the
+    onset bit-identical to the fault-free run (the bank, snapshot and landmarks seen carried across blocks; the fault
+    draws nothing); after it the IMU-free mode's test alerts, and no epoch's error leaves the PLs unalerted."""
+    from testbed.config import fault_from_option
+    from testbed.sim.evaluate import position_errors
+
     ap = _short(("ekf",))
     cfg = ap.config.model_copy(update={"monitor": {"ekf": {"pl_variant": "araim",
                                                            "araim": {"inertia": {"p": 1e-8}}}}})
     ap = dataclasses.replace(ap, config=cfg)
-    a = run_approach(ap, seed=3, rrd_path=None, block_s=2.0)
-    b = run_approach(ap, seed=3, rrd_path=None, block_s=7.0)
-    oa, ob = a.outputs["ekf"], b.outputs["ekf"]
+    free = run_approach(ap, seed=3, rrd_path=None, block_s=2.0)
+    hit = run_approach(ap, seed=3, rrd_path=None, block_s=7.0,
+                       faults=[fault_from_option("imu_accel_bias:axis=z,bias_m_s2=0.5,onset_s=20")])
+    of, oh = free.outputs["ekf"], hit.outputs["ekf"]
+    before = free.loop.gnss.t < 20.0
     for f in ("hpl", "vpl", "alert", "reason"):
-        np.testing.assert_array_equal(getattr(oa, f), getattr(ob, f), err_msg=f)
-    np.testing.assert_array_equal(oa.diagnostics.emt, ob.diagnostics.emt)
-    assert (oa.reason == 0).all() and np.isfinite(oa.vpl).all() and np.isfinite(oa.diagnostics.emt).all()
-    assert not oa.alert.any() and a.summaries["ekf"].mi_epochs == 0
-    assert (oa.diagnostics.n_modes >= 6).all()
+        np.testing.assert_array_equal(getattr(of, f)[before], getattr(oh, f)[before], err_msg=f)
+    np.testing.assert_array_equal(of.diagnostics.emt[before], oh.diagnostics.emt[before])
+    assert (of.reason == 0).all() and np.isfinite(of.vpl).all() and np.isfinite(of.diagnostics.emt).all()
+    assert not of.alert.any() and free.summaries["ekf"].mi_epochs == 0
+    assert (of.diagnostics.n_modes >= 6).all()
+    assert oh.alert[~before].any()
+    he, ve = position_errors(oh, hit.loop.truth_at_gnss.pos_enu)
+    assert not np.any(((ve > oh.vpl) | (he > oh.hpl)) & ~oh.alert)

@@ -6,9 +6,6 @@ their checks through the command line; their campaign axis; and the ekf's reacti
 from __future__ import annotations
 
 import dataclasses
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,7 +20,6 @@ from testbed.sensors.imu import ImuSettings, sample_imu
 from testbed.sim.evaluate import position_errors
 from testbed.world.airport import runway_frame
 
-ROOT = Path(__file__).resolve().parents[1]
 FRAME = runway_frame()
 IMU = ImuSettings(grade="hg1700", scale_factor_ppm=300.0)  # noise, biases and scale factors: the fault rides on them
 TRUTH = straight_truth(FRAME, [-3000.0, -2000.0, 300.0], [0.0, 0.0, 15.0], 10.0, rate_hz=120.0)
@@ -127,23 +123,23 @@ def test_bad_fault_tables_name_the_key_and_value(table, key, said):
     assert len(lines) == 1 and lines[0].startswith(f"{key}: ") and said in lines[0], lines
 
 
-def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "testbed.cli", *args], cwd=ROOT, capture_output=True, text=True,
-                          timeout=300)
-
-
-def test_a_bad_imu_fault_on_the_command_line_is_exit_2_naming_key_and_value():
+def test_a_bad_imu_fault_on_the_command_line_is_exit_2_naming_key_and_value(capsys):
     """`testbed fly --fault imu_accel_bias:...` with a wrong axis, a 2-vector, or on an approach whose monitors do
     not read the IMU: exit 2, the option, key and value in the message, no traceback, nothing written."""
-    p = _cli("fly", "zunz-rwy05-ekf", "--no-record", "--fault", "imu_accel_bias:axis=up,bias_m_s2=0.5")
-    assert p.returncode == 2 and "Traceback" not in p.stderr
-    assert "--fault 'imu_accel_bias:axis=up,bias_m_s2=0.5': axis: Input should be 'x', 'y' or 'z' (got 'up')" \
-        in p.stderr
-    p = _cli("fly", "zunz-rwy05-ekf", "--no-record", "--fault", "imu_gyro_bias:bias_deg_h=[1,2]")
-    assert p.returncode == 2 and "bias_deg_h: expected a number" in p.stderr and "(got [1, 2])" in p.stderr
-    p = _cli("fly", "zunz-rwy05-final", "--no-record", "--fault", "imu_accel_bias:axis=z,bias_m_s2=0.5")
-    assert p.returncode == 2 and "Traceback" not in p.stderr
-    assert "faults.0.kind = 'imu_accel_bias': an IMU fault, but no configured monitor reads the IMU" in p.stderr
+    from testbed.cli import main
+
+    def fly(approach, fault):
+        rc = main(["fly", approach, "--no-record", "--fault", fault])
+        return rc, capsys.readouterr().err
+
+    rc, err = fly("zunz-rwy05-ekf", "imu_accel_bias:axis=up,bias_m_s2=0.5")
+    assert rc == 2 and "Traceback" not in err
+    assert "--fault 'imu_accel_bias:axis=up,bias_m_s2=0.5': axis: Input should be 'x', 'y' or 'z' (got 'up')" in err
+    rc, err = fly("zunz-rwy05-ekf", "imu_gyro_bias:bias_deg_h=[1,2]")
+    assert rc == 2 and "bias_deg_h: expected a number" in err and "(got [1, 2])" in err
+    rc, err = fly("zunz-rwy05-final", "imu_accel_bias:axis=z,bias_m_s2=0.5")
+    assert rc == 2 and "Traceback" not in err
+    assert "faults.0.kind = 'imu_accel_bias': an IMU fault, but no configured monitor reads the IMU" in err
 
 
 def _ekf_short():
@@ -153,6 +149,7 @@ def _ekf_short():
     return dataclasses.replace(ap, config=cfg)
 
 
+@pytest.mark.slow  # the araim variant's loop test flies the same fault in the default set
 def test_the_ekf_reacts_to_a_vertical_accelerometer_bias_in_the_loop():
     """zunz-rwy05-ekf (35 s of it, 8 satellites then 3), seed 4: 0.5 m/s² on body z from 20 s. Up to the onset
     the filter's outputs are bit-identical to the fault-free run's (the fault draws nothing); after it the
