@@ -166,3 +166,33 @@ def test_a_bad_k_record_stops_the_command_before_any_work(tmp_path, monkeypatch,
     err = capsys.readouterr().err
     assert "dpe-k.json" in err and "k = " in err and "gives" in err
     assert not out.exists()
+
+
+def _measured_k_rec(passed=True, worst=9.1e-8):
+    """The shipped record recast as a K measured by importance sampling (the schema calibrate-dpe --method
+    importance writes): its K, σ_z, b_z kept, a measured interval and held-out rates per stratum."""
+    rec = _k_rec()
+    rates = {name: {"estimate": est, "interval": [0.9 * est, 1.1 * est], "settled": True, "problems": []}
+             for name, est in (("all strata", 8.0e-8), ("cn0 -6 dB, multipath ground", worst))}
+    rec.update(estimator="importance", interval=[7.9e-8, 9.9e-8], trials=216_000, n_eff=22_000.0,
+               proposal={"kind": "mean shift"}, k_from="stratum 'cn0 -6 dB, multipath ground'",
+               validation={"passed": passed, "epochs": 215_000, "rates": rates, "rule": "every held-out estimate "
+                           "settled and at most p_hmi"})
+    return rec
+
+
+def test_a_k_measured_by_importance_sampling_is_validated_and_judged_by_its_own_rule():
+    """A measured K record: valid as written; a held-out rate above P_HMI that still says passed is refused; the
+    claims table says K holds at P_HMI measured in every stratum (not 'rests on the tail extrapolation'), and a
+    failed held-out check turns the verdict."""
+    rec = _measured_k_rec()
+    assert k_record_problems(rec) == []
+    bad = _measured_k_rec(worst=2e-7)  # passed, yet one held-out estimate is above P_HMI
+    assert any("validation.passed" in p and "its rates say False" in p for p in k_record_problems(bad))
+    fig, v, why = judge("factored VPL", _cases(feasible=0.0), rec, _hmi())
+    assert v.startswith("holds with a calibrated K and the median term at P_HMI, measured in every stratum"), v
+    assert "9.10e-08" in fig and "extrapolat" not in v and "importance-sampled tail" in why
+    failed = _measured_k_rec(passed=False, worst=2e-7)
+    assert judge("factored VPL", _cases(), failed, _hmi())[1].startswith("does not hold")
+    md = "\n".join(summary(_cases(), rec, _hmi(), trials=5))
+    assert "measured there by importance sampling" in md and "held-out 215000 epochs: passed" in md

@@ -144,6 +144,8 @@ def k_record_problems(rec) -> list[str]:
         x = rec.get(key)
         if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x) or (key == "sigma_z" and x <= 0):
             out.append(f"{key} = {x!r}: expected a finite number{' > 0' if key == 'sigma_z' else ''}")
+    if rec.get("estimator") == "importance":
+        return out or _measured_validation_problems(rec)
     v = rec.get("validation")
     need = {"epochs": int, "exceedances": int, "allowed": int, "passed": bool, "tails_hold": bool}
     if not isinstance(v, dict) or any(not isinstance(v.get(k), t) or (t is int and isinstance(v.get(k), bool))
@@ -163,6 +165,45 @@ def k_record_problems(rec) -> list[str]:
         out.append(f"validation.passed = {v['passed']}: its counts ({v['exceedances']} exceedances, {v['allowed']} "
                    f"allowed, tails_hold {v['tails_hold']}) say otherwise")
     return out
+
+
+def _measured_validation_problems(rec: dict) -> list[str]:
+    """An importance-sampled record's held-out check: a rate per stratum (estimate, interval, settled), and its
+    verdict re-derived by its rule (every estimate settled and at most ``p_hmi``)."""
+    v = rec["validation"]
+    rates = v.get("rates")
+    epochs = v.get("epochs")
+    if isinstance(epochs, bool) or not isinstance(epochs, int) or epochs < 1 or not isinstance(rates, dict) \
+            or not rates:
+        return [f"validation = {v!r}: expected its epochs (an integer >= 1) and a table of held-out rates"]
+    out = []
+    for name, r in rates.items():
+        iv = r.get("interval") if isinstance(r, dict) else None
+        if not (isinstance(r, dict) and isinstance(r.get("settled"), bool) and isinstance(r.get("estimate"), (int, float))
+                and not isinstance(r.get("estimate"), bool) and isinstance(iv, list) and len(iv) == 2):
+            out.append(f"validation.rates.{name} = {r!r}: expected estimate, interval [lower, upper] and settled")
+    if out:
+        return out
+    passed = all(r["settled"] and r["estimate"] <= rec["p_hmi"] for r in rates.values())
+    if v.get("passed") != passed:
+        out.append(f"validation.passed = {v.get('passed')!r}: its rates say {passed} (every held-out estimate settled "
+                   f"and at most p_hmi {rec['p_hmi']:g})")
+    return out
+
+
+def _held_out(k_rec: dict, p_req: float):
+    """The K record's held-out check as a :class:`~testbed.studies.verdicts.Judgement`: exceedances counted against
+    the requirement (a tail record), or the importance-sampled rates per stratum (a measured one)."""
+    from testbed.studies.verdicts import Judgement, rate_vs_requirement
+
+    v = k_rec["validation"]
+    if k_rec.get("estimator") != "importance":
+        return rate_vs_requirement(v["exceedances"], v["epochs"], p_req, "held-out error above the VPL")
+    name, worst = max(v["rates"].items(), key=lambda kv: kv[1]["estimate"])
+    text = (f"held-out P(|e| > VPL) at most {worst['estimate']:.2e} (95 % [{worst['interval'][0]:.2e}, "
+            f"{worst['interval'][1]:.2e}], '{name}') over {len(v['rates'])} estimates of {v['epochs']} epochs, "
+            f"importance-sampled")
+    return Judgement(bool(v["passed"]), text)
 
 
 def read_k_record(path: Path) -> dict:
@@ -225,11 +266,16 @@ def summary(cases: list[dict], k_rec: dict, hmi: dict[str, list[dict]], trials: 
                      f"{r['sigma_ob_m']:.2f}", f"{r['median_m']:+.3f}", f"{100 * r['about_solution_feasible']:.0f} %",
                      "-" if not np.isfinite(r["crb_u_m"]) else format(r["crb_u_m"], ".2f")] for r in cases])
     v = k_rec["validation"]
+    measured = k_rec.get("estimator") == "importance"
+    held = (_held_out(k_rec, float(k_rec["p_hmi"])).text if measured
+            else f"{v['exceedances']} with |e| > VPL, {v['allowed']} allowed")
     md += ["", "## 2. K (the shipped calibration record, re-validated: K re-derived from its σ_z, b_z and P_HMI, "
-           "the held-out check's counts re-derived)", "",
-           f"K = {k_rec['k']:.3f} for P_HMI = {k_rec['p_hmi']:g} per epoch ({k_rec['k_from']}; σ_z {k_rec['sigma_z']:.3f}, "
-           f"b_z {k_rec['b_z']:+.3f}; {k_rec['n_calibration']} calibration epochs); held-out {v['epochs']} epochs: "
-           f"{'passed' if v['passed'] else 'FAILED'} ({v['exceedances']} with |e| > VPL, {v['allowed']} allowed).", ""]
+           "the held-out check's verdict re-derived)", "",
+           f"K = {k_rec['k']:.3f} for P_HMI = {k_rec['p_hmi']:g} per epoch, "
+           + (f"measured there by importance sampling ({k_rec['k_from']}: 95 % [{k_rec['interval'][0]:.2e}, "
+              f"{k_rec['interval'][1]:.2e}]" if measured else f"extrapolated from the measured tails ({k_rec['k_from']}")
+           + f"; σ_z {k_rec['sigma_z']:.3f}, b_z {k_rec['b_z']:+.3f}; {k_rec['n_calibration']} calibration epochs); "
+           f"held-out {v['epochs']} epochs: {'passed' if v['passed'] else 'FAILED'} ({held}).", ""]
     for n, (name, key) in enumerate(CAMPAIGNS.items()):
         title = {"dpe-vs-raim": "DPE beside GPS RAIM, GPS step from 20 s",
                  "dpe-multipath": "DPE beside GPS RAIM under a ground echo, fault-free"}[name]
@@ -357,19 +403,23 @@ def judge(key: str, cases, k_rec, hmi) -> tuple[str, str, str]:
 
     feas_k = int(round(nom_l["about_solution_feasible"] * nom_l["epochs"]))
     median_needed = cp_upper(feas_k, nom_l["epochs"]) < 0.5  # a zero-mean Gaussian about the solution fails in most epochs
-    held = rate_vs_requirement(v["exceedances"], v["epochs"], p_req, "held-out error above the VPL")
+    measured = k_rec.get("estimator") == "importance"
+    held = _held_out(k_rec, p_req)
     free = _row(hmi.get("dpe-vs-raim", []), "fault_size", 0.0, "dpe")
     camp = rate_vs_requirement(free["mi_epochs"], free["epochs"], p_req, "campaign error above the VPL") if free else None
-    fig = (f"K = {k_rec['k']:.2f} (σ_z {k_rec['sigma_z']:.3f}, re-derived from the record); held-out "
-           f"{v['exceedances']} of {v['epochs']} above the VPL; fault-free campaign "
+    fig = (f"K = {k_rec['k']:.2f} (σ_z {k_rec['sigma_z']:.3f}, re-derived from the record); "
+           + (held.text if measured else f"held-out {v['exceedances']} of {v['epochs']} above the VPL")
+           + "; fault-free campaign "
            + (f"{free['mi_epochs']} of {free['epochs']}" if free else "-")
            + f"; about-solution overbound feasible in {feas_k} of {nom_l['epochs']} reference epochs")
     if not v["passed"] or held.holds is False or (camp is not None and camp.holds is False):
         verdict = "does not hold: the factored VPL is exceeded beyond its budget"
     else:
         verdict = ("holds with a calibrated K" + (" and the median term" if median_needed else "")
-                   + f" to the rate its samples bound ({held.text}"
-                   + (f"; {camp.text}" if camp else "") + "); P_HMI itself rests on the tail extrapolation")
+                   + (" at P_HMI, measured in every stratum" if measured else " to the rate its samples bound")
+                   + f" ({held.text}" + (f"; {camp.text}" if camp else "") + ")"
+                   + ("" if measured else "; P_HMI itself rests on the tail extrapolation"))
     return (fig, verdict,
             "a zero-mean Gaussian about the solution cannot bound a curve whose median is not 0 (docs/design/dpe.md F3); "
-            "K extrapolates the measured tails (stated in the record)")
+            + ("K is where the importance-sampled tail reaches P_HMI (the record's proposal and assumption)" if measured
+               else "K extrapolates the measured tails (stated in the record)"))
