@@ -192,6 +192,10 @@ def test_the_araim_variant_in_the_loop_detects_an_imu_fault_and_is_block_indepen
     assert (of.reason == 0).all() and np.isfinite(of.vpl).all() and np.isfinite(of.diagnostics.emt).all()
     assert not of.alert.any() and free.summaries["ekf"].mi_epochs == 0
     assert (of.diagnostics.n_modes >= 6).all()
+    rows = of.diagnostics.summary_rows()
+    assert rows["EMT max / p95"].endswith(" m") and set(of.diagnostics.epoch_columns()) >= {"emt_m", "risk_inertia_v"}
+    risk = of.diagnostics.risk_aid_enu[..., 2]  # vision and IMU modes' vertical risk: within the vertical budget
+    assert np.all((risk >= 0.0) & (risk.sum(-1) <= 9.8e-8 * (1 + 1e-9)))
     assert oh.alert[~before].any()
     he, ve = position_errors(oh, hit.loop.truth_at_gnss.pos_enu)
     assert not np.any(((ve > oh.vpl) | (he > oh.hpl)) & ~oh.alert)

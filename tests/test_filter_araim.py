@@ -128,7 +128,7 @@ def test_modes_under_the_must_monitor_floor_are_left_out_until_the_unmonitored_p
 def test_protection_levels_solve_the_integrity_risk_equation(fault_free):
     """At five epochs of one run the vertical PL against brentq on eq. 16 written out here from the filter's
     covariances (fault-free term 2Q(PL/σ₀), each monitored mode p·min(Q((PL − T)/σ_k), α)): within the tolerance
-    above the root."""
+    above the root; the IMU mode's reported risk is its term there."""
     _, _, trace, bank, _ = fault_free
     st = AraimSettings()
     fa = _araim(trace, bank, st)
@@ -154,7 +154,13 @@ def test_protection_levels_solve_the_integrity_risk_equation(fault_free):
             return 2 * q_function(pl / np.sqrt(var0[k])) + modes.sum() - target
 
         root = optimize.brentq(risk, 0.0, 1e4, xtol=1e-9)
-        assert root - 1e-9 <= fa.pl_enu[0, k, 2] <= root + st.tol_pl, (k, fa.pl_enu[0, k, 2], root)
+        pl = fa.pl_enu[0, k, 2]
+        assert root - 1e-9 <= pl <= root + st.tol_pl, (k, pl, root)
+        # the IMU mode's share of eq. 16 at the PL, as reported (× N_ES over the exposure)
+        z = (pl - thr[-1]) / np.sqrt(var_k[-1, k])
+        ins = p_inst[-1] * min(q_function(z) if z > 0 else 1.0, alpha[-1]) * st.n_es_int if live[-1] else 0.0
+        np.testing.assert_allclose(fa.risk_aid_enu[0, k, 1, 2], ins, rtol=1e-9)
+        assert fa.risk_aid_enu[0, k, 0, 2] == 0.0  # no camera here
     assert M >= 7
 
 

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from testbed.integrity.araim import AraimSettings
 from testbed.integrity.araim.fault_modes import P_MUST_MONITOR
-from testbed.integrity.araim.protection import fa_multipliers, solve_protection_level
+from testbed.integrity.araim.protection import fa_multipliers, q_tilde, solve_protection_level
 from testbed.navigation.separation import GNSS_MODE
 
 #: reason codes of the filter's ARAIM variant (the monitor's reason table extends its own with these)
@@ -57,6 +57,9 @@ class FilterAraim:
     n_modes: NDArray
     p_unmonitored: NDArray
     reason: NDArray  # 0 ok, else 1 + index into FILTER_ARAIM_REASONS
+    #: the integrity risk eq. 16 gives the vision modes (camera, landmarks) and the IMU's at the protection levels,
+    #: per axis over the exposure (× N_ES,int): (B, T, 2, 3), NaN where unavailable
+    risk_aid_enu: NDArray
 
 
 def _exposure(p: float, mfd_h: float, settings: AraimSettings) -> float:
@@ -191,7 +194,12 @@ def filter_araim(p0: NDArray, P0: NDArray, modes: NDArray, vision_mode: int, per
     pl = np.where(ok[..., None], pl, np.inf)
     emt_modes = active & (p_k >= settings.p_emt)
     emt = np.where(ok, np.where(emt_modes, threshold[..., 2], 0.0).max(0, initial=0.0), np.nan)
-    return FilterAraim(pl, ratio, emt, n_modes, p_nm, reason)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        z = (pl[None] - threshold) / np.where(var_i > 0.0, np.sqrt(var_i), 1.0)
+        terms = np.where(active[..., None], p_k[..., None] * np.minimum(q_tilde(z), alpha[..., None]), 0.0)
+    vision = np.r_[modes >= vision_mode, False]
+    risk = np.stack([terms[vision].sum(0), terms[-1]], -2) * settings.n_es_int  # (B, T, 2, 3)
+    return FilterAraim(pl, ratio, emt, n_modes, p_nm, reason, np.where(ok[..., None, None], risk, np.nan))
 
 
 __all__ = ["FILTER_ARAIM_REASONS", "FilterAraim", "dual_events", "filter_araim", "select_modes"]

@@ -38,7 +38,7 @@ from pydantic import Field, model_validator
 from scipy import stats
 
 from testbed.integrity.araim import AraimSettings
-from testbed.integrity.araim.protection import araim_availability
+from testbed.integrity.araim.protection import EMT_LIMITS, araim_availability
 from testbed.integrity.levels import availability, service_level
 from testbed.integrity.gps_only import gps_satellites
 from testbed.integrity.monitor import MonitorContext, MonitorCost, MonitorDefaults, Observations, REFERENCE_POINT
@@ -158,7 +158,45 @@ class EkfDiagnostics(Diagnostics):
     n_features: NDArray = epoch_array()  # features in the filter's state (0 without [vision.features])
     emt: NDArray = epoch_array()  # 'araim': the effective monitor threshold (m), NaN otherwise
     p_unmonitored: NDArray = epoch_array()  # 'araim': the exposure prior left unmonitored, NaN otherwise
+    #: 'araim': the integrity risk the vision modes and the IMU's mode take in the PL equation at the PLs, per axis
+    #: over the exposure (B..., T, 2, 3): [vision, inertia] × [E, N, U]; NaN otherwise
+    risk_aid_enu: NDArray = epoch_array(2)
     k_ff: float = 0.0
+    araim: bool = False  # the options asked for pl_variant = 'araim'
+
+    def summary_rows(self) -> dict[str, str]:
+        """With the ARAIM variant: EMT (largest and 95th percentile over the protected epochs), the fault modes, the
+        largest unmonitored prior and the vision modes' and the IMU mode's largest vertical integrity risk."""
+        if not self.araim:
+            return {}
+
+        def finite(x):
+            x = np.asarray(x, float)
+            return x[np.isfinite(x)]
+
+        emt, p_nm = finite(self.emt), finite(self.p_unmonitored)
+        risk_v = [finite(np.asarray(self.risk_aid_enu)[..., g, 2]) for g in (0, 1)]
+        n = np.asarray(self.n_modes)
+        return {"EMT max / p95": f"{emt.max():.2f} / {np.percentile(emt, 95):.2f} m" if emt.size else "-",
+                "fault modes (min-max)": f"{n.min()}-{n.max()}" if n.size else "-",
+                "unmonitored prior (max)": f"{p_nm.max():.2e}" if p_nm.size else "-",
+                "vision / IMU integrity risk V (max)": " / ".join(f"{r.max():.2e}" if r.size else "-" for r in risk_v)}
+
+    def epoch_columns(self) -> dict[str, NDArray]:
+        """With the ARAIM variant: EMT (m), the unmonitored prior and the vision and IMU modes' vertical risk."""
+        if not self.araim:
+            return {}
+        risk = np.asarray(self.risk_aid_enu, float)
+        return {"emt_m": self.emt, "p_unmonitored": self.p_unmonitored, "fault_modes": self.n_modes,
+                "risk_vision_v": risk[..., 0, 2], "risk_inertia_v": risk[..., 1, 2]}
+
+    def plot_series(self) -> dict[str, tuple[NDArray, str]]:
+        """With the ARAIM variant: EMT on the vertical panel with its LPV-200 limit."""
+        if not self.araim:
+            return {}
+        n = np.shape(self.emt)[-1]
+        return {"vertical/emt": (self.emt, "EMT"),
+                "vertical/emt_limit": (np.full(n, EMT_LIMITS["LPV-200"]), "EMT limit (LPV-200)")}
 
 
 @dataclass(frozen=True)
@@ -253,6 +291,7 @@ class EkfMonitor(MonitorDefaults):
             alert |= w_stat > w_thr
         nan = np.full(nis.shape, np.nan)
         emt, p_nm, reason = nan, nan, np.zeros(nis.shape, np.int8)
+        risk_aid = np.full(nis.shape + (2, 3), np.nan)
         levels = tuple(service_level(s) for s in st.service_levels)
         if self.settings.araim_variant:
             allocation = self.settings.araim.model_copy(update={"service_levels": tuple(st.service_levels)})
@@ -260,7 +299,7 @@ class EkfMonitor(MonitorDefaults):
                               tr.snap_p, tr.snap_P, n_landmarks, allocation)
             hpl, vpl = np.hypot(fa.pl_enu[..., 0], fa.pl_enu[..., 1]), fa.pl_enu[..., 2]
             alert = fa.ratio > 1.0  # ARAIM's tests are the alert; the χ² tests stay diagnostics
-            ratio, n_modes, emt, p_nm = fa.ratio, fa.n_modes, fa.emt, fa.p_unmonitored
+            ratio, n_modes, emt, p_nm, risk_aid = fa.ratio, fa.n_modes, fa.emt, fa.p_unmonitored, fa.risk_aid_enu
             reason = np.where(fa.reason > 0, ARAIM_REASON_BASE + fa.reason, 0).astype(np.int8)
             avail = araim_availability(hpl, vpl, emt, sig[..., 2], allocation.service_levels)
         elif bank is not None:
@@ -280,7 +319,8 @@ class EkfMonitor(MonitorDefaults):
                               accel_bias=shape(tr.ba), gyro_bias=shape(tr.bg), clock_drift=shape(tr.cd),
                               window_stat=shape(w_stat), window_threshold=shape(w_thr), ss_ratio=shape(ratio),
                               n_modes=shape(n_modes), n_features=shape(n_feat), emt=shape(emt),
-                              p_unmonitored=shape(p_nm), k_ff=k_ff)
+                              p_unmonitored=shape(p_nm), risk_aid_enu=shape(risk_aid), k_ff=k_ff,
+                              araim=self.settings.araim_variant)
         hpl, vpl = shape(hpl), shape(vpl)
         T = tr.t.size
         return MonitorOutput(
@@ -297,7 +337,8 @@ class EkfMonitor(MonitorDefaults):
         diag = EkfDiagnostics(sigma_enu=z(3), cov_enu=z(3, 3), nis=nan, dof=np.zeros(lead + (T,), np.int64), accel_bias=z(3),
                               gyro_bias=z(3), clock_drift=nan, window_stat=nan, window_threshold=nan, ss_ratio=nan,
                               n_modes=np.zeros(lead + (T,), np.int64), n_features=np.zeros(lead + (T,), np.int64),
-                              emt=nan, p_unmonitored=nan, k_ff=float(stats.norm.isf(self.settings.p_ff / 2)))
+                              emt=nan, p_unmonitored=nan, risk_aid_enu=z(2, 3), k_ff=float(stats.norm.isf(self.settings.p_ff / 2)),
+                              araim=self.settings.araim_variant)
         return MonitorOutput(
             name=self.name, t=np.asarray(t), pos_enu=z(3), clock=nan, hpl=nan, vpl=nan, test_stat=nan, threshold=nan,
             alert=np.zeros(lead + (T,), bool), available=np.zeros(lead + (T, len(st.service_levels)), bool),
