@@ -173,7 +173,7 @@ def test_the_araim_variant_in_the_loop_detects_an_imu_fault_and_is_block_indepen
     the final with the camera. Fault-free in 2 s blocks: every epoch protected (finite PLs and EMT, reason 0), its
     error inside them, no alert. With a 0.5 m/s² accelerometer bias on body z from 20 s, in 7 s blocks: up to the
     onset bit-identical to the fault-free run (the bank, snapshot and landmarks seen carried across blocks; the fault
-    draws nothing); after it the IMU-free mode's test alerts, and no epoch's error leaves the PLs unalerted."""
+    draws nothing); after it the separation test alerts, and no epoch's error leaves the PLs unalerted."""
     from testbed.config import fault_from_option
     from testbed.sim.evaluate import position_errors
 

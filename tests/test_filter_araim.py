@@ -17,7 +17,7 @@ from testbed.integrity.araim import AraimSettings
 from testbed.integrity.araim.fault_modes import AID_CAMERA, AID_INERTIA, AID_LANDMARK, fault_events, prob_at_least
 from testbed.integrity.araim.protection import q_function
 from testbed.navigation.ekf import ClockNoise
-from testbed.navigation.filter_araim import (FAULT_ORDER, OK, UNMONITORED, dual_events, filter_araim, select_modes)
+from testbed.navigation.filter_araim import FAULT_ORDER, OK, UNMONITORED, dual_events, filter_araim, select_modes
 from testbed.navigation.monitor import EkfSettings
 from testbed.navigation.run import filter_epochs
 from testbed.navigation.separation import GNSS_MODE, Bank
@@ -76,6 +76,45 @@ def test_the_snapshot_separation_is_distributed_as_its_covariance_says(fault_fre
     assert np.all((e > lo) & (e < hi)), e
 
 
+def test_with_a_lever_arm_the_snapshot_keeps_its_covariance_and_its_separation_from_the_filter():
+    """The b737's antenna lever arm (2, 0, −2.8) m: the pseudoranges taken at the antenna, the snapshot's Jacobian
+    with attitude columns (SH ≠ E, so (E − SH)P⁻(E − SH)ᵀ ≠ 0). Over 100 runs, at four epochs per axis, the
+    separation from the filter against Σ_s − P and the snapshot's own error against Σ_s: inside their two-sided
+    99.9 % χ²(100) bands."""
+    from test_ekf import IMU
+    from test_integrity_core_helpers import make_gnss
+    from testbed.flight.kinematic import straight_truth
+    from testbed.inertial import body_to_world, local_to_world
+    from testbed.records import Mount
+    from testbed.sensors.gnss.errors import receiver_clock
+    from testbed.sensors.imu import sample_imu
+    from testbed.sensors.imu.alignment import align
+    from testbed.navigation.run import state_from_init
+
+    B, lever, seed = 100, np.array([2.0, 0.0, -2.8]), 17
+    tr = straight_truth(FRAME, [-8000, -6000, 500], [-6000, -4500, 400], 20.0, rate_hz=120.0)
+    imu, _ = sample_imu(tr, IMU, np.random.default_rng(seed), n_trials=B)
+    g1 = tr.decimate(1.0)
+    C = body_to_world(FRAME, g1.pos_enu, g1.q_body_to_enu)
+    antenna = g1.pos_enu + np.einsum("tij,j->ti", C, lever)
+    gnss, rho0, sig = make_gnss(FRAME, antenna, 344063.0 + g1.t, None)
+    cb, cd = receiver_clock(np.random.default_rng(seed + 1), g1.t, (B,), bias0_sigma_m=100.0, drift0_sigma_m_s=1.0,
+                            sf_m2_s=ClockNoise.sf, sg_m2_s3=ClockNoise.sg)
+    noise = np.random.default_rng(seed + 2).standard_normal((B,) + rho0.shape) * sig
+    gnss = replace(gnss, t=g1.t, pseudorange=np.where(gnss.visible, rho0 - 1234.5 + cb[..., None] + noise, np.nan),
+                   antenna=Mount(lever_arm_body=lever))
+    init = align(tr.t[0], body_to_world(FRAME, tr.pos_enu[0], tr.q_body_to_enu[0]),
+                 local_to_world(FRAME, tr.pos_enu[0], tr.vel_enu[0]), tr.pos_enu[0], cb[:, 0], cd[:, 0],
+                 IMU.figures(), np.random.default_rng(seed + 3), B)
+    trace = filter_epochs(state_from_init(init), imu, FRAME, NOISE, gnss, None, ClockNoise(), snapshot=True)[0]
+    lo, hi = stats.chi2.ppf([0.0005, 0.9995], B)
+    k = [2, 6, 12, 19]
+    var_ss = np.diagonal(trace.snap_P - trace.P[..., :3, :3], axis1=-2, axis2=-1)
+    q = ((trace.snap_p - trace.p) ** 2 / var_ss)[:, k].sum(0)
+    e = ((trace.snap_p - g1.pos_enu) ** 2 / np.diagonal(trace.snap_P, axis1=-2, axis2=-1))[:, k].sum(0)
+    assert np.all((q > lo) & (q < hi)) and np.all((e > lo) & (e < hi)), (q, e)
+
+
 def test_the_gnss_wide_sub_filter_is_the_filter_without_any_satellite():
     """The bank's sub-filter without every satellite (GNSS_MODE) against a filter run on its own with no satellite
     visible: its position variances within 0.5 % at every epoch, the covariances within 1e-4 of the largest entry
@@ -116,13 +155,90 @@ def test_dual_events_equal_the_araim_cores_enumeration_of_the_same_events():
 
 def test_modes_under_the_must_monitor_floor_are_left_out_until_the_unmonitored_prior_reaches_p_thres():
     """Three optional modes (exposure priors 3e-8, 2e-8, 1e-8) and one must-monitor mode, base 1e-8, P_THRES 8e-8:
-    all optional ones fit unmonitored (7e-8); with base 3e-8 the largest is monitored (then 6e-8)."""
-    active = np.ones((4, 1), bool)
+    all optional ones fit unmonitored (7e-8); with base 3e-8 one is monitored, the one removing the fewest rows
+    (rank 0, the 2e-8 one) before the larger prior of a wider mode (rank 1, 3e-8), as the core orders them."""
+    candidate = np.ones((4, 1), bool)
     p_exp = np.array([[3e-8], [2e-8], [1e-8], [1e-5]])
-    mon, nm = select_modes(active, p_exp, np.zeros_like(p_exp), np.array([1e-8]), 8e-8)
+    rank = np.array([1, 0, 0, 0])
+    mon, nm = select_modes(candidate, p_exp, rank, np.array([1e-8]), 8e-8)
     assert mon[:, 0].tolist() == [False, False, False, True] and np.isclose(nm[0], 7e-8)
-    mon, nm = select_modes(active, p_exp, np.zeros_like(p_exp), np.array([3e-8]), 8e-8)
-    assert mon[:, 0].tolist() == [True, False, False, True] and np.isclose(nm[0], 6e-8)
+    mon, nm = select_modes(candidate, p_exp, rank, np.array([3e-8]), 8e-8)
+    assert mon[:, 0].tolist() == [False, True, False, True] and np.isclose(nm[0], 7e-8)
+
+
+def _events(st, n_sat, n_lm):
+    """Every fault event (name, group, instantaneous prior, exposure prior): satellites, GPS, landmarks, camera, IMU."""
+    ism = st.ism["GPS"]
+    exp = lambda p, mfd: p * (1 + st.t_exp_s / (3600 * mfd))  # noqa: E731
+    ev = [(f"sat{i}", "gnss", ism.p_sat, exp(ism.p_sat, ism.mfd_sat_h)) for i in range(n_sat)]
+    ev += [("const", "gnss", ism.p_const, exp(ism.p_const, ism.mfd_const_h))]
+    ev += [(f"lm{i}", "vision", st.landmark.p, exp(st.landmark.p, st.landmark.mfd_h)) for i in range(n_lm)]
+    ev += [("camera", "vision", st.camera.p, exp(st.camera.p, st.camera.mfd_h)),
+           ("imu", "imu", st.inertia.p, exp(st.inertia.p, st.inertia.mfd_h))]
+    return ev
+
+
+def _subsets(ev, which):
+    """Every non-empty subset of the events: (names, groups, probability of exactly it) at priors ``which`` (2 or 3)."""
+    from itertools import combinations
+
+    p = np.array([e[which] for e in ev])
+    none = np.prod(1 - p)
+    for r in range(1, len(ev) + 1):
+        for c in combinations(range(len(ev)), r):
+            yield {ev[i][0] for i in c}, {ev[i][1] for i in c}, none * np.prod(p[list(c)] / (1 - p[list(c)]))
+
+
+def test_the_unmonitored_prior_and_the_pls_against_a_brute_force_enumeration_of_the_events():
+    """Six satellites, GPS's constellation (P_const 1e-9: optional, left out), three landmarks, the camera and the IMU,
+    on synthetic covariances: the unmonitored prior against every subset of the 12 events enumerated, each covered
+    only by a monitored mode that removes all of it (within 1e-3 above: the code takes a left-out mode's prior
+    for 'exactly it'); the vertical PL against brentq on eq. 16 whose terms and priors (the camera's with the dual
+    vision events it removes, by enumeration) the test builds itself; the vision risk is its terms' sum."""
+    ism = dict(AraimSettings().ism)
+    ism["GPS"] = ism["GPS"].model_copy(update={"p_const": 1e-9})
+    st = AraimSettings(ism=ism)
+    S, n_sat, n_lm = 24, 6, 3
+    modes = np.r_[np.arange(n_sat), GNSS_MODE, S, S + 1 + np.arange(n_lm)]
+    rng = np.random.default_rng(5)
+    P0 = np.diag([0.3, 0.4, 0.9])[None, None]
+    d = rng.uniform(0.05, 2.0, (modes.size, 3))
+    sub_Pp = (P0[0, 0] + np.eye(3) * d[:, None, :])[:, None]  # (M·B, T, 3, 3), B = T = 1
+    sub_dp = rng.normal(0.0, 0.1, (modes.size, 1, 3))
+    snap_P = (P0[0, 0] + np.diag([0.8, 0.9, 2.5]))[None, None]
+    fa = filter_araim(np.zeros((1, 1, 3)), P0, modes, S, True, sub_dp, sub_Pp, np.full((1, 1, 3), 0.05), snap_P,
+                      np.full((1, 1), float(n_lm)), st)
+    ev = _events(st, n_sat, n_lm)
+    # monitored: each satellite, landmark, the camera (all vision), the IMU; not the GNSS-wide mode
+    singles = {f"sat{i}" for i in range(n_sat)} | {f"lm{i}" for i in range(n_lm)} | {"imu"}
+    covered = lambda names, groups: (len(names) == 1 and names <= singles) or groups == {"vision"}  # noqa: E731
+    brute = sum(pr for names, groups, pr in _subsets(ev, 3) if not covered(names, groups))
+    assert brute <= fa.p_unmonitored[0, 0] <= brute * (1 + 1e-3), (fa.p_unmonitored[0, 0], brute)
+    assert fa.reason[0, 0] == 0 and fa.n_modes[0, 0] == n_sat + n_lm + 2
+    # eq. 16, vertically, written out here
+    dual_vision = sum(pr for names, groups, pr in _subsets(ev, 2) if groups == {"vision"} and len(names) >= 2)
+    exp_ratio = lambda p_inst, p_exp: min(1.0, p_exp / (p_inst * st.n_es_int))  # noqa: E731
+    terms = []  # (prior, cap, σ_k, σ_ss, is_vision) of the monitored modes
+    for m, dk in zip(modes, d):
+        if m == GNSS_MODE:
+            continue
+        e = ev[m] if m < S else (ev[n_sat + 1 + n_lm] if m == S else ev[n_sat + 1 + (m - S - 1)])
+        p_inst = e[2] + (dual_vision if m == S else 0.0)
+        p_exp = e[3] + (sum(pr for names, g, pr in _subsets(ev, 3) if g == {"vision"} and len(names) >= 2)
+                        if m == S else 0.0)
+        terms.append((p_inst, exp_ratio(p_inst, p_exp), np.sqrt(P0[0, 0, 2, 2] + dk[2]), np.sqrt(dk[2]), m >= S))
+    imu = ev[-1]
+    terms.append((imu[2], exp_ratio(imu[2], imu[3]), np.sqrt(snap_P[0, 0, 2, 2]), np.sqrt(2.5), False))
+    k_fa = stats.norm.isf(st.p_fa_vert / (2 * st.n_es_cont * len(terms)))
+    target = st.p_hmi_vert * (1 - brute / (st.p_hmi_vert + st.p_hmi_hor)) / st.n_es_int
+    term = lambda pl, t: t[0] * min(q_function((pl - k_fa * t[3]) / t[2]) if pl > k_fa * t[3] else 1.0, t[1])  # noqa: E731
+    root = optimize.brentq(lambda pl: 2 * q_function(pl / np.sqrt(P0[0, 0, 2, 2])) + sum(term(pl, t) for t in terms)
+                           - target, 0.0, 1e3, xtol=1e-10)
+    pl = fa.pl_enu[0, 0, 2]
+    assert root - 1e-6 <= pl <= root + st.tol_pl + 1e-6, (pl, root)
+    vision = sum(term(pl, t) for t in terms if t[4]) * st.n_es_int
+    np.testing.assert_allclose(fa.risk_aid_enu[0, 0, 0, 2], vision, rtol=1e-9)
+    np.testing.assert_allclose(fa.risk_aid_enu[0, 0, 1, 2], term(pl, terms[-1]) * st.n_es_int, rtol=1e-9)
 
 
 def test_protection_levels_solve_the_integrity_risk_equation(fault_free):

@@ -12,12 +12,16 @@ ADD's thresholds and protection-level equation (docs/design/nav-filter.md §8.4)
 * the IMU (the epoch's pseudoranges alone, :mod:`.snapshot`; prior P_inertia). Its attitude also aims the camera, so
   the snapshot leaves the pixels out too. Below four satellites it is unobservable and its prior goes unmonitored.
 
-**Unmonitored prior.** Two or more events at once, except combinations inside the GNSS or inside the vision group
-(the wider mode removes them): ``P(≥2) − P(≥2 in G, none outside) − P(≥2 in V, none outside)`` over the exposure
-priors (eq. 5-6), plus unobservable modes. Above P_THRES the epoch needs dual-event modes the bank does not hold:
-"unavailable", with the reason. Modes whose exposure prior is at most 1e-7 are then left out as the ADD selects
-(eq. 8; :func:`select_modes`): the GNSS-wide mode with GPS's P_const of 1e-8, say, whose coasting sub-filter would
-otherwise set the horizontal protection level.
+**Unmonitored prior.** Two or more events at once, except combinations inside the GNSS or inside the vision group:
+``P(≥2) − P(≥2 in G, none outside) − P(≥2 in V, none outside)`` over the exposure priors (eq. 5-6). A group's
+combinations are its widest mode's to remove (the sub-filter without any satellite, or without any pixel row), so
+they join that mode's prior, as the ARAIM core folds a constellation's modes into its own. Above P_THRES the epoch
+needs dual-event modes the bank does not hold: "unavailable", with the reason. The IMU's mode is taken to cover the
+IMU alone, though its subset also leaves the pixels out (conservative). Modes are then selected as the core selects
+them (eq. 8; :func:`select_modes`): an exposure prior above 1e-7 is monitored, and the others are monitored, fewest
+rows removed first, only while the unmonitored prior exceeds P_THRES. So GPS's P_const of 1e-8 leaves the GNSS-wide
+mode out, whose coasting sub-filter would otherwise set the horizontal protection level. A chosen mode that is
+unobservable (the IMU's below four satellites) adds its prior after.
 
 **Statistics.** Per mode k and axis q: the separation Δ = x̂⁽ᵏ⁾ − x̂⁽⁰⁾ with σ²_ss = (P_k − P_0)_qq, the threshold
 ``T = K_fa,q σ_ss`` (eq. 14-15: P_FA over modes and axes), the protection level by eq. 16 (fault-free σ from P_0,
@@ -41,8 +45,8 @@ from testbed.navigation.separation import GNSS_MODE
 FILTER_ARAIM_REASONS = (
     "unavailable: dual-event modes needed (two simultaneous faults outside one group exceed P_THRES; the bank holds "
     "single events)",
-    "unavailable: the unmonitored prior exhausts the integrity budget (the IMU's mode is unobservable below four "
-    "satellites)",
+    "unavailable: the unmonitored prior exhausts the integrity budget (with it the priors of unobservable modes: the "
+    "IMU's below four satellites)",
 )
 OK, FAULT_ORDER, UNMONITORED = 0, 1, 2
 
@@ -71,18 +75,19 @@ def _at_least_two(log_none: NDArray, q_sum: NDArray) -> NDArray:
     return -np.expm1(log_none + np.log1p(q_sum))
 
 
-def dual_events(n_sat: NDArray, gnss: NDArray, n_landmarks: NDArray, settings: AraimSettings
+def dual_events(n_sat: NDArray, gnss: NDArray, n_landmarks: NDArray, settings: AraimSettings, exposure: bool = True
                 ) -> tuple[NDArray, dict[str, NDArray]]:
-    """P(≥ 2 fault events at once) over the exposure (eq. 5-6), and per group ("gnss", "vision") the part with every
-    event inside it (which the group's widest mode removes), per element of the inputs: ``n_sat`` satellites in the
-    filter, ``gnss`` its constellation event present, ``n_landmarks`` landmarks seen; the IMU is always one event."""
+    """P(≥ 2 fault events at once) (eq. 5-6; over the exposure, or at an instant), and per group ("gnss", "vision")
+    the part with every event inside it (which the group's widest mode removes), per element of the inputs:
+    ``n_sat`` satellites in the filter, ``gnss`` its constellation event present, ``n_landmarks`` landmarks seen;
+    the IMU is always one event."""
     ism = settings.system_ism(0)
-    groups = {  # per group: (count, exposure prior) of its events
-        "gnss": [(n_sat, _exposure(ism.p_sat, ism.mfd_sat_h, settings)),
-                 (gnss.astype(float), _exposure(ism.p_const, ism.mfd_const_h, settings))],
-        "vision": [(n_landmarks, _exposure(settings.landmark.p, settings.landmark.mfd_h, settings)),
-                   ((n_landmarks > 0).astype(float), _exposure(settings.camera.p, settings.camera.mfd_h, settings))],
-        "inertia": [(np.ones(np.shape(n_sat)), _exposure(settings.inertia.p, settings.inertia.mfd_h, settings))],
+    pr = (lambda p, mfd_h: _exposure(p, mfd_h, settings)) if exposure else (lambda p, mfd_h: p)  # noqa: E731
+    groups = {  # per group: (count, prior) of its events
+        "gnss": [(n_sat, pr(ism.p_sat, ism.mfd_sat_h)), (gnss.astype(float), pr(ism.p_const, ism.mfd_const_h))],
+        "vision": [(n_landmarks, pr(settings.landmark.p, settings.landmark.mfd_h)),
+                   ((n_landmarks > 0).astype(float), pr(settings.camera.p, settings.camera.mfd_h))],
+        "inertia": [(np.ones(np.shape(n_sat)), pr(settings.inertia.p, settings.inertia.mfd_h))],
     }
     log_none = {g: sum(n * np.log1p(-p) for n, p in ev) for g, ev in groups.items()}
     q_sum = {g: sum(n * p / (1.0 - p) for n, p in ev) for g, ev in groups.items()}
@@ -91,17 +96,20 @@ def dual_events(n_sat: NDArray, gnss: NDArray, n_landmarks: NDArray, settings: A
     return _at_least_two(total_log, sum(q_sum.values())), inside
 
 
-def select_modes(active: NDArray, p_exp: NDArray, extra: NDArray, base: NDArray, p_thres: float) -> tuple[NDArray,
-                                                                                                        NDArray]:
-    """The ADD's selection (eq. 8) over K candidate modes (K, ...): a mode whose exposure prior exceeds
-    :data:`~testbed.integrity.araim.fault_modes.P_MUST_MONITOR` is monitored; the others are left out, each adding its
-    prior and ``extra`` (the dual events only it removes) to the unmonitored prior ``base``, and monitored, largest
-    first, while that sum exceeds ``p_thres``. Returns the monitored mask (K, ...) and the unmonitored prior (...)."""
-    optional = active & (p_exp <= P_MUST_MONITOR)
-    leave = np.where(optional, p_exp + extra, 0.0)
+def select_modes(candidate: NDArray, p_exp: NDArray, rank: NDArray, base: NDArray, p_thres: float
+                 ) -> tuple[NDArray, NDArray]:
+    """The ADD's selection (eq. 8), as the ARAIM core's :func:`~testbed.integrity.araim.fault_modes.fault_modes`
+    makes it, over K candidate modes (K, ...): a mode whose exposure prior exceeds
+    :data:`~testbed.integrity.araim.fault_modes.P_MUST_MONITOR` is monitored; the others start unmonitored, their
+    priors added to ``base``, and are monitored in order — ``rank`` (K,) first (the rows a mode removes: fewest
+    first), then the larger prior — while the unmonitored prior exceeds ``p_thres``. Returns the monitored mask
+    (K, ...) and the unmonitored prior (...)."""
+    optional = candidate & (p_exp <= P_MUST_MONITOR)
+    leave = np.where(optional, p_exp, 0.0)
     unmonitored = base + leave.sum(0)
-    monitored = active & ~optional
-    order = np.argsort(-leave, axis=0)
+    monitored = candidate & ~optional
+    order = np.lexsort((-leave, np.broadcast_to(np.reshape(rank, (-1,) + (1,) * (leave.ndim - 1)), leave.shape)),
+                       axis=0)
     for r in range(leave.shape[0]):
         k = order[r:r + 1]
         take = np.take_along_axis(optional, k, 0)[0] & (unmonitored > p_thres)
@@ -160,13 +168,22 @@ def filter_araim(p0: NDArray, P0: NDArray, modes: NDArray, vision_mode: int, per
     n_sat = active[:M][is_sat].sum(0)
     gnss = active[:M][modes == GNSS_MODE].any(0)
     total, inside = dual_events(n_sat, gnss, n_landmarks, settings)
-    # the dual events inside a group are the group's widest mode's to remove (unmonitored with it)
+    _, inside_now = dual_events(n_sat, gnss, n_landmarks, settings, exposure=False)
+    # a group's dual events are its widest mode's to remove: they join that mode's prior (as the core folds a
+    # constellation's modes into its own), and leave the unmonitored prior only where it is monitored
     wide = {"gnss": np.r_[modes == GNSS_MODE, False], "vision": np.r_[modes == vision_mode, False]}
-    extra = sum(np.where(w[:, None, None], inside[g][None], 0.0) for g, w in wide.items())
+    for g, w in wide.items():
+        p_k = p_k + np.where(w[:, None, None] & active, inside_now[g][None], 0.0)
+        p_exp_k = p_exp_k + np.where(w[:, None, None] & active, inside[g][None], 0.0)
     covered = sum(np.where((active & w[:, None, None]).any(0), inside[g], 0.0) for g, w in wide.items())
-    dual = np.maximum(total - covered, 0.0)  # what single-event modes cannot remove
-    unobservable = np.where(snap_ok, 0.0, p_exp_k[-1])
-    active, p_nm = select_modes(active, p_exp_k, extra, dual + unobservable, settings.p_thres)
+    dual = np.maximum(total - covered, 0.0)  # what no mode removes
+    # the selection is structural, as the core's: the IMU's mode is a candidate whether or not its snapshot exists
+    # now; chosen but unobservable, its prior is added after (the core's unobservable modes)
+    candidate = np.concatenate([active[:M], np.ones((1, B, T), bool)])
+    rank = np.r_[np.where(modes == GNSS_MODE, 3, np.where(modes == vision_mode, 2, 0)), 1]
+    chosen, p_nm = select_modes(candidate, p_exp_k, rank, dual, settings.p_thres)
+    p_nm = p_nm + np.where(chosen[-1] & ~snap_ok, p_exp_k[-1], 0.0)
+    active = chosen & active
     n_modes = active.sum(0)
     k_fa = fa_multipliers(n_modes, settings.p_fa_hor, settings.p_fa_vert, settings.n_es_cont)  # (B, T, 3)
     sigma_ss = np.sqrt(np.maximum(var_i - var0, 0.0))

@@ -18,10 +18,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from testbed.integrity.araim.subsets import checked_inverse
 from testbed.navigation.ekf import CB, P_
 
 #: least squares needs the position and the clock: four rows
 MIN_ROWS = 4
+#: the largest condition number (1-norm, Jacobi-scaled) of the normal matrix solved: the ARAIM core's default
+MAX_COND = 1e10
 
 
 def gnss_snapshot(p_prior: NDArray, P_prior: NDArray, nu: NDArray, H: NDArray, R: NDArray, mask: NDArray
@@ -29,16 +32,18 @@ def gnss_snapshot(p_prior: NDArray, P_prior: NDArray, nu: NDArray, H: NDArray, R
     """The IMU-free position (B, 3) and its covariance (B, 3, 3) from one update's GNSS rows — prefit residuals ν
     (B, M), Jacobian H (B, M, n), covariance R (B, M, M) (diagonal over the pseudoranges), mask (B, M) — at the
     filter's prior position ``p_prior`` (B, 3) and covariance ``P_prior`` (B, n, n). Pseudorange rows are those with
-    a clock-bias column; range-rate rows are left out. NaN for a trial with fewer than :data:`MIN_ROWS` of them."""
+    a clock-bias column; range-rate rows are left out. NaN for a trial with fewer than :data:`MIN_ROWS` of them, or
+    whose geometry is singular or conditioned worse than :data:`MAX_COND`."""
     pr = mask & (H[..., CB] != 0.0)
-    ok = pr.sum(-1) >= MIN_ROWS
+    enough = pr.sum(-1) >= MIN_ROWS
     var = np.diagonal(R, axis1=-2, axis2=-1)
     w = np.where(pr, 1.0 / np.where(pr, var, 1.0), 0.0)
     cols = np.r_[np.arange(P_.start, P_.stop), CB]
     G = H[..., cols]
-    normal = np.einsum("bmi,bm,bmj->bij", G, w, G) + np.eye(cols.size) * ~ok[:, None, None]
-    S = np.linalg.solve(normal, np.swapaxes(G, -1, -2) * w[:, None, :])[:, :3]  # (B, 3, M)
-    S = np.where(ok[:, None, None], S, 0.0)
+    normal = np.einsum("bmi,bm,bmj->bij", G, w, G) + np.eye(cols.size) * ~enough[:, None, None]
+    inv, conditioned = checked_inverse(normal, MAX_COND)
+    ok = enough & conditioned
+    S = np.where(ok[:, None, None], np.nan_to_num(inv) @ (np.swapaxes(G, -1, -2) * w[:, None, :]), 0.0)[:, :3]
     E = np.zeros((3, H.shape[-1]))
     E[:, P_] = np.eye(3)
     A = E - S @ np.where(pr[..., None], H, 0.0)
@@ -49,4 +54,4 @@ def gnss_snapshot(p_prior: NDArray, P_prior: NDArray, nu: NDArray, H: NDArray, R
     return np.where(nan, np.nan, p), np.where(nan[..., None], np.nan, 0.5 * (cov + np.swapaxes(cov, -1, -2)))
 
 
-__all__ = ["MIN_ROWS", "gnss_snapshot"]
+__all__ = ["MAX_COND", "MIN_ROWS", "gnss_snapshot"]
