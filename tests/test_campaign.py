@@ -487,6 +487,7 @@ def test_gps_raim_is_one_estimator_alone_or_beside_va_raim(reference, tmp_path):
         np.testing.assert_array_equal(alone[col].to_numpy(), both[col].to_numpy(), err_msg=col)
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_report_leaves_the_callers_matplotlib_state_alone(reference):
     """No pyplot, no backend switch, no rcParams change from drawing a report."""
     import subprocess

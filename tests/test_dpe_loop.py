@@ -7,6 +7,7 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 
 from testbed.api import load_approach, run_approach
 from testbed.resources import approaches_dir
@@ -64,6 +65,7 @@ prn = "random"
 """
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_a_campaign_runs_the_dpe_beside_gps_raim_on_the_same_fault(tmp_path):
     """Correlograms synthesised per trial inside the block: chunking does not change a bit; fault-free, the
     DPE has no misleading epoch; under a 60 m step GPS RAIM alerts while the DPE, which detects nothing,
@@ -126,8 +128,6 @@ def test_the_multipath_strength_axis_sets_the_correlators_echo(tmp_path):
     assert got[0][0] == "off" and got[1] == ("ground", -20.0) and got[2] == ("ground", -6.0)
     bad = tmp_path / "bad.toml"
     bad.write_text(SPEC.format(chunk=2) + '\n[sweep]\nmultipath_echo_db = [3.0]\n')
-    import pytest
-
     with pytest.raises(ConfigError, match="multipath_echo_db"):
         load_spec(bad)
 
@@ -157,7 +157,6 @@ def test_the_dpe_variant_axis_runs_the_seed_over_sorties_beside_the_likelihood(t
     keeps the approach's calibrated K. In the loop the seed's VPL is set by its ±110 m grid
     (docs/design/dpe.md F2: ~6× the likelihood's here, measured 322 m against 12.7 m over 10 sorties); a bad variant is refused naming the key."""
     import pyarrow.parquet as pq
-    import pytest
 
     from testbed.campaign.runner import run_campaign
     from testbed.campaign.spec import expand_cells, load_spec

@@ -76,6 +76,7 @@ def test_the_snapshot_separation_is_distributed_as_its_covariance_says(fault_fre
     assert np.all((e > lo) & (e < hi)), e
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_with_a_lever_arm_the_snapshot_keeps_its_covariance_and_its_separation_from_the_filter():
     """The b737's antenna lever arm (2, 0, −2.8) m: the pseudoranges taken at the antenna, the snapshot's Jacobian
     with attitude columns (SH ≠ E, so (E − SH)P⁻(E − SH)ᵀ ≠ 0). Over 100 runs, at four epochs per axis, the
@@ -280,6 +281,7 @@ def test_protection_levels_solve_the_integrity_risk_equation(fault_free):
     assert M >= 7
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_an_imu_fault_is_detected_before_its_error_leaves_the_protection_levels():
     """A 1 m/s² vertical accelerometer bias from 10 s, 20 runs: every run alerts by 17 s (measured: 15-16 s), and no
     epoch has a vertical error beyond the VPL without an alert; fault-free, the same seeds raise no alert."""

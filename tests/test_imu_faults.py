@@ -193,6 +193,7 @@ onset_s = {onset}
 """
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_an_imu_fault_sweeps_in_a_campaign_and_counts_as_exercised(tmp_path):
     """A campaign sweeps imu_accel_bias on body z (0, 0.5 m/s² from 20 s; common random numbers): the faulty cell's
     trials carry the fault on the IMU (fault_target 0) at every epoch after the onset, all exercised, and up to

@@ -336,6 +336,7 @@ def test_a_survey_per_trial_as_sample_vision_draws_it():
 # --------------------------------------------------------------------------- exclusion, start point, cap, dithering
 
 
+@pytest.mark.slow  # moved out of the default set: its run time (the default set stays within 8 min)
 def test_fde_excludes_a_biased_landmark_and_a_faulty_satellite():
     """The patent's exclusion: a 30 px bias on landmark 2, or a 60 m step on a satellite, is excluded at
     ≥ 99 % of the epochs (index S + 2, or the satellite's slot), the alert is cleared and the reduced
