@@ -28,6 +28,7 @@ import pyarrow.parquet as pq  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from testbed.campaign.runner import run_campaign  # noqa: E402
+from testbed.schema import arg_in_range  # noqa: E402
 
 SPEC = """name = "araim-vision-fa-loose"
 approaches = ["gnss.toml", "vision.toml"]
@@ -58,9 +59,9 @@ def loosened(approach: str, name: str, p_fa_vert: float, p_fa_hor: float) -> str
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--trials", type=int, default=240)
-    ap.add_argument("--p-fa-vert", type=float, default=0.02)
-    ap.add_argument("--p-fa-hor", type=float, default=0.01)
+    ap.add_argument("--trials", type=arg_in_range(int, 1, 100_001), default=240)
+    ap.add_argument("--p-fa-vert", type=arg_in_range(float, 1e-12, 0.5), default=0.02)
+    ap.add_argument("--p-fa-hor", type=arg_in_range(float, 1e-12, 0.5), default=0.01)
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)

@@ -30,6 +30,26 @@ def epoch_array(tail: int = 0, *, ragged: bool = False, batched: bool = True):
     return field(metadata={"tail": tail, "ragged": ragged, "batched": batched})
 
 
+def max_p95_text(x: ArrayLike, unit: str = "m") -> str:
+    """A summary cell: the largest finite value and the 95th percentile ("-" when there is none)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return f"{x.max():.2f} / {np.percentile(x, 95):.2f} {unit}" if x.size else "-"
+
+
+def largest_text(x: ArrayLike) -> str:
+    """A summary cell: the largest finite value, as a rate ("-" when there is none)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return f"{x.max():.2e}" if x.size else "-"
+
+
+def span_text(x: ArrayLike) -> str:
+    """A summary cell: the smallest and largest count."""
+    x = np.asarray(x)
+    return f"{x.min()}-{x.max()}" if x.size else "-"
+
+
 @dataclass(frozen=True)
 class Diagnostics:
     """Base of a monitor's typed diagnostics record (plot and test data, never state).

@@ -67,7 +67,7 @@ class FilterAraim:
 
 
 def _exposure(p: float, mfd_h: float, settings: AraimSettings) -> float:
-    return p * (1.0 + settings.t_exp_s / (3600.0 * mfd_h))
+    return p * settings.exposure_factor(mfd_h)
 
 
 def _at_least_two(log_none: NDArray, q_sum: NDArray) -> NDArray:

@@ -47,7 +47,7 @@ from testbed.navigation.filter_araim import FILTER_ARAIM_REASONS, filter_araim
 from testbed.navigation.run import ClockNoise, filter_epochs, state_from_init
 from testbed.navigation.separation import Bank, separation
 from testbed.navigation.slam import FeatureSettings, SlamState, run_slam, start
-from testbed.records import Diagnostics, MonitorOutput, epoch_array
+from testbed.records import Diagnostics, MonitorOutput, epoch_array, largest_text, max_p95_text, span_text
 from testbed.schema import StrictModel
 
 #: the filter's reason texts
@@ -170,17 +170,11 @@ class EkfDiagnostics(Diagnostics):
         if not self.araim:
             return {}
 
-        def finite(x):
-            x = np.asarray(x, float)
-            return x[np.isfinite(x)]
-
-        emt, p_nm = finite(self.emt), finite(self.p_unmonitored)
-        risk_v = [finite(np.asarray(self.risk_aid_enu)[..., g, 2]) for g in (0, 1)]
-        n = np.asarray(self.n_modes)
-        return {"EMT max / p95": f"{emt.max():.2f} / {np.percentile(emt, 95):.2f} m" if emt.size else "-",
-                "fault modes (min-max)": f"{n.min()}-{n.max()}" if n.size else "-",
-                "unmonitored prior (max)": f"{p_nm.max():.2e}" if p_nm.size else "-",
-                "vision / IMU integrity risk V (max)": " / ".join(f"{r.max():.2e}" if r.size else "-" for r in risk_v)}
+        risk_v = np.asarray(self.risk_aid_enu, float)[..., 2]
+        return {"EMT max / p95": max_p95_text(self.emt), "fault modes (min-max)": span_text(self.n_modes),
+                "unmonitored prior (max)": largest_text(self.p_unmonitored),
+                "vision / IMU integrity risk V (max)": f"{largest_text(risk_v[..., 0])} / "
+                                                       f"{largest_text(risk_v[..., 1])}"}
 
     def epoch_columns(self) -> dict[str, NDArray]:
         """With the ARAIM variant: EMT (m), the unmonitored prior and the vision and IMU modes' vertical risk."""
@@ -311,7 +305,7 @@ class EkfMonitor(MonitorDefaults):
             lam = np.linalg.eigvalsh(P[..., :2, :2])[..., -1]
             hpl, vpl = k_ff * np.sqrt(np.maximum(lam, 0.0)), k_ff * sig[..., 2]
             ratio, n_modes = np.full(hpl.shape, np.nan), np.zeros(hpl.shape, np.int64)
-        if not self.settings.araim_variant:
+        if not self.settings.araim_variant:  # ARAIM's availability adds EMT and σ_acc,v (set above)
             avail = availability(hpl, vpl, levels)
         shape = lambda a: a.reshape(lead + a.shape[1:]) if lead else a[0]  # noqa: E731
         n_feat = getattr(tr, "n_features", np.zeros(nis.shape, np.int64))

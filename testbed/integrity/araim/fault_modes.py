@@ -73,25 +73,25 @@ def fault_events(system: NDArray, settings: AraimSettings, aid: tuple[tuple[int,
     (:data:`AID_LANDMARK`, landmark number) or (:data:`AID_CAMERA`, state number).
     """
     system = np.asarray(system)
-    rows, p, tau, sys = [], [], [], []
+    rows, p, factor, sys = [], [], [], []
 
     def add(members, prior: AidFaultPrior, code: int) -> None:
         rows.append(frozenset(members))
         p.append(prior.p)
-        tau.append(settings.t_exp_s / (3600.0 * prior.mfd_h))
+        factor.append(settings.exposure_factor(prior.mfd_h))
         sys.append(code)
 
     for i, s in enumerate(system):
         ism = settings.system_ism(int(s))
         rows.append(frozenset({i}))
         p.append(ism.p_sat)
-        tau.append(settings.t_exp_s / (3600.0 * ism.mfd_sat_h))
+        factor.append(settings.exposure_factor(ism.mfd_sat_h))
         sys.append(-1)
     for s in dict.fromkeys(int(c) for c in system):  # systems in order of first appearance
         ism = settings.system_ism(s)
         rows.append(frozenset(np.flatnonzero(system == s).tolist()))
         p.append(ism.p_const)
-        tau.append(settings.t_exp_s / (3600.0 * ism.mfd_const_h))
+        factor.append(settings.exposure_factor(ism.mfd_const_h))
         sys.append(s)
     N = system.size
     landmarks: dict[int, list[int]] = {}
@@ -107,7 +107,7 @@ def fault_events(system: NDArray, settings: AraimSettings, aid: tuple[tuple[int,
     if inertia:
         add(inertia, settings.inertia, -1)
     p = np.array(p, float)
-    return FaultEvents(tuple(rows), p, p * (1.0 + np.array(tau)), np.array(sys, int))
+    return FaultEvents(tuple(rows), p, p * np.array(factor), np.array(sys, int))
 
 
 def elementary_symmetric(q: NDArray, kmax: int) -> NDArray:

@@ -28,7 +28,8 @@ from testbed.integrity.batching import map_trial_chunks
 from testbed.integrity.fde import EXCLUDED, Verdict, exclude
 from testbed.integrity.monitor import ANTENNA, MonitorContext, MonitorDefaults, Observations
 from testbed.integrity.settings import IntegritySettings
-from testbed.records import Diagnostics, GnssEpochs, MonitorOutput, VisionEpochs, epoch_array
+from testbed.records import (Diagnostics, GnssEpochs, MonitorOutput, VisionEpochs, epoch_array, largest_text,
+                             max_p95_text, span_text)
 
 #: RINEX 3 system letter -> system code (index into :data:`SYSTEMS`)
 SYSTEM_CODES = {"G": 0, "E": 1, "C": 2, "R": 3}
@@ -78,27 +79,13 @@ class AraimDiagnostics(Diagnostics):
 
     def summary_rows(self) -> dict[str, str]:
         """EMT and σ_acc,v (largest and 95th percentile over the protected epochs) and the fault modes."""
-        def spread(x: NDArray) -> str:
-            x = np.asarray(x, float)
-            x = x[np.isfinite(x)]
-            return f"{x.max():.2f} / {np.percentile(x, 95):.2f} m" if x.size else "-"
-
-        def span(x: NDArray) -> str:
-            x = np.asarray(x)
-            return f"{x.min()}-{x.max()}" if x.size else "-"
-
-        def largest(x: NDArray) -> str:
-            x = np.asarray(x, float)
-            x = x[np.isfinite(x)]
-            return f"{x.max():.2e}" if x.size else "-"
-
-        rows = {"EMT max / p95": spread(self.emt), "σ_acc,v max / p95": spread(self.sigma_acc_v),
-                "fault modes (min-max)": span(self.n_modes)}
+        rows = {"EMT max / p95": max_p95_text(self.emt), "σ_acc,v max / p95": max_p95_text(self.sigma_acc_v),
+                "fault modes (min-max)": span_text(self.n_modes)}
         if self.vision:
-            rows |= {"landmarks in ARAIM (min-max)": span(self.n_landmarks),
-                     "vision fault modes (min-max)": span(self.n_modes_vision),
-                     "vision integrity risk V / H (max)": f"{largest(self.risk_vision_v)} / "
-                                                          f"{largest(self.risk_vision_h)}"}
+            rows |= {"landmarks in ARAIM (min-max)": span_text(self.n_landmarks),
+                     "vision fault modes (min-max)": span_text(self.n_modes_vision),
+                     "vision integrity risk V / H (max)": f"{largest_text(self.risk_vision_v)} / "
+                                                          f"{largest_text(self.risk_vision_h)}"}
         return rows
 
     def epoch_columns(self) -> dict[str, NDArray]:

@@ -159,6 +159,11 @@ class AraimSettings(StrictModel):
         base = dict(t_exp_s=0.0, n_es_int=1, n_es_cont=1, max_pmd=False, fc_thres=0.0)
         return cls(**(base | changes))
 
+    def exposure_factor(self, mfd_h: float) -> float:
+        """A fault prior's growth over the exposure (eq. 5): a fault present at any time in it counts,
+        ``1 + T_EXP/MFD``."""
+        return 1.0 + self.t_exp_s / (3600.0 * mfd_h)
+
     def system_ism(self, system: int) -> ConstellationIsm:
         """The ISM of system code ``system`` (an index into :data:`SYSTEMS`)."""
         name = SYSTEMS[system]
