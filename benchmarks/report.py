@@ -23,6 +23,7 @@ import platform
 import re
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -72,12 +73,51 @@ def _refuse(message: str):
 
 
 def command_for(name: str, args: list[str]) -> list[str]:
-    if name == "suite":
-        return ["/usr/bin/time", "-v", sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *args]
+    if name == "suite":  # the README's test command (two processes)
+        return ["/usr/bin/time", "-v", sys.executable, "-m", "pytest", "-q", "-n", "2", "-p", "no:cacheprovider", *args]
     script = ROOT / "benchmarks" / f"{name}.py"
     if name not in benchmark_names() or not script.is_file():
         _refuse(f"no benchmark named {name!r}; expected one of {', '.join(benchmark_names())}")
     return [sys.executable, str(script.relative_to(ROOT)), *args]
+
+
+class _TreeMemory:
+    """The peak of the summed proportional set size (PSS: shared pages split among their users) of a process and
+    its descendants, sampled every 0.5 s from /proc on a thread (0 where /proc has no smaps_rollup)."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid, self.peak, self._done = pid, 0, threading.Event()
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+        self._thread.start()
+
+    def _tree(self) -> list[int]:
+        out, todo = [], [self.pid]
+        while todo:
+            p = todo.pop()
+            out.append(p)
+            for task in Path(f"/proc/{p}/task").glob("*/children"):
+                try:
+                    todo += [int(c) for c in task.read_text().split()]
+                except OSError:
+                    pass
+        return out
+
+    def _watch(self) -> None:
+        while not self._done.wait(0.5):
+            total = 0
+            for p in self._tree():
+                try:
+                    for line in Path(f"/proc/{p}/smaps_rollup").read_text().splitlines():
+                        if line.startswith("Pss:"):
+                            total += int(line.split()[1]) * 1024
+                except (OSError, ValueError):
+                    pass
+            self.peak = max(self.peak, total)
+
+    def stop(self) -> int:
+        self._done.set()
+        self._thread.join()
+        return self.peak
 
 
 def run(name: str, args: list[str]) -> dict:
@@ -86,11 +126,17 @@ def run(name: str, args: list[str]) -> dict:
     load_before = os.getloadavg()
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    memory = _TreeMemory(proc.pid)
     lines = []
     for line in proc.stdout:
         sys.stdout.write(line)
         lines.append(line)
     code = proc.wait()
+    if name == "suite":  # time -v's peak is one process's; the workers run side by side
+        lines.append(f"Peak summed PSS of the command's processes (sampled every 0.5 s): {memory.stop() / 2**30:.2f} GiB\n")
+        sys.stdout.write(lines[-1])
+    else:
+        memory.stop()
     record = {
         "name": name,
         "command": " ".join(["python" if c == sys.executable else c for c in cmd]),

@@ -169,7 +169,7 @@ def test_false_alarm_rate_within_binomial_interval(record_property):
     lo, hi = stats.binom.interval(0.99, n, P_FA_TEST)
     record_property("va_raim_alerts", alerts)
     record_property("gps_alerts", int(d.gps.alert[:, k].sum()))
-    record_property("binomial_99", (lo, hi))
+    record_property("binomial_99", (float(lo), float(hi)))
     assert lo <= alerts <= hi, (alerts, lo, hi)
     # the SSE has the chi-square law with N - 4 dof (KS test at the 1% level)
     dof = int(out.n_used[0, k]) - 4
