@@ -14,7 +14,11 @@ variance ``J_UU``. With ``f = |s|²/(|s|² + J_UU)`` the SIS share of the varian
 
 (the dominating point ``ℓ√f`` when the SIS were all, half of it when they are nothing). Each epoch draws one
 component of a mixture (the signs ± and the levels ``ℓ`` of :data:`LEVELS`) or, with probability
-``defensive``, none (the error model itself). Each epoch is a trial: its weight is its own draws' likelihood
+``defensive``, none (the error model itself). With a ground echo, ``z ≈ b + π``: the echo moves an epoch's
+solution by a bias ``b`` (up to ~1 σ at low height) that the draws do not set and the median ``m`` does not
+remove; it is the DPE's error on the epoch's expected correlograms (:func:`echo_bias`), and the components sit
+at ``±ℓ − b``. Uncentred, the epochs of largest ``|b|`` reach the event at a smaller ``|π|``, with weights
+larger by ~e^(ℓ|b|), and their few events decided the estimate. Each epoch is a trial: its weight is its own draws' likelihood
 ratio (the campaign sampler's :func:`~testbed.campaign.sampling.log_weights`), and the rates are
 :func:`~testbed.campaign.sampling.weighted_rate` with its diagnostics.
 
@@ -38,6 +42,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+from scipy import special
 from scipy.special import ndtri
 
 from testbed.campaign.sampling import Components, Rate, draw_proposal, log_weights, weighted_rate
@@ -97,14 +102,18 @@ def aim(a_u: np.ndarray, sigma_sis: np.ndarray, sigma_delay: np.ndarray, thermal
         return np.where(norm[:, None] > 0, gs / norm[:, None], 0.0), np.where(norm[:, None] > 0, gn / norm[:, None], 0.0)
 
 
-def epoch_components(has_response: np.ndarray, levels: tuple[float, ...] = LEVELS) -> list[Components]:
+def epoch_components(has_response: np.ndarray, levels: tuple[float, ...] = LEVELS,
+                     bias: np.ndarray | None = None) -> list[Components]:
     """One :class:`Components` per epoch on the one-dimensional projection π of its draws on the aimed direction
-    (π ~ N(0, 1) under the error model): the shifts ±ℓ of :data:`LEVELS`; none where the epoch has no response."""
-    shift = np.array([sg * lv for lv in levels for sg in (1.0, -1.0)])[:, None]
-    full = Components(np.zeros(shift.shape[0], np.int64), shift, np.zeros((shift.shape[0], 1, 1)),
-                      np.zeros(shift.shape[0], np.int64))
+    (π ~ N(0, 1) under the error model): the shifts ±ℓ − b of :data:`LEVELS`, b the epoch's ``bias`` (T,) in σ
+    (None: 0), so that the component meets the event ``|b + π| > ℓ`` on either side; none where the epoch has no
+    response."""
+    level = np.array([sg * lv for lv in levels for sg in (1.0, -1.0)])
+    b = np.zeros(len(has_response)) if bias is None else np.asarray(bias, float)
+    n = level.size
     empty = Components(np.zeros(0, np.int64), np.zeros((0, 1)), np.zeros((0, 1, 1)), np.zeros(0, np.int64))
-    return [full if h else empty for h in has_response]
+    return [Components(np.zeros(n, np.int64), (level - bt)[:, None], np.zeros((n, 1, 1)), np.zeros(n, np.int64))
+            if h else empty for h, bt in zip(has_response, b)]
 
 
 def tilted_projection_shifts(comps: list[Components], which: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -176,10 +185,11 @@ class _NoiseTilt:
 
 def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: str, key: tuple[int, int],
            seed: int, thermal: bool = True, levels: tuple[float, ...] = LEVELS) -> dict[str, np.ndarray]:
-    """One importance-sampled sortie: per epoch with a solution z, e, σ, m, the log weight and the component;
-    the unsolved epochs' log weights; the projection π of every epoch's draws (module doc)."""
-    from testbed.integrity.monitor import Observations
-    from testbed.sensors.gnss.correlators import cn0_at, sis_sigma, synthesize_correlators
+    """One importance-sampled sortie: per trial with a solution z, e, σ, m, the log weight, the component, the
+    projection π of its draws, its epoch's echo bias and its epoch; the unsolved trials' log weights. Every epoch
+    is a trial; an epoch whose echo bias makes it weigh more is drawn :func:`copies` times, each copy with its
+    own draws and 1/copies of its weight (module doc)."""
+    from testbed.sensors.gnss.correlators import cn0_at, sis_sigma
     from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
 
     cs = setup.gnss.correlators.model_copy(update={"cn0_offset_db": setup.gnss.correlators.cn0_offset_db + cn0_db,
@@ -187,7 +197,8 @@ def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: s
     gs = setup.gnss.model_copy(update={"correlators": cs})
     start = ap.config.start_time_utc + dt.timedelta(seconds=offset_s)
     geom = gnss_geometry(truth_g, setup.antenna, gs, start_utc=start, terrain=setup.terrain)
-    g_gnss, g_corr, g_sampling = np.random.SeedSequence(seed, spawn_key=key).spawn(3)  # the first two: the plain run's
+    # the first two: the plain run's; the fourth: the copies' (spawning four leaves the first three as they were)
+    g_gnss, g_corr, g_sampling, g_copies = np.random.SeedSequence(seed, spawn_key=key).spawn(4)
     g, gt = sample_gnss(geom, gs, rng=np.random.default_rng(g_gnss))
     vis = np.asarray(g.visible, bool)
     el = np.asarray(gt.elevation, float)
@@ -197,25 +208,107 @@ def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: s
     sig = sis_sigma(el, gs)
     a_u, sd = vertical_response(los_enu, cn0_at(el, cs), vis, cs.coherent_s, cs.n_noncoherent, cs.bandwidth_chips)
     h_sis, h_noise = aim(a_u, np.where(vis, sig, 0.0), sd, thermal and cs.synthesis == "fast")
+    bias = echo_bias(mon, g, gt, truth_g, gs, setup.frame) if multipath != "off" else np.zeros(vis.shape[0])
+    n = copies(bias)
+    ep = _Epochs(g, gt, truth_g, gs, mon, setup.frame, sig, h_sis, h_noise, bias, n, levels,
+                 vdop(setup.frame, np.asarray(g.sat_pos_ecef, float), vis, ant))
+    parts = [_tilted_draws(ep, np.arange(vis.shape[0]), g_corr, g_sampling)]
+    for r, stream in enumerate(g_copies.spawn(int(n.max()) - 1), start=1):
+        g_c, g_s = stream.spawn(2)
+        parts.append(_tilted_draws(ep, np.flatnonzero(n > r), g_c, g_s))
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+#: the copies of an epoch (:func:`copies`): its expected share of the tail at K ≈ :data:`COPY_K` (the measured K
+#: without an echo) against an unbiased epoch's, one copy per :data:`SHARE_PER_COPY`, at most :data:`MAX_COPIES`
+COPY_K = 5.3
+SHARE_PER_COPY = 4.0
+MAX_COPIES = 32
+
+
+def copies(bias: np.ndarray) -> np.ndarray:
+    """(T,) how many times each epoch is drawn: ⌈r/4⌉ in 1..32, r = (Q(K − |b|) + Q(K + |b|))/(2 Q(K)) at
+    K = 5.3 the factor by which its echo bias b raises its tail. The tail of an echo stratum is an average over
+    epochs of which the few of largest |b| carry most (|b| ~ 1: r ~ 70); one draw each leaves their estimate,
+    and the stratum's, to a few events. Drawing an epoch m times with weights 1/m each keeps the estimate
+    unbiased (Neyman's allocation: copies in proportion to the epoch's share)."""
+    b = np.abs(np.asarray(bias, float))
+    share = (special.ndtr(b - COPY_K) + special.ndtr(-b - COPY_K)) / (2.0 * special.ndtr(-COPY_K))
+    return np.clip(np.ceil(share / SHARE_PER_COPY), 1, MAX_COPIES).astype(np.int64)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Epochs:
+    """What a sortie's draws are made and judged on, per epoch: its observations' records, the monitor, the SIS
+    σ, the aimed directions, the echo bias, the copies, the mixture's levels and the VDOP."""
+
+    gnss: Any
+    gnss_truth: Any
+    truth: Any
+    settings: Any
+    mon: Any
+    frame: Any
+    sigma_sis: np.ndarray
+    h_sis: np.ndarray
+    h_noise: np.ndarray
+    bias: np.ndarray
+    copies: np.ndarray
+    levels: tuple[float, ...]
+    vdop: np.ndarray
+
+
+def _tilted_draws(ep: _Epochs, idx: np.ndarray, g_corr: np.random.SeedSequence, g_sampling: np.random.SeedSequence
+                  ) -> dict[str, np.ndarray]:
+    """One tilted draw of epochs ``idx`` (every epoch, or those drawn again) from the streams given."""
+    from testbed.integrity.monitor import Observations
+    from testbed.records import take_epochs
+    from testbed.sensors.gnss.correlators import synthesize_correlators
+
+    every = idx.size == ep.bias.size
+    g, gt, truth = ((ep.gnss, ep.gnss_truth, ep.truth) if every else
+                    (take_epochs(ep.gnss, idx), take_epochs(ep.gnss_truth, idx), take_epochs(ep.truth, idx)))
+    vis = np.asarray(g.visible, bool)
+    h_sis, h_noise = ep.h_sis[idx], ep.h_noise[idx]
     has = (np.abs(h_sis).sum(1) + np.abs(h_noise).sum(1)) > 0
-    comps = epoch_components(has, levels)
-    which = np.arange(len(comps))
+    comps = epoch_components(has, ep.levels, ep.bias[idx])
+    which = np.arange(idx.size)
     comp, c = tilted_projection_shifts(comps, which, np.random.default_rng(g_sampling))
-    tilt = _NoiseTilt(c, h_noise, cs)
-    corr, ct = synthesize_correlators(g, gt, truth_g, gs, g_corr.generate_state(4), sis_shift=c[:, None] * h_sis,
+    tilt = _NoiseTilt(c, h_noise, ep.settings.correlators)
+    corr, ct = synthesize_correlators(g, gt, truth, ep.settings, g_corr.generate_state(4), sis_shift=c[:, None] * h_sis,
                                       noise_tilt=tilt if np.any(h_noise) else None)
+    sig = ep.sigma_sis[idx]
     u = np.where(vis, np.nan_to_num(np.asarray(ct.sis_m, float)) / sig, 0.0)  # the standard SIS draws, as tilted
     pi = (h_sis * u).sum(1) + tilt.pi_noise
-    lw = epoch_log_weights(comps, which, pi)
-    out, _ = mon.step(Observations(g, correlators=corr), mon.initial_state())
+    lw = epoch_log_weights(comps, which, pi) - np.log(ep.copies[idx])
+    e, sigma, m, ok = vertical_solution(ep.mon, Observations(g, correlators=corr), ep.frame,
+                                        np.asarray(gt.antenna_pos_ecef, float))
+    return {"z": ((e - m) / sigma)[ok], "e": e[ok], "sigma": sigma[ok], "m": m[ok],
+            "log_weight": lw[ok], "component": comp[ok].astype(np.int16), "pi": pi[ok], "bias": ep.bias[idx][ok],
+            "epoch": idx[ok], "vdop": ep.vdop[idx][ok], "unsolved_log_weight": lw[~ok], "unsolved_epoch": idx[~ok]}
+
+
+def vertical_solution(mon, obs, frame, ant_ecef: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The DPE on one sortie's observations: per epoch the vertical error e, the σ its VPL scales, the median
+    offset m and whether it solved (T,) each."""
+    out, _ = mon.step(obs, mon.initial_state())
     d = out.diagnostics
-    ok = out.reason == 0
-    e = out.pos_enu[:, 2] - setup.frame.ecef_to_enu(ant)[:, 2]
+    e = out.pos_enu[:, 2] - frame.ecef_to_enu(ant_ecef)[:, 2]
     sigma = np.hypot(d.sigma_ob, d.sigma_sis_u) if mon.settings.sis == "add" else d.sigma_ob
-    return {"z": ((e - d.median_m) / sigma)[ok], "e": e[ok], "sigma": sigma[ok], "m": d.median_m[ok],
-            "log_weight": lw[ok], "component": comp[ok].astype(np.int16), "pi": pi[ok],
-            "vdop": vdop(setup.frame, np.asarray(g.sat_pos_ecef, float), vis, ant)[ok],
-            "unsolved_log_weight": lw[~ok]}
+    return e, sigma, d.median_m, out.reason == 0
+
+
+def echo_bias(mon, g, gt, truth_g, gs, frame) -> np.ndarray:
+    """(T,) the ground echo's bias of z per epoch, b = (e₀ − m₀)/σ₀ of the DPE on the epoch's *expected*
+    correlograms (no SIS error, no thermal draw: the signal, its echo and the noise's power); 0 where that
+    solution fails. The echo's amplitude, delay and phase follow from the truth, so b is fixed by the geometry
+    and known before the draws: the proposal may centre on it (module doc)."""
+    from testbed.integrity.monitor import Observations
+    from testbed.sensors.gnss.correlators import synthesize_correlators
+
+    corr, _ = synthesize_correlators(g, gt, truth_g, gs, np.zeros(4, np.uint32), expected=True)
+    e, sigma, m, ok = vertical_solution(mon, Observations(g, correlators=corr), frame,
+                                        np.asarray(gt.antenna_pos_ecef, float))
+    return np.where(ok, (e - m) / np.where(ok, sigma, 1.0), 0.0)
 
 
 #: the seed streams' set keys: the plain calibration's sets are 0 and 1, these are other streams
@@ -225,9 +318,12 @@ SET_KEYS = {"calibration": 2, "validation": 3}
 def measured_chunk(run: CalibrationRun, set_key: int, chunk: int) -> dict[str, np.ndarray]:
     """One chunk of sorties of a set, in sortie order (a pure function of (run, set, chunk))."""
     parts = []
-    for one, stratum, _ in chunk_sorties(run, set_key, chunk, set_key != SET_KEYS["calibration"], sortie):
+    sorties = chunk_sorties(run, set_key, chunk, set_key != SET_KEYS["calibration"], sortie)
+    for i, (one, stratum, _) in enumerate(sorties):
         one["stratum"] = np.full(one["z"].size, stratum, np.int8)
         one["unsolved_stratum"] = np.full(one["unsolved_log_weight"].size, stratum, np.int8)
+        for k in ("epoch", "unsolved_epoch"):  # unique in the set: the sortie's number, then its epoch
+            one[k] = (chunk * run.chunk + i) * EPOCH_STRIDE + one[k]
         parts.append(one)
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
@@ -259,12 +355,29 @@ def run_sets(run: CalibrationRun, workers: int = 1, progress: Callable[[str], No
     return out
 
 
-def hmi_rate(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, k: float) -> Rate:
-    """P(|e| > k·σ + |m|) per epoch with a solution: ``t = (|e| − |m|)/σ`` of the solved epochs; the unsolved
-    ones enter the ratio's denominator with zero (a ratio of two weighted means)."""
+#: the epoch ids of a set: sortie number × this + the epoch's index in its sortie
+EPOCH_STRIDE = 1_000_000
+
+
+def epoch_units(epoch: np.ndarray, epoch_unsolved: np.ndarray) -> np.ndarray:
+    """Each trial's epoch as 0..U−1 (the solved trials', then the unsolved ones'), from their ids."""
+    return np.unique(np.concatenate([epoch, epoch_unsolved]), return_inverse=True)[1].ravel()
+
+
+def hmi_rate(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, k: float, unit: np.ndarray | None = None
+             ) -> Rate:
+    """P(|e| > k·σ + |m|) per epoch with a solution: ``t = (|e| − |m|)/σ`` of the solved trials; the unsolved
+    ones enter the ratio's denominator with zero (a ratio of two weighted means). ``unit``: each trial's epoch
+    (:func:`epoch_units`) where epochs are drawn more than once (:func:`copies`): an epoch's copies are summed
+    into one term, the unit the interval and the diagnostics count (None: each trial an epoch of its own)."""
     num = np.concatenate([(t > k).astype(float), np.zeros(lw_unsolved.size)])
     den = np.concatenate([np.ones(t.size), np.zeros(lw_unsolved.size)])
-    return weighted_rate(num, den, np.concatenate([lw, lw_unsolved]), CONFIDENCE)
+    lw_all = np.concatenate([lw, lw_unsolved])
+    if unit is None:
+        return weighted_rate(num, den, lw_all, CONFIDENCE)
+    w = np.exp(lw_all - lw_all.max())  # the ratio is free of the common factor
+    n = int(unit.max()) + 1 if unit.size else 0
+    return weighted_rate(np.bincount(unit, w * num, n), np.bincount(unit, w * den, n), np.zeros(n), CONFIDENCE)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -279,7 +392,8 @@ class MeasuredK:
     p_hmi: float
 
 
-def fit_k_measured(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, p_hmi: float) -> MeasuredK:
+def fit_k_measured(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, p_hmi: float,
+                   unit: np.ndarray | None = None) -> MeasuredK:
     """:class:`MeasuredK` of one set (module doc). The grid is walked upwards in steps of 20 grid steps, then the
     step that crossed one grid step at a time, to the first K whose rate's upper end is at most P; the tail is
     measured there only if that rate is settled (a K further up, where a few events happen to settle a far
@@ -288,7 +402,7 @@ def fit_k_measured(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, p_hmi
 
     def at(k: float) -> Rate:
         nonlocal deepest
-        r = hmi_rate(t, lw, lw_unsolved, k)
+        r = hmi_rate(t, lw, lw_unsolved, k, unit)
         if r.settled:
             deepest = min(deepest, r.hi)
         return r
@@ -317,8 +431,12 @@ def fit_k_measured(t: np.ndarray, lw: np.ndarray, lw_unsolved: np.ndarray, p_hmi
     return MeasuredK(None, None, float(deepest), p_hmi)
 
 
-def _threshold(d: dict[str, np.ndarray]) -> np.ndarray:
-    return (np.abs(d["e"]) - np.abs(d["m"])) / d["sigma"]
+def _tail(d: dict[str, np.ndarray], solved=slice(None), unsolved=slice(None)) -> dict[str, np.ndarray | None]:
+    """:func:`hmi_rate`'s arrays of a set's trials ``solved`` and ``unsolved`` (masks): the threshold
+    ``t = (|e| − |m|)/σ``, the log weights and each trial's epoch (None: a set without epoch ids)."""
+    unit = epoch_units(d["epoch"][solved], d["unsolved_epoch"][unsolved]) if "epoch" in d else None
+    return {"t": ((np.abs(d["e"]) - np.abs(d["m"])) / d["sigma"])[solved], "lw": d["log_weight"][solved],
+            "lw_unsolved": d["unsolved_log_weight"][unsolved], "unit": unit}
 
 
 def weighted_median(x: np.ndarray, lw: np.ndarray) -> float:
@@ -373,10 +491,8 @@ def calibrate_dpe_measured(approach: str | Path = "zunz-rwy05-dpe", *, sorties: 
         return {f"cn0 {CN0_OFFSETS_DB[s % 3]:+g} dB, multipath {MULTIPATH[s // 3]}":
                 (d["stratum"] == s, d["unsolved_stratum"] == s) for s in range(6)}
 
-    tc, tv = _threshold(c), _threshold(v)
-    overall = fit_k_measured(tc, c["log_weight"], c["unsolved_log_weight"], p_hmi)
-    fits = {n: fit_k_measured(tc[m], c["log_weight"][m], c["unsolved_log_weight"][mu], p_hmi)
-            for n, (m, mu) in strata_of(c).items()}
+    overall = fit_k_measured(**_tail(c), p_hmi=p_hmi)
+    fits = {n: fit_k_measured(**_tail(c, m, mu), p_hmi=p_hmi) for n, (m, mu) in strata_of(c).items()}
     unmeasured = [n for n, f in fits.items() if f.k is None] + (["all strata"] if overall.k is None else [])
     if unmeasured:
         k, k_from, chosen = None, "", None
@@ -389,9 +505,9 @@ def calibrate_dpe_measured(approach: str | Path = "zunz-rwy05-dpe", *, sorties: 
             k_from = f"stratum '{k_from}'"
     checks = {}
     if k is not None:
-        checks["all strata"] = hmi_rate(tv, v["log_weight"], v["unsolved_log_weight"], k)
+        checks["all strata"] = hmi_rate(**_tail(v), k=k)
         for n, (m, mu) in strata_of(v).items():
-            checks[n] = hmi_rate(tv[m], v["log_weight"][m], v["unsolved_log_weight"][mu], k)
+            checks[n] = hmi_rate(**_tail(v, m, mu), k=k)
     passed = bool(checks) and all(r.settled and r.estimate <= p_hmi for r in checks.values())
     b_z = weighted_median(c["z"], c["log_weight"])
     q = float(-ndtri(p_hmi / 2.0))
@@ -413,10 +529,14 @@ def calibrate_dpe_measured(approach: str | Path = "zunz-rwy05-dpe", *, sorties: 
         "interval": None if chosen is None else [chosen.rate.lo, chosen.rate.hi],
         "trials": int(c["z"].size + c["unsolved_log_weight"].size),
         "method": "importance sampling of the per-satellite SIS draws (docs/design/dpe.md §6.8)",
-        "proposal": {"kind": "mean shift of the standard SIS draws along the DPE's vertical response A_U*sigma_SIS, "
-                             "per epoch", "levels": list(LEVELS), "shift": "mu = level*sqrt(f)/(2-f), "
-                     "f = |s|^2/(|s|^2 + J_UU)", "defensive": DEFENSIVE, "confidence": CONFIDENCE,
-                     "k_step": K_STEP},
+        "proposal": {"kind": "mean shift of the standard SIS and thermal draws along the DPE's vertical response, "
+                             "per epoch", "levels": list(LEVELS),
+                     "shift": "pi ~ N(+-level - b, 1), pi the draws' projection on the aimed direction", "centre": "-b, b = (e0 - m0)/sigma0 of the DPE on "
+                     "the epoch's expected correlograms (ground-echo strata; 0 without an echo)",
+                     "copies": f"ceil(r/{SHARE_PER_COPY:g}) in 1..{MAX_COPIES}, r = (Q({COPY_K:g} - |b|) + "
+                               f"Q({COPY_K:g} + |b|))/(2 Q({COPY_K:g})); each copy weighted 1/copies, the copies of "
+                               "an epoch summed into one term of the estimate",
+                     "defensive": DEFENSIVE, "confidence": CONFIDENCE, "k_step": K_STEP},
         "validation": {"passed": passed, "epochs": int(v["z"].size),
                        "rates": {n: _rate_record(r) for n, r in checks.items()},
                        "rule": "every held-out estimate of P(|e| > K*sigma + |m|) settled and at most p_hmi"},

@@ -153,10 +153,11 @@ def _sqrt_psd(H: NDArray) -> NDArray:
 _EXACT_BYTES = 256 * 2**20
 
 
-def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid: DelayGrid, A: NDArray,
+def epoch_statistic(rng: np.random.Generator | None, settings: CorrelatorSettings, grid: DelayGrid, A: NDArray,
                     delay: NDArray, echo_delay: NDArray, alpha: NDArray, echo_phase: NDArray, tilt=None) -> NDArray:
     """(S, M) statistic of one epoch's tracked satellites (A, delays, echoes per satellite).
 
+    rng : None for the statistic's expectation over the thermal noise (no draws; the power statistic only).
     tilt : None, or an object whose ``shift(K, spec)`` gives the (S, 2, L) shift of the standard draws of the
         processes U (fast synthesis; K the paths' Gram root, V = K U) and whose ``seen(z)`` is given them
         as tilted (docs/design/dpe.md §6.8)."""
@@ -166,6 +167,14 @@ def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid
     R1 = tabulated_correlation(d - echo_delay[:, None], b)
     spec = noise_spectrum(grid.step_m, grid.size, b)
     S = delay.size
+    H = _path_gram(alpha, echo_phase, n_b)
+    # E Σ_b|y_b|² = A²·RᵀHR + N_b·R_B(0) in either synthesis: the blocks' paths' Gram matrix and the noise's power
+    signal = A[:, None] ** 2 * (R0 * R0 * H[:, 0, 0, None].real + 2.0 * R0 * R1 * H[:, 0, 1, None].real
+                                + R1 * R1 * H[:, 1, 1, None].real)
+    if rng is None:
+        if settings.statistic != "pow":
+            raise ValueError("correlators: the expected statistic has a closed form for statistic = 'pow' only")
+        return signal + n_b * peak(b)
     if settings.synthesis == "exact":
         if tilt is not None:
             raise ValueError("correlators: a noise tilt needs synthesis = 'fast' (the exact synthesis draws every block)")
@@ -183,12 +192,9 @@ def epoch_statistic(rng: np.random.Generator, settings: CorrelatorSettings, grid
             mag = np.abs(y)
             out[k] = (mag * mag).sum(axis=1) if settings.statistic == "pow" else mag.mean(axis=1)
         return out
-    H = _path_gram(alpha, echo_phase, n_b)
     K = _sqrt_psd(H)
     U = draw_noise(rng, spec, (S, 2), None if tilt is None else (tilt.shift(K, spec), tilt.seen))
     V = np.einsum("smn,snj->smj", K, U)
-    signal = A[:, None] ** 2 * (R0 * R0 * H[:, 0, 0, None].real + 2.0 * R0 * R1 * H[:, 0, 1, None].real
-                                + R1 * R1 * H[:, 1, 1, None].real)
     cross = 2.0 * A[:, None] * (R0 * V[:, 0] + R1 * V[:, 1]).real
     g = np.sqrt(2.0) * draw_noise(rng, noise_spectrum(grid.step_m, grid.size, b, squared=True), (S,)).real
     return signal + cross + n_b * peak(b) + np.sqrt(n_b) * g
@@ -212,7 +218,7 @@ def sis_sigma(elevation_rad: NDArray, settings: GnssSettings) -> NDArray:
 
 def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth, settings: GnssSettings,
                            seed_words: NDArray, first_epoch: int = 0, sis_shift: NDArray | None = None,
-                           noise_tilt=None) -> tuple[CorrelatorEpochs, CorrelatorTruth]:
+                           noise_tilt=None, expected: bool = False) -> tuple[CorrelatorEpochs, CorrelatorTruth]:
     """Correlograms of every tracked satellite at ``gnss``'s epochs (one trial, unbatched).
 
     truth : at the same epochs (AGL height and climb rate for the ground echo).
@@ -222,7 +228,11 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
         sampler's tilt, docs/design/dpe.md §6.8; None: the error model itself). Every other draw is unchanged.
     noise_tilt : None, or ``noise_tilt(i, k, A, delay, grid, echo_delay)`` giving epoch i's tilt of the thermal
         noise draws of its tracked slots k (see :func:`epoch_statistic`), or None for no tilt at that epoch.
+    expected : each correlogram's expectation over the SIS and thermal draws instead of a draw (no SIS error;
+        the signal with its echo and the noise's power): what the ground echo alone does to a solution.
     """
+    if expected and (sis_shift is not None or noise_tilt is not None):
+        raise ValueError("correlators: the expected correlograms have no draws to tilt")
     cs = settings.correlators
     grid = delay_grid(cs)
     T, S = np.shape(gnss.pseudorange)
@@ -247,8 +257,8 @@ def synthesize_correlators(gnss: GnssEpochs, gnss_truth: GnssTruth, truth: Truth
     sis = np.zeros((T, S))
     delay = np.full((T, S), np.nan)
     for i in range(T):
-        g_sis, g_noise = epoch_generator(seed_words, first_epoch + i).spawn(2)
-        sis[i] = sig_sis[i] * (g_sis.standard_normal(S) + shift[i])
+        g_sis, g_noise = (None, None) if expected else epoch_generator(seed_words, first_epoch + i).spawn(2)
+        sis[i] = 0.0 if expected else sig_sis[i] * (g_sis.standard_normal(S) + shift[i])
         k = np.flatnonzero(vis[i])
         if not k.size:
             continue

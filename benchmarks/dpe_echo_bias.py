@@ -1,0 +1,100 @@
+"""The ground echo's bias of the DPE's vertical error, per epoch (docs/design/dpe.md §6.8).
+
+Usage::
+
+    python benchmarks/dpe_echo_bias.py [--sortie 309] [--set-size 1440] [--seeds 30] [--survey 0]
+
+Flies sortie ``--sortie`` of the importance calibration's set of ``--set-size`` sorties (its start time, C/N0 and
+multipath, as ``testbed calibrate-dpe --method importance`` flies it) with ``--seeds`` seeds, each drawn plainly
+(no tilt), regresses z = (e − m)/σ on the projection π of the draws per epoch over the seeds, and prints the slope
+and intercept beside the bias b the DPE shows on the epoch's expected correlograms
+(:func:`testbed.studies.dpe_measured.echo_bias`), then the distribution of |b| over the sortie's epochs and how
+many copies :func:`~testbed.studies.dpe_measured.copies` draws. ``--survey N``: the same distribution over the
+first N sorties of each ground-echo stratum of the set (the expected correlograms only; ~3 s a sortie).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import os
+import sys
+
+import numpy as np
+from scipy import stats
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))  # the working copy's testbed
+
+from testbed.schema import arg_in_range  # noqa: E402
+
+
+def _pilot(run, j: int, set_size: int):
+    from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
+    from testbed.studies import dpe_measured as dm
+    from testbed.studies.dpe_calibration import _trajectory, sortie_plan
+
+    traj = run.trajectories or (run.approach,)
+    t, off, cn0, mp, stratum = sortie_plan(j, set_size, len(traj))
+    ap, setup, truth_g, mon = _trajectory(run.approach, traj[t])
+    cs = setup.gnss.correlators.model_copy(update={"cn0_offset_db": setup.gnss.correlators.cn0_offset_db + cn0,
+                                                   "multipath": mp})
+    gs = setup.gnss.model_copy(update={"correlators": cs})
+    geom = gnss_geometry(truth_g, setup.antenna, gs, start_utc=ap.config.start_time_utc + dt.timedelta(seconds=off),
+                         terrain=setup.terrain)
+    g_gnss = np.random.SeedSequence(0, spawn_key=(dm.SET_KEYS["calibration"], j)).spawn(1)[0]
+    g, gt = sample_gnss(geom, gs, rng=np.random.default_rng(g_gnss))
+    return dm.echo_bias(mon, g, gt, truth_g, gs, setup.frame), (ap, setup, truth_g, mon, off, cn0, mp, stratum)
+
+
+def _quantiles(b: np.ndarray) -> str:
+    from testbed.studies import dpe_measured as dm
+
+    a = np.abs(b)
+    q = np.quantile(a, [0.5, 0.9, 0.99])
+    k = dm.COPY_K
+    tail = stats.norm.sf(k - a) + stats.norm.sf(k + a)  # each epoch's expected tail at K = 5.3
+    return (f"|b| median {q[0]:.3f}, 90 % {q[1]:.3f}, 99 % {q[2]:.3f}, max {a.max():.3f}; the {int((a > 0.6).sum())} "
+            f"epochs with |b| > 0.6 carry {100 * tail[a > 0.6].sum() / tail.sum():.0f} % of the expected tail at K = {k:g}; "
+            f"copies: mean {dm.copies(b).mean():.2f}, {int((dm.copies(b) > 1).sum())} of {a.size} epochs more than once")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sortie", type=arg_in_range(int, 0, 10**6), default=309)
+    ap.add_argument("--set-size", type=arg_in_range(int, 6, 10**6 + 1), default=1440)
+    ap.add_argument("--seeds", type=arg_in_range(int, 3, 10_001), default=30)
+    ap.add_argument("--survey", type=arg_in_range(int, 0, 10**5), default=0)
+    args = ap.parse_args(argv)
+    if args.sortie >= args.set_size:
+        ap.error(f"--sortie {args.sortie}: expected a sortie of the set, 0..{args.set_size - 1}")
+    from testbed.studies import dpe_measured as dm
+    from testbed.studies.dpe_calibration import CN0_OFFSETS_DB, MULTIPATH, calibration_run
+
+    run = calibration_run("zunz-rwy05-dpe", (), args.set_size, 0, 25, 1e-7)
+    bias, (ap_, setup, truth_g, mon, off, cn0, mp, _) = _pilot(run, args.sortie, args.set_size)
+    print(f"sortie {args.sortie} of {args.set_size}: C/N0 {cn0:+g} dB, multipath {mp}, start +{off:.0f} s")
+    plain = dm.DEFENSIVE
+    dm.DEFENSIVE = 1.0 - 1e-12  # every epoch drawn from the error model
+    try:
+        runs = [dm.sortie(ap_, setup, truth_g, mon, off, cn0, mp, (9, args.sortie), s) for s in range(args.seeds)]
+    finally:
+        dm.DEFENSIVE = plain
+    pi_all = np.concatenate([r["pi"] for r in runs])  # an epoch's copies are draws of it too
+    z_all, epoch = np.concatenate([r["z"] for r in runs]), np.concatenate([r["epoch"] for r in runs])
+    print("epoch  slope  intercept  pilot b   (z = intercept + slope * pi over the seeds' draws)")
+    for t in range(bias.size):
+        pi, z = pi_all[epoch == t], z_all[epoch == t]
+        if pi.size >= 3 and (abs(bias[t]) > 0.2 or t % 10 == 0):
+            slope, icpt = np.polyfit(pi, z, 1)
+            print(f"{t:5d}  {slope:5.3f}  {icpt:+9.3f}  {bias[t]:+7.3f}")
+    print("this sortie:", _quantiles(bias))
+    if args.survey:
+        for s in (3, 4, 5):
+            js = [j for j in range(args.set_size) if j % 3 == s % 3 and (j // 3) % 2 == 1][:args.survey]
+            b = np.concatenate([_pilot(run, j, args.set_size)[0] for j in js])
+            print(f"C/N0 {CN0_OFFSETS_DB[s % 3]:+g} dB, multipath {MULTIPATH[s // 3]}, {len(js)} sorties:", _quantiles(b))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
