@@ -17,10 +17,11 @@ component of a mixture (the signs ± and the levels ``ℓ`` of :data:`LEVELS`) o
 ``defensive``, none (the error model itself). With a ground echo, ``z ≈ b + π``: the echo moves an epoch's
 solution by a bias ``b`` (up to ~1 σ at low height) that the draws do not set and the median ``m`` does not
 remove; it is the DPE's error on the epoch's expected correlograms (:func:`echo_bias`), and the components sit
-at ``±ℓ − b``. Uncentred, the epochs of largest ``|b|`` reach the event at a smaller ``|π|``, with weights
-larger by ~e^(ℓ|b|), and their few events decided the estimate. Each epoch is a trial: its weight is its own draws' likelihood
-ratio (the campaign sampler's :func:`~testbed.campaign.sampling.log_weights`), and the rates are
-:func:`~testbed.campaign.sampling.weighted_rate` with its diagnostics.
+at ``±ℓ − b``. An echo stratum's tail is carried by its few epochs of largest ``|b|``, so an epoch is drawn
+:func:`copies` times, in proportion to its expected share of the tail, each copy with 1/copies of its weight.
+Each draw's weight is its own draws' likelihood ratio (the campaign sampler's
+:func:`~testbed.campaign.sampling.log_weights`); an epoch's copies are summed into one term, and the rates are
+:func:`~testbed.campaign.sampling.weighted_rate` over the epochs, with its diagnostics.
 
 K is the smallest factor on a 0.005 grid at which the weighted estimate of P(|e| > K·σ + |m|) per epoch with a
 solution is settled and the upper end of its interval is at most P, in every C/N0 × multipath stratum; K is
