@@ -9,6 +9,10 @@ see testbed/threads.py) from the start of the run, whichever test starts numba's
 suite used to get it from its first in-process ``main()``, so a file or the slow set run on its own
 kept spinning threads, which beside a busy neighbour made the DPE calibration test 10x slower
 (230 s against 24 s). A value set in the environment wins.
+
+The heap keeps glibc's own trimming (``TESTBED_SYSTEM_MALLOC=1``, testbed/heap.py): the commands the tests call in
+process would otherwise let each test process keep up to 1 GB of freed memory, and two of them side by side
+(``-n 2``) came within 0.1 GB of the suite's 4 GB. tests/test_heap.py sets the variable as each case needs.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ _HOME: Path | None = None
 def pytest_configure(config) -> None:
     global _HOME
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")  # before any kernel starts the OpenMP threads
+    os.environ.setdefault("TESTBED_SYSTEM_MALLOC", "1")  # before any command applies the heap settings
     home = _HOME = Path(tempfile.mkdtemp(prefix="testbed-tests-config-"))
     (home / "rerun").mkdir()
     (home / "rerun" / "analytics.json").write_text(json.dumps(
