@@ -21,7 +21,6 @@ most of it (their share, copies, echo bias, and their events' thresholds, projec
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import os
 import sys
 
@@ -34,20 +33,14 @@ from testbed.schema import arg_in_range  # noqa: E402
 
 
 def _pilot(run, j: int, set_size: int):
-    from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
     from testbed.studies import dpe_measured as dm
     from testbed.studies.dpe_calibration import _trajectory, sortie_plan
 
     traj = run.trajectories or (run.approach,)
     t, off, cn0, mp, stratum = sortie_plan(j, set_size, len(traj))
     ap, setup, truth_g, mon = _trajectory(run.approach, traj[t])
-    cs = setup.gnss.correlators.model_copy(update={"cn0_offset_db": setup.gnss.correlators.cn0_offset_db + cn0,
-                                                   "multipath": mp})
-    gs = setup.gnss.model_copy(update={"correlators": cs})
-    geom = gnss_geometry(truth_g, setup.antenna, gs, start_utc=ap.config.start_time_utc + dt.timedelta(seconds=off),
-                         terrain=setup.terrain)
-    g_gnss = np.random.SeedSequence(0, spawn_key=(dm.SET_KEYS["calibration"], j)).spawn(1)[0]
-    g, gt = sample_gnss(geom, gs, rng=np.random.default_rng(g_gnss))
+    g_gnss = np.random.SeedSequence(0, spawn_key=(dm.SET_KEYS["calibration"], j)).spawn(1)[0]  # the sortie's sky
+    gs, g, gt = dm.sortie_sky(ap, setup, truth_g, off, cn0, mp, g_gnss)
     return dm.echo_bias(mon, g, gt, truth_g, gs, setup.frame), (ap, setup, truth_g, mon, off, cn0, mp, stratum)
 
 

@@ -191,16 +191,11 @@ def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: s
     is a trial; an epoch whose echo bias makes it weigh more is drawn :func:`copies` times, each copy with its
     own draws and 1/copies of its weight (module doc)."""
     from testbed.sensors.gnss.correlators import cn0_at, sis_sigma
-    from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
 
-    cs = setup.gnss.correlators.model_copy(update={"cn0_offset_db": setup.gnss.correlators.cn0_offset_db + cn0_db,
-                                                   "multipath": multipath})
-    gs = setup.gnss.model_copy(update={"correlators": cs})
-    start = ap.config.start_time_utc + dt.timedelta(seconds=offset_s)
-    geom = gnss_geometry(truth_g, setup.antenna, gs, start_utc=start, terrain=setup.terrain)
     # the first two: the plain run's; the fourth: the copies' (spawning four leaves the first three as they were)
     g_gnss, g_corr, g_sampling, g_copies = np.random.SeedSequence(seed, spawn_key=key).spawn(4)
-    g, gt = sample_gnss(geom, gs, rng=np.random.default_rng(g_gnss))
+    gs, g, gt = sortie_sky(ap, setup, truth_g, offset_s, cn0_db, multipath, g_gnss)
+    cs = gs.correlators
     vis = np.asarray(g.visible, bool)
     el = np.asarray(gt.elevation, float)
     ant = np.asarray(gt.antenna_pos_ecef, float)
@@ -218,6 +213,19 @@ def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: s
         g_c, g_s = stream.spawn(2)
         parts.append(_tilted_draws(ep, np.flatnonzero(n > r), g_c, g_s))
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def sortie_sky(ap, setup, truth_g, offset_s: float, cn0_db: float, multipath: str, g_gnss: np.random.SeedSequence):
+    """A sortie's GNSS settings (its C/N0 offset and multipath), epochs and their truth, drawn from ``g_gnss``."""
+    from testbed.sensors.gnss.synth import gnss_geometry, sample_gnss
+
+    cs = setup.gnss.correlators.model_copy(update={"cn0_offset_db": setup.gnss.correlators.cn0_offset_db + cn0_db,
+                                                   "multipath": multipath})
+    gs = setup.gnss.model_copy(update={"correlators": cs})
+    start = ap.config.start_time_utc + dt.timedelta(seconds=offset_s)
+    geom = gnss_geometry(truth_g, setup.antenna, gs, start_utc=start, terrain=setup.terrain)
+    g, gt = sample_gnss(geom, gs, rng=np.random.default_rng(g_gnss))
+    return gs, g, gt
 
 
 #: the copies of an epoch (:func:`copies`): its expected share of the tail at K ≈ :data:`COPY_K` (the measured K
