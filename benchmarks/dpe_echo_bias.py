@@ -76,12 +76,9 @@ def main(argv: list[str] | None = None) -> int:
     run = calibration_run("zunz-rwy05-dpe", (), args.set_size, 0, 25, 1e-7)
     bias, (ap_, setup, truth_g, mon, off, cn0, mp, _) = _pilot(run, args.sortie, args.set_size)
     print(f"sortie {args.sortie} of {args.set_size}: C/N0 {cn0:+g} dB, multipath {mp}, start +{off:.0f} s")
-    plain = dm.DEFENSIVE
-    dm.DEFENSIVE = 1.0 - 1e-12  # every epoch drawn from the error model
-    try:
-        runs = [dm.sortie(ap_, setup, truth_g, mon, off, cn0, mp, (9, args.sortie), s) for s in range(args.seeds)]
-    finally:
-        dm.DEFENSIVE = plain
+    plain = 1.0 - 1e-12  # a defensive share that draws every epoch from the error model
+    runs = [dm.sortie(ap_, setup, truth_g, mon, off, cn0, mp, (9, args.sortie), s, defensive=plain)
+            for s in range(args.seeds)]
     pi_all = np.concatenate([r["pi"] for r in runs])  # an epoch's copies are draws of it too
     z_all, epoch = np.concatenate([r["z"] for r in runs]), np.concatenate([r["epoch"] for r in runs])
     print("epoch  slope  intercept  pilot b   (z = intercept + slope * pi over the seeds' draws)")

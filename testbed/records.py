@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field, fields, replace
 from enum import IntEnum
+from collections.abc import Iterable
 from typing import ClassVar
 
 import numpy as np
@@ -586,3 +587,13 @@ class MonitorOutput:
     def detected(self) -> NDArray:
         """(B..., T) bool: the fault test failed (an alert, or an alert FDE cleared by an exclusion)."""
         return self.alert if self.fde is None else self.fde.detected
+
+    def own_epoch_columns(self, taken: Iterable[str] = ()) -> dict[str, NDArray]:
+        """The monitor's own per-epoch columns (its diagnostics' :meth:`Diagnostics.epoch_columns`: ARAIM's EMT,
+        σ_acc and fault modes, ...), (B..., T) each; ValueError if one would rename a column of ``taken`` (the
+        table's own)."""
+        own = {} if self.diagnostics is None else self.diagnostics.epoch_columns()
+        clash = sorted(set(own) & set(taken))
+        if clash:
+            raise ValueError(f"monitor {self.name}: its own epoch columns {clash} clash with the table's")
+        return {k: np.asarray(v) for k, v in own.items()}

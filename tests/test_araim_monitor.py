@@ -313,7 +313,8 @@ def test_fault_free_false_alerts_inside_the_binomial_interval_of_the_allocation(
 @pytest.mark.slow
 def test_araim_runs_in_the_loop_a_campaign_and_rinex_replay(tmp_path, capsys):
     """The monitor through every path that steps monitors: a flight (its summary rows), a campaign (its own
-    trial columns) and the RINEX replay of the same flight (the same fix as GPS RAIM's to a centimetre)."""
+    trial columns, and its own epoch columns in epochs.parquet, whose EMT gives the trials' maximum) and the
+    RINEX replay of the same flight (the same fix as GPS RAIM's to a centimetre)."""
     import pyarrow.parquet as pq
 
     from testbed.api import export_rinex, load_approach, print_run_summary, run_approach
@@ -340,11 +341,18 @@ def test_araim_runs_in_the_loop_a_campaign_and_rinex_replay(tmp_path, capsys):
 
     spec = tmp_path / "a.toml"
     spec.write_text('name = "a"\napproaches = ["zunz-rwy05-final"]\nmonitors = ["araim"]\ntrials = 10\n'
-                    'block_trials = 10\nchunk_trials = 10\nduration_s = 10.0\n')
+                    'block_trials = 10\nchunk_trials = 10\nduration_s = 10.0\nper_epoch_trials = 3\n')
     run_campaign(spec, tmp_path / "camp", progress=False)
     trials = pq.read_table(tmp_path / "camp" / "trials.parquet").to_pydict()
     assert set(trials["monitor"]) == {"araim"} and len(trials["trial"]) == 10
     assert {"max_emt", "max_sigma_acc_v", "mean_fault_modes"} <= set(trials)
+    epochs = pq.read_table(tmp_path / "camp" / "epochs.parquet").to_pandas()  # the monitor's own columns too
+    assert {"emt_m", "sigma_acc_v_m", "fault_modes", "p_unmonitored", "clock_gps_m"} <= set(epochs)
+    sizes = epochs.groupby("trial").size()
+    assert len(sizes) == 3 and sizes.nunique() == 1 and np.isfinite(epochs["clock_gps_m"]).mean() > 0.9
+    per_trial = epochs.groupby("trial")["emt_m"].max()  # NaN here: GPS alone is too few for its fault modes
+    want = dict(zip(trials["trial"], trials["max_emt"]))
+    np.testing.assert_allclose(per_trial.values, [want[t] for t in per_trial.index], rtol=1e-12)
 
     obs, nav = export_rinex(ap, tmp_path / "rnx", seed=1)
     replay = monitor_rinex(obs, nav, monitors=("gps_raim", "araim"), out_dir=tmp_path / "replay")

@@ -138,6 +138,18 @@ def test_a_constellation_bias_family_sweeps_the_bias_on_its_system(tmp_path):
     assert load_spec(ROOT / "approaches" / "campaigns" / "gps-step-sweep.toml").hash == "5270645a44aa341a"
 
 
+def test_a_monitors_own_column_that_one_block_lacks_is_nan_on_its_rows():
+    """ARAIM's clock column of a system is written only where a block used that system: the blocks' columns
+    join, NaN where a block had none, in the order they first appear."""
+    from testbed.campaign.tables import _cat_cols
+
+    t = _cat_cols([{"monitor": "araim", "x": np.array([1.0, 2.0])},
+                   {"monitor": "araim", "x": np.array([5.0]), "clock_gal_m": np.array([3.0])}])
+    assert t.column_names == ["monitor", "x", "clock_gal_m"]
+    assert t.column("monitor").to_pylist() == ["araim"] * 3 and t.column("x").to_pylist() == [1.0, 2.0, 5.0]
+    np.testing.assert_array_equal(t.column("clock_gal_m").to_numpy(), [np.nan, np.nan, 3.0])
+
+
 def test_cells_are_the_product_of_the_axes(tmp_path):
     text = TINY.format(chunk=20, monitors='["gps_raim", "va_raim"]').replace(
         "camera_dpi = [720.0]", "camera_dpi = [120.0, 720.0]\ndetection_sigma_px = [1.0, 2.0, 4.0]")

@@ -134,7 +134,8 @@ def _stanford_counts(name: str, out: MonitorOutput, he: np.ndarray, ve: np.ndarr
 
 def _epoch_columns(ctx: CellContext, d: BlockDraw, k_idx: np.ndarray, out: MonitorOutput, he: np.ndarray,
                    ve: np.ndarray) -> dict:
-    """Per-epoch records of the kept trials ``k_idx`` (block positions)."""
+    """Per-epoch records of the kept trials ``k_idx`` (block positions): the contract's columns, then the
+    monitor's own (:meth:`~testbed.records.MonitorOutput.own_epoch_columns`)."""
     trials = d.trials
     t, T, nk = ctx.t, ctx.t.size, k_idx.size
     avail = np.asarray(out.available, bool)
@@ -146,6 +147,8 @@ def _epoch_columns(ctx: CellContext, d: BlockDraw, k_idx: np.ndarray, out: Monit
          "alert": np.asarray(out.alert, bool)[k_idx].ravel(), "fault_present": d.fault_present[k_idx].ravel()}
     for k, lv in enumerate(ctx.levels):
         e[f"avail_{lv}"] = avail[k_idx, :, k].ravel()
+    for k, v in out.own_epoch_columns(e).items():  # the monitor's own: ARAIM's EMT, fault modes, ...
+        e[k] = np.broadcast_to(v, (trials.size, T))[k_idx].ravel()
     return e
 
 
@@ -155,8 +158,9 @@ def _nanmax(x: np.ndarray) -> np.ndarray:
 
 
 def _cat_cols(parts: list[dict[str, np.ndarray | str]]) -> pa.Table | None:
-    """One table from column dicts of equal keys; a text value (a str, not an array) stands for that
-    text on every row of its part (the monitor's name: 40x faster than a numpy object column)."""
+    """One table from column dicts; a text value (a str, not an array) stands for that text on every row of
+    its part (the monitor's name: 40x faster than a numpy object column). A numeric column some parts lack
+    (a monitor's own column for a system one block never used) is NaN on their rows."""
     if not parts:
         return None
 
@@ -164,11 +168,12 @@ def _cat_cols(parts: list[dict[str, np.ndarray | str]]) -> pa.Table | None:
         return next(len(v) for v in p.values() if not isinstance(v, str))
 
     def column(k: str):
-        if isinstance(parts[0][k], str):
+        if isinstance(next(p[k] for p in parts if k in p), str):
             return pa.concat_arrays([pa.repeat(pa.scalar(p[k], pa.string()), rows(p)) for p in parts])
-        return np.concatenate([p[k] for p in parts])
+        return np.concatenate([p[k] if k in p else np.full(rows(p), np.nan) for p in parts])
 
-    return pa.table({k: column(k) for k in parts[0]})
+    keys = list(dict.fromkeys(k for p in parts for k in p))
+    return pa.table({k: column(k) for k in keys})
 
 
 def _concat(tables: list) -> pa.Table | None:

@@ -300,21 +300,11 @@ def epoch_table(run: RinexRun, name: str) -> dict[str, np.ndarray]:
         cols["excluded_system"] = np.where(ex >= 0, system[np.clip(ex, 0, None)], "")
     for k, lv in enumerate(out.service_levels):
         cols[f"available_{lv}"] = out.available[:, k]
-    cols.update(own_columns(out, cols))
+    cols.update(out.own_epoch_columns(cols))
     if run.reference_enu is not None:
         d = out.pos_enu - run.reference_enu
         cols.update({"err_e_m": d[:, 0], "err_n_m": d[:, 1], "err_u_m": d[:, 2]})
     return cols
-
-
-def own_columns(out: MonitorOutput, taken: dict) -> dict[str, np.ndarray]:
-    """A monitor's own per-epoch columns (its diagnostics' :meth:`~testbed.records.Diagnostics.epoch_columns`:
-    ARAIM's EMT, σ_acc and fault modes), after the contract's ``taken`` ones, which they may not rename."""
-    own = {} if out.diagnostics is None else out.diagnostics.epoch_columns()
-    clash = sorted(set(own) & set(taken))
-    if clash:
-        raise ValueError(f"monitor {out.name}: its own epoch columns {clash} clash with the table's")
-    return {k: np.asarray(v) for k, v in own.items()}
 
 
 def _write_table(cols: dict[str, np.ndarray], path: Path) -> Path:

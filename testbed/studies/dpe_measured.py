@@ -2,24 +2,21 @@
 
 The tail estimator (:func:`~testbed.integrity.dpe.calibration.fit_k_tail`) measures the normalised error's
 tails down to ~100/N and extrapolates to P = 10⁻⁷ under a Gaussian assumption; measuring 10⁻⁷ by brute force
-takes ~10⁹ epochs. Here the per-satellite signal-in-space draws, the few low-dimensional terms of an epoch's
-vertical error, are drawn from a proposal aimed at large vertical errors, and the correlators' thermal noise
-(thousands of draws) stays plain. An epoch's SIS errors are ``ε = σ_SIS·u``, ``u ~ N(0, I)``, white from epoch
-to epoch; the DPE moves its solution by ``A_U·ε`` (``A = J Gᵀ W``, its CRB weighting, docs/design/dpe.md
-eq. 5.6), so the SIS part of the vertical error is ``s·u`` with ``s = A_U ∘ σ_SIS`` and the thermal part has
-variance ``J_UU``. With ``f = |s|²/(|s|² + J_UU)`` the SIS share of the variance, the mean shift of ``u`` along
-``s/|s|`` that minimises the second moment of the estimator of ``P(|e| > ℓσ)`` with the thermal part plain is
+takes ~10⁹ epochs. Here an epoch's draws are aimed at large vertical errors. Its vertical error moves with the
+per-satellite signal-in-space draws ``ε = σ_SIS·u`` (``u ~ N(0, I)``, white from epoch to epoch) through the
+DPE's CRB weighting ``A_U`` (``A = J Gᵀ W``, docs/design/dpe.md eq. 5.6), and with each satellite's thermal
+noise along the one direction of its correlator draws that moves the correlogram as a later delay does
+(:func:`delay_directions`, a delay error of CRB σ_δ). :func:`aim` gives the unit gradient ``h`` over both kinds
+of whitened draw, and ``π = h·(u, x) ~ N(0, 1)`` is the draws' projection on it: the thousands of other
+correlator draws stay plain, and the likelihood ratio is that of one Gaussian coordinate.
 
-    μ(ℓ) = ℓ·√f / (2 − f)
-
-(the dominating point ``ℓ√f`` when the SIS were all, half of it when they are nothing). Each epoch draws one
-component of a mixture (the signs ± and the levels ``ℓ`` of :data:`LEVELS`) or, with probability
-``defensive``, none (the error model itself). With a ground echo, ``z ≈ b + π``: the echo moves an epoch's
-solution by a bias ``b`` (up to ~1 σ at low height) that the draws do not set and the median ``m`` does not
-remove; it is the DPE's error on the epoch's expected correlograms (:func:`echo_bias`), and the components sit
-at ``±ℓ − b``. An echo stratum's tail is carried by its few epochs of largest ``|b|``, so an epoch is drawn
+Each epoch draws one component of a mixture on π (shifts ``±ℓ`` for the levels of :data:`LEVELS`) or, with
+probability ``defensive``, none (the error model itself). With a ground echo, ``z ≈ b + π``: the echo moves an
+epoch's solution by a bias ``b`` (up to ~1 σ at low height) that the draws do not set and the median ``m`` does
+not remove; it is the DPE's error on the epoch's expected correlograms (:func:`echo_bias`), and the components
+sit at ``±ℓ − b``. An echo stratum's tail is carried by its few epochs of largest ``|b|``, so an epoch is drawn
 :func:`copies` times, in proportion to its expected share of the tail, each copy with 1/copies of its weight.
-Each draw's weight is its own draws' likelihood ratio (the campaign sampler's
+Each draw's weight is its projection's likelihood ratio (the campaign sampler's
 :func:`~testbed.campaign.sampling.log_weights`); an epoch's copies are summed into one term, and the rates are
 :func:`~testbed.campaign.sampling.weighted_rate` over the epochs, with its diagnostics.
 
@@ -60,14 +57,16 @@ DEFENSIVE = 0.1
 K_STEP = 0.005
 K_RANGE = (2.0, 20.0)
 CONFIDENCE = 0.95
-ASSUMPTION = ("the tail is measured, not extrapolated: importance sampling of the per-satellite SIS draws (the "
-              "correlators' thermal noise drawn plainly); an epoch's outcome depends on its own draws (white SIS "
-              "and correlator noise; the previous DPE fix is used only when the same-epoch GPS fix fails)")
+ASSUMPTION = ("the tail is measured, not extrapolated: importance sampling of each epoch's SIS draws and its "
+              "correlator draws along the satellites' delay directions (the other correlator draws plain); an "
+              "epoch's outcome depends on its own draws (white SIS and correlator noise; the previous DPE fix is "
+              "used only when the same-epoch GPS fix fails)")
 
 
-def plan() -> SamplingPlan:
-    """The mixture's plan in the campaign sampler's terms: mean shifts, a defensive share, uniform components."""
-    return SamplingPlan(method="importance", proposal="shift", defensive=DEFENSIVE)
+def plan(defensive: float = DEFENSIVE) -> SamplingPlan:
+    """The mixture's plan in the campaign sampler's terms: mean shifts, a defensive share, uniform components
+    (a defensive share near 1 draws every epoch from the error model: plain sampling, weights ~1)."""
+    return SamplingPlan(method="importance", proposal="shift", defensive=defensive)
 
 
 def vertical_response(los_enu: np.ndarray, cn0_dbhz: np.ndarray, visible: np.ndarray, coherent_s: float,
@@ -117,15 +116,17 @@ def epoch_components(has_response: np.ndarray, levels: tuple[float, ...] = LEVEL
             if h else empty for h, bt in zip(has_response, b)]
 
 
-def tilted_projection_shifts(comps: list[Components], which: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def tilted_projection_shifts(comps: list[Components], which: np.ndarray, rng: np.random.Generator,
+                             defensive: float = DEFENSIVE) -> tuple[np.ndarray, np.ndarray]:
     """Each epoch's component (−1: the error model) and the shift of its projection π (n,)."""
-    draw = draw_proposal(comps, which, plan(), np.zeros((which.size, 1, 1)), rng)
+    draw = draw_proposal(comps, which, plan(defensive), np.zeros((which.size, 1, 1)), rng)
     return draw.component, draw.shift[:, 0, 0]
 
 
-def epoch_log_weights(comps: list[Components], which: np.ndarray, pi: np.ndarray) -> np.ndarray:
+def epoch_log_weights(comps: list[Components], which: np.ndarray, pi: np.ndarray, defensive: float = DEFENSIVE
+                      ) -> np.ndarray:
     """(n,) log p/q of each epoch's projection ``pi`` (n,), as tilted."""
-    return log_weights(comps, which, plan(), np.asarray(pi, float)[:, None, None])
+    return log_weights(comps, which, plan(defensive), np.asarray(pi, float)[:, None, None])
 
 
 def delay_directions(K: np.ndarray, spec, A: np.ndarray, delay: np.ndarray, grid, n_blocks: int,
@@ -185,11 +186,13 @@ class _NoiseTilt:
 
 
 def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: str, key: tuple[int, int],
-           seed: int, thermal: bool = True, levels: tuple[float, ...] = LEVELS) -> dict[str, np.ndarray]:
+           seed: int, thermal: bool = True, levels: tuple[float, ...] = LEVELS, defensive: float = DEFENSIVE
+           ) -> dict[str, np.ndarray]:
     """One importance-sampled sortie: per trial with a solution z, e, σ, m, the log weight, the component, the
     projection π of its draws, its epoch's echo bias and its epoch; the unsolved trials' log weights. Every epoch
     is a trial; an epoch whose echo bias makes it weigh more is drawn :func:`copies` times, each copy with its
-    own draws and 1/copies of its weight (module doc)."""
+    own draws and 1/copies of its weight (module doc). ``defensive`` near 1: every epoch drawn from the error
+    model (plain sampling)."""
     from testbed.sensors.gnss.correlators import cn0_at, sis_sigma
 
     # the first two: the plain run's; the fourth: the copies' (spawning four leaves the first three as they were)
@@ -206,7 +209,7 @@ def sortie(ap, setup, truth_g, mon, offset_s: float, cn0_db: float, multipath: s
     h_sis, h_noise = aim(a_u, np.where(vis, sig, 0.0), sd, thermal and cs.synthesis == "fast")
     bias = echo_bias(mon, g, gt, truth_g, gs, setup.frame) if multipath != "off" else np.zeros(vis.shape[0])
     n = copies(bias)
-    ep = _Epochs(g, gt, truth_g, gs, mon, setup.frame, sig, h_sis, h_noise, bias, n, levels,
+    ep = _Epochs(g, gt, truth_g, gs, mon, setup.frame, sig, h_sis, h_noise, bias, n, levels, defensive,
                  vdop(setup.frame, np.asarray(g.sat_pos_ecef, float), vis, ant))
     parts = [_tilted_draws(ep, np.arange(vis.shape[0]), g_corr, g_sampling)]
     for r, stream in enumerate(g_copies.spawn(int(n.max()) - 1), start=1):
@@ -231,12 +234,12 @@ def sortie_sky(ap, setup, truth_g, offset_s: float, cn0_db: float, multipath: st
 #: the copies of an epoch (:func:`copies`): its expected share of the tail at K ≈ :data:`COPY_K` (the measured K
 #: without an echo) against an unbiased epoch's, one copy per :data:`SHARE_PER_COPY`, at most :data:`MAX_COPIES`
 COPY_K = 5.3
-SHARE_PER_COPY = 4.0
-MAX_COPIES = 32
+SHARE_PER_COPY = 1.0
+MAX_COPIES = 64
 
 
 def copies(bias: np.ndarray) -> np.ndarray:
-    """(T,) how many times each epoch is drawn: ⌈r/4⌉ in 1..32, r = (Q(K − |b|) + Q(K + |b|))/(2 Q(K)) at
+    """(T,) how many times each epoch is drawn: ⌈r⌉ in 1..64, r = (Q(K − |b|) + Q(K + |b|))/(2 Q(K)) at
     K = 5.3 the factor by which its echo bias b raises its tail. The tail of an echo stratum is an average over
     epochs of which the few of largest |b| carry most (|b| ~ 1: r ~ 70); one draw each leaves their estimate,
     and the stratum's, to a few events. Drawing an epoch m times with weights 1/m each keeps the estimate
@@ -249,7 +252,7 @@ def copies(bias: np.ndarray) -> np.ndarray:
 @dataclasses.dataclass(frozen=True)
 class _Epochs:
     """What a sortie's draws are made and judged on, per epoch: its observations' records, the monitor, the SIS
-    σ, the aimed directions, the echo bias, the copies, the mixture's levels and the VDOP."""
+    σ, the aimed directions, the echo bias, the copies, the mixture's levels and defensive share, and the VDOP."""
 
     gnss: Any
     gnss_truth: Any
@@ -263,6 +266,7 @@ class _Epochs:
     bias: np.ndarray
     copies: np.ndarray
     levels: tuple[float, ...]
+    defensive: float
     vdop: np.ndarray
 
 
@@ -281,14 +285,14 @@ def _tilted_draws(ep: _Epochs, idx: np.ndarray, g_corr: np.random.SeedSequence, 
     has = (np.abs(h_sis).sum(1) + np.abs(h_noise).sum(1)) > 0
     comps = epoch_components(has, ep.levels, ep.bias[idx])
     which = np.arange(idx.size)
-    comp, c = tilted_projection_shifts(comps, which, np.random.default_rng(g_sampling))
+    comp, c = tilted_projection_shifts(comps, which, np.random.default_rng(g_sampling), ep.defensive)
     tilt = _NoiseTilt(c, h_noise, ep.settings.correlators)
     corr, ct = synthesize_correlators(g, gt, truth, ep.settings, g_corr.generate_state(4), sis_shift=c[:, None] * h_sis,
                                       noise_tilt=tilt if np.any(h_noise) else None)
     sig = ep.sigma_sis[idx]
     u = np.where(vis, np.nan_to_num(np.asarray(ct.sis_m, float)) / sig, 0.0)  # the standard SIS draws, as tilted
     pi = (h_sis * u).sum(1) + tilt.pi_noise
-    lw = epoch_log_weights(comps, which, pi) - np.log(ep.copies[idx])
+    lw = epoch_log_weights(comps, which, pi, ep.defensive) - np.log(ep.copies[idx])
     e, sigma, m, ok = vertical_solution(ep.mon, Observations(g, correlators=corr), ep.frame,
                                         np.asarray(gt.antenna_pos_ecef, float))
     return {"z": ((e - m) / sigma)[ok], "e": e[ok], "sigma": sigma[ok], "m": m[ok],
@@ -457,9 +461,11 @@ def weighted_median(x: np.ndarray, lw: np.ndarray) -> float:
 
 
 def _commit() -> str:
+    """The source's commit, ``-dirty`` when the checkout has uncommitted changes (the record is then not
+    reproducible from the commit alone); "unknown" outside a git checkout."""
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
-                              text=True, timeout=10).stdout.strip() or "unknown"
+        return subprocess.run(["git", "describe", "--always", "--dirty", "--abbrev=7"], cwd=Path(__file__).parent,
+                              capture_output=True, text=True, timeout=10).stdout.strip() or "unknown"
     except (OSError, subprocess.SubprocessError):
         return "unknown"
 
@@ -537,7 +543,8 @@ def calibrate_dpe_measured(approach: str | Path = "zunz-rwy05-dpe", *, sorties: 
         "deepest_level": None if chosen is None else chosen.rate.hi,
         "interval": None if chosen is None else [chosen.rate.lo, chosen.rate.hi],
         "trials": int(c["z"].size + c["unsolved_log_weight"].size),
-        "method": "importance sampling of the per-satellite SIS draws (docs/design/dpe.md §6.8)",
+        "method": "importance sampling of the SIS and thermal draws along the DPE's vertical response, per "
+                  "epoch (docs/design/dpe.md §6.8)",
         "proposal": {"kind": "mean shift of the standard SIS and thermal draws along the DPE's vertical response, "
                              "per epoch", "levels": list(LEVELS),
                      "shift": "pi ~ N(+-level - b, 1), pi the draws' projection on the aimed direction", "centre": "-b, b = (e0 - m0)/sigma0 of the DPE on "
@@ -550,8 +557,8 @@ def calibrate_dpe_measured(approach: str | Path = "zunz-rwy05-dpe", *, sorties: 
                        "rates": {n: _rate_record(r) for n, r in checks.items()},
                        "rule": "every held-out estimate of P(|e| > K*sigma + |m|) settled and at most p_hmi"},
         **run_provenance(ap.name, [load_approach(t).name for t in names], sorties, seed, spacing,
-                         {"calibration": "SeedSequence(seed, spawn_key=(2, sortie)): gnss, correlators, sampling",
-                          "validation": "SeedSequence(seed, spawn_key=(3, sortie)): gnss, correlators, sampling"},
+                         {"calibration": "SeedSequence(seed, spawn_key=(2, sortie)): gnss, correlators, sampling, copies",
+                          "validation": "SeedSequence(seed, spawn_key=(3, sortie)): gnss, correlators, sampling, copies"},
                          fingerprint, cover, ASSUMPTION),
         "version": _version(), "commit": _commit(),
     }

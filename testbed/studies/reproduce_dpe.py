@@ -144,8 +144,13 @@ def k_record_problems(rec) -> list[str]:
         x = rec.get(key)
         if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x) or (key == "sigma_z" and x <= 0):
             out.append(f"{key} = {x!r}: expected a finite number{' > 0' if key == 'sigma_z' else ''}")
+    if out:
+        return out
+    k_again = rec["sigma_z"] * gaussian_k(rec["p_hmi"]) + abs(rec["b_z"])
+    if abs(k_again - rec["k"]) > 1e-6 * rec["k"]:
+        out.append(f"k = {rec['k']!r}: σ_z·Q⁻¹(P/2) + |b_z| of its own σ_z, b_z and p_hmi gives {k_again:.6f}")
     if rec.get("estimator") == "importance":
-        return out or _measured_validation_problems(rec)
+        return out + _measured_validation_problems(rec)
     v = rec.get("validation")
     need = {"epochs": int, "exceedances": int, "allowed": int, "passed": bool, "tails_hold": bool}
     if not isinstance(v, dict) or any(not isinstance(v.get(k), t) or (t is int and isinstance(v.get(k), bool))
@@ -153,9 +158,6 @@ def k_record_problems(rec) -> list[str]:
         out.append(f"validation = {v!r}: expected a table with {', '.join(f'{k} ({t.__name__})' for k, t in need.items())}")
     if out:
         return out
-    k_again = rec["sigma_z"] * gaussian_k(rec["p_hmi"]) + abs(rec["b_z"])
-    if abs(k_again - rec["k"]) > 1e-6 * rec["k"]:
-        out.append(f"k = {rec['k']!r}: σ_z·Q⁻¹(P/2) + |b_z| of its own σ_z, b_z and p_hmi gives {k_again:.6f}")
     if not (0 <= v["exceedances"] <= v["epochs"]):
         out.append(f"validation.exceedances = {v['exceedances']}: expected 0 to validation.epochs = {v['epochs']}")
     allowed = int(stats.binom.ppf(0.95, v["epochs"], rec["p_hmi"]))
@@ -168,8 +170,16 @@ def k_record_problems(rec) -> list[str]:
 
 
 def _measured_validation_problems(rec: dict) -> list[str]:
-    """An importance-sampled record's held-out check: a rate per stratum (estimate, interval, settled), and its
-    verdict re-derived by its rule (every estimate settled and at most ``p_hmi``)."""
+    """An importance-sampled record's K, the largest of its strata's (a stratum without K: no K), and its held-out
+    check: a rate per stratum (estimate, interval, settled), and its verdict re-derived by its rule (every
+    estimate settled and at most ``p_hmi``)."""
+    strata = rec.get("strata")
+    ks = [f.get("k") for f in strata.values() if isinstance(f, dict)] if isinstance(strata, dict) else []
+    if not strata or len(ks) != len(strata) or not all(k is None or isinstance(k, (int, float)) for k in ks):
+        return [f"strata = {strata!r}: expected a table of strata, each with its fitted k"]
+    if None in ks or abs(max(ks) - rec["k"]) > 1e-9:
+        return [f"k = {rec['k']!r}: the largest of its strata's K is "
+                f"{'none (a stratum has no K)' if None in ks else repr(max(ks))}"]
     v = rec["validation"]
     rates = v.get("rates")
     epochs = v.get("epochs")
