@@ -3,11 +3,12 @@ the DPE's K calibrated at a measured 10⁻⁷ tail.
 
 Usage::
 
-    python benchmarks/bench_rare_events.py [--start 500] [--bound 1e-7] [--sorties 84] [--workers 2] [--dpe-out K.json]
+    python benchmarks/bench_rare_events.py [--start 500] [--bound 1e-7] [--sorties 480] [--workers 2] [--dpe-out K.json]
     python benchmarks/bench_rare_events.py --only raim|dpe
 
 The DPE part runs ``testbed calibrate-dpe --method importance`` on ``zunz-rwy05-dpe`` (docs/design/dpe.md §6.8) with
-``--sorties`` a set on ``--workers`` processes and prints its wall time, the machine's load average over it, K,
+``--sorties`` a set on ``--workers`` processes and prints its wall time beside the command's own estimate, the
+machine's load average over it, K,
 the measured tail's interval, the held-out check, the seconds a sortie took, and what brute force would take at
 that rate: the full tail calibration of docs/design/dpe.md §6.7 (36 000 sorties a set, still extrapolated) and
 plain sampling to the same relative standard error at 10⁻⁷ ((1 − P)/(P·rse²) epochs).
@@ -36,8 +37,10 @@ import pyarrow.parquet as pq
 
 def dpe(sorties: int, workers: int, out: str | None) -> None:
     """The DPE K at a measured tail: wall time, load, K and the brute-force comparison (module doc)."""
+    from testbed.studies.budget import calibration_estimate
     from testbed.studies.dpe_measured import calibrate_dpe_measured
 
+    estimate = calibration_estimate("zunz-rwy05-dpe", sorties, (), "importance", workers)
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     rec = calibrate_dpe_measured("zunz-rwy05-dpe", sorties=sorties, workers=workers, chunk=max(1, sorties // 14))
@@ -50,7 +53,8 @@ def dpe(sorties: int, workers: int, out: str | None) -> None:
     per_sortie = wall * workers / (2 * sorties)  # process-seconds of wall a sortie, at this run's load
     print(f"DPE K at a measured tail: {2 * sorties} sorties ({rec['trials']} calibration epochs) on {workers} "
           f"processes in {wall / 60:.1f} min; load average {load0:.1f} at the start, {load1[0]:.1f} (1 min) and "
-          f"{load1[1]:.1f} (5 min) at the end, on {os.cpu_count()} cores")
+          f"{load1[1]:.1f} (5 min) at the end, on {os.cpu_count()} cores; the command's estimate "
+          f"{estimate.wall_s / 60:.1f} min (measured / estimated {wall / estimate.wall_s:.2f})")
     for n, f in (rec["strata"] | {"all strata": rec["overall"]}).items():
         r = f["rate"]
         print(f"  {n}: " + (f"K {f['k']:.3f}, tail {r['estimate']:.3g} [{r['interval'][0]:.3g}, {r['interval'][1]:.3g}], "
@@ -85,7 +89,7 @@ def main() -> None:
     ap.add_argument("--start", type=int, default=500, help="sorties of the first run (doubled until done)")
     ap.add_argument("--bound", type=float, default=1e-7, help="the per-epoch upper bound to reach")
     ap.add_argument("--only", choices=("raim", "dpe"), help="run one part (default: both)")
-    ap.add_argument("--sorties", type=int, default=84, help="DPE: sorties a set")
+    ap.add_argument("--sorties", type=int, default=480, help="DPE: sorties a set (480: the shipped record's)")
     ap.add_argument("--workers", type=int, default=2, help="DPE: processes")
     ap.add_argument("--dpe-out", help="DPE: write the K record here too")
     args = ap.parse_args()

@@ -176,7 +176,8 @@ def _cmd_calibrate_dpe(args: argparse.Namespace) -> int:
     trajectories = SET_C_TRAJECTORIES if args.trajectories == ["set-c"] else tuple(args.trajectories or ())
     for t in (args.approach, *trajectories):
         load_approach(t)  # every named approach reads before any work (exit 2 naming the file and key)
-    budget_gate(lambda: calibration_estimate(args.approach, args.sorties, trajectories), args.allow_large)
+    budget_gate(lambda: calibration_estimate(args.approach, args.sorties, trajectories, args.method, args.workers),
+                args.allow_large)
     if args.method == "importance":
         return _calibrate_dpe_measured(args, out, trajectories)
     with OutputSet() as outs:

@@ -35,10 +35,20 @@ def reproduction_estimate(paper: str, full: bool, *, workers: int | str = "auto"
     return None
 
 
-def calibration_estimate(approach: str, sorties: int, trajectories: tuple[str, ...] = ()) -> Estimate:
+#: the DPE solves per epoch of a ground-echo stratum in ``calibrate-dpe --method importance``: the epoch's copies
+#: (2.25 on average at 480 sorties a set, docs/design/dpe.md §6.8) and the pilot on its expected correlograms
+IMPORTANCE_ECHO_SOLVES = 2.25 + 1.0
+
+
+def calibration_estimate(approach: str, sorties: int, trajectories: tuple[str, ...] = (), method: str = "tail",
+                         workers: int = 1) -> Estimate:
     """``testbed calibrate-dpe``: 2 x ``sorties`` sorties of the dpe monitor (calibration and held-out), each a
     whole flight of one of the trajectories (the approach's own by default) with the approach's correlator
-    settings, one trial at a time."""
+    settings, one trial at a time. ``method = "importance"``: the ground-echo strata solve each epoch
+    :data:`IMPORTANCE_ECHO_SOLVES` times, on ``workers`` processes."""
+    from testbed.integrity.batching import available_cores
+    from testbed.studies.dpe_calibration import MULTIPATH
+
     ap = load_approach(approach)
     shapes = []
     for t in trajectories or (approach,):
@@ -50,11 +60,18 @@ def calibration_estimate(approach: str, sorties: int, trajectories: tuple[str, .
     epochs = sum(s.epochs for s in shapes) / len(shapes)
     per_epoch = sum(s.monitor_cost("dpe")[1] + correlator_seconds(s) for s in shapes) / len(shapes)
     kept = 2 * sorties * epochs * 6 * 8.0  # z, e, sigma, m, satellites, VDOP per epoch with a solution
-    memory = {"process and kernels": BASE_BYTES,
-              "one sortie's correlograms": max(correlator_trial_bytes(s) for s in shapes),
-              "the sorties' errors kept for the fit": kept}
-    time = {f"{2 * sorties} sorties x ~{epochs:.0f} epochs": 2 * sorties * epochs * per_epoch,
+    processes, cores, solves = 1, 1, 1.0
+    if method == "importance":
+        echo = sum(m != "off" for m in MULTIPATH) / len(MULTIPATH)
+        solves = 1.0 - echo + echo * IMPORTANCE_ECHO_SOLVES
+        processes = workers
+        cores = max(1, min(workers, available_cores()))
+    memory = {"process and kernels": BASE_BYTES * processes,
+              "one sortie's correlograms": max(correlator_trial_bytes(s) for s in shapes) * processes,
+              "the sorties' errors kept for the fit": kept * solves}
+    time = {f"{2 * sorties} sorties x ~{epochs:.0f} epochs" + (f" x {solves:.2f} solves" if solves != 1.0 else ""):
+            2 * sorties * epochs * per_epoch * solves / cores,
             "flights": sum(s.flight_s for s in shapes) * FLIGHT_SECONDS_PER_S}
     return Estimate(f"calibrate-dpe {approach}", memory, time,
                     (f"fewer sorties (--sorties; now {sorties})", "--work DIR keeps every chunk, so a long run can "
-                     "be stopped and resumed (--resume)"), cores=1)
+                     "be stopped and resumed (--resume)" if method == "tail" else "more --workers"), cores=cores)
