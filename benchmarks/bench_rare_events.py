@@ -43,7 +43,7 @@ def dpe(sorties: int, workers: int, out: str | None) -> None:
     estimate = calibration_estimate("zunz-rwy05-dpe", sorties, (), "importance", workers)
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
-    rec = calibrate_dpe_measured("zunz-rwy05-dpe", sorties=sorties, workers=workers, chunk=max(1, sorties // 14))
+    rec = calibrate_dpe_measured("zunz-rwy05-dpe", sorties=sorties, workers=workers)  # the command's chunks
     wall = time.perf_counter() - t0
     load1 = os.getloadavg()
     if out:
@@ -85,6 +85,9 @@ def dpe(sorties: int, workers: int, out: str | None) -> None:
 
 
 def main() -> None:
+    from testbed.threads import sleep_idle_threads
+
+    sleep_idle_threads()  # as the command sets it: idle OpenMP threads beside the other worker must not spin
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--start", type=int, default=500, help="sorties of the first run (doubled until done)")
     ap.add_argument("--bound", type=float, default=1e-7, help="the per-epoch upper bound to reach")

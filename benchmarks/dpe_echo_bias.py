@@ -57,6 +57,9 @@ def _quantiles(b: np.ndarray) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from testbed.threads import sleep_idle_threads
+
+    sleep_idle_threads()  # as the commands set it: idle OpenMP threads beside the other worker must not spin
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sortie", type=arg_in_range(int, 0, 10**6), default=309)
     ap.add_argument("--set-size", type=arg_in_range(int, 6, 10**6 + 1), default=1440)

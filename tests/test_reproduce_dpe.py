@@ -39,7 +39,8 @@ def _cases(rms_like=1.0, ob_like=1.5, crb=1.0, rms_seed=12.0, ob_seed=60.0, feas
 
 
 def _k_rec(**validation):
-    rec = json.loads((approaches_dir() / "calibration" / "dpe-k.json").read_text())
+    """The shipped tail record (K extrapolated from the measured tails), its held-out check's fields replaced."""
+    rec = json.loads((approaches_dir() / "calibration" / "dpe-k-tail.json").read_text())
     rec["validation"] = {**rec["validation"], **validation}
     return rec
 
@@ -127,8 +128,23 @@ def test_the_factored_vpl_verdict_follows_the_held_out_and_campaign_counts():
     assert v.startswith("does not hold")
 
 
-def test_the_shipped_k_record_revalidates_and_an_edited_one_is_refused(tmp_path):
+def test_the_shipped_measured_k_record_revalidates_and_an_edited_one_is_refused():
+    """The default record (K at a measured tail): valid as written; its K edited, a stratum's K edited, or a held-out
+    rate moved above P_HMI while it still says passed, each refused naming the field."""
     rec = read_k_record(approaches_dir() / "calibration" / "dpe-k.json")
+    assert rec["estimator"] == "importance" and rec["validation"]["passed"] and k_record_problems(rec) == []
+    assert rec["interval"][1] <= rec["p_hmi"]
+    assert any("gives" in p for p in k_record_problems(dict(rec, k=rec["k"] + 0.1)))
+    name = rec["k_from"].removeprefix("stratum '").removesuffix("'")
+    strata = {**rec["strata"], name: {**rec["strata"][name], "k": rec["k"] - 0.05}}
+    assert any("largest of its strata" in p for p in k_record_problems(dict(rec, strata=strata)))
+    rates = {**rec["validation"]["rates"], name: {**rec["validation"]["rates"][name], "estimate": 2 * rec["p_hmi"]}}
+    bad = dict(rec, validation={**rec["validation"], "rates": rates})
+    assert any("validation.passed" in p for p in k_record_problems(bad))
+
+
+def test_the_shipped_tail_k_record_revalidates_and_an_edited_one_is_refused(tmp_path):
+    rec = read_k_record(approaches_dir() / "calibration" / "dpe-k-tail.json")
     assert k_record_problems(rec) == []
     bad = dict(rec, k=rec["k"] * 1.1)  # K no longer σ_z·Q⁻¹(P/2) + |b_z| of its own figures
     assert any("re-derived" in p or "gives" in p for p in k_record_problems(bad))

@@ -211,9 +211,17 @@ def _held_out(k_rec: dict, p_req: float):
         return rate_vs_requirement(v["exceedances"], v["epochs"], p_req, "held-out error above the VPL")
     name, worst = max(v["rates"].items(), key=lambda kv: kv[1]["estimate"])
     text = (f"held-out P(|e| > VPL) at most {worst['estimate']:.2e} (95 % [{worst['interval'][0]:.2e}, "
-            f"{worst['interval'][1]:.2e}], '{name}') over {len(v['rates'])} estimates of {v['epochs']} epochs, "
+            f"{worst['interval'][1]:.2e}], '{name}') over {len(v['rates'])} estimates of {_epochs_of(v)}, "
             f"importance-sampled")
     return Judgement(bool(v["passed"]), text)
+
+
+def _epochs_of(v: dict) -> str:
+    """An importance record's held-out epochs: its all-strata rate's units (an epoch drawn m times is one
+    unit); ``validation.epochs`` counts the draws, copies included, so both are said."""
+    units = v["rates"].get("all strata", {}).get("trials")
+    return (f"{v['epochs']} epochs" if units is None or units == v["epochs"] else
+            f"{units} epochs ({v['epochs']} draws)")
 
 
 def read_k_record(path: Path) -> dict:
@@ -284,8 +292,12 @@ def summary(cases: list[dict], k_rec: dict, hmi: dict[str, list[dict]], trials: 
            f"K = {k_rec['k']:.3f} for P_HMI = {k_rec['p_hmi']:g} per epoch, "
            + (f"measured there by importance sampling ({k_rec['k_from']}: 95 % [{k_rec['interval'][0]:.2e}, "
               f"{k_rec['interval'][1]:.2e}]" if measured else f"extrapolated from the measured tails ({k_rec['k_from']}")
-           + f"; σ_z {k_rec['sigma_z']:.3f}, b_z {k_rec['b_z']:+.3f}; {k_rec['n_calibration']} calibration epochs); "
-           f"held-out {v['epochs']} epochs: {'passed' if v['passed'] else 'FAILED'} ({held}).", ""]
+           + f"; σ_z {k_rec['sigma_z']:.3f}, b_z {k_rec['b_z']:+.3f}; "
+           + (f"{(k_rec['overall'].get('rate') or {}).get('trials', k_rec['n_calibration'])} calibration epochs, "
+              f"{k_rec['trials']} draws); held-out "
+              f"{_epochs_of(v)}" if measured else
+              f"{k_rec['n_calibration']} calibration epochs); held-out {v['epochs']} epochs")
+           + f": {'passed' if v['passed'] else 'FAILED'} ({held}).", ""]
     for n, (name, key) in enumerate(CAMPAIGNS.items()):
         title = {"dpe-vs-raim": "DPE beside GPS RAIM, GPS step from 20 s",
                  "dpe-multipath": "DPE beside GPS RAIM under a ground echo, fault-free"}[name]
