@@ -11,9 +11,9 @@ axes (zero or more). Missing measurements are NaN *and* masked out.
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterable
 from dataclasses import dataclass, field, fields, replace
 from enum import IntEnum
-from collections.abc import Iterable
 from typing import ClassVar
 
 import numpy as np
