@@ -112,14 +112,14 @@ def _held_out_sortie(args):
 
 
 def held_out(set_size: int, stratum: int, k: float, workers: int) -> int:
-    from concurrent.futures import ProcessPoolExecutor
-
+    from testbed.pool import WorkerPool
     from testbed.studies import dpe_measured as dm
     from testbed.studies.dpe_calibration import sortie_plan
 
     js = [j for j in range(set_size) if sortie_plan(j, set_size, 1)[4] == stratum]
-    with ProcessPoolExecutor(workers) as ex:
-        rs = list(ex.map(_held_out_sortie, [(set_size, j) for j in js]))
+    with WorkerPool(workers) as pool:
+        got = dict(pool.unordered(_held_out_sortie, [(i, ((set_size, j),)) for i, j in enumerate(js)]))
+    rs = [got[i] for i in range(len(js))]
     ids = [np.concatenate([r[key] + i * dm.EPOCH_STRIDE for i, r in enumerate(rs)]) for key in ("epoch", "unsolved_epoch")]
     cat = {key: np.concatenate([r[key] for r in rs]) for key in rs[0]}
     t = (np.abs(cat["e"]) - np.abs(cat["m"])) / cat["sigma"]

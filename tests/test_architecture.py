@@ -18,7 +18,7 @@ PKG = Path(__file__).resolve().parents[1] / "testbed"
 
 #: the rooms (packages) and base modules, bottom to top; rooms of one layer do not import each other
 LAYERS = (
-    ("schema", "frames", "heap", "threads", "memo", "kernel_cache", "records", "markdown"),
+    ("schema", "frames", "heap", "threads", "pool", "memo", "kernel_cache", "records", "markdown"),
     ("correlation", "inertial", "resources", "outputs"),
     ("world", "flight"),
     ("sensors",),

@@ -333,7 +333,8 @@ def test_ctrl_c_on_worker_processes_stops_them_keeps_the_stored_chunks_and_resum
     ``kill -INT`` does (to the driver alone, whose workers must still stop at once)."""
     spec = write_spec(tmp_path)
     out = tmp_path / "out"
-    env = dict(os.environ, TESTBED_CAMPAIGN_THROTTLE_S="5.0", PYTHONPATH=str(ROOT))  # each task 5 s: one in flight
+    # each task 5 s: one in flight; a driver that does not stop is made to print its threads' stacks (SIGABRT)
+    env = dict(os.environ, TESTBED_CAMPAIGN_THROTTLE_S="5.0", PYTHONPATH=str(ROOT), PYTHONFAULTHANDLER="1")
     # SIGINT restored to its default in case this suite runs where it is ignored (a background job)
     proc = subprocess.Popen([sys.executable, "-m", "testbed.campaign", "campaign", str(spec), "--out", str(out),
                              "--quiet", "--no-report", "--workers", "2"], cwd=tmp_path, env=env,
@@ -348,7 +349,13 @@ def test_ctrl_c_on_worker_processes_stops_them_keeps_the_stored_chunks_and_resum
             time.sleep(0.02)
         (os.killpg if to == "group" else os.kill)(proc.pid, signal.SIGINT)
         t_int = time.monotonic()
-        said, err = proc.communicate(timeout=30)
+        try:
+            said, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.kill(proc.pid, signal.SIGABRT)
+            said, err = proc.communicate(timeout=30)
+            pytest.fail(f"not stopped 30 s after SIGINT; its processes: {_live_in_group(proc.pid)}; "
+                        f"its stderr, with the stacks at SIGABRT:\n{err.decode()}")
         stopped_s = time.monotonic() - t_int
     finally:
         if proc.poll() is None:

@@ -328,3 +328,29 @@ def test_the_thermal_direction_moves_the_correlogram_as_a_later_delay_does_with_
         s0 = (moved @ direct) / (direct @ direct)
         missed = np.linalg.norm(moved - s0 * direct)
         assert missed > 5 * np.linalg.norm(moved - s * along) and missed > 0.002 * np.linalg.norm(moved)
+
+
+def test_chunks_from_worker_processes_are_put_back_in_their_places_whatever_order_they_finish(monkeypatch):
+    """``run_sets`` with workers: each chunk lands in its set and place though they finish in any order (a
+    stand-in pool finishing them last first; the pool itself is tests/test_pool.py's)."""
+    from testbed.studies.dpe_calibration import CalibrationRun
+
+    class LastFirst:
+        def __init__(self, workers):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return None
+
+        def unordered(self, fn, tasks):
+            for tag, (run, set_key, chunk) in reversed(list(tasks)):
+                yield tag, {"z": np.array([set_key * 100.0 + chunk])}
+
+    monkeypatch.setattr(dm, "WorkerPool", LastFirst)
+    run = CalibrationRun(approach="a", trajectories=("a",), sorties=7, seed=1, chunk=2)
+    sets = dm.run_sets(run, workers=2)
+    assert {name: list(a["z"]) for name, a in sets.items()} == {
+        name: [dm.SET_KEYS[name] * 100.0 + c for c in range(4)] for name in dm.SET_KEYS}

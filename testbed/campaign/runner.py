@@ -16,11 +16,9 @@ processes, or on a Dask cluster, with a progress bar.
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 import os
-import signal
 import time
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +34,7 @@ from testbed.campaign.store import ResultStore
 from testbed.campaign.tables import chunk_tables
 from testbed.heap import keep_freed_memory
 from testbed.integrity.batching import available_cores, physical_memory_bytes
+from testbed.pool import WorkerPool
 from testbed.schema import ConfigError
 from testbed.sim.preflight import check_output_folder
 from testbed.threads import sleep_idle_threads
@@ -97,41 +96,30 @@ def worker_spec(spec_json: str, source: str) -> LoadedSpec:
                    lambda: resolve_spec(CampaignSpec.model_validate_json(spec_json), Path(source)))
 
 
-def _ignore_interrupts() -> None:
-    """A local worker's initializer: Ctrl-C is the driver's to handle (it stops the workers, which print nothing)."""
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+@contextlib.contextmanager
+def _local_results(workers: int):
+    """``(results, workers)``: ``results(fn, tasks)`` runs ``(tag, args)`` tasks on ``workers`` local processes
+    (:class:`testbed.pool.WorkerPool`: spawned, a script calling :func:`run_campaign` with ``workers`` > 1 needs
+    the usual ``if __name__ == "__main__":`` guard) and yields ``(tag, result)`` as they finish. Interrupted,
+    the workers stop at once: the rows in flight were not stored, and a resume runs them."""
+    with WorkerPool(workers) as pool:
+        yield pool.unordered, workers
 
 
 @contextlib.contextmanager
-def _local_pool(workers: int):
-    """``(submit, as_completed, workers)`` of a pool of ``workers`` local processes (spawned: a fresh interpreter
-    each; a script calling :func:`run_campaign` with ``workers`` > 1 needs the usual ``if __name__ == "__main__":``
-    guard). Interrupted, the pool stops at once: the rows in flight were not stored, and a resume runs them."""
-
-    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupts)
-    try:
-        yield (lambda fn, *a, key: pool.submit(fn, *a)), as_completed, workers
-    except BaseException:
-        stop = getattr(pool, "terminate_workers", None)  # Python >= 3.14
-        if stop is not None:
-            stop()
-        else:  # before: the executor's own table of its processes
-            for proc in list((getattr(pool, "_processes", None) or {}).values()):
-                proc.terminate()
-        pool.shutdown(wait=True, cancel_futures=True)
-        raise
-    pool.shutdown()
-
-
-@contextlib.contextmanager
-def _dask_pool(client, own: bool):
-    """``(submit, as_completed, workers)`` of a Dask client (closed at the end if ``own``)."""
+def _dask_results(client, own: bool, name: str):
+    """``(results, workers)`` of a Dask client (closed at the end if ``own``), as :func:`_local_results`; a
+    task ``(k, row)`` has the key ``name-k-<first cell>-<last cell>``."""
     try:
         from distributed import as_completed
 
-        yield ((lambda fn, *a, key: client.submit(fn, *a, pure=False, key=key)), as_completed,
-               sum(client.nthreads().values()))
+        def results(fn, tasks):
+            futs = {client.submit(fn, *args, pure=False, key=f"{name}-{k}-{row[0][0]}-{row[-1][0]}"): (k, row)
+                    for (k, row), args in tasks}
+            for fut in as_completed(list(futs)):
+                yield futs[fut], fut.result()
+
+        yield results, sum(client.nthreads().values())
     finally:
         if own:
             client.close()
@@ -221,12 +209,12 @@ def run_campaign(spec: str | Path | LoadedSpec, out_dir: str | Path, *, resume: 
                 stored(k, row, run_chunk_row(loaded, k, [c for c, _ in row]))
         else:
             sj, src = loaded.spec.model_dump_json(), str(loaded.source)
-            with (_local_pool(n_local) if client is None else _dask_pool(client, own)) as (submit, completed, n):
-                futs = {submit(_worker_row, sj, src, k, [c for c, _ in row],
-                               key=f"campaign-{loaded.hash}-{k}-{row[0][0]}-{row[-1][0]}"): (k, row)
-                        for k, row in worker_tasks(todo, n)}
-                for fut in completed(list(futs)):
-                    stored(*futs[fut], fut.result())
+            pool = (_local_results(n_local) if client is None
+                    else _dask_results(client, own, f"campaign-{loaded.hash}"))
+            with pool as (results, n):
+                tasks = [((k, tuple(row)), (sj, src, k, [c for c, _ in row])) for k, row in worker_tasks(todo, n)]
+                for (k, row), tables in results(_worker_row, tasks):
+                    stored(k, list(row), tables)
     if len(store.done_chunks()) == len(plan):
         store.finalize()
     wall = time.perf_counter() - wall0

@@ -35,7 +35,6 @@ import dataclasses
 import datetime as dt
 import importlib.metadata
 import subprocess
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Callable
 
@@ -45,10 +44,13 @@ from scipy.special import ndtri
 
 from testbed.campaign.sampling import Components, Rate, draw_proposal, log_weights, weighted_rate
 from testbed.campaign.spec import SamplingPlan
+from testbed.heap import keep_freed_memory
 from testbed.integrity.dpe.calibration import DEFAULT_P_HMI, settings_fingerprint
 from testbed.monitors import monitor_options
+from testbed.pool import WorkerPool
 from testbed.studies.dpe_calibration import (CN0_OFFSETS_DB, MULTIPATH, CalibrationRun, calibration_run, chunk_sorties,
                                              run_provenance, vdop)
+from testbed.threads import sleep_idle_threads
 
 #: the mixture's levels ℓ (in σ of the epoch's VPL): the tail is measured from ~4 σ to ~7 σ
 LEVELS = (4.5, 5.5, 6.5)
@@ -341,8 +343,10 @@ def measured_chunk(run: CalibrationRun, set_key: int, chunk: int) -> dict[str, n
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def _chunk_job(args) -> dict[str, np.ndarray]:
-    run, set_key, chunk = args
+def _chunk_job(run: CalibrationRun, set_key: int, chunk: int) -> dict[str, np.ndarray]:
+    """A chunk on a worker process, which runs nothing but these (process settings as the command's)."""
+    keep_freed_memory()
+    sleep_idle_threads()
     return measured_chunk(run, set_key, chunk)
 
 
@@ -351,15 +355,15 @@ def run_sets(run: CalibrationRun, workers: int = 1, progress: Callable[[str], No
     """Both sets' per-epoch arrays; chunks on ``workers`` processes (the result does not depend on them)."""
     say = progress or (lambda _: None)
     jobs = [(run, SET_KEYS[name], c) for name in SET_KEYS for c in range(run.n_chunks)]
-    got = []
+    got: list = [None] * len(jobs)
     if workers <= 1:
         for i, j in enumerate(jobs):
-            got.append(measured_chunk(*j))
+            got[i] = measured_chunk(*j)
             say(f"{i + 1}/{len(jobs)} chunks of {run.chunk} sorties")
-    else:
-        with ProcessPoolExecutor(workers) as ex:
-            for i, res in enumerate(ex.map(_chunk_job, jobs)):
-                got.append(res)
+    else:  # the chunks in the order they finish, each put in its place
+        with WorkerPool(workers) as pool:
+            for i, (j, res) in enumerate(pool.unordered(_chunk_job, enumerate(jobs))):
+                got[j] = res
                 say(f"{i + 1}/{len(jobs)} chunks of {run.chunk} sorties")
     out = {}
     for n, name in enumerate(SET_KEYS):
