@@ -21,7 +21,7 @@ from testbed.integrity.batching import available_cores, physical_memory_bytes
 from testbed.memo import DEFAULT_LIMIT_BYTES
 from testbed.sim.budget import (BASE_BYTES, FLIGHT_SECONDS_PER_S, PARALLEL_EFFICIENCY, Estimate, Shape,
                                 correlator_trial_bytes, feature_bytes, feature_seconds,
-                                sortie_shape, trial_epoch_bytes, trial_epoch_seconds)
+                                sortie_shape, trial_epoch_bytes, trial_epoch_seconds, unshared_parts)
 
 #: the cached GNSS geometry, bytes per sky window, epoch and satellite (positions, lines of sight, masks)
 GEOMETRY_BYTES_PER_SAT = 150.0
@@ -38,8 +38,15 @@ REPORT_ROW_BYTES = 660.0
 #: with common random numbers, the cells of a sweep share their draws and the monitors' shared steps
 #: (testbed.memo): a cell-sortie-epoch cost this many times less than alone in the paper-scale VA-RAIM
 #: reproduction (1.63 h of computing for 1.13e9 cell-sortie-epochs on 2 worker processes; 4.4x what the
-#: per-monitor figures give without sharing)
+#: per-monitor figures give without sharing). Not the parts no cell shares (testbed.sim.budget.unshared_parts:
+#: the correlograms and the DPE, 3x under-estimated when they were divided too)
 SHARED_SPEEDUP = 4.4
+
+
+def _seconds_shared(shape: Shape, speedup: float) -> float:
+    """One thread's seconds per trial-epoch of a cell, the parts its cells can share ``speedup`` times cheaper."""
+    own = unshared_parts(shape)
+    return sum(v if k in own else v / speedup for k, v in trial_epoch_seconds(shape).items())
 
 
 def parallelism(p: int) -> float:
@@ -132,9 +139,8 @@ def campaign_estimate(loaded: LoadedSpec, *, workers: int | str = "auto", schedu
     by_cell: dict[int, int] = {}
     for c, _, n in todo:
         by_cell[c] = by_cell.get(c, 0) + n
-    work = sum(n * shapes[c].epochs * sum(trial_epoch_seconds(shapes[c]).values()) for c, n in by_cell.items())
-    if spec.common_random_numbers and len(cells) > 1:
-        work /= SHARED_SPEEDUP
+    shared = SHARED_SPEEDUP if spec.common_random_numbers and len(cells) > 1 else 1.0
+    work = sum(n * shapes[c].epochs * _seconds_shared(shapes[c], shared) for c, n in by_cell.items())
     trajectories = {str(c.approach.source): s.flight_s for c, s in zip(cells, shapes)}
     setup_s = (sum(trajectories.values()) * FLIGHT_SECONDS_PER_S
                + sum(geometry.values()) / GEOMETRY_BYTES_PER_SAT * GEOMETRY_SECONDS_PER_SAT

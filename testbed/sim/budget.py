@@ -58,10 +58,11 @@ UNKNOWN_MONITOR = MonitorCost((25e3, 0.0, 0.0), (0.75e-3, 0.0, 0.0))
 
 #: correlograms, one pass (the pseudoranges' or a monitor's that reads them): bytes of one trial's synthesis per epoch,
 #: satellite and delay (the float32 statistic, its float64 temporaries), and seconds per trial-epoch and delay
-#: (about 10 satellites in view); the exact synthesis takes this many times longer per block N_b (459 ms
-#: against 7.4 ms an epoch of 10 satellites at N_b = 50)
+#: (zunz-rwy05-dpe with GPS RAIM alone, its one pass: 2.23 ms a trial-epoch over 1001 delays, the satellites the
+#: valley leaves in view); the exact synthesis takes this many times longer per block N_b (459 ms against 7.4 ms
+#: an epoch of 10 satellites at N_b = 50)
 CORRELATOR_BYTES_PER_DELAY = 28.0
-CORRELATOR_SECONDS_PER_DELAY = 8.3e-6
+CORRELATOR_SECONDS_PER_DELAY = 2.23e-6
 EXACT_SECONDS_PER_BLOCK = 1.25
 #: the ground-feature scene: bytes per point while it is built (kept: 24; `testbed check` peaked at 5.7 GB on
 #: 25 million points when it still built it), per point and epoch of the tracker's view search (blocks of 256
@@ -199,6 +200,7 @@ class Shape:
     features: int  # ground-feature scene points (0: no scene)
     correlator_delays: int  # correlogram delays M (0: no correlators synthesised)
     correlator_passes: int  # syntheses per trial-epoch (the pseudoranges and a monitor reading correlators each make one)
+    correlator_monitors: tuple[str, ...]  # the monitors that read the correlograms
     exact_blocks: int  # N_b of the exact synthesis (0: the fast one)
     monitors: tuple[str, ...]
     costs: dict = field(default_factory=dict)  # monitor -> its MonitorCost with the run's options
@@ -237,6 +239,7 @@ def sortie_shape(approach, duration_s: float | None = None) -> Shape:
                  satellites=int(len(set(eph.sat_id.tolist()))), landmarks=len(build_landmarks(c.landmarks)),
                  vision_epochs=int(sortie_s * c.vision.rate_hz) + 1 if vision else 0, features=features,
                  correlator_delays=delay_grid(cs).size if passes else 0, correlator_passes=passes,
+                 correlator_monitors=tuple(m for m in monitors if reads("correlators", (m,), c.monitor)),
                  exact_blocks=cs.n_noncoherent if cs.synthesis == "exact" else 0, monitors=monitors,
                  costs={m: monitor_cost(m, c.monitor) for m in monitors})
 
@@ -258,6 +261,13 @@ def trial_epoch_seconds(shape: Shape) -> dict[str, float]:
     if shape.correlator_passes:
         parts["correlograms"] = correlator_seconds(shape)
     return parts
+
+
+def unshared_parts(shape: Shape) -> set[str]:
+    """The parts of :func:`trial_epoch_seconds` that each campaign cell computes for itself, whatever it has in
+    common with the others (:mod:`testbed.memo` shares no correlogram, nor the output of a monitor that reads
+    them: they depend on the cell's faulted pseudoranges and echo)."""
+    return {"correlograms"} | {f"{m} monitor" for m in shape.correlator_monitors}
 
 
 def correlator_seconds(shape: Shape) -> float:
