@@ -44,3 +44,36 @@ def sigint_self_then(value: int) -> int:
     os.kill(os.getpid(), signal.SIGINT)
     time.sleep(0.2)
     return value
+
+
+def sizes(data: bytes, out_bytes: int) -> tuple[int, bytes]:
+    """A task with arguments and a result larger than a pipe's buffer."""
+    return len(data), b"y" * out_bytes
+
+
+class BrokenStr(Exception):
+    def __init__(self, a, b):
+        super().__init__(a)
+
+    def __str__(self):
+        raise RuntimeError("no text")
+
+
+def fail_broken_str() -> None:
+    raise BrokenStr(1, 2)
+
+
+#: run as a script (tests/test_pool.py): the first pool of a fresh process, a Ctrl-C to the whole process group
+#: while its workers are still starting; the caller ignores it here, the workers must survive it too
+SIGINT_AT_START = """
+import os, signal, sys
+sys.path.insert(0, {tests!r})
+import pool_tasks
+from testbed.pool import WorkerPool
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGINT, lambda *a: None)
+    with WorkerPool(2) as pool:
+        os.killpg(0, signal.SIGINT)
+        print(sorted(pool.unordered(pool_tasks.square, [(i, (i,)) for i in range(4)])))
+"""

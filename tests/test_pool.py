@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -65,7 +68,7 @@ def test_a_result_that_cannot_be_sent_back_is_an_error_not_a_hang():
     assert "in worker process" in str(info.value.__cause__)
 
 
-def test_a_worker_that_dies_is_named_with_its_task_and_the_others_are_stopped():
+def test_a_worker_that_dies_is_named_with_its_task_and_the_others_serve_on():
     with WorkerPool(2) as pool:
         pids = [w.process.pid for w in pool._workers]
         with pytest.raises(WorkerDied, match=r"killed by signal 9\) while running task 'the fatal one'"):
@@ -116,3 +119,45 @@ def test_stopping_early_drops_the_workers_with_a_task_in_flight_and_keeps_the_re
             break  # task 1 (5 s) is still running
         assert len(pool._workers) == 1 and _gone(busy_pids, 1.0)
         assert dict(pool.unordered(pool_tasks.square, [(i, (i,)) for i in range(4)])) == {i: i * i for i in range(4)}
+
+
+def test_a_ctrl_c_while_the_first_pool_of_a_process_starts_kills_no_worker(tmp_path):
+    """The workers start with SIGINT blocked (so a Ctrl-C to the group then is held, and dropped once they ignore
+    it), also in a fresh process, where starting multiprocessing's resource tracker unblocks it in the caller."""
+    script = tmp_path / "start.py"
+    script.write_text(pool_tasks.SIGINT_AT_START.format(tests=str(Path(__file__).parent)))
+    root = str(Path(__file__).resolve().parents[1])
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                         start_new_session=True, env=dict(os.environ, PYTHONPATH=root))
+    assert out.returncode == 0 and "Traceback" not in out.stderr, out.stderr
+    assert out.stdout.strip() == "[(0, 0), (1, 1), (2, 4), (3, 9)]"
+
+
+def test_arguments_and_results_larger_than_a_pipe_s_buffer_go_through():
+    with WorkerPool(2) as pool:
+        got = dict(pool.unordered(pool_tasks.sizes, [(i, (b"x" * (3 << 20), 5 << 20)) for i in range(4)]))
+    assert {k: (n, len(b)) for k, (n, b) in got.items()} == {i: (3 << 20, 5 << 20) for i in range(4)}
+
+
+def test_an_exception_whose_text_fails_still_comes_back_as_an_error():
+    with pytest.raises(RuntimeError, match="BrokenStr"):
+        with WorkerPool(1) as pool:
+            list(pool.unordered(pool_tasks.fail_broken_str, [(0, ())]))
+
+
+def test_arguments_that_cannot_be_sent_fail_here_and_cost_no_worker():
+    with WorkerPool(1) as pool:
+        with pytest.raises(Exception, match="pickle"):
+            list(pool.unordered(pool_tasks.square, [(0, (lambda: 1,))]))
+        assert dict(pool.unordered(pool_tasks.square, [(0, (2,))])) == {0: 4}
+
+
+def test_a_second_iteration_while_one_is_open_is_refused():
+    """Its tasks in flight would answer the other's: refused, not mixed up."""
+    with WorkerPool(2) as pool:
+        first = pool.unordered(pool_tasks.pid_after, [(0, (0.0,)), (1, (2.0,))])
+        next(first)
+        with pytest.raises(RuntimeError, match="another iteration"):
+            next(pool.unordered(pool_tasks.square, [(0, (1,))]))
+        first.close()
+        assert dict(pool.unordered(pool_tasks.square, [(0, (3,))])) == {0: 9}
