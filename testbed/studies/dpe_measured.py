@@ -361,7 +361,7 @@ def run_sets(run: CalibrationRun, workers: int = 1, progress: Callable[[str], No
             got[i] = measured_chunk(*j)
             say(f"{i + 1}/{len(jobs)} chunks of {run.chunk} sorties")
     else:  # the chunks in the order they finish, each put in its place
-        with WorkerPool(workers) as pool:
+        with WorkerPool(min(workers, len(jobs))) as pool:  # no more processes than chunks
             for i, (j, res) in enumerate(pool.unordered(_chunk_job, enumerate(jobs))):
                 got[j] = res
                 say(f"{i + 1}/{len(jobs)} chunks of {run.chunk} sorties")
